@@ -1,0 +1,312 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Actions and F-curves <-> numpy, on Blender 4.2 LTS through 5.0.
+
+Three action models are handled here so that nothing else in the add-on has to care:
+
+* **4.2 / 4.3 (legacy)**: ``Action.fcurves`` / ``Action.groups`` / ``Action.id_root``; an ID uses
+  ``AnimData.action`` only.
+* **4.4 / 4.5 (slotted, with a legacy proxy)**: an action holds ``slots`` and ``layers``; F-curves
+  live in a channelbag (``layer.strips[0].channelbag(slot)``) and an ID uses ``AnimData.action``
+  *plus* ``AnimData.action_slot``. ``Action.fcurves`` still exists but only as a proxy for the first
+  slot, so it is not used.
+* **5.0**: as 4.4, and the legacy ``Action.fcurves`` / ``groups`` / ``id_root`` are gone.
+
+Keys are written in bulk: ``keyframe_points.add(n)`` + ``foreach_set("co", ...)`` +
+``foreach_set("interpolation", ...)`` (an enum accepts its integer values through ``foreach_set``)
+and one ``FCurve.update()`` per curve; there is no Python loop over keyframes. Keys are read back with
+``foreach_get("co", ...)``.
+
+Policy on actions: writing always makes a *new* action and never modifies or removes an existing
+one. Both the new action and the one it replaces get a fake user (see
+:func:`new_action_with_curves`), so every take survives a save and reload until the user clears
+the fake user.
+"""
+
+import bpy
+import numpy as np
+
+from ..solvers.errors import FacecapError
+
+#: True where actions are slotted/layered (Blender 4.4 and later).
+LAYERED_ACTIONS = bpy.app.version >= (4, 4, 0)
+
+_INTERPOLATION_ITEMS = {
+    item.identifier: item.value
+    for item in bpy.types.Keyframe.bl_rna.properties["interpolation"].enum_items
+}
+
+
+def unique_action_name(base):
+    """Return ``base`` if no action has that name, otherwise ``base.001``, ``base.002``, ...
+
+    Parameters
+    ----------
+    base : str
+        Wanted name, e.g. ``"take01"``. Must be non-empty.
+
+    Returns
+    -------
+    str
+        A name no action in ``bpy.data.actions`` (local or linked) currently has.
+    """
+    if not isinstance(base, str) or not base:
+        raise FacecapError(f"`base` must be a non-empty string; got {base!r}")
+    taken = {action.name for action in bpy.data.actions}
+    if base not in taken:
+        return base
+    counter = 1
+    while f"{base}.{counter:03d}" in taken:
+        counter += 1
+    return f"{base}.{counter:03d}"
+
+
+def ensure_animation_data(id_data):
+    """Return ``id_data.animation_data``, creating it if needed.
+
+    Parameters
+    ----------
+    id_data : bpy.types.ID
+        Any animatable data-block (``bpy.types.Key``, ``bpy.types.Object``, ...).
+
+    Returns
+    -------
+    bpy.types.AnimData
+    """
+    anim = id_data.animation_data
+    if anim is None:
+        anim = id_data.animation_data_create()
+    return anim
+
+
+def new_action_with_curves(
+    id_data, *, name, curves, frames, values, group=None, interpolation="LINEAR"
+):
+    """Create a new action keyed from arrays and assign it (and its slot) to ``id_data``.
+
+    Parameters
+    ----------
+    id_data : bpy.types.ID
+        The animated data-block, e.g. a shape-key data-block (``mesh.shape_keys``) or an Object.
+    name : str
+        Wanted action name; made unique with :func:`unique_action_name`.
+    curves : sequence of (str, int)
+        ``(data_path, array_index)`` per curve, relative to ``id_data``,
+        e.g. ``('key_blocks["jawOpen"].value', 0)``. Must be unique.
+    frames : array_like, shape (F,)
+        Frame numbers, finite and strictly increasing.
+    values : array_like, shape (F, C)
+        Value of curve ``c`` at ``frames[f]``; NaN means "no key at this frame for this curve".
+        A curve whose column is all NaN gets no F-curve at all (an empty F-curve would only clutter
+        the editors).
+    group : str or None, optional
+        F-curve group (channel group) for all curves. Default: no group.
+    interpolation : str, optional
+        Keyframe interpolation, one of ``bpy.types.Keyframe.interpolation``'s identifiers. Default
+        ``"LINEAR"``: dense solved data is reproduced exactly between frames and gaps left by NaN
+        are bridged by straight lines (no Bezier overshoot). Handles stay ``AUTO_CLAMPED``.
+
+    Returns
+    -------
+    bpy.types.Action
+        The new action, assigned to ``id_data.animation_data`` (with a slot for ``id_data``'s ID
+        type on Blender 4.4+).
+
+    Notes
+    -----
+    The action previously assigned to ``id_data`` (if any) is left untouched; if nothing else uses
+    it after the switch it gets ``use_fake_user = True`` so a save does not drop it. The new action
+    gets a fake user as well: a solved take is the result of a long computation, and browsing to
+    another action in the UI must not silently discard it on the next save. To delete old takes,
+    clear their fake user (shield icon) and purge.
+
+    Raises
+    ------
+    FacecapError
+        On malformed ``curves``/``frames``/``values``, an unknown ``interpolation``, or when
+        ``id_data``'s animation data is in NLA tweak mode (its action cannot be replaced then).
+    """
+    frames, values, curves = _check_key_arrays(curves, frames, values)
+    if interpolation not in _INTERPOLATION_ITEMS:
+        raise FacecapError(
+            f"`interpolation` must be one of {sorted(_INTERPOLATION_ITEMS)}; got {interpolation!r}"
+        )
+    if id_data.animation_data is not None and id_data.animation_data.use_tweak_mode:
+        raise FacecapError(
+            f"'{id_data.name}' is in NLA tweak mode; exit tweak mode before keying a new action"
+        )
+
+    action = bpy.data.actions.new(unique_action_name(name))
+    action.use_fake_user = True
+    if LAYERED_ACTIONS:
+        slot = action.slots.new(id_type=id_data.id_type, name=id_data.name)
+        channelbag = _ensure_channelbag(action, slot)
+    else:
+        slot = None
+        channelbag = None
+        action.id_root = id_data.id_type
+
+    interp = _INTERPOLATION_ITEMS[interpolation]
+    for column, (data_path, index) in enumerate(curves):
+        keep = ~np.isnan(values[:, column])
+        count = int(np.count_nonzero(keep))
+        if count == 0:
+            continue
+        fcurve = _new_fcurve(action, channelbag, data_path, index, group)
+        co = np.empty((count, 2), dtype=np.float32)
+        co[:, 0] = frames[keep]
+        co[:, 1] = values[keep, column]
+        points = fcurve.keyframe_points
+        points.add(count)
+        points.foreach_set("co", co.ravel())
+        points.foreach_set("interpolation", np.full(count, interp, dtype=np.int32))
+        fcurve.update()
+
+    _assign(id_data, action, slot)
+    return action
+
+
+def action_fcurves(action, id_data=None):
+    """List the F-curves of ``action`` that animate ``id_data``, on any Blender version.
+
+    Parameters
+    ----------
+    action : bpy.types.Action
+    id_data : bpy.types.ID or None, optional
+        If given (Blender 4.4+), only the F-curves of the slot ``id_data`` uses: its assigned slot
+        when ``action`` is its action, otherwise the first slot for its ID type. If None, all
+        F-curves of all slots. Ignored before 4.4, where an action has a single set of F-curves.
+
+    Returns
+    -------
+    list of bpy.types.FCurve
+    """
+    if action is None:
+        return []
+    if not LAYERED_ACTIONS:
+        return list(action.fcurves)
+    if id_data is None:
+        slot_handles = None
+    else:
+        slot = _slot_for(action, id_data)
+        if slot is None:
+            return []
+        slot_handles = {slot.handle}
+    result = []
+    for layer in action.layers:
+        for strip in layer.strips:
+            for channelbag in getattr(strip, "channelbags", ()):
+                if slot_handles is None or channelbag.slot_handle in slot_handles:
+                    result.extend(channelbag.fcurves)
+    return result
+
+
+def read_curves(id_data, curves):
+    """Read back the keys of ``curves`` on ``id_data``'s assigned action, in bulk.
+
+    Parameters
+    ----------
+    id_data : bpy.types.ID
+    curves : sequence of (str, int)
+        ``(data_path, array_index)`` per curve, as for :func:`new_action_with_curves`.
+
+    Returns
+    -------
+    frames : ndarray, shape (F,), float64
+        Sorted union of the key frames of all requested curves.
+    values : ndarray, shape (F, C), float64
+        Key value of curve ``c`` at ``frames[f]``; NaN where that curve has no key at that frame,
+        and for a whole column when the curve does not exist. With no action assigned, F = 0.
+    """
+    curves = _check_curves(curves)
+    anim = id_data.animation_data
+    action = None if anim is None else anim.action
+    by_path = {(fc.data_path, fc.array_index): fc for fc in action_fcurves(action, id_data)}
+    keys = []
+    for path_index in curves:
+        fcurve = by_path.get(path_index)
+        if fcurve is None:
+            keys.append(np.zeros((0, 2), dtype=np.float32))
+            continue
+        co = np.empty(2 * len(fcurve.keyframe_points), dtype=np.float32)
+        fcurve.keyframe_points.foreach_get("co", co)
+        keys.append(co.reshape(-1, 2))
+    frames = np.unique(np.concatenate([k[:, 0] for k in keys])) if keys else np.zeros(0)
+    values = np.full((frames.size, len(curves)), np.nan)
+    for column, co in enumerate(keys):
+        rows = np.searchsorted(frames, co[:, 0])
+        values[rows, column] = co[:, 1]
+    return frames.astype(np.float64), values
+
+
+# ---------------------------------------------------------------------------------------------
+# private helpers
+
+
+def _check_curves(curves):
+    try:
+        checked = [(str(path), int(index)) for path, index in curves]
+    except (TypeError, ValueError):
+        raise FacecapError(
+            f"`curves` must be a sequence of (data_path, array_index) pairs; got {curves!r}"
+        ) from None
+    if len(set(checked)) != len(checked):
+        raise FacecapError("`curves` must not repeat a (data_path, array_index) pair")
+    return checked
+
+
+def _check_key_arrays(curves, frames, values):
+    curves = _check_curves(curves)
+    frames = np.asarray(frames, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if frames.ndim != 1:
+        raise FacecapError(f"`frames` must have shape (F,); got {frames.shape}")
+    if values.shape != (frames.size, len(curves)):
+        raise FacecapError(
+            f"`values` must have shape (F, C) = ({frames.size}, {len(curves)}); got {values.shape}"
+        )
+    if not np.all(np.isfinite(frames)):
+        raise FacecapError("`frames` must be finite")
+    if frames.size > 1 and not np.all(np.diff(frames) > 0):
+        raise FacecapError("`frames` must be strictly increasing")
+    if np.any(np.isinf(values)):
+        raise FacecapError("`values` must be finite or NaN (no key); got an infinity")
+    return frames, values, curves
+
+
+def _ensure_channelbag(action, slot):
+    """Layer 0 / strip 0 channelbag for ``slot`` (4.5 has no bpy_extras helper for this)."""
+    layer = action.layers[0] if len(action.layers) else action.layers.new("Layer")
+    strip = layer.strips[0] if len(layer.strips) else layer.strips.new(type="KEYFRAME")
+    return strip.channelbag(slot, ensure=True)
+
+
+def _new_fcurve(action, channelbag, data_path, index, group):
+    if channelbag is None:
+        if group is None:
+            return action.fcurves.new(data_path, index=index)
+        return action.fcurves.new(data_path, index=index, action_group=group)
+    fcurve = channelbag.fcurves.new(data_path, index=index)
+    if group is not None:
+        action_group = channelbag.groups.get(group) or channelbag.groups.new(group)
+        fcurve.group = action_group
+    return fcurve
+
+
+def _slot_for(action, id_data):
+    anim = id_data.animation_data
+    if anim is not None and anim.action == action and anim.action_slot is not None:
+        return anim.action_slot
+    for slot in action.slots:
+        if slot.target_id_type == id_data.id_type:
+            return slot
+    return None
+
+
+def _assign(id_data, action, slot):
+    anim = ensure_animation_data(id_data)
+    previous = anim.action
+    anim.action = action
+    if slot is not None:
+        anim.action_slot = slot
+    if previous is not None and previous.users == 0:
+        previous.use_fake_user = True
