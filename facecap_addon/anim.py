@@ -13,8 +13,8 @@ Three action models are handled here so that nothing else in the add-on has to c
 
 Keys are written in bulk: ``keyframe_points.add(n)`` + ``foreach_set("co", ...)`` +
 ``foreach_set("interpolation", ...)`` (an enum accepts its integer values through ``foreach_set``)
-and one ``FCurve.update()`` per curve; there is no Python loop over keyframes. Keys are read back with
-``foreach_get("co", ...)``.
+and one ``FCurve.update()`` per curve; there is no Python loop over keyframes. Keys are read back
+with ``foreach_get("co", ...)``.
 
 Policy on actions: writing always makes a *new* action and never modifies or removes an existing
 one. Both the new action and the one it replaces get a fake user (see

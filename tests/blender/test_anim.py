@@ -116,8 +116,9 @@ def test_object_evaluates_keyed_value_after_frame_set(face):
     for frame_index in (0, 4, 11):
         scene.frame_set(int(frames[frame_index]))
         for column, shape in enumerate(SHAPES):
-            assert key.key_blocks[shape].value == pytest.approx(values[frame_index, column], abs=1e-6)
-        # The evaluated mesh moves vertex 0 by the weights (each shape is a unit offset on one axis).
+            expected = values[frame_index, column]
+            assert key.key_blocks[shape].value == pytest.approx(expected, abs=1e-6)
+        # The evaluated mesh moves vertex 0 by the weights (each shape is a unit offset on an axis).
         evaluated = face.evaluated_get(bpy.context.evaluated_depsgraph_get())
         co = np.array(evaluated.data.vertices[0].co)
         assert_allclose(co, values[frame_index], atol=1e-5)
