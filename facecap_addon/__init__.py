@@ -1,0 +1,1 @@
+"""The Blender layer: settings, panels, scene <-> numpy adapters and the headless CLI."""

@@ -1,0 +1,81 @@
+"""Scene settings (``Scene.facecap``): everything a re-solve needs is saved in the .blend."""
+
+import bpy
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
+
+STRATEGY_ITEMS = [
+    ("geometric", "Geometric", "Solve marker deltas against the character's shape keys at the bound vertices"),
+]
+UNIT_ITEMS = [
+    ("mm", "Millimetres", "Marker coordinates are in millimetres"),
+    ("cm", "Centimetres", "Marker coordinates are in centimetres"),
+    ("m", "Metres", "Marker coordinates are in metres"),
+]
+
+
+def _is_face_mesh(_self, obj):
+    return obj.type == "MESH" and obj.data.shape_keys is not None
+
+
+class FACECAP_PG_marker(bpy.types.PropertyGroup):
+    """One imported marker; ``name`` is the marker name."""
+
+    stable: BoolProperty(
+        name="Stable",
+        description="Moves only with the head (forehead, temples, nose bridge): used to remove head motion",
+        default=False,
+    )
+    gaps: IntProperty(name="Gaps", description="Missing samples in the take", default=0)
+
+
+class FACECAP_PG_settings(bpy.types.PropertyGroup):
+    """Settings of the current take."""
+
+    target: PointerProperty(
+        name="Character",
+        type=bpy.types.Object,
+        poll=_is_face_mesh,
+        description="Mesh with shape keys and vertex groups named after the markers",
+    )
+    take_name: StringProperty(name="Take", description="Name of the take; new actions are named after it")
+    markers_path: StringProperty(name="Markers", subtype="FILE_PATH", description="Marker file of the take")
+    units: EnumProperty(name="Units", items=UNIT_ITEMS, default="mm")
+    fps: FloatProperty(name="FPS", default=60.0, min=1.0, description="Frame rate of the capture")
+    marker_collection: PointerProperty(
+        name="Marker Collection", type=bpy.types.Collection, description="Collection holding the take's marker empties"
+    )
+    markers: CollectionProperty(type=FACECAP_PG_marker)
+    active_marker: IntProperty(default=0)
+    neutral_first: IntProperty(name="First", default=1, description="First frame of the neutral / T-pose range")
+    neutral_last: IntProperty(name="Last", default=30, description="Last frame of the neutral / T-pose range")
+    strategy: EnumProperty(name="Strategy", items=STRATEGY_ITEMS, default="geometric")
+    regularisation: FloatProperty(
+        name="Regularisation",
+        default=1e-3,
+        min=0.0,
+        precision=5,
+        description="Ridge weight relative to the basis scale: larger values keep weights smaller and steadier",
+    )
+    head_object: PointerProperty(name="Head Motion", type=bpy.types.Object, description="Empty keyed with the removed head motion")
+    flagged_frames: IntProperty(name="Flagged Frames", default=0, description="Frames the last stabilisation could not fit")
+    last_action: StringProperty(name="Last Action", description="Action created by the last solve")
+    last_report: StringProperty(name="Last Result", description="Summary of the last solve")
+
+
+CLASSES = (FACECAP_PG_marker, FACECAP_PG_settings)
+
+
+def register_properties():
+    bpy.types.Scene.facecap = PointerProperty(type=FACECAP_PG_settings)
+
+
+def unregister_properties():
+    del bpy.types.Scene.facecap

@@ -1,0 +1,97 @@
+"""Scene <-> solver adapters for a take: marker empties, settings, keyed results."""
+
+import numpy as np
+
+from ..solvers.errors import FacecapError
+from ..solvers.markers import UNIT_SCALE, MarkerSet
+from ..solvers.pipeline import RetargetSettings
+from ..solvers.transforms import matrix_to_euler_xyz
+from . import anim
+
+LOCATION = [("location", 0), ("location", 1), ("location", 2)]
+
+
+def retarget_settings(settings):
+    """Frozen solver settings from the scene's PropertyGroup."""
+    stable = tuple(m.name for m in settings.markers if m.stable)
+    return RetargetSettings(
+        stable_markers=stable,
+        neutral_frames=(settings.neutral_first, settings.neutral_last),
+        strategy=settings.strategy,
+        regularisation=settings.regularisation,
+    )
+
+
+def create_marker_empties(scene, markers, take_name):
+    """One animated empty per marker (metres) in a new collection ``FaceCap <take>``; gaps get no key."""
+    import bpy
+
+    metres = markers.to_units("m") if markers.units in UNIT_SCALE else markers
+    coll = bpy.data.collections.new(f"FaceCap {take_name}")
+    scene.collection.children.link(coll)
+    for m, name in enumerate(markers.names):
+        empty = bpy.data.objects.new(name, None)
+        empty.empty_display_type = "SPHERE"
+        empty.empty_display_size = 0.002
+        empty["facecap_marker"] = name
+        coll.objects.link(empty)
+        first = np.flatnonzero(~np.isnan(metres.positions[:, m, 0]))
+        if first.size:
+            empty.location = metres.positions[first[0], m]
+        anim.new_action_with_curves(
+            empty,
+            name=f"FC {take_name} {name}",
+            curves=LOCATION,
+            frames=metres.frames,
+            values=metres.positions[:, m, :],
+        )
+    return coll
+
+
+def markers_from_collection(settings):
+    """Read the take's marker empties back into a MarkerSet (metres); missing keys are gaps."""
+    coll = settings.marker_collection
+    if coll is None:
+        raise FacecapError("no marker collection: import a take first")
+    objects = {o.get("facecap_marker", o.name): o for o in coll.objects if o.type == "EMPTY"}
+    names = [m.name for m in settings.markers if m.name in objects] or sorted(objects)
+    if not names:
+        raise FacecapError(f"collection '{coll.name}' holds no marker empties")
+    tracks = [anim.read_curves(objects[n], LOCATION) for n in names]
+    frames = np.unique(np.concatenate([f for f, _ in tracks]))
+    if frames.size == 0:
+        raise FacecapError(f"the marker empties in '{coll.name}' have no keys")
+    pos = np.full((frames.size, len(names), 3), np.nan)
+    for m, (f, v) in enumerate(tracks):
+        pos[np.searchsorted(frames, f), m] = v
+    return MarkerSet(tuple(names), frames, pos, fps=settings.fps, units="m", source=f"collection '{coll.name}'")
+
+
+def key_weights(obj, result, action_name):
+    """Key the solved weights on ``obj``'s shape keys in a new action; returns the action."""
+    key = obj.data.shape_keys
+    if key is None:
+        raise FacecapError(f"object '{obj.name}' has no shape keys")
+    curves = [(f'key_blocks["{n}"].value', 0) for n in result.shape_names]
+    return anim.new_action_with_curves(
+        key, name=action_name, curves=curves, frames=result.frames, values=result.weights
+    )
+
+
+def key_head_motion(scene, stab, name):
+    """An empty keyed with the removed head motion (location + unwrapped Euler rotation)."""
+    import bpy
+
+    head = bpy.data.objects.new(name, None)
+    head.empty_display_type = "ARROWS"
+    head.empty_display_size = 0.05
+    scene.collection.objects.link(head)
+    Rh = stab.head_rotations()  # raw = Rh @ stabilised - Rh @ t
+    loc = -np.einsum("fij,fj->fi", Rh, stab.translations)
+    # Unwrapped so a head turning past 180 deg never flips between frames.
+    euler = np.unwrap(matrix_to_euler_xyz(Rh), axis=0)
+    values = np.concatenate([loc, euler], axis=1)
+    values[stab.flagged] = np.nan
+    curves = LOCATION + [("rotation_euler", 0), ("rotation_euler", 1), ("rotation_euler", 2)]
+    anim.new_action_with_curves(head, name=name, curves=curves, frames=stab.markers.frames, values=values)
+    return head

@@ -1,0 +1,125 @@
+"""Take configs: a TOML file describing one retarget (paths resolve against the file's folder)."""
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import ConfigError
+from .markers import UNIT_SCALE
+from .pipeline import STRATEGIES, RetargetSettings
+
+# section -> {key: (type(s), required)}
+SCHEMA = {
+    "target": {"blend": (str, False), "object": (str, True)},
+    "source": {"markers": (str, True), "units": (str, False), "fps": ((int, float), False)},
+    "binding": {"vertex_groups": (bool, False)},
+    "stabilise": {"markers": (list, True)},
+    "neutral": {"frames": (list, True)},
+    "solve": {"strategy": (str, False), "regularisation": ((int, float), False)},
+    "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False)},
+}
+
+
+@dataclass(frozen=True)
+class TakeConfig:
+    """A parsed take config with absolute paths."""
+
+    path: Path
+    target_blend: Path | None
+    target_object: str
+    markers_path: Path
+    units: str
+    fps: float
+    bind_vertex_groups: bool
+    settings: RetargetSettings
+    output_blend: Path | None
+    output_weights: Path | None
+    output_report: Path | None
+    action_name: str
+
+
+def load_take_config(path):
+    """Parse and validate a take config.
+
+    Raises
+    ------
+    ConfigError naming the file and the offending [section] key.
+    """
+    path = Path(path).resolve()
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError("config file not found", path=path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", path=path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read: {exc}", path=path) from None
+    _check_schema(path, data)
+    base = path.parent
+
+    def get(section, key, default=None):
+        return data.get(section, {}).get(key, default)
+
+    def resolve(value):
+        return None if value is None else (base / value).resolve()
+
+    units = get("source", "units", "m")
+    if units not in UNIT_SCALE:
+        raise ConfigError(f"units must be one of {sorted(UNIT_SCALE)}; got '{units}'", path=path, key="source.units")
+    fps = float(get("source", "fps", 60.0))
+    if fps <= 0:
+        raise ConfigError(f"fps must be positive; got {fps}", path=path, key="source.fps")
+    stable = get("stabilise", "markers")
+    if not all(isinstance(s, str) for s in stable) or len(stable) < 3:
+        raise ConfigError("expected a list of at least 3 marker names", path=path, key="stabilise.markers")
+    frames = get("neutral", "frames")
+    if len(frames) != 2 or not all(isinstance(v, int) for v in frames) or frames[1] < frames[0]:
+        raise ConfigError(f"expected [first, last] frame numbers; got {frames}", path=path, key="neutral.frames")
+    strategy = get("solve", "strategy", "geometric")
+    if strategy not in STRATEGIES:
+        raise ConfigError(f"unknown strategy '{strategy}'; available: {', '.join(STRATEGIES)}", path=path, key="solve.strategy")
+    reg = float(get("solve", "regularisation", 1e-3))
+    if reg < 0:
+        raise ConfigError(f"must be >= 0; got {reg}", path=path, key="solve.regularisation")
+    if not get("binding", "vertex_groups", True):
+        raise ConfigError("only vertex-group binding is available (set vertex_groups = true)", path=path, key="binding.vertex_groups")
+    markers_path = resolve(get("source", "markers"))
+    return TakeConfig(
+        path=path,
+        target_blend=resolve(get("target", "blend")),
+        target_object=get("target", "object"),
+        markers_path=markers_path,
+        units=units,
+        fps=fps,
+        bind_vertex_groups=True,
+        settings=RetargetSettings(
+            stable_markers=tuple(stable),
+            neutral_frames=(frames[0], frames[1]),
+            strategy=strategy,
+            regularisation=reg,
+        ),
+        output_blend=resolve(get("output", "blend")),
+        output_weights=resolve(get("output", "weights")),
+        output_report=resolve(get("output", "report")),
+        action_name=get("output", "action", markers_path.stem),
+    )
+
+
+def _check_schema(path, data):
+    for section, body in data.items():
+        if section not in SCHEMA:
+            raise ConfigError(f"unknown section [{section}]; known: {', '.join(SCHEMA)}", path=path)
+        if not isinstance(body, dict):
+            raise ConfigError(f"[{section}] must be a table", path=path)
+        for key, value in body.items():
+            if key not in SCHEMA[section]:
+                raise ConfigError(
+                    f"unknown key; known keys: {', '.join(SCHEMA[section])}", path=path, key=f"{section}.{key}"
+                )
+            kind, _ = SCHEMA[section][key]
+            if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+                raise ConfigError(f"wrong type {type(value).__name__}", path=path, key=f"{section}.{key}")
+    for section, keys in SCHEMA.items():
+        for key, (_, required) in keys.items():
+            if required and key not in data.get(section, {}):
+                raise ConfigError("missing required key", path=path, key=f"{section}.{key}")

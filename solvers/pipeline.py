@@ -1,0 +1,158 @@
+"""The retarget pipeline, Blender-free: markers + character basis -> shape-key weights.
+
+source -> units -> stabilise (rigid, stable markers) -> neutral -> align actor to character
+(similarity on the neutral) -> strategy solve -> diagnostics.
+"""
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import FacecapError
+from .neutral import neutral_from_frames
+from .stabilise import stabilise_rigid
+from .strategies.geometric import GeometricOptions, solve_geometric
+from .transforms import fit_similarity
+
+STRATEGIES = ("geometric",)
+
+
+@dataclass(frozen=True)
+class RetargetSettings:
+    """Everything a retarget needs besides the data; built from the take config or the sidebar."""
+
+    stable_markers: tuple
+    neutral_frames: tuple  # (first, last), inclusive
+    strategy: str = "geometric"
+    regularisation: float = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class RetargetResult:
+    """Solved weights plus everything needed to judge them."""
+
+    frames: np.ndarray  # (F,)
+    shape_names: tuple
+    weights: np.ndarray  # (F, K), NaN where a frame could not be solved
+    marker_names: tuple  # markers used in the solve
+    residual_rms: np.ndarray  # (F,) RMS marker residual in character space (metres)
+    marker_residual: np.ndarray  # (M,) RMS residual per marker over the take (metres)
+    at_bound: np.ndarray  # (F,)
+    stabilise: object  # StabiliseResult
+    alignment: object  # Similarity, actor neutral -> character bound points
+    alignment_residual: np.ndarray  # (M,) per-marker distance after alignment (metres)
+    warnings: tuple = ()
+    timings: dict = field(default_factory=dict)
+
+    def report(self):
+        """A JSON-ready summary (lengths in millimetres)."""
+        ok = np.isfinite(self.residual_rms)
+        return {
+            "frames": {"count": int(self.frames.size), "first": float(self.frames[0]), "last": float(self.frames[-1])},
+            "shapes": list(self.shape_names),
+            "markers_used": list(self.marker_names),
+            "stable_markers": list(self.stabilise.stable_names),
+            "residual_rms_mm": {
+                "mean": float(np.mean(self.residual_rms[ok]) * 1e3) if ok.any() else None,
+                "max": float(np.max(self.residual_rms[ok]) * 1e3) if ok.any() else None,
+                "per_frame": [None if not np.isfinite(v) else round(float(v) * 1e3, 6) for v in self.residual_rms],
+            },
+            "marker_residual_mm": {n: round(float(v) * 1e3, 6) for n, v in zip(self.marker_names, self.marker_residual)},
+            "stabilise": {
+                "rms_mm_mean": float(np.nanmean(self.stabilise.rms) * 1e3) if np.isfinite(self.stabilise.rms).any() else None,
+                "flagged_frames": {str(k): v for k, v in self.stabilise.flag_reasons.items()},
+            },
+            "alignment": {
+                "scale": self.alignment.scale,
+                "rotation": self.alignment.rotation,
+                "translation_m": self.alignment.translation,
+                "residual_mm": {n: round(float(v) * 1e3, 6) for n, v in zip(self.marker_names, self.alignment_residual)},
+            },
+            "weights_at_bound_mean": float(np.mean(self.at_bound)),
+            "timings_s": self.timings,
+            "warnings": list(self.warnings),
+        }
+
+
+def retarget(markers, basis, settings):
+    """Retarget a marker take onto a character basis.
+
+    Parameters
+    ----------
+    markers : MarkerSet, 3D, any of m/cm/mm
+    basis : Basis, the character's shapes at the bound points (metres)
+    settings : RetargetSettings
+
+    Returns
+    -------
+    RetargetResult
+    """
+    if settings.strategy not in STRATEGIES:
+        raise FacecapError(f"unknown strategy '{settings.strategy}'; available: {', '.join(STRATEGIES)}")
+    timings = {}
+    notes = []
+    t0 = time.perf_counter()
+    markers = markers.to_units("m")
+
+    used = tuple(n for n in basis.marker_names if n in set(markers.names))
+    unbound = [n for n in markers.names if n not in set(basis.marker_names)]
+    absent = [n for n in basis.marker_names if n not in set(markers.names)]
+    if unbound:
+        notes.append(f"{len(unbound)} marker(s) have no binding on the character and are not solved from: {unbound}")
+    if absent:
+        notes.append(f"{len(absent)} bound point(s) have no marker in the take: {absent}")
+    if len(used) < 3:
+        raise FacecapError(
+            f"only {len(used)} marker(s) of the take are bound on the character; "
+            f"take markers: {list(markers.names)[:10]}..., bound: {list(basis.marker_names)[:10]}..."
+        )
+
+    stab = stabilise_rigid(markers, settings.stable_markers, reference_frames=settings.neutral_frames)
+    if stab.flagged.any():
+        notes.append(f"{int(stab.flagged.sum())} frame(s) could not be stabilised and are left unsolved")
+    timings["stabilise"] = time.perf_counter() - t0
+
+    first, last = settings.neutral_frames
+    neutral_all = neutral_from_frames(stab.markers, first, last)
+    take = stab.markers.subset(used)
+    neutral = neutral_all[markers.index(used)]
+    sub = basis.subset_markers(used)
+
+    t1 = time.perf_counter()
+    align = fit_similarity(neutral, sub.neutral)
+    align_res = np.linalg.norm(align.apply(neutral) - sub.neutral, axis=1)
+    deltas = align.apply_vectors(take.positions - neutral[None])
+    timings["align"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        solved = solve_geometric(sub, deltas, options=GeometricOptions(settings.regularisation))
+    timings["solve"] = time.perf_counter() - t2
+    notes.extend(solved.warnings)
+
+    F, M, D = deltas.shape
+    res = solved.residuals.reshape(F, M, D)
+    vis = ~np.isnan(deltas[:, :, 0])
+    sq = (res**2).sum(axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        residual_rms = np.sqrt(sq.sum(axis=1) / vis.sum(axis=1))
+        marker_residual = np.sqrt(sq.sum(axis=0) / vis.sum(axis=0))
+    residual_rms[~solved.solved] = np.nan
+    timings["total"] = time.perf_counter() - t0
+    return RetargetResult(
+        frames=markers.frames,
+        shape_names=basis.shape_names,
+        weights=solved.weights,
+        marker_names=used,
+        residual_rms=residual_rms,
+        marker_residual=marker_residual,
+        at_bound=solved.at_bound,
+        stabilise=stab,
+        alignment=align,
+        alignment_residual=align_res,
+        warnings=tuple(notes),
+        timings={k: round(v, 6) for k, v in timings.items()},
+    )

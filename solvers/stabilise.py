@@ -1,0 +1,123 @@
+"""Head stabilisation: remove rigid head motion using markers that do not deform with expression."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import FacecapError
+from .markers import MarkerSet
+from .transforms import fit_rigid_batch
+
+
+@dataclass(frozen=True, eq=False)
+class StabiliseResult:
+    """Stabilised markers plus the head motion that was removed.
+
+    ``markers`` holds every marker in the reference head frame; frames whose fit is not
+    determined (``flagged``) are all gaps there, never silently wrong.
+    The head pose of frame f is ``x_raw = R_f^T (x_stab - t_f)``, i.e. the inverse of
+    (``rotations[f]``, ``translations[f]``).
+    """
+
+    markers: MarkerSet
+    stable_names: tuple
+    reference: np.ndarray  # (S, 3) stable markers in the reference head frame
+    rotations: np.ndarray  # (F, 3, 3) raw -> stabilised
+    translations: np.ndarray  # (F, 3)
+    rms: np.ndarray  # (F,) residual of the stable markers after the fit (NaN where flagged)
+    flagged: np.ndarray  # (F,) bool
+    flag_reasons: dict = field(default_factory=dict)  # frame number -> reason
+
+    def head_rotations(self):
+        """Head rotation per frame relative to the reference (raw = R_head @ stabilised + ...)."""
+        return self.rotations.transpose(0, 2, 1)
+
+
+def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3):
+    """Remove rigid head motion with a closed-form fit of ``stable`` markers per frame.
+
+    Parameters
+    ----------
+    markers : MarkerSet (3D)
+    stable : sequence of str
+        Markers that move only with the head (forehead, temples, nose bridge); >= 3, spread out.
+    reference_frames : (first, last) or None
+        Inclusive frame range whose robust average defines the reference head pose
+        (normally the neutral / T-pose). Default: the first frame where all stable markers
+        are visible.
+    min_points : int
+        Frames with fewer usable stable markers are flagged.
+
+    Returns
+    -------
+    StabiliseResult
+    """
+    if markers.dim != 3:
+        raise FacecapError(f"{markers.source}: rigid stabilisation needs 3D markers; got {markers.dim}D")
+    stable = tuple(stable)
+    if len(stable) < 3:
+        raise FacecapError(f"stabilise: need at least 3 stable markers; got {len(stable)} {list(stable)}")
+    idx = markers.index(stable, what="stable marker")
+    pts = markers.positions[:, idx]  # (F, S, 3)
+    vis = ~np.isnan(pts[:, :, 0])
+
+    reference = _reference_pose(markers, pts, vis, stable, reference_frames)
+    R, t, rank_ok = fit_rigid_batch(pts, reference, vis.astype(np.float64))
+    count = vis.sum(axis=1)
+    flagged = (count < min_points) | ~rank_ok
+    reasons = {}
+    for f in np.flatnonzero(flagged):
+        frame = _frame_label(markers.frames[f])
+        if count[f] < min_points:
+            reasons[frame] = f"only {int(count[f])} of {len(stable)} stable markers visible (need {min_points})"
+        else:
+            reasons[frame] = "stable markers are (nearly) collinear"
+
+    moved = np.einsum("fij,fmj->fmi", R, markers.positions) + t[:, None, :]
+    moved[flagged] = np.nan
+    fitted = np.einsum("fij,fsj->fsi", R, pts) + t[:, None, :]
+    err = np.linalg.norm(fitted - reference[None], axis=2)
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
+    rms[flagged] = np.nan
+    return StabiliseResult(
+        markers=markers.with_positions(moved),
+        stable_names=stable,
+        reference=reference,
+        rotations=R,
+        translations=t,
+        rms=rms,
+        flagged=flagged,
+        flag_reasons=reasons,
+    )
+
+
+def _frame_label(frame):
+    return int(frame) if float(frame).is_integer() else float(frame)
+
+
+def _reference_pose(markers, pts, vis, stable, reference_frames):
+    """Robust reference: frames of the range aligned to their first complete frame, then the median."""
+    if reference_frames is None:
+        candidates = np.arange(markers.n_frames)
+    else:
+        first, last = reference_frames
+        candidates = np.flatnonzero(markers.frame_range_mask(first, last))
+        if candidates.size == 0:
+            raise FacecapError(
+                f"stabilise: reference frames {first}-{last} are outside the take "
+                f"({_frame_label(markers.frames[0])}-{_frame_label(markers.frames[-1])})"
+            )
+    complete = candidates[vis[candidates].all(axis=1)]
+    if complete.size == 0:
+        missing = [stable[i] for i in np.flatnonzero(~vis[candidates].any(axis=0))]
+        detail = f"; never visible there: {missing}" if missing else ""
+        raise FacecapError(
+            "stabilise: no frame in the reference range shows all stable markers" + detail
+        )
+    anchor = pts[complete[0]]
+    sel = candidates if reference_frames is not None else complete[:1]
+    R, t, ok = fit_rigid_batch(pts[sel], anchor, vis[sel].astype(np.float64))
+    aligned = np.einsum("fij,fsj->fsi", R, pts[sel]) + t[:, None, :]
+    aligned[~ok] = np.nan
+    return np.nanmedian(aligned, axis=0)
