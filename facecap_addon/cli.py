@@ -1,0 +1,219 @@
+"""Headless command line, shared by ``python -m facecap`` and ``blender -b -P facecap_addon/cli.py -- ...``.
+
+Commands
+--------
+retarget --config take.toml   solve a take onto its character and write .blend / weights CSV / report
+demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
+
+Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
+stderr naming the file and field; there is no traceback for those.
+"""
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE_CONFIG = ROOT / "sample_blends" / "sample_take.toml"
+
+
+def _progress(message):
+    print(f"facecap: {message}", file=sys.stderr, flush=True)
+
+
+def run_retarget(config, *, quiet=False):
+    """Run a take config end to end; returns (RetargetResult, output paths dict)."""
+    import warnings
+
+    from ..solvers.errors import ConfigError, InputFileError
+    from ..solvers.fileio import write_json_atomic
+    from ..solvers.io_csv import read_markers_csv, write_weights_csv
+    from ..solvers.pipeline import retarget
+
+    say = (lambda _m: None) if quiet else _progress
+    timings = {}
+    t0 = time.perf_counter()
+    say(f"[1/5] reading markers {config.markers_path}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        markers = read_markers_csv(config.markers_path, units=config.units, fps=config.fps)
+    notes = [str(w.message) for w in caught]
+    timings["read"] = time.perf_counter() - t0
+
+    import bpy
+
+    from . import anim
+    from .scene_data import basis_from_object
+    from .take import key_weights
+
+    t1 = time.perf_counter()
+    if config.target_blend is not None:
+        if not config.target_blend.is_file():
+            raise InputFileError(config.target_blend, "file not found (config [target] blend)")
+        say(f"[2/5] opening {config.target_blend}")
+        bpy.ops.wm.open_mainfile(filepath=str(config.target_blend), load_ui=False)
+    source_blend = Path(bpy.data.filepath).resolve() if bpy.data.filepath else None
+    if config.output_blend is not None and source_blend is not None and config.output_blend == source_blend:
+        raise ConfigError("must differ from the input .blend (inputs are never overwritten)", path=config.path, key="output.blend")
+    obj = bpy.data.objects.get(config.target_object)
+    if obj is None:
+        raise ConfigError(f"no object named '{config.target_object}' in the .blend", path=config.path, key="target.object")
+    basis = basis_from_object(obj, markers.names)
+    timings["load_character"] = time.perf_counter() - t1
+
+    say(f"[3/5] solving {markers.n_frames} frames x {basis.n_shapes} shapes from {basis.n_markers} markers")
+    result = retarget(markers, basis, config.settings)
+
+    t3 = time.perf_counter()
+    say("[4/5] keying")
+    action = key_weights(obj, result, anim.unique_action_name(config.action_name))
+    timings["key"] = time.perf_counter() - t3
+
+    say("[5/5] writing outputs")
+    outputs = {"action": action.name}
+    if config.output_weights is not None:
+        write_weights_csv(config.output_weights, result.frames, result.shape_names, result.weights)
+        outputs["weights"] = str(config.output_weights)
+    if config.output_blend is not None:
+        _save_blend_atomic(config.output_blend)
+        outputs["blend"] = str(config.output_blend)
+    timings["total"] = time.perf_counter() - t0
+    if config.output_report is not None:
+        report = result.report()
+        report["config"] = str(config.path)
+        report["markers_file"] = str(config.markers_path)
+        report["outputs"] = outputs
+        report["warnings"] = notes + report["warnings"]
+        report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
+        write_json_atomic(config.output_report, report)
+        outputs["report"] = str(config.output_report)
+    for note in notes + list(result.warnings):
+        say(f"warning: {note}")
+    return result, outputs
+
+
+def _save_blend_atomic(path):
+    import bpy
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.blend")
+    try:
+        bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, compress=True)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _cmd_retarget(args):
+    from ..solvers.config import load_take_config
+
+    config = load_take_config(args.config)
+    result, outputs = run_retarget(config)
+    import numpy as np
+
+    print(
+        f"retargeted {result.frames.size} frames, {len(result.shape_names)} shapes; "
+        f"mean residual {np.nanmean(result.residual_rms) * 1e3:.3f} mm"
+    )
+    for key, value in outputs.items():
+        print(f"  {key}: {value}")
+    return 0
+
+
+def _cmd_demo(args):
+    import dataclasses
+
+    import numpy as np
+
+    from ..solvers.config import load_take_config
+    from ..solvers.io_csv import read_weights_csv
+    from ..solvers.transforms import rotation_angle_deg
+
+    out = Path(args.out).resolve()
+    config = load_take_config(SAMPLE_CONFIG)
+    config = dataclasses.replace(
+        config,
+        output_blend=out / "sample_take_retargeted.blend",
+        output_weights=out / "sample_take_weights_solved.csv",
+        output_report=out / "sample_take_report.json",
+    )
+    result, outputs = run_retarget(config)
+
+    _, names, truth = read_weights_csv(ROOT / "sample_blends" / "sample_take_weights.csv")
+    order = [names.index(n) for n in result.shape_names]
+    err = result.weights - truth[:, order]
+    rmse = float(np.sqrt(np.nanmean(err**2)))
+    worst = np.nanmax(np.abs(err), axis=0)
+    k = int(np.argmax(worst))
+
+    from scipy.spatial.transform import Rotation
+
+    head = np.loadtxt(ROOT / "sample_blends" / "sample_take_head.csv", delimiter=",", skiprows=1)
+    true_rot = Rotation.from_rotvec(head[:, 1:4], degrees=True).as_matrix()
+    ok = ~result.stabilise.flagged
+    rot_err = rotation_angle_deg(result.stabilise.head_rotations()[ok] @ true_rot[ok].transpose(0, 2, 1))
+
+    print("facecap demo: sample take -> sample character (strategy: geometric)")
+    print(f"  frames {result.frames.size}, shapes {len(result.shape_names)}, markers {len(result.marker_names)}")
+    print(f"  weights vs ground truth: RMSE {rmse:.4f}, max |error| {worst[k]:.4f} ({result.shape_names[k]})")
+    print(f"  head rotation vs ground truth: median {np.median(rot_err):.3f} deg, max {rot_err.max():.3f} deg")
+    print(f"  actor-to-character scale {result.alignment.scale:.4f}")
+    print(f"  mean residual {np.nanmean(result.residual_rms) * 1e3:.3f} mm, solve {result.timings['solve']:.3f} s")
+    for key, value in outputs.items():
+        print(f"  {key}: {value}")
+    return 0
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog="facecap", description="Performance-driven facial retargeting.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("retarget", help="retarget a take described by a TOML config")
+    p.add_argument("--config", required=True, help="take config (.toml)")
+    p.set_defaults(func=_cmd_retarget)
+    p = sub.add_parser("demo", help="retarget the bundled sample take and print its accuracy")
+    p.add_argument("--out", default="facecap-demo", help="output folder (default: ./facecap-demo)")
+    p.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def main(argv=None):
+    """Entry point; returns the process exit status."""
+    from ..solvers.errors import FacecapError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except FacecapError as exc:
+        print(f"facecap: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("facecap: interrupted", file=sys.stderr)
+        return 130
+
+
+def _script_package():
+    """The package this file belongs to, when run as a script (``blender -b -P .../cli.py``)."""
+    import importlib.util
+
+    for name, module in list(sys.modules.items()):
+        if name.startswith("bl_ext.") and name.endswith(".facecap") and Path(module.__file__).parent == ROOT:
+            return module
+    spec = importlib.util.spec_from_file_location("facecap", ROOT / "__init__.py", submodule_search_locations=[str(ROOT)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["facecap"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+if __name__ == "__main__":
+    # Blender passes its own arguments; ours follow "--".
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
+    package = _script_package()
+    import importlib
+
+    cli = importlib.import_module(package.__name__ + ".facecap_addon.cli")
+    sys.exit(cli.main(argv))

@@ -1,0 +1,163 @@
+"""Every operator through bpy.ops.facecap.*, as a user would run them, on a scene built here."""
+
+import sys
+from pathlib import Path
+
+import bpy
+import numpy as np
+import pytest
+
+from conftest import build_character
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
+from synthetic_face import make_basis  # noqa: E402
+
+from facecap.facecap_addon import anim  # noqa: E402
+from facecap.solvers.io_csv import write_markers_csv  # noqa: E402
+from facecap.solvers.synth import synthesize_take  # noqa: E402
+
+N_FRAMES = 240
+
+
+@pytest.fixture
+def take(empty_scene, tmp_path):
+    basis, stable = make_basis()
+    rng = np.random.default_rng(7)
+    weights = np.clip(rng.uniform(-0.4, 1.0, size=(N_FRAMES, basis.n_shapes)), 0, 1)
+    weights[:60] = 0.0
+    synth = synthesize_take(basis, weights, stable=stable, noise_sigma=0.0, gap_fraction=0.03, seed=5)
+    path = tmp_path / "take01.csv"
+    write_markers_csv(path, synth.markers)
+    obj = build_character(basis)
+    return {"path": path, "obj": obj, "weights": weights, "basis": basis, "stable": stable, "synth": synth}
+
+
+def _import(take):
+    assert bpy.ops.facecap.import_markers(filepath=str(take["path"]), units="mm", fps=60.0) == {"FINISHED"}
+
+
+def _solved_values(obj, names):
+    _, values = anim.read_curves(obj.data.shape_keys, [(f'key_blocks["{n}"].value', 0) for n in names])
+    return values
+
+
+def test_import_markers_creates_keyed_empties(take):
+    _import(take)
+    s = bpy.context.scene.facecap
+    assert s.take_name == "take01"
+    assert s.marker_collection is not None
+    assert len(s.marker_collection.objects) == take["basis"].n_markers
+    assert sorted(m.name for m in s.markers if m.stable) == sorted(take["stable"])
+    frames, values = anim.read_curves(bpy.data.objects["m3"], [("location", i) for i in range(3)])
+    raw = take["synth"].markers.positions[:, take["basis"].marker_names.index("m3")] * 1e-3
+    keyed = np.isin(take["synth"].markers.frames, frames)
+    np.testing.assert_array_equal(keyed, ~np.isnan(raw[:, 0]))  # gaps stay gaps (no key), not zeros
+    np.testing.assert_allclose(values, raw[keyed], atol=1e-6)
+
+
+def test_import_bad_csv_reports_file_and_line(empty_scene, tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,a_x,a_y,a_z\n1,0,0,0\n2,0,oops,0\n")
+    with pytest.raises(RuntimeError, match=r"bad\.csv, line 3, field 'a_y'"):
+        bpy.ops.facecap.import_markers(filepath=str(bad))
+
+
+def test_set_neutral_validates_range(take):
+    _import(take)
+    assert bpy.ops.facecap.set_neutral(first=1, last=50) == {"FINISHED"}
+    s = bpy.context.scene.facecap
+    assert (s.neutral_first, s.neutral_last) == (1, 50)
+    with pytest.raises(RuntimeError, match="outside the take"):
+        bpy.ops.facecap.set_neutral(first=5000, last=5010)
+    assert (s.neutral_first, s.neutral_last) == (1, 50)
+
+
+def test_stabilise_keys_head_motion(take):
+    _import(take)
+    bpy.ops.facecap.set_neutral(first=1, last=50)
+    assert bpy.ops.facecap.stabilise() == {"FINISHED"}
+    head = bpy.context.scene.facecap.head_object
+    assert head is not None
+    frames, rot = anim.read_curves(head, [("rotation_euler", i) for i in range(3)])
+    assert frames.size == N_FRAMES
+    assert np.abs(rot[:50]).max() < 1e-6  # still during the neutral hold
+    assert np.abs(rot).max() > np.radians(5)  # the synthetic head does move
+    assert np.abs(np.diff(rot, axis=0)).max() < np.radians(5)  # unwrapped: no flips
+
+
+def test_stabilise_needs_three_stable_markers(take):
+    _import(take)
+    for m in bpy.context.scene.facecap.markers:
+        m.stable = False
+    assert not bpy.ops.facecap.stabilise.poll()
+
+
+def test_solve_keys_new_action_and_keeps_the_previous(take):
+    _import(take)
+    s = bpy.context.scene.facecap
+    s.target = take["obj"]
+    bpy.ops.facecap.set_neutral(first=1, last=50)
+    s.regularisation = 0.0
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    key = take["obj"].data.shape_keys
+    first = key.animation_data.action
+    assert first.name == "take01"
+    names = take["basis"].shape_names
+    solved = _solved_values(take["obj"], names)
+    assert solved.shape == (N_FRAMES, len(names))
+    np.testing.assert_allclose(solved, take["weights"], atol=1e-4)  # float32 mesh, noise-free take
+
+    before = [fc.keyframe_points[10].co[1] for fc in anim.action_fcurves(first, key)]
+    s.regularisation = 0.05
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    second = key.animation_data.action
+    assert second != first and second.name == "take01.001"
+    assert first.name in bpy.data.actions
+    after = [fc.keyframe_points[10].co[1] for fc in anim.action_fcurves(first, key)]
+    assert before == after, "the first take's keys must be untouched"
+    assert s.last_action == "take01.001"
+
+
+def test_solve_without_character_is_greyed_out(take):
+    _import(take)
+    assert not bpy.ops.facecap.solve.poll()
+
+
+class _Layout:
+    """A stand-in for UILayout that checks every property and operator the panels reference."""
+
+    def __init__(self):
+        self.calls = []
+
+    def prop(self, data, name, **_kw):
+        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
+        self.calls.append(("prop", name))
+
+    def operator(self, idname, **_kw):
+        module, op = idname.split(".")
+        assert hasattr(getattr(bpy.ops, module), op), f"no operator {idname}"
+        self.calls.append(("operator", idname))
+
+    def template_list(self, list_type, _list_id, data, prop, active_data, active_prop, **_kw):
+        assert hasattr(bpy.types, list_type)
+        assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
+        self.calls.append(("template_list", prop))
+
+    def label(self, **_kw):
+        self.calls.append(("label", _kw.get("text")))
+
+    def row(self, **_kw):
+        return self
+
+    column = box = row
+
+
+@pytest.mark.parametrize("panel", ["FACECAP_PT_take", "FACECAP_PT_stabilise", "FACECAP_PT_solve"])
+def test_panels_draw(take, panel):
+    _import(take)
+    cls = getattr(bpy.types, panel)
+    assert cls.bl_category == "FaceCap" and cls.bl_space_type == "VIEW_3D"
+    layout = _Layout()
+    stub = type("PanelStub", (), {"layout": layout})()
+    cls.draw(stub, bpy.context)
+    assert layout.calls
