@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputFileError
+from .errors import FacecapError, InputFileError
 from .fileio import atomic_path
 from .markers import MarkerSet
 
@@ -178,6 +178,10 @@ def _format_frames(frames):
 
 
 def _write_table(path, header, frames, values, delimiter):
+    if values.ndim != 2 or values.shape != (len(frames), len(header) - 1):
+        raise FacecapError(
+            f"{path}: values must have shape ({len(frames)}, {len(header) - 1}); got {values.shape}"
+        )
     frame_text = _format_frames(np.asarray(frames, dtype=np.float64))
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
         fh.write(delimiter.join(header) + "\n")

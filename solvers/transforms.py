@@ -105,8 +105,11 @@ def fit_similarity(source, target, weights=None, *, allow_scale=True):
 
 def rotation_angle_deg(R):
     """Rotation angle(s) in degrees of rotation matrices (..., 3, 3)."""
-    tr = np.trace(R, axis1=-2, axis2=-1)
-    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
+    R = np.asarray(R)
+    cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    axis = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    sin = np.linalg.norm(axis, axis=-1) / 2.0
+    return np.degrees(np.arctan2(sin, cos))  # accurate near 0, unlike arccos
 
 
 def matrix_to_euler_xyz(R):
