@@ -87,6 +87,7 @@ def main(argv=None):
 
     geo = build_character()
     bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.context.preferences.filepaths.save_version = 0   # no character.blend1 backup
     obj = _new_mesh_object(geo)
     _add_shape_keys(obj, geo)
     _add_vertex_groups(obj, geo)
