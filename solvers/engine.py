@@ -1,32 +1,54 @@
-"""The weight solve shared by every strategy: bounded, regularised, masked least squares.
+"""The weight solve shared by every strategy: bounded, regularised, sparse, smooth least squares.
 
-For each frame f::
+For frames f = 0..F-1 with observed coordinates d_f (P,), basis A (P, K) and weights w_f (K,)::
 
-    minimise  || m_f * (A w_f - d_f) ||^2 + lam * ||w_f||^2   subject to  lower <= w_f <= upper
+    minimise  sum_f  sum_p c_fp (A w_f - d_f)_p^2            data, c = confidence (0 = gap)
+                   + w_f' R w_f                               R = regularisation + symmetry
+                   + sum_k l1_k |w_fk|                        sparsity
+                   + mu1 ||w_f - w_(f-1)||^2                  smoothing (first difference)
+                   + mu2 ||w_(f+1) - 2 w_f + w_(f-1)||^2      smoothing (second difference)
+    subject to  lo_fk <= w_fk <= hi_fk,  w_fk = lock_fk where a shape is locked.
 
-where ``m_f`` are per-coordinate weights (0 for gaps). Frames are solved together: the
-normal matrices are built once per distinct mask pattern and a primal-dual active-set
-iteration (Hintermueller, Ito & Kunisch 2002) runs on all frames at once with batched
-linear solves. Frames where it does not settle fall back to scipy's exact BVLS.
+In the notation of issue 3, ``c = W_f^2`` (a confidence multiplies the *squared* residual) and
+``R = lambda2 G'G`` (``regularisation`` is that matrix, or its diagonal, or a scalar times I).
+
+With ``smoothing == (0, 0)`` frames are independent and solved together by the batched
+active-set kernel of ``engine_frames``; otherwise the whole take is one problem, solved by
+``engine_temporal`` (active set over the take, banded Cholesky of the block-pentadiagonal system).
 """
 
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .engine_frames import exact_frame, solve_frames  # noqa: F401  (exact_frame re-exported for tests)
 from .errors import FacecapError
+
+#: Default smoothing (mu1, mu2) for ``relative=True``, in units of the basis scale (see ``basis_scale``).
+#: Chosen by ``tests/core/test_engine_temporal.py``: a 3-frame lip closure at 60 fps keeps >= 90 % of
+#: its peak while the second-difference jitter of a noisy take drops by >= 50 %.
+DEFAULT_SMOOTHING = (0.0, 0.05)
+
+#: Ridge floor, relative to the basis scale, added to every solve so unobservable shapes stay at
+#: their smallest-norm value instead of making the system singular.
+RIDGE_FLOOR = 1e-12
 
 
 @dataclass(frozen=True, eq=False)
 class SolveResult:
     """Weights and diagnostics of a solve.
 
-    weights : (F, K), NaN for frames with no data
-    residuals : (F, P), mask * (A w - d), 0 where masked
-    at_bound : (F,) number of weights at a bound
-    solved : (F,) bool, False where a frame had no data
+    weights : (F, K), NaN for frames with no data (per-frame mode; locked/held shapes keep their value)
+    residuals : (F, P), ``A w - d`` where the coordinate was observed (confidence > 0), 0 elsewhere
+    at_bound : (F,) number of solved (not locked/held) weights at a bound
+    solved : (F,) bool, False where a frame had no data (temporal mode solves every frame
+        as long as the take has data: gaps are bridged by the smoothing)
     iterations : int, active-set iterations used
-    fallback_frames : int, frames handed to the exact BVLS fallback
+    fallback_frames : int, frames handed to the exact per-frame fallback
+    warnings : tuple of str
+    converged : bool, False if the temporal active set did not settle within ``max_iter``
+        (the weights are then the last iterate: feasible, but not optimal)
+    mode : "per-frame" or "temporal"
     """
 
     weights: np.ndarray
@@ -36,132 +58,100 @@ class SolveResult:
     iterations: int = 0
     fallback_frames: int = 0
     warnings: tuple = field(default_factory=tuple)
+    converged: bool = True
+    mode: str = "per-frame"
 
 
-def solve_bounded(A, D, *, mask=None, lower=0.0, upper=1.0, regularisation=0.0, max_iter=40, chunk=4096):
-    """Solve the bounded, regularised least-squares problem for every frame.
+def basis_scale(A):
+    """Mean squared column norm of ``A``: the unit of every penalty when ``relative=True``."""
+    A = np.asarray(A, dtype=np.float64)
+    return float(np.mean(np.einsum("pk,pk->k", A, A))) or 1.0
+
+
+def solve_bounded(
+    A,
+    D,
+    *,
+    mask=None,
+    lower=0.0,
+    upper=1.0,
+    regularisation=0.0,
+    sparsity=0.0,
+    locks=None,
+    regions=None,
+    symmetry=(),
+    symmetry_weight=0.0,
+    smoothing=(0.0, 0.0),
+    relative=False,
+    dims=None,
+    max_iter=40,
+    chunk=4096,
+):
+    """Solve the bounded, regularised least-squares problem of the module docstring.
 
     Parameters
     ----------
     A : ndarray, shape (P, K)
         Basis matrix: column k is shape k's effect on the P observed coordinates.
     D : ndarray, shape (F, P)
-        Observed coordinates (deltas from neutral); NaN entries are treated as missing.
-    mask : ndarray, shape (F, P), optional
-        Non-negative weight per coordinate (confidence); 0 drops it. Default: 1 where D is finite.
-    lower, upper : float or ndarray (K,)
-        Bounds on the weights.
-    regularisation : float
-        Ridge weight ``lam`` (absolute, in the units of ``A^T A``).
+        Observed coordinates (deltas from neutral); NaN entries are missing (confidence 0).
+    mask : ndarray, optional
+        Confidence c >= 0 per coordinate, multiplying the squared residual; 0 drops it.
+        Shape (F, P) or (P,); with ``dims`` also (F, M) or (M,) per marker (P = M * dims).
+        Default: 1 where D is finite.
+    lower, upper : float, ndarray (K,) or (F, K)
+        Bounds on the weights (default [0, 1], the shape-key slider range).
+    regularisation : float, ndarray (K,) or (K, K)
+        Ridge ``R``: a scalar (R = r I), per-shape weights (R = diag(r), i.e. lambda2 * g_k^2
+        for a diagonal G), or a symmetric positive semi-definite matrix (lambda2 G'G). With
+        ``regions``, cross terms between shapes of different regions are ignored.
+    sparsity : float or ndarray (K,)
+        L1 weight ``l1_k`` (>= 0). On shapes with lower >= 0 it is a linear term (pulls weights to
+        their lower bound); on shapes whose range contains 0 it is the true |w| (an extra
+        "kink" state at 0 in the active set).
+    locks : mapping {k: value}, ndarray (K,) or (F, K), optional
+        Shapes held at the given values (NaN = free). (F, K) holds per-frame values, e.g. an
+        animator's keys. Locked values are held exactly, even outside [lower, upper].
+    regions : sequence of (shapes, coords), optional
+        Each region solves its shapes (indices into K) from its coordinates only (indices into
+        P, or a boolean (P,) mask). Regions must not share shapes. Shapes in no region never
+        move: they are held at their lock value or, if unlocked, at clip(0, lower, upper). The
+        known contribution of held/locked shapes is subtracted from every region's data; the
+        shapes of other regions are not seen by a region.
+    symmetry : sequence of (a, b) shape index pairs
+        Left/right pairs coupled by ``symmetry_weight * (w_a - w_b)^2`` (same region required).
+    symmetry_weight : float
+    smoothing : (mu1, mu2)
+        Temporal weights of the first and second difference. (0, 0) = independent frames.
+        Anything else solves the whole take as one problem (frames without data are bridged).
+        ``DEFAULT_SMOOTHING`` holds a tested default for ``relative=True``.
+    relative : bool
+        If True, ``regularisation``, ``sparsity``, ``symmetry_weight`` and ``smoothing`` are in
+        units of ``basis_scale(A)`` (mean squared column norm), hence unit-free: the same values
+        work for millimetre and metre rigs. If False (default, backward compatible) they are
+        absolute, in the units of A'A.
+    dims : int, optional
+        Coordinates per marker (2 or 3), needed only for per-marker ``mask`` shapes.
     max_iter : int
-        Active-set iterations before the exact fallback takes over.
+        Active-set iterations before the exact fallback (per-frame) or before giving up
+        (temporal: ``converged=False`` and a warning).
     chunk : int
-        Frames solved per batch (bounds memory to chunk * K * K floats).
+        Frames per batch in per-frame mode (memory ~ chunk * K * K floats).
 
     Returns
     -------
     SolveResult
+
+    Notes
+    -----
+    A ridge floor of ``RIDGE_FLOOR * basis_scale(A)`` is always added to R so that shapes the
+    markers cannot see get a unique (smallest-norm) value.
     """
-    A = np.asarray(A, dtype=np.float64)
-    D = np.asarray(D, dtype=np.float64)
-    if A.ndim != 2:
-        raise FacecapError(f"`A` must have shape (P, K); got {A.shape}")
-    P, K = A.shape
-    if D.ndim != 2 or D.shape[1] != P:
-        raise FacecapError(f"`D` must have shape (F, {P}); got {D.shape}")
-    if not np.isfinite(A).all():
-        raise FacecapError("`A` must be finite")
-    finite = np.isfinite(D)
-    m = finite.astype(np.float64) if mask is None else np.where(finite, np.asarray(mask, dtype=np.float64), 0.0)
-    if m.shape != D.shape or np.any(m < 0):
-        raise FacecapError(f"`mask` must be non-negative with shape {D.shape}")
-    lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (K,)).copy()
-    hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (K,)).copy()
-    if np.any(lo > hi):
-        raise FacecapError("`lower` must not exceed `upper`")
-    if regularisation < 0:
-        raise FacecapError(f"`regularisation` must be >= 0; got {regularisation}")
+    from . import engine_setup
 
-    # A tiny ridge floor keeps unobservable shapes (zero columns) at their smallest-norm value.
-    scale = float(np.mean(np.einsum("pk,pk->k", A, A))) or 1.0
-    lam = regularisation + 1e-12 * scale
-
-    Dz = np.where(m > 0, D, 0.0)
-    G = (m * Dz) @ A  # (F, K) = A^T diag(m_f) d_f, since m is 0/1 or a weight applied once
-    patterns, inverse = np.unique(m, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    Hp = np.einsum("pk,np,pl->nkl", A, patterns, A, optimize=True) + lam * np.eye(K)
-
-    F = D.shape[0]
-    W = np.full((F, K), np.nan)
-    solved = m.sum(axis=1) > 0
-    iters = 0
-    fallback = 0
-    frames = np.flatnonzero(solved)
-    for start in range(0, frames.size, chunk):
-        idx = frames[start : start + chunk]
-        H = Hp[inverse[idx]]
-        w, it, unsettled = _pdas(H, G[idx], lo, hi, max_iter)
-        if unsettled.size:
-            w[unsettled] = _bvls_fallback(H[unsettled], G[idx][unsettled], lo, hi)
-            fallback += unsettled.size
-        W[idx] = w
-        iters = max(iters, it)
-
-    Wz = np.nan_to_num(W)
-    residuals = m * (Wz @ A.T - Dz)
-    tol = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
-    at_bound = ((np.abs(Wz - lo) <= tol) | (np.abs(Wz - hi) <= tol)).sum(axis=1)
-    at_bound[~solved] = 0
-    notes = ()
-    if (~solved).any():
-        notes = (f"{int((~solved).sum())} frame(s) had no visible markers and were not solved",)
-    return SolveResult(W, residuals, at_bound, solved, iters, fallback, notes)
-
-
-def _pdas(H, g, lo, hi, max_iter):
-    """Primal-dual active-set iteration on min 1/2 w'Hw - g'w, lo <= w <= hi, batched over frames.
-
-    Returns (w, iterations, indices of frames that did not settle).
-    """
-    n, K = g.shape
-    w = np.clip(np.linalg.solve(H, g[:, :, None])[:, :, 0], lo, hi)
-    c = 1.0 / np.maximum(np.einsum("nkk->nk", H).mean(axis=1), 1e-300)
-    eye = np.eye(K, dtype=bool)
-    prev_l = np.zeros((n, K), dtype=bool)
-    prev_u = np.zeros((n, K), dtype=bool)
-    active = np.arange(n)
-    it = 0
-    for it in range(1, max_iter + 1):
-        Ha, ga, wa = H[active], g[active], w[active]
-        mu = np.einsum("nkl,nl->nk", Ha, wa) - ga
-        v = wa - c[active, None] * mu
-        low = v < lo
-        up = v > hi
-        if it > 1:
-            settled = ~((low != prev_l[active]) | (up != prev_u[active])).any(axis=1)
-            keep = ~settled
-            active, Ha, ga, low, up = active[keep], Ha[keep], ga[keep], low[keep], up[keep]
-            if active.size == 0:
-                return w, it, active
-        free = ~(low | up)
-        fixed = np.where(low, lo, np.where(up, hi, 0.0))
-        M = np.where(free[:, :, None] & free[:, None, :], Ha, 0.0) + (eye & ~free[:, :, None])
-        rhs = np.where(free, ga - np.einsum("nkl,nl->nk", Ha, fixed), fixed)
-        w[active] = np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
-        prev_l[active] = low
-        prev_u[active] = up
-    return w, it, active
-
-
-def _bvls_fallback(H, g, lo, hi):
-    """Exact per-frame solve via scipy's BVLS on the Cholesky square root of H."""
-    from scipy.optimize import lsq_linear
-
-    out = np.empty_like(g)
-    for i in range(g.shape[0]):
-        L = np.linalg.cholesky(H[i])
-        b = np.linalg.solve(L, g[i])
-        res = lsq_linear(L.T, b, bounds=(lo, hi), method="bvls", tol=1e-14)
-        out[i] = res.x
-    return out
+    prob = engine_setup.build_problem(
+        A, D, mask=mask, lower=lower, upper=upper, regularisation=regularisation, sparsity=sparsity,
+        locks=locks, regions=regions, symmetry=symmetry, symmetry_weight=symmetry_weight,
+        smoothing=smoothing, relative=relative, dims=dims, max_iter=max_iter, chunk=chunk,
+    )
+    return engine_setup.run(prob, max_iter=max_iter, chunk=chunk)

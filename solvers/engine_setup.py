@@ -1,0 +1,262 @@
+"""Validation and assembly for ``engine.solve_bounded``: checks every argument, then splits the
+problem into regions and hands each to the per-frame or temporal kernel."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import FacecapError
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    A: np.ndarray  # (P, K)
+    Dz: np.ndarray  # (F, P), 0 where unobserved
+    C: np.ndarray  # (F, P) confidence
+    lo: np.ndarray  # (F, K)
+    hi: np.ndarray  # (F, K)
+    R: np.ndarray  # (K, K) incl. ridge floor and symmetry
+    l1: np.ndarray  # (K,)
+    lock: np.ndarray  # (F, K), NaN = free
+    regions: tuple  # ((shapes, coords), ...)
+    held: np.ndarray  # shape indices in no region
+    mu: tuple  # (mu1, mu2), absolute
+
+
+def _array(x, name):
+    try:
+        return np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise FacecapError(f"`{name}` must be numeric; got {type(x).__name__}") from e
+
+
+def _per_shape(x, name, F, K, *, allow_frames=True):
+    a = _array(x, name)
+    shapes = [(), (K,)] + ([(F, K)] if allow_frames else [])
+    if a.shape not in shapes:
+        want = " or ".join(str(s) if s else "a scalar" for s in shapes)
+        raise FacecapError(f"`{name}` must be {want}; got shape {a.shape}")
+    return np.broadcast_to(a, (F, K) if allow_frames else (K,))
+
+
+def _mask(mask, D, dims):
+    F, P = D.shape
+    finite = np.isfinite(D)
+    if mask is None:
+        return finite.astype(np.float64)
+    m = _array(mask, "mask")
+    shapes = [(F, P), (P,)]
+    if dims:
+        if P % dims:
+            raise FacecapError(f"`dims`={dims} does not divide the {P} coordinates of `A`")
+        M = P // dims
+        shapes += [(F, M), (M,)]
+        if m.shape in ((F, M), (M,)) and (F, M) != (F, P):
+            m = np.repeat(m, dims, axis=-1)
+    if m.shape not in [(F, P), (P,)]:
+        raise FacecapError(f"`mask` must have shape {' or '.join(map(str, shapes))}; got {m.shape}")
+    m = np.broadcast_to(m, (F, P))
+    if not np.isfinite(m).all() or np.any(m < 0):
+        raise FacecapError("`mask` must be finite and non-negative")
+    return np.where(finite, m, 0.0)
+
+
+def _locks(locks, F, K):
+    out = np.full((F, K), np.nan)
+    if locks is None:
+        return out
+    if isinstance(locks, dict):
+        for k, v in locks.items():
+            if not (isinstance(k, (int, np.integer)) and 0 <= k < K):
+                raise FacecapError(f"`locks` keys must be shape indices in [0, {K}); got {k!r}")
+            out[:, k] = float(v)
+        return out
+    a = _array(locks, "locks")
+    if a.shape not in ((K,), (F, K)):
+        raise FacecapError(f"`locks` must be a {{index: value}} mapping or have shape ({K},) or ({F}, {K}); got {a.shape}")
+    if np.isinf(a).any():
+        raise FacecapError("`locks` values must be finite (NaN = free)")
+    out[:] = a
+    return out
+
+
+def _regularisation(x, K):
+    a = _array(x, "regularisation")
+    if a.shape == ():
+        a = np.full(K, float(a))
+    if a.shape == (K,):
+        if np.any(a < 0):
+            raise FacecapError("`regularisation` must be >= 0")
+        return np.diag(a)
+    if a.shape == (K, K):
+        if not np.allclose(a, a.T, atol=1e-12 * max(1.0, np.abs(a).max())):
+            raise FacecapError("`regularisation` as a (K, K) matrix must be symmetric")
+        if np.linalg.eigvalsh(a).min() < -1e-10 * max(1.0, np.abs(a).max()):
+            raise FacecapError("`regularisation` as a (K, K) matrix must be positive semi-definite")
+        return a.copy()
+    raise FacecapError(f"`regularisation` must be a scalar or have shape ({K},) or ({K}, {K}); got {a.shape}")
+
+
+def _index(x, n, name):
+    a = np.asarray(x)
+    if a.dtype == bool:
+        if a.shape != (n,):
+            raise FacecapError(f"`{name}` as a boolean mask must have shape ({n},); got {a.shape}")
+        return np.flatnonzero(a)
+    if a.ndim != 1 or not np.issubdtype(a.dtype, np.integer) or (a.size and (a.min() < 0 or a.max() >= n)):
+        raise FacecapError(f"`{name}` must be integer indices in [0, {n}) or a boolean mask of shape ({n},)")
+    if np.unique(a).size != a.size:
+        raise FacecapError(f"`{name}` must not repeat an index")
+    return a
+
+
+def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, regions, symmetry,
+                  symmetry_weight, smoothing, relative, dims, max_iter, chunk):
+    A = _array(A, "A")
+    if A.ndim != 2:
+        raise FacecapError(f"`A` must have shape (P, K); got {A.shape}")
+    P, K = A.shape
+    if not np.isfinite(A).all():
+        raise FacecapError("`A` must be finite")
+    D = _array(D, "D")
+    if D.ndim != 2 or D.shape[1] != P:
+        raise FacecapError(f"`D` must have shape (F, {P}); got {D.shape}")
+    if np.isinf(D).any():
+        raise FacecapError("`D` must be finite or NaN (gaps)")
+    F = D.shape[0]
+    C = _mask(mask, D, dims)
+    lo = _per_shape(lower, "lower", F, K)
+    hi = _per_shape(upper, "upper", F, K)
+    if np.isnan(lo).any() or np.isnan(hi).any():
+        raise FacecapError("`lower` and `upper` must not be NaN")
+    if np.any(lo > hi):
+        raise FacecapError("`lower` must not exceed `upper`")
+    if int(max_iter) < 1 or int(chunk) < 1:
+        raise FacecapError("`max_iter` and `chunk` must be >= 1")
+
+    scale = float(np.mean(np.einsum("pk,pk->k", A, A))) or 1.0
+    unit = scale if relative else 1.0
+    R = _regularisation(regularisation, K) * unit
+    l1 = _per_shape(sparsity, "sparsity", F, K, allow_frames=False) * unit
+    if np.any(l1 < 0) or np.isnan(l1).any():
+        raise FacecapError("`sparsity` must be >= 0")
+    gamma = float(symmetry_weight) * unit
+    if gamma < 0:
+        raise FacecapError(f"`symmetry_weight` must be >= 0; got {symmetry_weight}")
+    pairs = np.asarray(list(symmetry), dtype=np.int64).reshape(-1, 2) if len(symmetry) else np.zeros((0, 2), np.int64)
+    if pairs.size and (pairs.min() < 0 or pairs.max() >= K or np.any(pairs[:, 0] == pairs[:, 1])):
+        raise FacecapError(f"`symmetry` must be pairs (a, b) of distinct shape indices in [0, {K})")
+    for a, b in pairs:
+        R[a, a] += gamma
+        R[b, b] += gamma
+        R[a, b] -= gamma
+        R[b, a] -= gamma
+    R += 1e-12 * scale * np.eye(K)
+
+    try:
+        mu = tuple(float(v) for v in smoothing)
+    except TypeError as e:
+        raise FacecapError(f"`smoothing` must be a pair (mu1, mu2); got {smoothing!r}") from e
+    if len(mu) != 2 or min(mu) < 0 or not np.isfinite(mu).all():
+        raise FacecapError(f"`smoothing` must be a pair (mu1, mu2) of finite values >= 0; got {smoothing!r}")
+    mu = (mu[0] * unit, mu[1] * unit)
+
+    lock = _locks(locks, F, K)
+
+    if regions is None:
+        regs = ((np.arange(K), np.arange(P)),)
+        held = np.zeros(0, dtype=np.int64)
+    else:
+        regs = []
+        owner = np.full(K, -1)
+        for i, reg in enumerate(regions):
+            try:
+                shapes, coords = reg
+            except (TypeError, ValueError) as e:
+                raise FacecapError(f"`regions[{i}]` must be a pair (shapes, coords)") from e
+            s = _index(shapes, K, f"regions[{i}] shapes")
+            c = _index(coords, P, f"regions[{i}] coords")
+            if np.any(owner[s] >= 0):
+                raise FacecapError(f"`regions[{i}]` shares shapes {np.flatnonzero(owner[s] >= 0).tolist()} with another region")
+            owner[s] = i
+            regs.append((s, c))
+        regs = tuple(regs)
+        held = np.flatnonzero(owner < 0)
+        for a, b in pairs:
+            if owner[a] != owner[b]:
+                raise FacecapError(f"`symmetry` pair ({a}, {b}) spans two regions")
+    return Problem(A, np.where(C > 0, np.nan_to_num(D), 0.0), C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu)
+
+
+def run(prob, *, max_iter, chunk):
+    from . import engine
+    from .engine_frames import solve_frames
+
+    A, C, Dz = prob.A, prob.C, prob.Dz
+    F, P = Dz.shape
+    K = A.shape[1]
+    temporal = prob.mu[0] > 0 or prob.mu[1] > 0
+    locked = np.isfinite(prob.lock)
+    # held values: lock value, else clip(0, lo, hi)
+    rest = np.clip(0.0, prob.lo, prob.hi)
+    hold = np.where(locked, prob.lock, rest)
+    W = np.full((F, K), np.nan)
+    if prob.held.size:
+        W[:, prob.held] = hold[:, prob.held]
+    solved_any = np.zeros(F, dtype=bool)
+    iters = fallback = 0
+    converged = True
+    notes = []
+    for shapes, coords in prob.regions:
+        var = np.concatenate([shapes, prob.held])  # region shapes first, then held ones (fixed)
+        nr = shapes.size
+        Ar = A[np.ix_(coords, var)]
+        Cr = C[:, coords]
+        Rr = prob.R[np.ix_(var, var)]
+        lo = np.where(locked[:, var], prob.lock[:, var], prob.lo[:, var])
+        hi = np.where(locked[:, var], prob.lock[:, var], prob.hi[:, var])
+        lo[:, nr:] = hold[:, prob.held]
+        hi[:, nr:] = hold[:, prob.held]
+        l1 = np.concatenate([prob.l1[shapes], np.zeros(prob.held.size)]) * 0.5
+        G = (Cr * Dz[:, coords]) @ Ar
+        has = Cr.sum(axis=1) > 0
+        if temporal:
+            if not has.any():
+                continue
+            from .engine_temporal import solve_temporal
+
+            w, it, ok = solve_temporal(Ar, Cr, G, Rr, lo, hi, l1, prob.mu, max_iter=max_iter, chunk=chunk)
+            W[:, shapes] = w[:, :nr]
+            solved_any[:] = True
+            converged &= ok
+        else:
+            idx = np.flatnonzero(has)
+            if idx.size == 0:
+                continue
+            w, it, fb = solve_frames(Ar, Cr[idx], G[idx], Rr, lo[idx], hi[idx], l1, max_iter=max_iter, chunk=chunk)
+            W[idx[:, None], shapes[None, :]] = w[:, :nr]
+            solved_any[idx] = True
+            fallback += fb
+        iters = max(iters, it)
+        # locked shapes of frames with no data in this region still show their lock value
+        miss = ~np.isfinite(W[:, shapes]) & locked[:, shapes]
+        if miss.any():
+            W[:, shapes] = np.where(miss, prob.lock[:, shapes], W[:, shapes])
+
+    Wz = np.nan_to_num(W)
+    residuals = np.where(C > 0, Wz @ A.T - Dz, 0.0)
+    tol = 1e-9 * np.maximum(1.0, np.abs(prob.hi - prob.lo))
+    free_shape = ~locked
+    if prob.held.size:
+        free_shape[:, prob.held] = False
+    at = ((np.abs(Wz - prob.lo) <= tol) | (np.abs(Wz - prob.hi) <= tol)) & free_shape
+    at_bound = at.sum(axis=1)
+    at_bound[~solved_any] = 0
+    if (~solved_any).any():
+        notes.append(f"{int((~solved_any).sum())} frame(s) had no visible markers and were not solved")
+    if not converged:
+        notes.append(f"temporal solve did not settle within {max_iter} active-set iterations; weights are feasible but not optimal")
+    return engine.SolveResult(
+        W, residuals, at_bound, solved_any, iters, fallback, tuple(notes), converged,
+        "temporal" if temporal else "per-frame",
+    )
