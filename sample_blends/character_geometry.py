@@ -559,7 +559,8 @@ def _eye_keys(f):
     head = f.head[:, None]
     lid_up = lambda a: _rotate_x(p, e, a) * head
     keys = {}
-    keys["eyeBlinkLeft"] = lid_up(-f.close * f.g_up)
+    # A blink also lifts the lower lid slightly (orbicularis closes both lids).
+    keys["eyeBlinkLeft"] = lid_up(-f.close * f.g_up) + lid_up(0.12 * f.close * f.g_low)
     keys["eyeWideLeft"] = lid_up(0.45 * f.open_shape * f.g_up)
     keys["eyeSquintLeft"] = (lid_up(0.40 * f.close * f.g_low) + lid_up(-0.10 * f.close * f.g_up)
                              + _vec(f.b2(0.034, -0.013, 0.018, 0.011), (0.0, -0.0005, 0.0015)))
@@ -584,9 +585,11 @@ def _brow_keys(f):
     inner = 1.0 - smoothstep(f.x, 0.015, 0.045)
     w = f.b2(0.028, 0.031, 0.028, 0.021) * f.left(0.004, 0.012) * lid
     keys["browDownLeft"] = np.stack([-0.0025 * inner * w, 0.0006 * w, -0.0042 * w], axis=1)
-    keys["browInnerUp"] = _vec(f.b2(0.013, 0.032, 0.017, 0.026, mirror_x=True) * lid,
+    # Frontalis lifts a broad band of the brow: the inner raise carries the mid brow a little,
+    # the outer raise carries the mid brow and lower forehead (bony head markers stay still).
+    keys["browInnerUp"] = _vec(f.b2(0.013, 0.032, 0.026, 0.026, mirror_x=True) * lid,
                                (0.0, -0.0003, 0.0052))
-    keys["browOuterUpLeft"] = _vec(f.b2(0.047, 0.031, 0.017, 0.024) * lid, (0.0004, 0.0, 0.0052))
+    keys["browOuterUpLeft"] = _vec(f.b2(0.040, 0.031, 0.026, 0.035) * lid, (0.0004, 0.0, 0.0052))
     keys["noseSneerLeft"] = (_vec(f.b2(0.0135, -0.029, 0.009, 0.011), (0.0006, -0.0004, 0.0032))
                              + _vec(f.b2(0.011, -0.014, 0.007, 0.010), (0.0, -0.0003, 0.0017))
                              + _vec(f.upper_lip(0.012, 0.014, 0.012), (0.0, 0.0, 0.0010)))
@@ -648,6 +651,16 @@ def _jaw_keys(f):
 
 PAIRS = {"jawLeft": "jawRight", "mouthLeft": "mouthRight"}
 
+# Subtle lip, nose and cheek actions scaled to the amplitudes measured on real faces (a lip roll
+# hides the vermilion, several mm; a sneer lifts the nostril wing 4-6 mm), so that a 0.3 mm-noise
+# marker capture can observe them at all.
+STRENGTH = {
+    "mouthPressLeft": 2.0, "mouthRollLower": 2.0, "mouthRollUpper": 2.0,
+    "mouthShrugLower": 1.8, "mouthShrugUpper": 1.8, "noseSneerLeft": 1.6,
+    "cheekSquintLeft": 1.5, "eyeSquintLeft": 1.5, "mouthFrownLeft": 1.5,
+    "mouthUpperUpLeft": 1.3, "mouthLowerDownLeft": 1.3,
+}
+
 
 def compute_shape_keys(verts, topo, mirror):
     """Deltas (V, 3) for the 52 ARKit shapes; right keys are exact mirrors of left keys."""
@@ -658,7 +671,7 @@ def compute_shape_keys(verts, topo, mirror):
     keys = {}
     for name in ARKIT_NAMES:
         if name in base:
-            d = base[name]
+            d = base[name] * STRENGTH.get(name, 1.0)
             if name.endswith("Left"):
                 keys[name] = d
             elif name in PAIRS:

@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import FacecapError
 from .neutral import neutral_from_frames
-from .stabilise import stabilise_rigid
+from .stabilise import refine_rigid, smooth_head_motion, stabilise_rigid
 from .strategies.geometric import GeometricOptions, solve_geometric
 from .transforms import fit_similarity
 
@@ -27,6 +27,12 @@ class RetargetSettings:
     neutral_frames: tuple  # (first, last), inclusive
     strategy: str = "geometric"
     regularisation: float = 1e-3
+    sparsity: float = 3e-3
+    symmetry: float = 3e-2
+    smoothing: tuple = (0.0, 0.0)
+    fine_iterations: int = 2  # hierarchical stabilisation: refits of the head on all markers
+    fine_weight: float = 1.0  # trust of deforming markers in the refit, relative to stable ones
+    head_smoothing: float = 0.1  # half-window (s) of the zero-phase head-pose smoothing; 0 = off
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,34 +115,55 @@ def retarget(markers, basis, settings):
             f"take markers: {list(markers.names)[:10]}..., bound: {list(basis.marker_names)[:10]}..."
         )
 
+    half_window = int(round(settings.head_smoothing * markers.fps))
+    options = GeometricOptions(
+        regularisation=settings.regularisation,
+        sparsity=settings.sparsity,
+        symmetry=settings.symmetry,
+        smoothing=tuple(settings.smoothing),
+    )
     stab = stabilise_rigid(markers, settings.stable_markers, reference_frames=settings.neutral_frames)
+    stab = smooth_head_motion(markers, stab, half_window=half_window)
     if stab.flagged.any():
         notes.append(f"{int(stab.flagged.sum())} frame(s) could not be stabilised and are left unsolved")
     timings["stabilise"] = time.perf_counter() - t0
 
     first, last = settings.neutral_frames
-    neutral_all = neutral_from_frames(stab.markers, first, last)
-    take = stab.markers.subset(used)
-    neutral = neutral_all[markers.index(used)]
     sub = basis.subset_markers(used)
-
-    t1 = time.perf_counter()
-    align = fit_similarity(neutral, sub.neutral)
+    used_idx = markers.index(used)
+    stable_set = set(settings.stable_markers)
+    trust = np.array([1.0 if n in stable_set else settings.fine_weight for n in used])
+    t_solve = t_align = 0.0
+    for iteration in range(settings.fine_iterations + 1):
+        t1 = time.perf_counter()
+        neutral = neutral_from_frames(stab.markers, first, last)[used_idx]
+        align = fit_similarity(neutral, sub.neutral)
+        deltas = align.apply_vectors(stab.markers.positions[:, used_idx] - neutral[None])
+        t2 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            solved = solve_geometric(sub, deltas, options=options)
+        t3 = time.perf_counter()
+        t_align += t2 - t1
+        t_solve += t3 - t2
+        if iteration == settings.fine_iterations:
+            break
+        # Hierarchical stabilisation: refit the head on all markers against the solve's prediction.
+        char_pred = np.einsum("fk,kmd->fmd", np.nan_to_num(solved.weights), sub.deltas)
+        predicted = neutral[None] + align.inverse_vectors(char_pred)
+        predicted[~solved.solved] = np.nan
+        stab = refine_rigid(markers, stab, used, predicted, weights=trust)
+        stab = smooth_head_motion(markers, stab, half_window=half_window)
+        timings["stabilise"] += time.perf_counter() - t3
     align_res = np.linalg.norm(align.apply(neutral) - sub.neutral, axis=1)
-    deltas = align.apply_vectors(take.positions - neutral[None])
-    timings["align"] = time.perf_counter() - t1
-
-    t2 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        solved = solve_geometric(sub, deltas, options=GeometricOptions(settings.regularisation))
-    timings["solve"] = time.perf_counter() - t2
+    timings["align"] = t_align
+    timings["solve"] = t_solve
     notes.extend(solved.warnings)
 
-    F, M, D = deltas.shape
-    res = solved.residuals.reshape(F, M, D)
-    vis = ~np.isnan(deltas[:, :, 0])
-    sq = (res**2).sum(axis=2)
+    measured = ~np.isnan(deltas[:, :, 0])
+    res = np.einsum("fk,kmd->fmd", np.nan_to_num(solved.weights), sub.deltas) - deltas
+    sq = np.where(measured, (res**2).sum(axis=2), 0.0)
+    vis = measured
     with np.errstate(invalid="ignore", divide="ignore"):
         residual_rms = np.sqrt(sq.sum(axis=1) / vis.sum(axis=1))
         marker_residual = np.sqrt(sq.sum(axis=0) / vis.sum(axis=0))

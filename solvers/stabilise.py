@@ -117,7 +117,102 @@ def _reference_pose(markers, pts, vis, stable, reference_frames):
         )
     anchor = pts[complete[0]]
     sel = candidates if reference_frames is not None else complete[:1]
-    R, t, ok = fit_rigid_batch(pts[sel], anchor, vis[sel].astype(np.float64))
-    aligned = np.einsum("fij,fsj->fsi", R, pts[sel]) + t[:, None, :]
-    aligned[~ok] = np.nan
-    return np.nanmedian(aligned, axis=0)
+    w = vis[sel].astype(np.float64)
+    reference = anchor
+    # Generalised Procrustes: the shape is the median of the aligned frames; its pose is then
+    # moved to the average head pose of the range (aligning to a template keeps the template's
+    # pose, which would carry the noise of whichever frame came first).
+    for _ in range(2):
+        R, t, ok = fit_rigid_batch(pts[sel], reference, w)
+        aligned = np.einsum("fij,fsj->fsi", R, pts[sel]) + t[:, None, :]
+        aligned[~ok] = np.nan
+        shape = np.nanmedian(aligned, axis=0)
+        back = np.einsum("fji,fsj->fsi", R[ok], shape[None] - t[ok, None, :])  # shape in each frame's pose
+        reference = back.mean(axis=0)
+    return reference
+
+
+def refine_rigid(markers, stab, names, predicted, *, weights):
+    """Fine stage of hierarchical stabilisation (Sony): refit every frame's head pose on many markers.
+
+    The gross fit uses only the stable markers; here each frame is refitted on ``names`` against
+    where the current solve says those markers should be in the head frame (``predicted``), so
+    markers that deform still contribute, explained by the solve instead of treated as rigid.
+
+    Parameters
+    ----------
+    markers : MarkerSet, the raw (unstabilised) take
+    stab : StabiliseResult of the gross fit (its reference and flags are kept)
+    names : sequence of str, markers used in the refit
+    predicted : ndarray (F, len(names), 3), positions in the stabilised head frame, NaN = unknown
+    weights : ndarray (len(names),), relative trust per marker (stable markers higher)
+
+    Returns
+    -------
+    StabiliseResult
+    """
+    idx = markers.index(names)
+    raw = markers.positions[:, idx]
+    w = np.where(np.isnan(raw[:, :, 0]) | np.isnan(predicted[:, :, 0]), 0.0, np.asarray(weights, dtype=np.float64)[None])
+    R, t, rank_ok = fit_rigid_batch(raw, predicted, w)
+    flagged = stab.flagged | ~rank_ok
+    R = np.where(flagged[:, None, None], stab.rotations, R)
+    t = np.where(flagged[:, None], stab.translations, t)
+    moved = np.einsum("fij,fmj->fmi", R, markers.positions) + t[:, None, :]
+    moved[flagged] = np.nan
+    sidx = markers.index(stab.stable_names)
+    fitted = moved[:, sidx]
+    err = np.linalg.norm(fitted - stab.reference[None], axis=2)
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(np.nanmean(err**2, axis=1))
+    reasons = dict(stab.flag_reasons)
+    for f in np.flatnonzero(flagged & ~stab.flagged):
+        reasons[_frame_label(markers.frames[f])] = "fine refit: markers not determined"
+    return StabiliseResult(
+        markers=markers.with_positions(moved),
+        stable_names=stab.stable_names,
+        reference=stab.reference,
+        rotations=R,
+        translations=t,
+        rms=rms,
+        flagged=flagged,
+        flag_reasons=reasons,
+    )
+
+
+def smooth_head_motion(markers, stab, *, half_window, order=3):
+    """Zero-phase smoothing of the per-frame head pose (head motion is slower than marker noise).
+
+    Rotation matrices and translations are smoothed element-wise by a local cubic fit (a chordal
+    average, exact for the small changes within a window) and projected back onto rotations.
+    Flagged frames do not contribute and stay flagged.
+    """
+    from .smoothing import local_polynomial
+
+    if half_window <= 0:
+        return stab
+    ok = (~stab.flagged).astype(np.float64)
+    pose = np.concatenate([stab.rotations.reshape(-1, 9), stab.translations], axis=1)
+    smooth = local_polynomial(pose, half_window=half_window, order=order, weights=ok)
+    lost = np.isnan(smooth).any(axis=1) & ~stab.flagged
+    smooth[stab.flagged | lost] = pose[stab.flagged | lost]
+    U, _, Vt = np.linalg.svd(smooth[:, :9].reshape(-1, 3, 3))
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= d[:, None]
+    R = U @ Vt
+    t = smooth[:, 9:]
+    moved = np.einsum("fij,fmj->fmi", R, markers.positions) + t[:, None, :]
+    moved[stab.flagged] = np.nan
+    fitted = moved[:, markers.index(stab.stable_names)]
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(np.nanmean(np.linalg.norm(fitted - stab.reference[None], axis=2) ** 2, axis=1))
+    return StabiliseResult(
+        markers=markers.with_positions(moved),
+        stable_names=stab.stable_names,
+        reference=stab.reference,
+        rotations=R,
+        translations=t,
+        rms=rms,
+        flagged=stab.flagged,
+        flag_reasons=stab.flag_reasons,
+    )

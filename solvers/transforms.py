@@ -22,6 +22,10 @@ class Similarity:
         """Transform displacements (no translation)."""
         return self.scale * np.asarray(vectors) @ self.rotation.T
 
+    def inverse_vectors(self, vectors):
+        """Map displacements back (the inverse of :meth:`apply_vectors`)."""
+        return np.asarray(vectors) @ self.rotation / self.scale
+
 
 def fit_rigid_batch(source, target, weights):
     """Per-frame weighted rigid fit R_f, t_f minimising sum_i w_fi |R_f s_fi + t_f - y_fi|^2.

@@ -2,28 +2,44 @@
 
 The actor's deltas are carried into character space by the similarity that maps the actor's
 neutral markers onto the character's bound points, then solved against the shape-key deltas at
-those points with bounded, regularised least squares (gaps masked out).
+those points with bounded, regularised least squares (gaps masked out, bridged samples trusted
+less).
 """
 
 from dataclasses import dataclass
-
-import numpy as np
 
 from ..engine import solve_bounded
 
 
 @dataclass(frozen=True)
 class GeometricOptions:
-    """Options of the geometric solve.
+    """Priors of the geometric solve, all relative to the mean squared norm of a basis column
+    (unit free: the same values work for millimetre and metre rigs).
 
-    regularisation : ridge weight relative to the mean squared norm of a basis column
-        (scale free: the same value works for millimetre and metre rigs).
+    regularisation : ridge weight on every shape (keeps weights of shapes the markers barely see small)
+    sparsity : L1 weight (most shapes are off most of the time; pulls noise-level activations to 0)
+    symmetry : coupling of each ``<name>Left`` / ``<name>Right`` pair (faces move mostly
+        symmetrically; lets a side whose markers are missing follow the other side)
+    smoothing : (first, second) temporal difference weights; (0, 0) solves frames independently
     """
 
     regularisation: float = 1e-3
+    sparsity: float = 3e-3
+    symmetry: float = 3e-2
+    smoothing: tuple = (0.0, 0.0)
 
 
-def solve_geometric(basis, deltas, *, options=GeometricOptions()):
+def symmetric_pairs(shape_names):
+    """Index pairs (left, right) of shapes named ``<base>Left`` / ``<base>Right`` (ARKit style)."""
+    index = {n: i for i, n in enumerate(shape_names)}
+    pairs = []
+    for name, i in index.items():
+        if name.endswith("Left") and name[:-4] + "Right" in index:
+            pairs.append((i, index[name[:-4] + "Right"]))
+    return pairs
+
+
+def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=None):
     """Solve weights for character-space marker deltas.
 
     Parameters
@@ -31,14 +47,26 @@ def solve_geometric(basis, deltas, *, options=GeometricOptions()):
     basis : Basis with M markers, D dims
     deltas : ndarray, shape (F, M, D), NaN for gaps, already in the basis' space and units
     options : GeometricOptions
+    confidence : ndarray (F, M), optional
+        Trust per marker sample (0 = ignore).
 
     Returns
     -------
-    SolveResult (residuals reshaped by the caller)
+    SolveResult; its residuals have shape (F, M * D)
     """
-    A = basis.matrix()
-    scale = float(np.mean(np.einsum("pk,pk->k", A, A))) or 1.0
-    D = deltas.reshape(deltas.shape[0], -1)
+    F, M, D = deltas.shape
+    pairs = symmetric_pairs(basis.shape_names) if options.symmetry > 0 else ()
     return solve_bounded(
-        A, D, lower=basis.lower, upper=basis.upper, regularisation=options.regularisation * scale
+        basis.matrix(),
+        deltas.reshape(F, M * D),
+        mask=confidence,
+        dims=D,
+        lower=basis.lower,
+        upper=basis.upper,
+        regularisation=options.regularisation,
+        sparsity=options.sparsity,
+        symmetry=pairs,
+        symmetry_weight=options.symmetry,
+        smoothing=tuple(options.smoothing),
+        relative=True,
     )
