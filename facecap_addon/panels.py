@@ -53,6 +53,9 @@ class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
         row.prop(s, "neutral_first")
         row.prop(s, "neutral_last")
         layout.operator("facecap.set_neutral", icon="RESTRICT_SELECT_OFF")
+        col = layout.column(align=True)
+        col.prop(s, "fine_iterations")
+        col.prop(s, "head_smoothing")
         layout.operator("facecap.stabilise", icon="ORIENTATION_GIMBAL")
         if s.head_object is not None:
             layout.prop(s, "head_object")
@@ -70,7 +73,13 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
         s = context.scene.facecap
         layout = self.layout
         layout.prop(s, "strategy")
-        layout.prop(s, "regularisation")
+        col = layout.column(align=True)
+        col.prop(s, "regularisation")
+        col.prop(s, "sparsity")
+        col.prop(s, "symmetry")
+        col = layout.column(align=True)
+        col.prop(s, "smoothing_first")
+        col.prop(s, "smoothing_second")
         layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
         if s.last_report:
             box = layout.box()

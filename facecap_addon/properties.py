@@ -64,6 +64,49 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
         precision=5,
         description="Ridge weight relative to the basis scale: larger values keep weights smaller and steadier",
     )
+    sparsity: FloatProperty(
+        name="Sparsity",
+        default=3e-3,
+        min=0.0,
+        precision=5,
+        description="L1 weight relative to the basis scale: pulls shapes that only explain noise to zero",
+    )
+    symmetry: FloatProperty(
+        name="Symmetry",
+        default=3e-2,
+        min=0.0,
+        precision=4,
+        description="Coupling of Left/Right shape pairs relative to the basis scale; lets a side with missing markers follow the other",
+    )
+    smoothing_first: FloatProperty(
+        name="Velocity Smoothing",
+        default=0.0,
+        min=0.0,
+        precision=4,
+        description="Temporal weight on frame-to-frame change (0 = frames solved independently)",
+    )
+    smoothing_second: FloatProperty(
+        name="Acceleration Smoothing",
+        default=0.0,
+        min=0.0,
+        precision=4,
+        description="Temporal weight on the second difference (removes jitter, keeps fast closures)",
+    )
+    fine_iterations: IntProperty(
+        name="Fine Refits",
+        default=2,
+        min=0,
+        max=10,
+        description="Hierarchical stabilisation: refits of the head pose on all markers against the solve",
+    )
+    head_smoothing: FloatProperty(
+        name="Head Smoothing",
+        default=0.1,
+        min=0.0,
+        max=1.0,
+        unit="TIME_ABSOLUTE",
+        description="Half-window in seconds of the zero-phase smoothing of the head pose (0 = off)",
+    )
     head_object: PointerProperty(name="Head Motion", type=bpy.types.Object, description="Empty keyed with the removed head motion")
     flagged_frames: IntProperty(name="Flagged Frames", default=0, description="Frames the last stabilisation could not fit")
     last_action: StringProperty(name="Last Action", description="Action created by the last solve")

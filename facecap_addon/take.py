@@ -19,6 +19,11 @@ def retarget_settings(settings):
         neutral_frames=(settings.neutral_first, settings.neutral_last),
         strategy=settings.strategy,
         regularisation=settings.regularisation,
+        sparsity=settings.sparsity,
+        symmetry=settings.symmetry,
+        smoothing=(settings.smoothing_first, settings.smoothing_second),
+        fine_iterations=settings.fine_iterations,
+        head_smoothing=settings.head_smoothing,
     )
 
 

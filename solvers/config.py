@@ -13,9 +13,20 @@ SCHEMA = {
     "target": {"blend": (str, False), "object": (str, True)},
     "source": {"markers": (str, True), "units": (str, False), "fps": ((int, float), False)},
     "binding": {"vertex_groups": (bool, False)},
-    "stabilise": {"markers": (list, True)},
+    "stabilise": {
+        "markers": (list, True),
+        "fine_iterations": (int, False),
+        "fine_weight": ((int, float), False),
+        "head_smoothing": ((int, float), False),
+    },
     "neutral": {"frames": (list, True)},
-    "solve": {"strategy": (str, False), "regularisation": ((int, float), False)},
+    "solve": {
+        "strategy": (str, False),
+        "regularisation": ((int, float), False),
+        "sparsity": ((int, float), False),
+        "symmetry": ((int, float), False),
+        "smoothing": (list, False),
+    },
     "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False)},
 }
 
@@ -78,9 +89,19 @@ def load_take_config(path):
     strategy = get("solve", "strategy", "geometric")
     if strategy not in STRATEGIES:
         raise ConfigError(f"unknown strategy '{strategy}'; available: {', '.join(STRATEGIES)}", path=path, key="solve.strategy")
-    reg = float(get("solve", "regularisation", 1e-3))
-    if reg < 0:
-        raise ConfigError(f"must be >= 0; got {reg}", path=path, key="solve.regularisation")
+    defaults = RetargetSettings(stable_markers=(), neutral_frames=(1, 1))
+    numbers = {}
+    for section, key in (
+        ("solve", "regularisation"), ("solve", "sparsity"), ("solve", "symmetry"),
+        ("stabilise", "fine_weight"), ("stabilise", "head_smoothing"), ("stabilise", "fine_iterations"),
+    ):
+        value = get(section, key, getattr(defaults, key))
+        if value < 0:
+            raise ConfigError(f"must be >= 0; got {value}", path=path, key=f"{section}.{key}")
+        numbers[key] = value
+    smoothing = get("solve", "smoothing", list(defaults.smoothing))
+    if len(smoothing) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 for v in smoothing):
+        raise ConfigError(f"expected [first_difference, second_difference] weights >= 0; got {smoothing}", path=path, key="solve.smoothing")
     if not get("binding", "vertex_groups", True):
         raise ConfigError("only vertex-group binding is available (set vertex_groups = true)", path=path, key="binding.vertex_groups")
     markers_path = resolve(get("source", "markers"))
@@ -96,7 +117,8 @@ def load_take_config(path):
             stable_markers=tuple(stable),
             neutral_frames=(frames[0], frames[1]),
             strategy=strategy,
-            regularisation=reg,
+            smoothing=(float(smoothing[0]), float(smoothing[1])),
+            **numbers,
         ),
         output_blend=resolve(get("output", "blend")),
         output_weights=resolve(get("output", "weights")),

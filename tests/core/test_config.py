@@ -1,0 +1,67 @@
+"""Take configs: relative paths, defaults, and errors that name the key."""
+
+import pytest
+
+from facecap.solvers import ConfigError, load_take_config
+
+BASE = """
+[target]
+blend = "char.blend"
+object = "Face"
+[source]
+markers = "takes/t1.csv"
+units = "mm"
+fps = 120
+[stabilise]
+markers = ["a", "b", "c"]
+[neutral]
+frames = [1, 30]
+"""
+
+
+def write(tmp_path, text):
+    path = tmp_path / "take.toml"
+    path.write_text(text)
+    return path
+
+
+def test_paths_resolve_against_the_config_folder(tmp_path):
+    cfg = load_take_config(write(tmp_path, BASE + '[output]\nweights = "out/w.csv"\n'))
+    assert cfg.markers_path == (tmp_path / "takes" / "t1.csv").resolve()
+    assert cfg.target_blend == (tmp_path / "char.blend").resolve()
+    assert cfg.output_weights == (tmp_path / "out" / "w.csv").resolve()
+    assert cfg.output_blend is None
+    assert cfg.fps == 120 and cfg.units == "mm" and cfg.action_name == "t1"
+    assert cfg.settings.stable_markers == ("a", "b", "c") and cfg.settings.neutral_frames == (1, 30)
+
+
+def test_solve_options_are_read(tmp_path):
+    text = BASE + "[solve]\nregularisation = 0.01\nsparsity = 0\nsymmetry = 0.5\nsmoothing = [0.0, 0.2]\n"
+    text += "[output]\n"
+    s = load_take_config(write(tmp_path, text.replace("[neutral]", "[neutral]"))).settings
+    assert (s.regularisation, s.sparsity, s.symmetry, s.smoothing) == (0.01, 0, 0.5, (0.0, 0.2))
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ("[solve]\nstrategy = \"magic\"\n", r"\[solve.strategy\] unknown strategy 'magic'"),
+        ("[solve]\nregularisation = -1\n", r"\[solve.regularisation\] must be >= 0"),
+        ("[solve]\nsmoothing = [1]\n", r"\[solve.smoothing\] expected \[first_difference"),
+        ("[solve]\nregularistion = 1\n", r"\[solve.regularistion\] unknown key"),
+        ("[sovle]\n", r"unknown section \[sovle\]"),
+        ("[output]\nblend = 3\n", r"\[output.blend\] wrong type int"),
+    ],
+)
+def test_errors_name_the_key(tmp_path, extra, message):
+    with pytest.raises(ConfigError, match=message):
+        load_take_config(write(tmp_path, BASE + extra))
+
+
+def test_missing_required_key_and_file(tmp_path):
+    with pytest.raises(ConfigError, match=r"\[neutral.frames\] missing required key"):
+        load_take_config(write(tmp_path, BASE.replace("[neutral]\nframes = [1, 30]\n", "")))
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_take_config(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_take_config(write(tmp_path, "[target\n"))
