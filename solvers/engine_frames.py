@@ -19,6 +19,8 @@ Inputs are trusted (validated by ``engine.solve_bounded``). Locked shapes arrive
 
 import numpy as np
 
+from .engine_threads import single_blas_thread
+
 # state codes
 _FREE, _LO, _HI, _ZERO = 0, 1, 2, 3
 
@@ -60,7 +62,7 @@ def hmul(Hp, inv, x):
     n_pat = Hp.shape[0]
     if n_pat == 1:
         return x @ Hp[0]
-    if n_pat * 8 > x.shape[0]:
+    if n_pat * 2 > x.shape[0]:
         return np.einsum("nkl,nl->nk", Hp[inv], x)
     y = np.empty_like(x)
     order = np.argsort(inv, kind="stable")
@@ -94,29 +96,41 @@ def solve_free(Hp, inv, free, rhs):
     x = np.zeros((n, K))
     cnt = free.sum(axis=1)
     idx_all = np.argsort(~free, axis=1, kind="stable")  # free indices first, in order
-    for s in np.unique(cnt):
-        if s == 0:
+    flat_H = Hp.reshape(-1)
+    order = np.lexsort((inv, cnt))  # by size, then by pattern (cache-friendly gathers)
+    sizes = cnt[order]
+    starts = np.searchsorted(sizes, np.arange(K + 2))
+    for s in range(1, K + 1):
+        sel = order[starts[s] : starts[s + 1]]
+        if sel.size == 0:
             continue
-        sel = np.flatnonzero(cnt == s)
         idx = idx_all[sel, :s]
-        M = Hp[inv[sel][:, None, None], idx[:, :, None], idx[:, None, :]]
+        flat = (inv[sel] * (K * K))[:, None, None] + (idx * K)[:, :, None] + idx[:, None, :]
+        M = flat_H[flat]
         b = np.take_along_axis(rhs[sel], idx, axis=1)
         sol = np.linalg.solve(M, b[:, :, None])[:, :, 0]
         x[sel[:, None], idx] = sol
     return x
 
 
-def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096):
+def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None):
     """Solve every frame. C (F, P) confidences, G (F, K) = A' (c * d), lo/hi (F, K), lam (K,).
+
+    Chunks of frames run on ``workers`` threads (default: CPU count, at most 4); BLAS is pinned to
+    one thread meanwhile, since the work is many tiny solves.
 
     Returns (W (F, K), iterations, number of frames handed to the exact fallback).
     """
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
     F, K = G.shape
     W = np.empty((F, K))
     H_full = A.T @ A + R
-    iters = 0
-    fallback = 0
-    for start in range(0, F, chunk):
+    n_chunks = -(-F // chunk)
+    chunk = -(-F // n_chunks) if n_chunks else chunk  # even chunks
+
+    def one(start):
         sl = slice(start, min(start + chunk, F))
         pats, inv = patterns(C[sl])
         Hp = pattern_hessians(A, pats, R, H_full)
@@ -125,9 +139,18 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096):
             g, l, h = G[sl], lo[sl], hi[sl]
             for i in bad:
                 w[i] = exact_frame(Hp[inv[i]], g[i], l[i], h[i], lam, sign[i])
-            fallback += bad.size
         W[sl] = w
-        iters = max(iters, it)
+        return it, bad.size
+
+    workers = workers or min(4, os.cpu_count() or 1)
+    with single_blas_thread():
+        if workers > 1 and n_chunks > 1:
+            with ThreadPoolExecutor(workers) as pool:
+                out = list(pool.map(one, range(0, F, chunk)))
+        else:
+            out = [one(s) for s in range(0, F, chunk)]
+    iters = max((o[0] for o in out), default=0)
+    fallback = sum(o[1] for o in out)
     return W, iters, fallback
 
 
