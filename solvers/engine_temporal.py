@@ -132,4 +132,4 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096):
         w = xf + _banded_solve(Hp, inv, T, free, rhs)
         grad = qmul(w) - G
         prev, prev_sg = st, sg
-    return w, max_iter, False
+    return np.clip(w, lo, hi), max_iter, False  # active-set iterates can leave the box
