@@ -66,14 +66,14 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     )
     sparsity: FloatProperty(
         name="Sparsity",
-        default=3e-3,
+        default=1e-3,
         min=0.0,
         precision=5,
         description="L1 weight relative to the basis scale: pulls shapes that only explain noise to zero",
     )
     symmetry: FloatProperty(
         name="Symmetry",
-        default=3e-2,
+        default=0.0,
         min=0.0,
         precision=4,
         description="Coupling of Left/Right shape pairs relative to the basis scale; lets a side with missing markers follow the other",
@@ -87,7 +87,7 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     )
     smoothing_second: FloatProperty(
         name="Acceleration Smoothing",
-        default=0.0,
+        default=0.3,
         min=0.0,
         precision=4,
         description="Temporal weight on the second difference (removes jitter, keeps fast closures)",

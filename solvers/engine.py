@@ -27,7 +27,7 @@ from .errors import FacecapError
 #: Default smoothing (mu1, mu2) for ``relative=True``, in units of the basis scale (see ``basis_scale``).
 #: Chosen by ``tests/core/test_engine_temporal.py``: a 3-frame lip closure at 60 fps keeps >= 90 % of
 #: its peak while the second-difference jitter of a noisy take drops by >= 50 %.
-DEFAULT_SMOOTHING = (0.0, 0.5)
+DEFAULT_SMOOTHING = (0.0, 0.3)
 
 #: Ridge floor, relative to the basis scale, added to every solve so unobservable shapes stay at
 #: their smallest-norm value instead of making the system singular.

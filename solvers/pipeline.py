@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .engine import DEFAULT_SMOOTHING
 from .errors import FacecapError
 from .neutral import neutral_from_frames
 from .stabilise import refine_rigid, smooth_head_motion, stabilise_rigid
@@ -27,9 +28,9 @@ class RetargetSettings:
     neutral_frames: tuple  # (first, last), inclusive
     strategy: str = "geometric"
     regularisation: float = 1e-3
-    sparsity: float = 3e-3
-    symmetry: float = 3e-2
-    smoothing: tuple = (0.0, 0.0)
+    sparsity: float = 1e-3
+    symmetry: float = 0.0
+    smoothing: tuple = DEFAULT_SMOOTHING
     fine_iterations: int = 2  # hierarchical stabilisation: refits of the head on all markers
     fine_weight: float = 1.0  # trust of deforming markers in the refit, relative to stable ones
     head_smoothing: float = 0.1  # half-window (s) of the zero-phase head-pose smoothing; 0 = off
@@ -125,7 +126,11 @@ def retarget(markers, basis, settings):
     stab = stabilise_rigid(markers, settings.stable_markers, reference_frames=settings.neutral_frames)
     stab = smooth_head_motion(markers, stab, half_window=half_window)
     if stab.flagged.any():
-        notes.append(f"{int(stab.flagged.sum())} frame(s) could not be stabilised and are left unsolved")
+        bridged = any(settings.smoothing)
+        notes.append(
+            f"{int(stab.flagged.sum())} frame(s) could not be stabilised; their weights are "
+            + ("bridged by the temporal smoothing" if bridged else "left unsolved")
+        )
     timings["stabilise"] = time.perf_counter() - t0
 
     first, last = settings.neutral_frames

@@ -56,12 +56,14 @@ def performance_weights(shape_names, n_frames, *, fps=60.0, rest=60, seed=0):
     def add(name, values):
         curves[name] = curves.get(name, 0.0) + values
 
-    # Blinks every 2-4 s, 0.15-0.25 s long.
+    # Blinks every 2-4 s, 0.15-0.25 s long; none while the eyes are held wide (the two act on the
+    # same lid in opposite directions).
+    wide = 0.4 * _bump(t, t0 + 0.5 * span, 0.6)
     tb = t0 + rng.uniform(0.3, 1.0)
     while tb < t1 - 0.3:
         width = rng.uniform(0.15, 0.25)
         amp = rng.uniform(0.85, 1.0)
-        pulse = _bump(t, tb, width)
+        pulse = _bump(t, tb, width) * (wide == 0)
         add("eyeBlinkLeft", amp * pulse)
         add("eyeBlinkRight", amp * rng.uniform(0.9, 1.0) * pulse)
         tb += rng.uniform(2.0, 4.0)
@@ -119,8 +121,8 @@ def performance_weights(shape_names, n_frames, *, fps=60.0, rest=60, seed=0):
         add("browInnerUp", rng.uniform(0.4, 0.8) * raise_)
         add("browOuterUpLeft", rng.uniform(0.3, 0.7) * raise_)
         add("browOuterUpRight", rng.uniform(0.3, 0.7) * raise_)
-    add("eyeWideLeft", 0.4 * _bump(t, t0 + 0.5 * span, 0.6))
-    add("eyeWideRight", 0.4 * _bump(t, t0 + 0.5 * span, 0.6))
+    add("eyeWideLeft", wide)
+    add("eyeWideRight", wide)
     add("cheekPuff", 0.6 * _plateau(t, t0 + 0.93 * span, 0.2, 0.3))
     add("jawLeft", 0.3 * _bump(t, t0 + 0.48 * span, 0.8))
     add("mouthLeft", 0.3 * _bump(t, t0 + 0.62 * span, 0.6))
@@ -178,6 +180,7 @@ def synthesize_take(
     max_offset=0.05,
     noise_sigma=0.0003,
     gap_fraction=0.05,
+    max_gap=30,
     seed=2,
 ):
     """Markers a capture system would record if an actor performed ``weights`` on ``basis``.
@@ -185,8 +188,8 @@ def synthesize_take(
     The face (basis neutral + weighted deltas, metres) moves rigidly about ``pivot``; the actor is
     ``actor_scale`` times the character and stands in the capture volume at ``capture_offset``
     rotated by ``capture_rotation_deg``; positions are written in ``units`` with Gaussian noise of
-    ``noise_sigma`` metres per coordinate and runs of gaps on ``gap_fraction`` of the samples of
-    every marker not in ``stable``.
+    ``noise_sigma`` metres per coordinate and runs of 2 to ``max_gap`` frames of gaps on
+    ``gap_fraction`` of the samples of every marker not in ``stable``.
 
     Returns
     -------
@@ -211,7 +214,7 @@ def synthesize_take(
         target = int(round(gap_fraction * F))
         missing = 0
         while missing < target:
-            length = int(rng.integers(2, 31))
+            length = int(rng.integers(2, max_gap + 1))
             start = int(rng.integers(rest, max(rest + 1, F - rest - length)))
             noisy[start : start + length, m] = np.nan
             missing = int(np.isnan(noisy[:, m, 0]).sum())

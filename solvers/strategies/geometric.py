@@ -8,7 +8,7 @@ less).
 
 from dataclasses import dataclass
 
-from ..engine import solve_bounded
+from ..engine import DEFAULT_SMOOTHING, solve_bounded
 
 
 @dataclass(frozen=True)
@@ -18,15 +18,16 @@ class GeometricOptions:
 
     regularisation : ridge weight on every shape (keeps weights of shapes the markers barely see small)
     sparsity : L1 weight (most shapes are off most of the time; pulls noise-level activations to 0)
-    symmetry : coupling of each ``<name>Left`` / ``<name>Right`` pair (faces move mostly
-        symmetrically; lets a side whose markers are missing follow the other side)
-    smoothing : (first, second) temporal difference weights; (0, 0) solves frames independently
+    symmetry : coupling of each ``<name>Left`` / ``<name>Right`` pair (off by default: it lets a
+        side whose markers are missing follow the other side, but biases asymmetric expressions)
+    smoothing : (first, second) temporal difference weights; (0, 0) solves frames independently.
+        The default keeps a 3-frame lip closure at 60 fps and halves frame-to-frame jitter.
     """
 
     regularisation: float = 1e-3
-    sparsity: float = 3e-3
-    symmetry: float = 3e-2
-    smoothing: tuple = (0.0, 0.0)
+    sparsity: float = 1e-3
+    symmetry: float = 0.0
+    smoothing: tuple = DEFAULT_SMOOTHING
 
 
 def symmetric_pairs(shape_names):

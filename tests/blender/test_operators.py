@@ -97,7 +97,7 @@ def test_solve_keys_new_action_and_keeps_the_previous(take):
     s = bpy.context.scene.facecap
     s.target = take["obj"]
     bpy.ops.facecap.set_neutral(first=1, last=50)
-    s.regularisation = s.sparsity = s.symmetry = s.head_smoothing = 0.0  # exact data, no priors
+    s.regularisation = s.sparsity = s.symmetry = s.head_smoothing = s.smoothing_second = 0.0  # exact data, no priors
     assert bpy.ops.facecap.solve() == {"FINISHED"}
     key = take["obj"].data.shape_keys
     first = key.animation_data.action

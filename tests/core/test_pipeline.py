@@ -10,7 +10,7 @@ from facecap.solvers.synth import synthesize_take
 from facecap.solvers.transforms import rotation_angle_deg
 
 # No priors and no smoothing: exact data must give exact weights.
-EXACT = dict(regularisation=0.0, sparsity=0.0, symmetry=0.0, head_smoothing=0.0)
+EXACT = dict(regularisation=0.0, sparsity=0.0, symmetry=0.0, head_smoothing=0.0, smoothing=(0.0, 0.0))
 
 
 @pytest.fixture(scope="module")
