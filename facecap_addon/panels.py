@@ -14,6 +14,30 @@ class FACECAP_UL_markers(bpy.types.UIList):
             row.label(text=f"{item.gaps} gaps")
 
 
+class FACECAP_UL_shapes(bpy.types.UIList):
+    """Shapes with lock, bounds and region."""
+
+    def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index):
+        row = layout.row(align=True)
+        row.prop(item, "lock", text="", icon="LOCKED" if item.lock else "UNLOCKED", emboss=False)
+        row.label(text=item.name)
+        if item.lock:
+            row.prop(item, "lock_value", text="")
+        else:
+            row.prop(item, "lower", text="")
+            row.prop(item, "upper", text="")
+        row.prop(item, "region", text="")
+
+
+class FACECAP_UL_regions(bpy.types.UIList):
+    """Regions with their marker patterns."""
+
+    def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index):
+        row = layout.row(align=True)
+        row.prop(item, "name", text="", emboss=False)
+        row.prop(item, "markers", text="")
+
+
 class FacecapPanel:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
@@ -80,6 +104,14 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(s, "smoothing_first")
         col.prop(s, "smoothing_second")
+        layout.label(text="Shapes (lock, min, max, region)")
+        layout.template_list("FACECAP_UL_shapes", "", s, "shapes", s, "active_shape", rows=4)
+        layout.operator("facecap.refresh_shapes", icon="FILE_REFRESH")
+        row = layout.row()
+        row.template_list("FACECAP_UL_regions", "", s, "regions", s, "active_region", rows=2)
+        col = row.column(align=True)
+        col.operator("facecap.region_add", icon="ADD", text="")
+        col.operator("facecap.region_remove", icon="REMOVE", text="")
         layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
         if s.last_report:
             box = layout.box()
@@ -87,4 +119,4 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
                 box.label(text=line)
 
 
-CLASSES = (FACECAP_UL_markers, FACECAP_PT_take, FACECAP_PT_stabilise, FACECAP_PT_solve)
+CLASSES = (FACECAP_UL_markers, FACECAP_UL_shapes, FACECAP_UL_regions, FACECAP_PT_take, FACECAP_PT_stabilise, FACECAP_PT_solve)

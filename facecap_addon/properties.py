@@ -36,6 +36,24 @@ class FACECAP_PG_marker(bpy.types.PropertyGroup):
     gaps: IntProperty(name="Gaps", description="Missing samples in the take", default=0)
 
 
+class FACECAP_PG_shape(bpy.types.PropertyGroup):
+    """Solve options of one shape key; ``name`` is the shape key's name."""
+
+    lock: BoolProperty(name="Lock", description="Hold this shape at the lock value in the solve (animator-owned)")
+    lock_value: FloatProperty(name="Value", default=0.0, description="Value a locked shape is held at")
+    lower: FloatProperty(name="Min", default=0.0, description="Lower bound of the solved weight")
+    upper: FloatProperty(name="Max", default=1.0, description="Upper bound of the solved weight")
+    region: StringProperty(name="Region", description="Region solving this shape (empty: the whole face)")
+
+
+class FACECAP_PG_region(bpy.types.PropertyGroup):
+    """A face region: its shapes are solved only from its markers; ``name`` is the region's name."""
+
+    markers: StringProperty(
+        name="Markers", description="Comma-separated marker name patterns, e.g. brow*, eye*, forehead*, head_*"
+    )
+
+
 class FACECAP_PG_settings(bpy.types.PropertyGroup):
     """Settings of the current take."""
 
@@ -107,13 +125,17 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
         unit="TIME_ABSOLUTE",
         description="Half-window in seconds of the zero-phase smoothing of the head pose (0 = off)",
     )
+    shapes: CollectionProperty(type=FACECAP_PG_shape)
+    active_shape: IntProperty(default=0)
+    regions: CollectionProperty(type=FACECAP_PG_region)
+    active_region: IntProperty(default=0)
     head_object: PointerProperty(name="Head Motion", type=bpy.types.Object, description="Empty keyed with the removed head motion")
     flagged_frames: IntProperty(name="Flagged Frames", default=0, description="Frames the last stabilisation could not fit")
     last_action: StringProperty(name="Last Action", description="Action created by the last solve")
     last_report: StringProperty(name="Last Result", description="Summary of the last solve")
 
 
-CLASSES = (FACECAP_PG_marker, FACECAP_PG_settings)
+CLASSES = (FACECAP_PG_marker, FACECAP_PG_shape, FACECAP_PG_region, FACECAP_PG_settings)
 
 
 def register_properties():

@@ -46,4 +46,73 @@ class FACECAP_OT_solve(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (FACECAP_OT_solve,)
+
+class FACECAP_OT_refresh_shapes(bpy.types.Operator):
+    """Fill the shape list from the character's shape keys (keeps the options of shapes already listed)"""
+
+    bl_idname = "facecap.refresh_shapes"
+    bl_label = "Refresh Shapes"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.facecap.target is not None
+
+    def execute(self, context):
+        settings = context.scene.facecap
+        key = settings.target.data.shape_keys
+        if key is None:
+            self.report({"ERROR"}, f"'{settings.target.name}' has no shape keys")
+            return {"CANCELLED"}
+        old = {s.name: (s.lock, s.lock_value, s.lower, s.upper, s.region) for s in settings.shapes}
+        settings.shapes.clear()
+        for block in key.key_blocks:
+            if block == key.reference_key:
+                continue
+            item = settings.shapes.add()
+            item.name = block.name
+            item.lower, item.upper = block.slider_min, block.slider_max
+            if block.name in old:
+                item.lock, item.lock_value, item.lower, item.upper, item.region = old[block.name]
+        self.report({"INFO"}, f"{len(settings.shapes)} shapes listed")
+        return {"FINISHED"}
+
+
+class FACECAP_OT_region_add(bpy.types.Operator):
+    """Add a face region (its shapes are solved from its own markers only)"""
+
+    bl_idname = "facecap.region_add"
+    bl_label = "Add Region"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        settings = context.scene.facecap
+        region = settings.regions.add()
+        region.name = f"region{len(settings.regions)}"
+        settings.active_region = len(settings.regions) - 1
+        return {"FINISHED"}
+
+
+class FACECAP_OT_region_remove(bpy.types.Operator):
+    """Remove the active region (its shapes go back to the whole face)"""
+
+    bl_idname = "facecap.region_remove"
+    bl_label = "Remove Region"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return len(context.scene.facecap.regions) > 0
+
+    def execute(self, context):
+        settings = context.scene.facecap
+        name = settings.regions[settings.active_region].name
+        for shape in settings.shapes:
+            if shape.region == name:
+                shape.region = ""
+        settings.regions.remove(settings.active_region)
+        settings.active_region = max(0, settings.active_region - 1)
+        return {"FINISHED"}
+
+
+CLASSES = (FACECAP_OT_solve, FACECAP_OT_refresh_shapes, FACECAP_OT_region_add, FACECAP_OT_region_remove)

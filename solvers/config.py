@@ -7,6 +7,7 @@ from pathlib import Path
 from .errors import ConfigError
 from .markers import UNIT_SCALE
 from .pipeline import STRATEGIES, RetargetSettings
+from .shape_options import Region
 
 # section -> {key: (type(s), required)}
 SCHEMA = {
@@ -26,6 +27,9 @@ SCHEMA = {
         "sparsity": ((int, float), False),
         "symmetry": ((int, float), False),
         "smoothing": (list, False),
+        "bounds": (dict, False),
+        "locks": (dict, False),
+        "regions": (dict, False),
     },
     "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False)},
 }
@@ -102,6 +106,7 @@ def load_take_config(path):
     smoothing = get("solve", "smoothing", list(defaults.smoothing))
     if len(smoothing) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 for v in smoothing):
         raise ConfigError(f"expected [first_difference, second_difference] weights >= 0; got {smoothing}", path=path, key="solve.smoothing")
+    shape_options = _shape_options(path, data.get("solve", {}))
     if not get("binding", "vertex_groups", True):
         raise ConfigError("only vertex-group binding is available (set vertex_groups = true)", path=path, key="binding.vertex_groups")
     markers_path = resolve(get("source", "markers"))
@@ -119,6 +124,7 @@ def load_take_config(path):
             strategy=strategy,
             smoothing=(float(smoothing[0]), float(smoothing[1])),
             **numbers,
+            **shape_options,
         ),
         output_blend=resolve(get("output", "blend")),
         output_weights=resolve(get("output", "weights")),
@@ -145,3 +151,31 @@ def _check_schema(path, data):
         for key, (_, required) in keys.items():
             if required and key not in data.get(section, {}):
                 raise ConfigError("missing required key", path=path, key=f"{section}.{key}")
+
+
+def _number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _shape_options(path, solve):
+    """bounds / locks / regions of [solve]: shape-name glob patterns mapped to values."""
+    bounds = []
+    for pattern, value in solve.get("bounds", {}).items():
+        if not (isinstance(value, list) and len(value) == 2 and all(_number(v) for v in value) and value[0] <= value[1]):
+            raise ConfigError(f"expected [lower, upper] with lower <= upper; got {value}", path=path, key=f"solve.bounds.{pattern}")
+        bounds.append((pattern, float(value[0]), float(value[1])))
+    locks = []
+    for pattern, value in solve.get("locks", {}).items():
+        if not _number(value):
+            raise ConfigError(f"expected a number; got {value!r}", path=path, key=f"solve.locks.{pattern}")
+        locks.append((pattern, float(value)))
+    regions = []
+    for name, body in solve.get("regions", {}).items():
+        key = f"solve.regions.{name}"
+        if not isinstance(body, dict) or set(body) != {"shapes", "markers"}:
+            raise ConfigError("expected a table with 'shapes' and 'markers' lists of name patterns", path=path, key=key)
+        for field in ("shapes", "markers"):
+            if not (isinstance(body[field], list) and body[field] and all(isinstance(v, str) for v in body[field])):
+                raise ConfigError(f"'{field}' must be a non-empty list of name patterns", path=path, key=key)
+        regions.append(Region(name, tuple(body["shapes"]), tuple(body["markers"])))
+    return {"bounds": tuple(bounds), "locks": tuple(locks), "regions": tuple(regions)}

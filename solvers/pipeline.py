@@ -12,7 +12,9 @@ import numpy as np
 
 from .engine import DEFAULT_SMOOTHING
 from .errors import FacecapError
+from .diagnostics import basis_warnings
 from .neutral import neutral_from_frames
+from .shape_options import resolve_bounds, resolve_locks, resolve_regions
 from .stabilise import refine_rigid, smooth_head_motion, stabilise_rigid
 from .strategies.geometric import GeometricOptions, solve_geometric
 from .transforms import fit_similarity
@@ -34,6 +36,9 @@ class RetargetSettings:
     fine_iterations: int = 2  # hierarchical stabilisation: refits of the head on all markers
     fine_weight: float = 1.0  # trust of deforming markers in the refit, relative to stable ones
     head_smoothing: float = 0.1  # half-window (s) of the zero-phase head-pose smoothing; 0 = off
+    bounds: tuple = ()  # ((shape pattern, lower, upper), ...) overriding the slider ranges
+    locks: tuple = ()  # ((shape pattern, value), ...) shapes held fixed (animator-owned)
+    regions: tuple = ()  # (Region, ...) shapes solved from their own marker subsets
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,6 +140,12 @@ def retarget(markers, basis, settings):
 
     first, last = settings.neutral_frames
     sub = basis.subset_markers(used)
+    lower, upper = resolve_bounds(basis.shape_names, basis.lower, basis.upper, settings.bounds)
+    locks = resolve_locks(basis.shape_names, settings.locks)
+    regions, held = resolve_regions(basis.shape_names, used, settings.regions, dims=3)
+    if held:
+        notes.append(f"{len(held)} shape(s) are in no region and are held: {list(held)}")
+    notes.extend(dict.fromkeys(basis_warnings(sub.matrix(), sub.shape_names)))  # unique, in order
     used_idx = markers.index(used)
     stable_set = set(settings.stable_markers)
     trust = np.array([1.0 if n in stable_set else settings.fine_weight for n in used])
@@ -147,7 +158,10 @@ def retarget(markers, basis, settings):
         t2 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            solved = solve_geometric(sub, deltas, options=options)
+            solved = solve_geometric(
+                sub, deltas, options=options, lower=lower, upper=upper,
+                locks=None if np.isnan(locks).all() else locks, regions=regions,
+            )
         t3 = time.perf_counter()
         t_align += t2 - t1
         t_solve += t3 - t2

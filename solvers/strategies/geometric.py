@@ -40,7 +40,8 @@ def symmetric_pairs(shape_names):
     return pairs
 
 
-def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=None):
+def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=None, lower=None, upper=None,
+                    locks=None, regions=None):
     """Solve weights for character-space marker deltas.
 
     Parameters
@@ -50,6 +51,12 @@ def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=Non
     options : GeometricOptions
     confidence : ndarray (F, M), optional
         Trust per marker sample (0 = ignore).
+    lower, upper : ndarray (K,), optional
+        Weight bounds (default: the basis' slider range).
+    locks : ndarray (K,) or (F, K), optional
+        Values held fixed, NaN = free.
+    regions : list of (shape indices, coordinate indices), optional
+        See :func:`solvers.engine.solve_bounded`.
 
     Returns
     -------
@@ -62,8 +69,10 @@ def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=Non
         deltas.reshape(F, M * D),
         mask=confidence,
         dims=D,
-        lower=basis.lower,
-        upper=basis.upper,
+        lower=basis.lower if lower is None else lower,
+        upper=basis.upper if upper is None else upper,
+        locks=locks,
+        regions=regions,
         regularisation=options.regularisation,
         sparsity=options.sparsity,
         symmetry=pairs,

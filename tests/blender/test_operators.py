@@ -161,3 +161,56 @@ def test_panels_draw(take, panel):
     stub = type("PanelStub", (), {"layout": layout})()
     cls.draw(stub, bpy.context)
     assert layout.calls
+
+
+def test_shape_locks_bounds_regions_from_the_panel(take):
+    _import(take)
+    s = bpy.context.scene.facecap
+    s.target = take["obj"]
+    bpy.ops.facecap.set_neutral(first=1, last=50)
+    assert bpy.ops.facecap.refresh_shapes() == {"FINISHED"}
+    assert [x.name for x in s.shapes] == list(take["basis"].shape_names)
+    s.shapes["shape3"].lock = True
+    s.shapes["shape3"].lock_value = 0.4
+    s.shapes["shape5"].upper = 0.2
+    bpy.ops.facecap.region_add()
+    s.regions[0].markers = "m1*, m2*"
+    s.shapes["shape7"].region = s.regions[0].name
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    names = take["basis"].shape_names
+    solved = _solved_values(take["obj"], names)
+    assert np.all(solved[:, 3] == pytest.approx(0.4))
+    assert solved[:, 5].max() <= 0.2 + 1e-6
+    # The options survive a refresh.
+    bpy.ops.facecap.refresh_shapes()
+    assert s.shapes["shape3"].lock and s.shapes["shape7"].region == s.regions[0].name
+    bpy.ops.facecap.region_remove()
+    assert s.shapes["shape7"].region == ""
+
+
+def test_diagnostic_curves_are_keyed_with_the_weights(take):
+    _import(take)
+    s = bpy.context.scene.facecap
+    s.target = take["obj"]
+    bpy.ops.facecap.set_neutral(first=1, last=50)
+    bpy.ops.facecap.solve()
+    key = take["obj"].data.shape_keys
+    frames, values = anim.read_curves(key, [('["facecap_residual_mm"]', 0), ('["facecap_at_bound"]', 0)])
+    assert frames.size == N_FRAMES
+    assert np.all(values[:, 0] >= 0) and values[:, 0].max() > 0  # residual in mm, priors leave some
+    assert np.all(values[:, 1] == np.round(values[:, 1]))
+
+
+@pytest.mark.parametrize(
+    "ui_list, collection", [("FACECAP_UL_markers", "markers"), ("FACECAP_UL_shapes", "shapes"), ("FACECAP_UL_regions", "regions")]
+)
+def test_lists_draw_their_items(take, ui_list, collection):
+    _import(take)
+    s = bpy.context.scene.facecap
+    s.target = take["obj"]
+    bpy.ops.facecap.refresh_shapes()
+    bpy.ops.facecap.region_add()
+    item = getattr(s, collection)[0]
+    layout = _Layout()
+    getattr(bpy.types, ui_list).draw_item(None, bpy.context, layout, s, item, 0, s, "", 0)
+    assert ("label", item.name) in layout.calls or ("prop", "name") in layout.calls

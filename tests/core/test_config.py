@@ -65,3 +65,35 @@ def test_missing_required_key_and_file(tmp_path):
         load_take_config(tmp_path / "nope.toml")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_take_config(write(tmp_path, "[target\n"))
+
+
+def test_bounds_locks_regions(tmp_path):
+    text = BASE + """
+[solve]
+bounds = { "mouth*" = [0.0, 0.8], jawOpen = [0, 0.5] }
+locks = { tongueOut = 0.0 }
+[solve.regions.upper]
+shapes = ["brow*", "eye*"]
+markers = ["brow*", "eye*", "head_*"]
+[solve.regions.lower]
+shapes = ["*"]
+markers = ["*"]
+"""
+    s = load_take_config(write(tmp_path, text)).settings
+    assert s.bounds == (("mouth*", 0.0, 0.8), ("jawOpen", 0.0, 0.5))
+    assert s.locks == (("tongueOut", 0.0),)
+    assert [r.name for r in s.regions] == ["upper", "lower"]
+    assert s.regions[0].markers == ("brow*", "eye*", "head_*")
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ('[solve]\nbounds = { jawOpen = [1, 0] }\n', r"\[solve.bounds.jawOpen\] expected \[lower, upper\]"),
+        ('[solve]\nlocks = { jawOpen = "x" }\n', r"\[solve.locks.jawOpen\] expected a number"),
+        ('[solve.regions.upper]\nshapes = ["brow*"]\n', r"\[solve.regions.upper\] expected a table"),
+    ],
+)
+def test_shape_option_errors(tmp_path, extra, message):
+    with pytest.raises(ConfigError, match=message):
+        load_take_config(write(tmp_path, BASE + extra))
