@@ -4,6 +4,7 @@ Commands
 --------
 retarget --config take.toml   solve a take onto its character and write .blend / weights CSV / report
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
+bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
 stderr naming the file and field; there is no traceback for those.
@@ -168,6 +169,24 @@ def _cmd_demo(args):
     return 0
 
 
+def _cmd_bench(args):
+    from ..solvers.bench import run_benchmarks
+
+    frames = 3600 if args.quick else 36000
+    for row in run_benchmarks(quick=args.quick):
+        print(_bench_line(row), flush=True)
+    from .bench import bench_cli_retarget, bench_keying
+
+    print(_bench_line(bench_keying(frames=frames)), flush=True)
+    print(_bench_line(bench_cli_retarget(frames=frames)), flush=True)
+    return 0
+
+
+def _bench_line(row):
+    ratio = f"{row['ratio']:.0f}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
+    return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="facecap", description="Performance-driven facial retargeting.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -177,6 +196,9 @@ def build_parser():
     p = sub.add_parser("demo", help="retarget the bundled sample take and print its accuracy")
     p.add_argument("--out", default="facecap-demo", help="output folder (default: ./facecap-demo)")
     p.set_defaults(func=_cmd_demo)
+    p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
+    p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
+    p.set_defaults(func=_cmd_bench)
     return parser
 
 

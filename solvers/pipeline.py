@@ -6,7 +6,7 @@ source -> units -> stabilise (rigid, stable markers) -> neutral -> align actor t
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -158,8 +158,12 @@ def retarget(markers, basis, settings):
         t2 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
+            # The refits only need a prediction of the face: per-frame solves are enough there
+            # and much cheaper; the final solve uses the full (temporal) options.
+            final = iteration == settings.fine_iterations
             solved = solve_geometric(
-                sub, deltas, options=options, lower=lower, upper=upper,
+                sub, deltas, options=options if final else replace(options, smoothing=(0.0, 0.0)),
+                lower=lower, upper=upper,
                 locks=None if np.isnan(locks).all() else locks, regions=regions,
             )
         t3 = time.perf_counter()
