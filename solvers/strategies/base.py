@@ -1,0 +1,204 @@
+"""What every strategy shares: the result object, the character target and the source features.
+
+See the package docstring (``solvers/strategies/__init__.py``) for the interface itself.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..basis import Basis
+from ..errors import FacecapError
+from ..transforms import fit_similarity
+
+
+@dataclass(frozen=True, eq=False)
+class StrategyResult:
+    """Character weights from one strategy solve.
+
+    weights : (F, K) weights for the character's shapes (``shape_names``), NaN where unsolved
+    shape_names : tuple of K character shape names
+    solved : (F,) bool
+    warnings : tuple of str (legal but doubtful input or output; never raised)
+    source_weights : (F, S) or None, the intermediate activations (actor poses for calibrated/refine,
+        basis-frame or component coefficients for pca, mapped source channels for parallel)
+    source_names : tuple of S names for ``source_weights``
+    residual_rms : (F,) or None, RMS fit residual of the markers in source space (metres),
+        for strategies that fit markers
+    clamped : (F,) int, character weights moved onto their bounds by the final clamp
+    info : dict of strategy-specific diagnostics (JSON-ready scalars and short lists)
+    solve : the engine's SolveResult where a weight solve ran, else None
+    """
+
+    weights: np.ndarray
+    shape_names: tuple
+    solved: np.ndarray
+    warnings: tuple = ()
+    source_weights: np.ndarray = None
+    source_names: tuple = ()
+    residual_rms: np.ndarray = None
+    clamped: np.ndarray = None
+    info: dict = field(default_factory=dict)
+    solve: object = None
+
+
+@dataclass(frozen=True)
+class Target:
+    """The character side of every strategy: shape names and slider bounds."""
+
+    names: tuple
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @property
+    def n_shapes(self):
+        return len(self.names)
+
+
+def as_target(character):
+    """A ``Target`` from a Basis, a Target or a sequence of shape names (bounds [0, 1])."""
+    if isinstance(character, Target):
+        return character
+    if isinstance(character, Basis):
+        return Target(character.shape_names, character.lower.copy(), character.upper.copy())
+    if isinstance(character, str) or not hasattr(character, "__iter__"):
+        raise FacecapError(f"`character` must be a Basis or a sequence of shape names; got {type(character).__name__}")
+    names = tuple(str(n) for n in character)
+    if not names or len(set(names)) != len(names):
+        raise FacecapError("`character` shape names must be non-empty and unique")
+    return Target(names, np.zeros(len(names)), np.ones(len(names)))
+
+
+def clamp_to(target, weights):
+    """Clip (F, K) weights to the target's bounds; returns (clipped, count per frame)."""
+    clipped = np.clip(weights, target.lower, target.upper)
+    changed = np.isfinite(weights) & (np.abs(clipped - weights) > 1e-12)
+    return clipped, changed.sum(axis=1)
+
+
+def as_deltas(source, *, what="source"):
+    """Validate marker deltas: (F, M, D) float array (D = 2 or 3), NaN for gaps."""
+    deltas = np.asarray(source, dtype=np.float64)
+    if deltas.ndim == 2 and deltas.shape[0] > 0:
+        raise FacecapError(f"`{what}` must have shape (F, M, 3) marker deltas; got {deltas.shape} (weights go to `parallel`)")
+    if deltas.ndim != 3 or deltas.shape[2] not in (2, 3) or deltas.shape[0] == 0:
+        raise FacecapError(f"`{what}` must have shape (F, M, 3); got {deltas.shape}")
+    if np.isinf(deltas).any():
+        raise FacecapError(f"`{what}` contains infinite values")
+    gap = np.isnan(deltas).any(axis=2)
+    if gap.any():
+        deltas = deltas.copy()
+        deltas[gap] = np.nan
+    return deltas
+
+
+def reorder(deltas, names, fitted_names, *, what="source"):
+    """Columns of ``deltas`` (F, M, D) in ``fitted_names`` order; markers the source lacks are gaps."""
+    if names is None or fitted_names is None:
+        if fitted_names is not None and deltas.shape[1] != len(fitted_names):
+            raise FacecapError(
+                f"`{what}` has {deltas.shape[1]} markers; the strategy was fitted on {len(fitted_names)} "
+                "(pass `names` to match them by name)"
+            )
+        return deltas
+    names = tuple(names)
+    if len(names) != deltas.shape[1]:
+        raise FacecapError(f"`names` has {len(names)} entries for {deltas.shape[1]} markers in `{what}`")
+    lookup = {n: i for i, n in enumerate(names)}
+    common = [n for n in fitted_names if n in lookup]
+    if len(common) < 3:
+        raise FacecapError(
+            f"`{what}` shares only {len(common)} marker(s) with the fitted ones; "
+            f"fitted: {list(fitted_names)[:8]}..., source: {list(names)[:8]}..."
+        )
+    out = np.full((deltas.shape[0], len(fitted_names), deltas.shape[2]), np.nan)
+    for j, n in enumerate(fitted_names):
+        if n in lookup:
+            out[:, j] = deltas[:, lookup[n]]
+    return out
+
+
+def align_to(deltas, neutral, fitted_neutral, *, mode="rigid"):
+    """Rotate (and, for ``mode="similarity"``, scale) deltas from the source's neutral frame into
+    the frame the strategy was fitted in (Sony's master T-pose alignment).
+
+    ``neutral`` (M, D) is in the source's order after ``reorder``; rows with NaN are ignored.
+    Returns (deltas, Similarity or None).
+    """
+    if mode == "none" or neutral is None or fitted_neutral is None:
+        return deltas, None
+    if mode not in ("rigid", "similarity"):
+        raise FacecapError(f"`align` must be 'none', 'rigid' or 'similarity'; got {mode!r}")
+    neutral = np.asarray(neutral, dtype=np.float64)
+    if neutral.shape != fitted_neutral.shape:
+        raise FacecapError(f"`neutral` must have shape {fitted_neutral.shape}; got {neutral.shape}")
+    sim = fit_similarity(neutral, fitted_neutral, allow_scale=(mode == "similarity"))
+    return sim.apply_vectors(deltas), sim
+
+
+def flat(deltas):
+    """(F, M, D) -> (F, M * D)."""
+    return deltas.reshape(deltas.shape[0], -1)
+
+
+def check_pairs(features, weights, target, *, what="examples"):
+    """Validate example pairs: features (N, M, D) or (N, P) without gaps, weights (N, K) finite."""
+    X = np.asarray(features, dtype=np.float64)
+    if X.ndim == 3:
+        X = X.reshape(X.shape[0], -1)
+    if X.ndim != 2 or X.shape[0] == 0:
+        raise FacecapError(f"`{what}` must have shape (N, M, 3) or (N, P); got {np.shape(features)}")
+    if not np.isfinite(X).all():
+        raise FacecapError(f"`{what}` must have no gaps (NaN); fill or drop those frames first")
+    W = np.asarray(weights, dtype=np.float64)
+    if W.shape != (X.shape[0], target.n_shapes):
+        raise FacecapError(f"`weights` must have shape ({X.shape[0]}, {target.n_shapes}); got {W.shape}")
+    if not np.isfinite(W).all():
+        raise FacecapError("`weights` must be finite")
+    return X, W
+
+
+def fill_gaps(X, mean, components):
+    """Fill NaN entries of X (F, P) from the visible ones through a linear subspace.
+
+    For every frame with gaps, solve for subspace coefficients on the visible coordinates (least
+    squares) and take the missing ones from the reconstruction (the PPCA-style imputation of the
+    retargeting course, section 2). ``components`` (C, P) with orthonormal rows; ``mean`` (P,).
+    Frames with no visible coordinate stay NaN. Returns (filled X, frames that had gaps).
+    """
+    X = np.array(X, dtype=np.float64)
+    gaps = np.isnan(X)
+    rows = np.flatnonzero(gaps.any(axis=1))
+    for f in rows:
+        vis = ~gaps[f]
+        if not vis.any():
+            continue
+        B = components[:, vis].T
+        coef, *_ = np.linalg.lstsq(B, X[f, vis] - mean[vis], rcond=None)
+        X[f, ~vis] = mean[~vis] + coef @ components[:, ~vis]
+    return X, rows
+
+
+def pca(X, *, center=True, n_components=None, variance=None):
+    """Principal components of X (N, P) by SVD.
+
+    Returns mean (P,) (zeros if not ``center``), components (C, P) orthonormal rows in
+    descending variance with the largest-magnitude entry positive, singular values (C,), and
+    the explained variance ratio (C,). ``n_components`` caps C; ``variance`` (0-1] keeps the
+    fewest components reaching that share of the total. Components with a singular value below
+    1e-10 of the largest are dropped (rank).
+    """
+    X = np.asarray(X, dtype=np.float64)
+    mean = X.mean(axis=0) if center else np.zeros(X.shape[1])
+    U, s, Vt = np.linalg.svd(X - mean, full_matrices=False)
+    rank = int(np.sum(s > 1e-10 * (s[0] if s.size and s[0] > 0 else 1.0)))
+    energy = s**2 / max(np.sum(s**2), 1e-300)
+    C = rank
+    if variance is not None:
+        C = min(C, int(np.searchsorted(np.cumsum(energy), variance - 1e-12) + 1))
+    if n_components is not None:
+        C = min(C, int(n_components))
+    Vt = Vt[:C]
+    signs = np.sign(Vt[np.arange(C), np.argmax(np.abs(Vt), axis=1)])
+    signs[signs == 0] = 1.0
+    return mean, Vt * signs[:, None], s[:C], energy[:C]
