@@ -79,7 +79,7 @@ def frames_from_times(times, *, fps=None, where="timestamps"):
     raw = times * fps
     regular = steps.size == 0 or bool(np.all(np.abs(steps * fps - 1.0) <= RATE_TOLERANCE))
     if regular:
-        frames = np.round(raw)
+        frames = np.round(raw) + 0.0  # no -0.0
         if np.any(np.diff(frames) <= 0):
             regular = False
         else:
