@@ -34,6 +34,10 @@ class FACECAP_OT_stabilise(bpy.types.Operator):
         settings.flagged_frames = int(stab.flagged.sum())
         import numpy as np
 
+        moving = [n for n, w in stab.marker_trust.items() if w < 0.5]
+        if moving:
+            self.report({"WARNING"}, f"Stable markers {moving} move with the face; they were left out of the fit")
+
         rms = float(np.nanmean(stab.rms) * 1e3) if np.isfinite(stab.rms).any() else float("nan")
         self.report(
             {"WARNING" if stab.flagged.any() else "INFO"},

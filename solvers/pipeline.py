@@ -75,6 +75,7 @@ class RetargetResult:
             "stabilise": {
                 "rms_mm_mean": float(np.nanmean(self.stabilise.rms) * 1e3) if np.isfinite(self.stabilise.rms).any() else None,
                 "flagged_frames": {str(k): v for k, v in self.stabilise.flag_reasons.items()},
+                "stable_marker_trust": {k: round(v, 3) for k, v in self.stabilise.marker_trust.items()},
             },
             "alignment": {
                 "scale": self.alignment.scale,
@@ -130,6 +131,9 @@ def retarget(markers, basis, settings):
     )
     stab = stabilise_rigid(markers, settings.stable_markers, reference_frames=settings.neutral_frames)
     stab = smooth_head_motion(markers, stab, half_window=half_window)
+    moving = [n for n, w in stab.marker_trust.items() if w < 0.5]
+    if moving:
+        notes.append(f"stable marker(s) {moving} move relative to the others and were left out of the head fit")
     if stab.flagged.any():
         bridged = any(settings.smoothing)
         notes.append(

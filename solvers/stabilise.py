@@ -27,13 +27,15 @@ class StabiliseResult:
     rms: np.ndarray  # (F,) residual of the stable markers after the fit (NaN where flagged)
     flagged: np.ndarray  # (F,) bool
     flag_reasons: dict = field(default_factory=dict)  # frame number -> reason
+    unreliable: np.ndarray = None  # (F,) bool: fitted, but too few stable markers agreed (robust fit)
+    marker_trust: dict = field(default_factory=dict)  # stable marker -> mean robust weight (1 = rigid)
 
     def head_rotations(self):
         """Head rotation per frame relative to the reference (raw = R_head @ stabilised + ...)."""
         return self.rotations.transpose(0, 2, 1)
 
 
-def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3):
+def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, robust=True, iterations=6):
     """Remove rigid head motion with a closed-form fit of ``stable`` markers per frame.
 
     Parameters
@@ -47,6 +49,13 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3):
         are visible.
     min_points : int
         Frames with fewer usable stable markers are flagged.
+    robust : bool
+        Iteratively re-weighted fit (Tukey biweight on each marker's distance from the reference,
+        scaled by the take's median residual), so a stable marker that slides or was placed on
+        skin that moves is down-weighted in the frames where it moves. Frames where fewer than
+        ``min_points`` markers keep a weight above one half are reported as ``unreliable``.
+    iterations : int
+        Re-weighting passes of the robust fit.
 
     Returns
     -------
@@ -62,7 +71,19 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3):
     vis = ~np.isnan(pts[:, :, 0])
 
     reference = _reference_pose(markers, pts, vis, stable, reference_frames)
-    R, t, rank_ok = fit_rigid_batch(pts, reference, vis.astype(np.float64))
+    weights = vis.astype(np.float64)
+    R, t, rank_ok = fit_rigid_batch(pts, reference, weights)
+    if robust and len(stable) >= 4:
+        # Start the re-weighting from a least-median fit over triples of stable markers, so
+        # that up to ~40% moving markers cannot drag the starting pose.
+        R, t = _least_median_start(pts, reference, vis, R, t)
+    keep = np.ones(len(stable), dtype=bool)
+    for _ in range(iterations if robust else 0):
+        weights = vis * keep * _tukey_weights(R, t, pts, reference, vis)
+        R, t, rank_ok = fit_rigid_batch(pts, reference, weights)
+        # A marker that moves in many frames is not rigid at all: drop it for the whole take
+        # (a per-frame M-estimator only catches it once it has moved far).
+        keep = _rigid_markers(R, t, pts, reference, vis, keep)
     count = vis.sum(axis=1)
     flagged = (count < min_points) | ~rank_ok
     reasons = {}
@@ -72,6 +93,13 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3):
             reasons[frame] = f"only {int(count[f])} of {len(stable)} stable markers visible (need {min_points})"
         else:
             reasons[frame] = "stable markers are (nearly) collinear"
+
+    unreliable = ~flagged & ((weights > 0.5).sum(axis=1) < min_points)
+    for f in np.flatnonzero(unreliable):
+        reasons[_frame_label(markers.frames[f])] = "fit unreliable: too few stable markers agree with the reference"
+    with np.errstate(invalid="ignore"):
+        trust = np.where(vis, weights, np.nan)
+        trust = {n: float(np.nanmean(trust[:, i])) for i, n in enumerate(stable) if vis[:, i].any()}
 
     moved = np.einsum("fij,fmj->fmi", R, markers.positions) + t[:, None, :]
     moved[flagged] = np.nan
@@ -89,7 +117,60 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3):
         rms=rms,
         flagged=flagged,
         flag_reasons=reasons,
+        unreliable=unreliable,
+        marker_trust=trust,
     )
+
+
+def _least_median_start(pts, reference, vis, R0, t0, n_triples=40, seed=0):
+    """Per frame, the rigid fit of the triple of stable markers whose fit has the least median residual."""
+    S = reference.shape[0]
+    combos = np.array([(a, b, c) for a in range(S) for b in range(a + 1, S) for c in range(b + 1, S)])
+    # Keep well-spread triples only (a thin triangle gives a poor rotation).
+    tri = reference[combos]
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    combos = combos[area > 0.25 * np.median(area)]
+    if len(combos) > n_triples:
+        combos = combos[np.random.default_rng(seed).choice(len(combos), n_triples, replace=False)]
+    F = pts.shape[0]
+    best = np.full(F, np.inf)
+    R, t = R0.copy(), t0.copy()
+    filled = np.nan_to_num(pts)
+    for triple in combos:
+        w = np.zeros((F, S))
+        w[:, triple] = vis[:, triple]
+        Rc, tc, ok = fit_rigid_batch(pts, reference, w)
+        ok &= vis[:, triple].all(axis=1)
+        r = np.linalg.norm(np.einsum("fij,fsj->fsi", Rc, filled) + tc[:, None] - reference[None], axis=2)
+        med = np.nanmedian(np.where(vis, r, np.nan), axis=1)
+        better = ok & (med < best)
+        best[better] = med[better]
+        R[better], t[better] = Rc[better], tc[better]
+    return R, t
+
+
+def _rigid_markers(R, t, pts, reference, vis, keep, factor=3.0):
+    """Stable markers whose 90th-percentile residual stays within ``factor`` x the typical one."""
+    fitted = np.einsum("fij,fsj->fsi", R, np.nan_to_num(pts)) + t[:, None, :]
+    r = np.where(vis, np.linalg.norm(fitted - reference[None], axis=2), np.nan)
+    with np.errstate(invalid="ignore"):
+        p90 = np.nanpercentile(r, 90, axis=0)
+    typical = np.nanmedian(p90[keep])
+    ok = ~(p90 > factor * typical)
+    if ok.sum() < 3:  # never drop below what a fit needs; keep the three most rigid
+        ok = np.zeros_like(ok)
+        ok[np.argsort(np.nan_to_num(p90, nan=np.inf))[:3]] = True
+    return ok
+
+
+def _tukey_weights(R, t, pts, reference, vis, c=4.685):
+    """Tukey biweight of each stable marker's distance from the reference after the current fit."""
+    fitted = np.einsum("fij,fsj->fsi", R, np.nan_to_num(pts)) + t[:, None, :]
+    r = np.linalg.norm(fitted - reference[None], axis=2)
+    sigma = 1.4826 * np.median(r[vis]) if vis.any() else 0.0
+    sigma = max(sigma, 1e-12)
+    u = r / (c * sigma)
+    return np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
 
 
 def _frame_label(frame):
@@ -177,6 +258,8 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
         rms=rms,
         flagged=flagged,
         flag_reasons=reasons,
+        unreliable=stab.unreliable,
+        marker_trust=stab.marker_trust,
     )
 
 
@@ -215,4 +298,6 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
         rms=rms,
         flagged=stab.flagged,
         flag_reasons=stab.flag_reasons,
+        unreliable=stab.unreliable,
+        marker_trust=stab.marker_trust,
     )

@@ -76,3 +76,58 @@ def test_euler_matches_blender_xyz_convention():
     angles = np.array([[0.3, -0.7, 2.5], [-1.0, 0.2, -3.0]])
     R = Rotation.from_euler("xyz", angles).as_matrix()  # extrinsic xyz == Blender 'XYZ'
     np.testing.assert_allclose(matrix_to_euler_xyz(R), angles, atol=1e-12)
+
+
+def _head_with_deforming_stable_markers(seed=0, n_frames=600):
+    """10 'stable' markers on a head (sample layout), 3 of which actually move (brows, a sliding temple dot)."""
+    from pathlib import Path
+
+    from facecap.solvers import Basis
+
+    basis = Basis.load_npz(Path(__file__).resolve().parents[2] / "sample_blends" / "character_basis.npz")
+    names = [n for n in basis.marker_names if n.startswith("head_")] + ["brow_inner_L", "brow_outer_R"]
+    ref = basis.subset_markers(names).neutral
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames) / 60
+    ramp = np.clip((t - 1.0) / 0.8, 0, 1)  # still during the neutral hold, then a smooth start
+    rv = (ramp * ramp * (3 - 2 * ramp))[:, None] * np.stack(
+        [0.3 * np.sin(0.5 * t), 0.2 * np.sin(0.7 * t + 1), 0.4 * np.sin(0.3 * t + 2)], 1
+    )
+    R = Rotation.from_rotvec(rv).as_matrix()
+    local = np.repeat(ref[None], n_frames, 0)
+    moving = [names.index("brow_inner_L"), names.index("brow_outer_R"), names.index("head_temple_L")]
+    for i, k in enumerate(moving):
+        act = np.clip(np.sin(2 * np.pi * (0.4 + 0.1 * i) * t + i), 0, 1)
+        act[:60] = 0
+        local[:, k, 2] += 0.006 * act
+        local[:, k, 1] -= 0.002 * act
+    pos = np.einsum("fij,fmj->fmi", R, local) + rng.normal(0, 0.0003, local.shape)
+    return MarkerSet(tuple(names), np.arange(1, n_frames + 1), pos, fps=60), R, [names[k] for k in moving]
+
+
+def test_robust_fit_survives_deforming_markers_in_the_stable_set():
+    from facecap.solvers.stabilise import smooth_head_motion
+
+    markers, R, moving = _head_with_deforming_stable_markers()
+    errors = {}
+    for robust in (False, True):
+        st = stabilise_rigid(markers, markers.names, reference_frames=(1, 50), robust=robust)
+        st = smooth_head_motion(markers, st, half_window=6)
+        errors[robust] = rotation_angle_deg(st.head_rotations() @ R.transpose(0, 2, 1)).max()
+    print(f"max rotation error: plain {errors[False]:.3f} deg, robust {errors[True]:.3f} deg")
+    assert errors[True] <= 0.3
+    assert errors[False] > 2 * errors[True]  # the plain fit is dragged by the moving markers
+    st = stabilise_rigid(markers, markers.names, reference_frames=(1, 50))
+    assert sorted(n for n, w in st.marker_trust.items() if w < 0.5) == sorted(moving)
+
+
+def test_rotation_error_with_noise_after_smoothing():
+    from facecap.solvers.stabilise import smooth_head_motion
+
+    markers, R, moving = _head_with_deforming_stable_markers(seed=1)
+    rigid = [n for n in markers.names if n not in moving]
+    st = smooth_head_motion(markers, stabilise_rigid(markers, rigid, reference_frames=(1, 50)), half_window=6)
+    err = rotation_angle_deg(st.head_rotations() @ R.transpose(0, 2, 1))
+    rms = np.sqrt(np.mean(err**2))
+    print(f"7 rigid markers, sigma 0.3 mm: rotation error RMS {rms:.3f} deg, max {err.max():.3f} deg")
+    assert rms <= 0.1
