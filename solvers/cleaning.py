@@ -5,8 +5,8 @@
 1. ``fix_swaps``: two neighbouring markers that exchange labels for a while are swapped back
    (a frame where the exchanged assignment is much more continuous than the kept one toggles it).
 2. ``spike_speed`` / ``spike_mad``: samples moving faster than a physical bound (units/s; a
-   blink is the fastest facial motion, ~0.5 m/s), or far from a running median by a robust
-   median-absolute-deviation test, are removed (become gaps).
+   blink is the fastest facial motion, ~0.5 m/s), or whose second difference is an outlier by a
+   robust median-absolute-deviation test, are removed (become gaps).
 3. ``fill_spline``: interior gaps up to this many frames are filled by a cubic smoothing spline
    through the visible samples around them.
 4. ``fill_model``: interior gaps up to this many frames are reconstructed from the other markers:
@@ -39,7 +39,7 @@ class CleanSettings:
     spike_speed : float or None
         Maximum speed in the markers' units per second.
     spike_mad : float or None
-        Threshold in robust standard deviations (1.4826 MAD) from a 7-frame running median.
+        Threshold in robust standard deviations (1.4826 MAD) of the second difference.
     fill_spline : int
         Longest gap (frames) filled by spline; 0 = off.
     fill_model : int
@@ -202,30 +202,12 @@ def fix_swaps(markers, *, ratio=0.5):
                                                    "samples whose labels were exchanged back")
 
 
-def _running_median(track, half=3):
-    """Running median (F, D) of a (F, D) track over 2*half+1 frames, ignoring gaps."""
-    F = track.shape[0]
-    padded = np.pad(track, ((half, half), (0, 0)), constant_values=np.nan)
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1, axis=0)
-    with np.errstate(invalid="ignore"), _quiet():
-        return np.nanmedian(windows, axis=-1)[:F]
-
-
-class _quiet:
-    def __enter__(self):
-        import warnings
-
-        self._ctx = warnings.catch_warnings()
-        self._ctx.__enter__()
-        warnings.simplefilter("ignore", RuntimeWarning)
-
-    def __exit__(self, *exc):
-        return self._ctx.__exit__(*exc)
-
-
 def remove_spikes(markers, *, max_speed=None, mad=None):
-    """Remove samples faster than ``max_speed`` (units/s) in and out, or ``mad`` robust SDs from a
-    running median. Returns (markers, StepReport); removed samples become gaps."""
+    """Remove spikes; removed samples become gaps. Returns (markers, StepReport).
+
+    ``max_speed`` (units/s): a sample reached and left faster than this. ``mad``: a sample whose
+    second difference is a local peak more than ``mad`` robust SDs (1.4826 MAD) above the median.
+    """
     pos = markers.positions.copy()
     F, M, _ = pos.shape
     bad = np.zeros((F, M), dtype=bool)
@@ -236,16 +218,20 @@ def remove_spikes(markers, *, max_speed=None, mad=None):
         out = np.vstack([fast, np.zeros((1, M), bool)])
         bad |= into & out
     if mad is not None and F >= 7:
+        # Second difference: a one-frame excursion stands out against smooth (even fast) motion.
+        acc = np.full((F, M), np.nan)
+        acc[1:-1] = np.linalg.norm(pos[:-2] - 2 * pos[1:-1] + pos[2:], axis=2)
         for m in range(M):
-            track = pos[:, m]
-            resid = np.linalg.norm(track - _running_median(track), axis=1)
-            ok = np.isfinite(resid)
+            ok = np.isfinite(acc[:, m])
             if ok.sum() < 7:
                 continue
-            centre = np.median(resid[ok])
-            scale = 1.4826 * np.median(np.abs(resid[ok] - centre))
-            if scale > 0:
-                bad[ok, m] |= resid[ok] > centre + mad * scale
+            centre = np.median(acc[ok, m])
+            scale = 1.4826 * np.median(np.abs(acc[ok, m] - centre))
+            if scale <= 0:
+                continue
+            a = np.nan_to_num(acc[:, m], nan=0.0)
+            peak = (a >= np.roll(a, 1)) & (a >= np.roll(a, -1))
+            bad[:, m] |= peak & (a > centre + mad * scale)
     bad &= markers.visible
     pos[bad] = np.nan
     return markers.with_positions(pos), StepReport("remove_spikes", _counts(markers, bad.sum(axis=0)),

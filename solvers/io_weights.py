@@ -19,7 +19,7 @@ import numpy as np
 
 from .arkit import ARKIT_52
 from .errors import FacecapError, InputFileError
-from .io_csv import TIME_HEADERS, _time_column, read_numeric_columns, read_text_columns, sniff
+from .io_csv import TIME_HEADERS, _rows, _time_column, read_numeric_columns, read_text_columns, sniff
 from .io_timing import frames_from_times, resample
 
 HEAD_CHANNELS = ("HeadYaw", "HeadPitch", "HeadRoll")
@@ -116,17 +116,19 @@ def read_weights(path, *, fps=None, timecode_fps=None):
     timecode = ""
     if tc_col is not None:
         cells = read_text_columns(sn, [tc_col])[0]
+        line_numbers = [line for line, _ in _rows(sn)]
         timecode = cells[0]
-        ff_max = 0.0
+        ff = []
         for r, cell in enumerate(cells):
             parts = cell.replace(";", ":").split(":")
             try:
-                ff_max = max(ff_max, float(parts[3]) if len(parts) == 4 else np.nan)
+                ff.append(float(parts[3]) if len(parts) == 4 else np.nan)
             except ValueError:
-                ff_max = np.nan
-            if not np.isfinite(ff_max):
-                raise InputFileError(path, f"expected a timecode HH:MM:SS:FF, got {cell!r}", line=r + sn.header_line + 1,
-                                     field=header[tc_col])
+                ff.append(np.nan)
+            if not np.isfinite(ff[-1]):
+                raise InputFileError(path, f"expected a timecode HH:MM:SS:FF, got {cell!r}",
+                                     line=line_numbers[r], field=header[tc_col])
+        ff_max = max(ff)
         rate = timecode_fps or (30.0 if ff_max < 24 else next((r for r in _TIMECODE_RATES if ff_max < r), 60.0))
         secs = []
         for r, cell in enumerate(cells):
@@ -134,7 +136,7 @@ def read_weights(path, *, fps=None, timecode_fps=None):
                 secs.append(parse_timecode(cell, rate))
             except (ValueError, IndexError):
                 raise InputFileError(path, f"expected a timecode HH:MM:SS:FF, got {cell!r}",
-                                     field=header[tc_col]) from None
+                                     line=line_numbers[r], field=header[tc_col]) from None
         times = np.asarray(secs)
         notes.append(f"timecode rate {rate:g} fps" + ("" if timecode_fps else " (detected)"))
     elif key_col is not None:
