@@ -94,6 +94,10 @@ def resample(times, positions, fps):
     than 2.5 frames apart (interpolation would invent motion). Returns (frames, positions).
     """
     raw = np.asarray(times, dtype=np.float64) * fps
+    span = raw[-1] - raw[0]
+    if span > 10 * raw.size + 1000:
+        raise FacecapError(f"timestamps span {span / fps:.6g} s for {raw.size} samples; refusing to resample "
+                           f"to {span:.0f} frames at {fps:g} fps (wrong time column or rate?)")
     frames = np.arange(np.ceil(raw[0] - 1e-9), np.floor(raw[-1] + 1e-9) + 1.0)
     if frames.size == 0:
         frames = np.array([np.round(raw[0])])

@@ -155,7 +155,10 @@ def read_weights(path, *, fps=None, timecode_fps=None):
         except FacecapError as exc:
             raise InputFileError(path, str(exc).split(": ", 1)[-1]) from None
         if not regular:
-            frames, resampled = resample(times, values[:, None, :], rate)
+            try:
+                frames, resampled = resample(times, values[:, None, :], rate)
+            except FacecapError as exc:
+                raise InputFileError(path, str(exc)) from None
             values = resampled[:, 0, :]
             notes.append(f"variable-rate timestamps resampled to {rate:.6g} fps: {len(times)} -> {len(frames)} frames")
         if tc_col is not None:
