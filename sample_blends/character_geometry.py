@@ -562,8 +562,10 @@ def _eye_keys(f):
     # A blink also lifts the lower lid slightly (orbicularis closes both lids).
     keys["eyeBlinkLeft"] = lid_up(-f.close * f.g_up) + lid_up(0.12 * f.close * f.g_low)
     keys["eyeWideLeft"] = lid_up(0.45 * f.open_shape * f.g_up)
+    # Squinting also bunches the skin at the outer eye corner (crow's feet).
     keys["eyeSquintLeft"] = (lid_up(0.40 * f.close * f.g_low) + lid_up(-0.10 * f.close * f.g_up)
-                             + _vec(f.b2(0.034, -0.013, 0.018, 0.011), (0.0, -0.0005, 0.0015)))
+                             + _vec(f.b2(0.034, -0.013, 0.018, 0.011), (0.0, -0.0005, 0.0015))
+                             + _vec(f.b2(0.051, 0.004, 0.012, 0.012), (-0.0012, 0.0, 0.0012)))
     ball = f.eye_l[:, None]
     look_lid = f.open_shape
     keys["eyeLookUpLeft"] = (_rotate_x(p, e, EYE_LOOK_ANGLE) * ball
@@ -587,10 +589,12 @@ def _brow_keys(f):
     keys["browDownLeft"] = np.stack([-0.0025 * inner * w, 0.0006 * w, -0.0042 * w], axis=1)
     # Frontalis lifts a broad band of the brow: the inner raise carries the mid brow a little,
     # the outer raise carries the mid brow and lower forehead (bony head markers stay still).
-    keys["browInnerUp"] = _vec(f.b2(0.013, 0.032, 0.026, 0.026, mirror_x=True) * lid,
-                               (0.0, -0.0003, 0.0052))
-    keys["browOuterUpLeft"] = _vec(f.b2(0.040, 0.031, 0.026, 0.035) * lid, (0.0004, 0.0, 0.0052))
-    keys["noseSneerLeft"] = (_vec(f.b2(0.0135, -0.029, 0.009, 0.011), (0.0006, -0.0004, 0.0032))
+    keys["browInnerUp"] = (_vec(f.b2(0.013, 0.032, 0.026, 0.026, mirror_x=True) * lid, (0.0, -0.0003, 0.0052))
+                           + _vec(f.b2(0.012, 0.046, 0.030, 0.019, mirror_x=True), (0.0, 0.0, 0.002)))  # forehead skin
+    keys["browOuterUpLeft"] = (_vec(f.b2(0.040, 0.031, 0.026, 0.035) * lid, (0.0004, 0.0, 0.0052))
+                               + _vec(f.b2(0.030, 0.046, 0.030, 0.019), (0.0, 0.0, 0.0015)))  # forehead skin
+    keys["noseSneerLeft"] = (_vec(f.b2(0.0, -0.0285, 0.009, 0.008), (0.0, 0.0, 0.0012))  # tip lifts
+                             + _vec(f.b2(0.0135, -0.029, 0.009, 0.011), (0.0006, -0.0004, 0.0032))
                              + _vec(f.b2(0.011, -0.014, 0.007, 0.010), (0.0, -0.0003, 0.0017))
                              + _vec(f.upper_lip(0.012, 0.014, 0.012), (0.0, 0.0, 0.0010)))
     sx = np.sign(f.x)
@@ -629,7 +633,7 @@ def _mouth_keys(f):
     w = f.b2(0.0, Z_MOUTH, 0.042, 0.024)
     keys["mouthLeft"] = np.stack([0.005 * w, 0.002 * w * (1.0 + f.x / 0.025), 0.0 * w], 1)
     keys["mouthSmileLeft"] = (_vec(f.at_corner(0.021, 0.021), (0.003, 0.0025, 0.0045))
-                              + _vec(f.b2(0.036, -0.030, 0.02, 0.02), (0.0005, -0.0006, 0.002)))
+                              + _vec(f.b2(0.036, -0.030, 0.026, 0.026), (0.0005, -0.0006, 0.002)))
     keys["mouthFrownLeft"] = (_vec(f.at_corner(0.016, 0.018), (0.0005, 0.0, -0.0045))
                               + _vec(f.b2(0.028, -0.076, 0.016, 0.016), (0.0, 0.0, -0.002)))
     keys["mouthStretchLeft"] = (_vec(f.at_corner(0.021, 0.02), (0.005, 0.0015, -0.002))
