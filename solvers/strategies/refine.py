@@ -35,19 +35,14 @@ class RefineStrategy(CalibratedStrategy):
         squared activation of a pose over the training take (larger = smaller corrections)
     fit_smoothing : (mu1, mu2) of the weight solves inside the iteration, default (0, 0)
         (per-frame; the final ``solve`` uses ``smoothing``)
-    keep_scale : bool, default True: rescale every refined pose to its original norm (the basis is
-        only defined up to B w = (B K)(K^-1 w); this pins the per-pose scale so the weights keep
-        the calibration's meaning of "1")
     **calibrated options : mapping, keyed_by, aliases, regularisation, sparsity, symmetry,
         smoothing, align, pose_bounds (see ``CalibratedStrategy``)
     """
 
     name = "refine"
 
-    def __init__(self, *, max_iterations=10, tol=1e-3, stiffness=1e-2, fit_smoothing=(0.0, 0.0), keep_scale=True,
-                 **options):
+    def __init__(self, *, max_iterations=10, tol=1e-3, stiffness=1e-2, fit_smoothing=(0.0, 0.0), **options):
         super().__init__(**options)
-        self.keep_scale = bool(keep_scale)
         if int(max_iterations) < 0 or not tol >= 0 or not stiffness >= 0:
             raise FacecapError("refine: need max_iterations >= 0, tol >= 0 and stiffness >= 0")
         self.max_iterations, self.tol, self.stiffness = int(max_iterations), float(tol), float(stiffness)
@@ -106,10 +101,6 @@ class RefineStrategy(CalibratedStrategy):
             G = np.einsum("fm,fk,fl->mkl", seen.astype(float), W, W) + mu * np.eye(W.shape[1])
             R = np.einsum("fmd,fk->mdk", D, W) + mu * A0
             A = np.linalg.solve(G, R.transpose(0, 2, 1)).transpose(0, 2, 1)  # R_m G_m^-1, G symmetric
-            if self.keep_scale:  # fix the gauge: a pose keeps its calibrated magnitude
-                norm0 = np.linalg.norm(A0.reshape(-1, A0.shape[2]), axis=0)
-                norm = np.linalg.norm(A.reshape(-1, A.shape[2]), axis=0)
-                A = A * np.where(norm > 0, norm0 / np.where(norm > 0, norm, 1.0), 1.0)
             candidate = Basis(current.shape_names, current.marker_names, current.neutral, A.transpose(2, 0, 1),
                               current.lower, current.upper)
             W_new, err_new = weights_and_error(candidate)
