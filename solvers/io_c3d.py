@@ -22,8 +22,7 @@ import numpy as np
 
 from .errors import FacecapError, InputFileError
 from .fileio import atomic_path
-from .io_timing import UNIT_ALIASES, check_markerset, finish
-from .markers import MarkerSet
+from .io_timing import UNIT_ALIASES, check_markerset, finish_arrays
 
 BLOCK = 512
 INTEL, DEC, MIPS = 84, 85, 86
@@ -259,10 +258,9 @@ def read_c3d(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
             notes.append(f"POINT:UNITS {unit_text!r} not understood")
     segments = _segments(c)
     frames = np.arange(first, first + n_frames, dtype=np.float64)
-    raw_set = check_markerset(lambda: MarkerSet(names, frames, positions, fps=rate if fps is None else fps,
-                                                units="m", source=path, segments=segments), path)
-    return check_markerset(lambda: finish(raw_set, units=units, file_units=file_units, unit_scale=unit_scale,
-                                          up_axis=up_axis, fps=fps, notes=notes), path)
+    return check_markerset(lambda: finish_arrays(
+        names, frames, positions, source=path, file_fps=rate, segments=segments, units=units,
+        file_units=file_units, unit_scale=unit_scale, up_axis=up_axis, fps=fps, notes=notes), path)
 
 
 def _last_frame(c, header_last):

@@ -26,11 +26,11 @@ import numpy as np
 
 from .errors import FacecapError, InputFileError
 from .fileio import atomic_path
-from .io_timing import check_markerset, finish, segments_from_labels
+from .io_timing import check_markerset, finish, finish_arrays, segments_from_labels
 from .markers import MarkerSet
 
 GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
-_GAP_SPELLINGS = ("", "NA", "na", "N/A", "n/a", "null", "NULL", "None", "none", "NaN", "nan")
+_GAP_SPELLINGS = ("", "NA", "na", "N/A", "n/a", "null", "NULL", "None", "none")  # nan: parsed by numpy
 FRAME_HEADERS = ("frame", "frames", "frame_number", "frame#", "frame_no", "frameno")
 TIME_HEADERS = {
     "time": 1.0, "times": 1.0, "t": 1.0, "time_s": 1.0, "time (s)": 1.0, "time[s]": 1.0, "seconds": 1.0,
@@ -217,9 +217,11 @@ def _fast_numeric(sn, columns):
                                             ndmin=2, dtype=np.float64, comments=None, quotechar=None))
         except (ValueError, UserWarning, UnicodeDecodeError, _SlowPath):
             raise _SlowPath from None
+    if not parts:
+        raise _SlowPath
     values = np.concatenate(parts) if len(parts) != 1 else parts[0]
     del parts
-    if values.size == 0 or np.isinf(values).any():
+    if np.isinf(values).any():
         raise _SlowPath
     return values
 
@@ -374,11 +376,10 @@ def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, 
     if text_extra:
         notes.append(f"text column(s) {text_extra} read as segment labels")
     times = None if lay.time_scale is None else key * lay.time_scale
-    raw = check_markerset(lambda: MarkerSet(lay.names, key if times is None else np.arange(len(key)),
-                                            positions, fps=60.0 if fps is None else fps, units="m",
-                                            source=str(sn.path)), sn.path)
-    return check_markerset(lambda: finish(raw, units=units, unit_scale=unit_scale, up_axis=up_axis,
-                                          times=times, fps=fps, labels=labels, notes=notes), sn.path)
+    return check_markerset(lambda: finish_arrays(
+        lay.names, key if times is None else np.arange(len(key), dtype=np.float64), positions,
+        source=str(sn.path), units=units, unit_scale=unit_scale, up_axis=up_axis, times=times, fps=fps,
+        labels=labels, notes=notes), sn.path)
 
 
 def read_markers_csv(path, *, units="m", fps=60.0):

@@ -6,8 +6,6 @@ given or detected, a Y-up to Z-up conversion, timestamps turned into frames, and
 timestamps resampled to a fixed rate.
 """
 
-from dataclasses import replace
-
 import numpy as np
 
 from .errors import FacecapError
@@ -117,14 +115,28 @@ def resample(times, positions, fps):
     return frames, out
 
 
-def finish(markers, *, units=None, file_units=None, unit_scale=None, up_axis=None, times=None,
-           fps=None, labels=None, notes=None):
+def finish(markers, **options):
+    """:func:`finish_arrays` on an existing MarkerSet's names, frames, positions, fps and segments."""
+    return finish_arrays(markers.names, markers.frames, markers.positions, source=markers.source,
+                         file_fps=markers.fps, segments=markers.segments, **options)
+
+
+def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segments=None, units=None,
+                  file_units=None, unit_scale=None, up_axis=None, times=None, fps=None, labels=None,
+                  notes=None):
     """Apply units, axis and timing to a reader's raw MarkerSet.
+
+    The MarkerSet is built once, at the end (no intermediate copies of a large take).
 
     Parameters
     ----------
-    markers : MarkerSet
-        Positions in the file's units; ``frames`` are frame numbers (ignored when ``times`` given).
+    names, frames, positions
+        Positions (F, M, D) in the file's units; ``frames`` are frame numbers (ignored when
+        ``times`` is given).
+    source : str
+    file_fps : float
+        The file's frame rate, used when ``fps`` is None and there are no timestamps.
+    segments : dict or None
     units : str or None
         What the user says the numbers are; overrides ``file_units``. "bu" needs ``unit_scale``.
     file_units : str or None
@@ -147,11 +159,13 @@ def finish(markers, *, units=None, file_units=None, unit_scale=None, up_axis=Non
     MarkerSet
     """
     notes = [] if notes is None else notes
-    where = markers.source or "markers"
-    positions = markers.positions
+    where = source or "markers"
+    positions = np.asarray(positions, dtype=np.float64)
+    dim = positions.shape[-1] if positions.ndim == 3 else 0
+    segments = dict(segments or {})
     chosen = normalise_units(units) or normalise_units(file_units, what="file units")
     if chosen is None:
-        if markers.dim == 2:
+        if dim == 2:
             chosen = "px"
             notes.append("2D data: units taken as pixels")
         else:
@@ -176,13 +190,11 @@ def finish(markers, *, units=None, file_units=None, unit_scale=None, up_axis=Non
     if axis not in (None, "Z", "Y"):
         raise FacecapError(f"`up_axis` must be 'Y' or 'Z'; got {up_axis!r}")
     if axis == "Y":
-        if markers.dim != 3:
+        if dim != 3:
             raise FacecapError(f"{where}: up_axis='Y' needs 3D markers")
         positions = y_up_to_z_up(positions)
         notes.append("converted Y-up to Z-up: (x, y, z) -> (x, -z, y)")
-    frames = markers.frames
-    rate = markers.fps if fps is None else float(fps)
-    segments = markers.segments
+    rate = file_fps if fps is None else float(fps)
     if times is not None:
         frames, rate, regular = frames_from_times(times, fps=fps, where=where)
         if regular:
@@ -203,8 +215,7 @@ def finish(markers, *, units=None, file_units=None, unit_scale=None, up_axis=Non
                 labels = [labels[i] for i in nearest]
     if labels is not None:
         segments = segments_from_labels(list(labels), frames)
-    return replace(markers, frames=frames, positions=positions, units=chosen, fps=rate,
-                   segments=segments)
+    return MarkerSet(names, frames, positions, fps=rate, units=chosen, source=source, segments=segments)
 
 
 def segments_from_labels(labels, frames):
@@ -234,5 +245,5 @@ def check_markerset(build, path):
         raise InputFileError(path, text[len(prefix):] if text.startswith(prefix) else text) from None
 
 
-__all__ = ["MarkerSet", "UNIT_CHOICES", "finish", "frames_from_times", "guess_units", "normalise_units",
+__all__ = ["MarkerSet", "UNIT_CHOICES", "finish", "finish_arrays", "frames_from_times", "guess_units", "normalise_units",
            "resample", "segments_from_labels", "y_up_to_z_up"]
