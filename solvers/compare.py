@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from .basis import Basis
 from .neutral import neutral_from_frames
 from .stabilise import stabilise_rigid
+from .strategies.pca import farthest_frames
 from .synth import performance_weights, synthesize_take
 
 SAMPLE_BASIS = Path(__file__).resolve().parents[1] / "sample_blends" / "character_basis.npz"
@@ -123,8 +124,7 @@ def build_scenario(*, frames=720, noise=0.0003, gaps=0.05, n_examples=60, seed=0
                        gaps=gaps, seed=seed + 3)
     test = actor_take(actor, performance_weights(character.shape_names, frames, seed=seed), noise=noise,
                       gaps=gaps, seed=seed + 2)
-    full = np.flatnonzero(np.isfinite(train.deltas).all(axis=(1, 2)))
-    examples = full[np.linspace(0, len(full) - 1, n_examples).round().astype(int)]
+    examples = farthest_frames(train.deltas, n_examples)
     return Scenario(character, actor, calib.markers, poses, neutral, train, test, examples)
 
 

@@ -202,3 +202,14 @@ def pca(X, *, center=True, n_components=None, variance=None):
     signs = np.sign(Vt[np.arange(C), np.argmax(np.abs(Vt), axis=1)])
     signs[signs == 0] = 1.0
     return mean, Vt * signs[:, None], s[:C], energy[:C]
+
+
+def gap_subspace(*frames, variance=0.99999, max_components=60):
+    """(mean, components) for ``fill_gaps`` from the gap-free rows of several (F, P) arrays
+    (the fitted examples/training frames and the take being solved), uncentred."""
+    rows = [np.asarray(X, dtype=np.float64) for X in frames if X is not None]
+    rows = np.concatenate([X[np.isfinite(X).all(axis=1)] for X in rows])
+    if len(rows) == 0:
+        raise FacecapError("no gap-free frame to learn the gap-filling subspace from")
+    _, comps, _, _ = pca(rows, center=False, n_components=max_components, variance=variance)
+    return np.zeros(rows.shape[1]), comps

@@ -14,7 +14,7 @@ With noiseless examples and ``ridge=0`` the map reproduces every example exactly
 import numpy as np
 
 from ..errors import FacecapError
-from .base import StrategyResult, align_to, as_deltas, as_target, check_pairs, clamp_to, fill_gaps, flat, pca, reorder
+from .base import StrategyResult, align_to, as_deltas, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, reorder
 
 
 class LinearStrategy:
@@ -42,7 +42,7 @@ class LinearStrategy:
         self.bias = None  # (K,)
         self.notes = ()
 
-    def fit(self, character, *, examples, weights, names=None, neutral=None):
+    def fit(self, character, *, examples, weights, training=None, names=None, neutral=None):
         """Learn the map from N example pairs.
 
         Parameters
@@ -52,6 +52,8 @@ class LinearStrategy:
         weights : ndarray (N, K), the character weights posed for them
         names : marker names of ``examples`` (kept for ``solve(names=)``)
         neutral : ndarray (M, 3), optional, rest positions of the examples' space
+        training : ndarray (F, M, 3), optional; more frames of the actor (gaps allowed) whose
+            gap-free frames help fill gaps at solve time
         """
         self.target = as_target(character)
         ex = np.asarray(examples, dtype=np.float64)
@@ -81,7 +83,12 @@ class LinearStrategy:
             E = (np.linalg.lstsq(G, Xc.T @ Wc, rcond=None)[0] if lam == 0 else np.linalg.solve(G, Xc.T @ Wc)).T
         self.matrix = E
         self.bias = wm - E @ xm
-        self._mean, self._components, _, _ = pca(X, center=False)
+        self._gap_rows = X
+        if training is not None:
+            tr = flat(as_deltas(training, what="training"))
+            if tr.shape[1] != P:
+                raise FacecapError(f"linear: `training` frames have {tr.shape[1]} coordinates; examples have {P}")
+            self._gap_rows = np.concatenate([X, tr])
         self.notes = tuple(notes)
         self.n_examples = N
         return self
@@ -96,14 +103,15 @@ class LinearStrategy:
             deltas, _ = align_to(deltas, neutral, self.fit_neutral, mode=self.align)
         if deltas.shape[1:] != self.marker_shape:
             raise FacecapError(f"linear: `source` frames have shape {deltas.shape[1:]}; fitted on {self.marker_shape}")
-        X, filled = fill_gaps(flat(deltas), self._mean, self._components)
+        X = flat(deltas)
+        X, filled = fill_gaps(X, *gap_subspace(self._gap_rows, X))
         raw = X @ self.matrix.T + self.bias
         weights, clamped = clamp_to(self.target, raw)
         solved = np.isfinite(X).all(axis=1)
         weights[~solved] = np.nan
         warnings = list(self.notes)
         if filled.size:
-            warnings.append(f"linear: {filled.size} frame(s) had gaps, filled through the examples' subspace")
+            warnings.append(f"linear: {filled.size} frame(s) had gaps, filled from the visible markers through the principal subspace of the gap-free frames")
         return StrategyResult(
             weights=weights, shape_names=self.target.names, solved=solved, warnings=tuple(warnings),
             clamped=clamped, info={"examples": self.n_examples, "gap_frames": int(filled.size)},

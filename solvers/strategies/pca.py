@@ -237,3 +237,28 @@ class PCAStrategy:
             source_names=tuple(f"frame{f}" for f in self.example_frames), residual_rms=rms, clamped=clamped,
             info={"basis_frames": N, "mode": res.mode}, solve=res,
         )
+
+
+def farthest_frames(training, n, *, n_components=18, include_neutral=True):
+    """``n`` frames of ``training`` (F, M, 3) that cover its expressions: farthest-point sampling
+    in the leading principal components (gap-free frames only). A complement to the
+    Chuang & Bregler frames when an animator poses examples for ``linear`` / ``rbf`` / ``pca``.
+
+    Returns sorted frame indices (at most ``n``).
+    """
+    X = flat(as_deltas(training, what="training"))
+    full = np.flatnonzero(np.isfinite(X).all(axis=1))
+    if full.size == 0:
+        raise FacecapError("farthest_frames: every training frame has a gap")
+    _, comps, _, _ = pca(X[full], center=False, n_components=n_components)
+    P = X[full] @ comps.T
+    dist = np.linalg.norm(P, axis=1)  # distance to the neutral (p = 0)
+    picks = [int(np.argmin(dist))] if include_neutral else [int(np.argmax(dist))]
+    dist = np.linalg.norm(P - P[picks[0]], axis=1)
+    while len(picks) < min(n, len(full)):
+        i = int(np.argmax(dist))
+        if dist[i] <= 0:
+            break
+        picks.append(i)
+        dist = np.minimum(dist, np.linalg.norm(P - P[i], axis=1))
+    return np.sort(full[picks])

@@ -13,7 +13,7 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from ..errors import FacecapError
-from .base import StrategyResult, align_to, as_deltas, as_target, check_pairs, clamp_to, fill_gaps, flat, pca, reorder
+from .base import StrategyResult, align_to, as_deltas, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, pca, reorder
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
            "inverse_multiquadric", "inverse_quadratic")
@@ -83,8 +83,9 @@ class RBFStrategy:
             T = tr[np.isfinite(tr).all(axis=1)]
             if len(T) == 0:
                 raise FacecapError("rbf: every `training` frame has a gap")
-        mean, comps, _, _ = pca(T, center=False, n_components=self.n_components, variance=self.variance)
-        self._mean, self._components = mean, comps
+        _, comps, _, _ = pca(T, center=False, n_components=self.n_components, variance=self.variance)
+        self._components = comps
+        self._gap_rows = np.concatenate([X, T])
         P = X @ comps.T
         self._scale = float(np.sqrt(np.mean(np.sum(P**2, axis=1)))) or 1.0
         P = P / self._scale
@@ -112,11 +113,13 @@ class RBFStrategy:
 
     def features(self, deltas):
         """Reduced, scaled features (F, d) of gap-filled deltas (F, M, 3)."""
-        X, _ = fill_gaps(flat(deltas), self._mean, self._components)
+        X = flat(deltas)
+        X, _ = fill_gaps(X, *gap_subspace(self._gap_rows, X))
         return X @ self._components.T / self._scale
 
     def solve(self, source, *, names=None, neutral=None, confidence=None):
-        """Character weights for marker deltas (F, M, 3); gaps are filled through the PCA subspace."""
+        """Character weights for marker deltas (F, M, 3); gaps are filled through the principal subspace of
+        the gap-free frames (training, examples and the take itself)."""
         if self.interpolator is None:
             raise FacecapError("rbf: call fit() before solve()")
         deltas = reorder(as_deltas(source), names, self.names)
@@ -125,7 +128,8 @@ class RBFStrategy:
             deltas, _ = align_to(deltas, neutral, self.fit_neutral, mode=self.align)
         if deltas.shape[1:] != self.marker_shape:
             raise FacecapError(f"rbf: `source` frames have shape {deltas.shape[1:]}; fitted on {self.marker_shape}")
-        X, filled = fill_gaps(flat(deltas), self._mean, self._components)
+        X = flat(deltas)
+        X, filled = fill_gaps(X, *gap_subspace(self._gap_rows, X))
         solved = np.isfinite(X).all(axis=1)
         P = np.where(solved[:, None], X, 0.0) @ self._components.T / self._scale
         raw = self.interpolator(P)
