@@ -84,21 +84,26 @@ class RBFStrategy:
             if len(T) == 0:
                 raise FacecapError("rbf: every `training` frame has a gap")
         _, comps, _, _ = pca(T, center=False, n_components=self.n_components, variance=self.variance)
+        notes = []
+        N = len(X)
+        degree = self.degree
+        if degree >= 1 and N < comps.shape[0] + 1:  # the tail needs N >= d + 1: keep it, drop components
+            if N >= 3:
+                notes.append(f"rbf: {N} example(s) support a linear tail in at most {N - 1} dimensions; "
+                             f"using {N - 1} of {comps.shape[0]} components")
+                comps = comps[: N - 1]
+            else:
+                degree = 0 if self.kernel not in ("thin_plate_spline", "cubic") else -1
+                notes.append(f"rbf: {N} example(s) are too few for a polynomial tail; using degree {degree}")
+        if degree == 2 and N < (comps.shape[0] + 1) * (comps.shape[0] + 2) // 2:
+            degree = 1
+            notes.append("rbf: too few examples for a quadratic tail; using degree 1")
         self._components = comps
         self._gap_rows = np.concatenate([X, T])
         P = X @ comps.T
         self._scale = float(np.sqrt(np.mean(np.sum(P**2, axis=1)))) or 1.0
         P = P / self._scale
         self._points = P
-        notes = []
-        N, d = P.shape
-        degree = self.degree
-        need = {-1: 0, 0: 1, 1: d + 1, 2: (d + 1) * (d + 2) // 2}[degree]
-        while degree >= 0 and N < need:
-            degree -= 1
-            need = {-1: 0, 0: 1, 1: d + 1}[degree]
-        if degree != self.degree:
-            notes.append(f"rbf: {N} example(s) are too few for a degree-{self.degree} tail in {d} dimensions; using degree {degree}")
         dist = np.linalg.norm(P[:, None] - P[None], axis=2)
         np.fill_diagonal(dist, np.inf)
         nearest = dist.min(axis=1) if N > 1 else np.ones(1)
