@@ -1,0 +1,183 @@
+"""File > Import operators, one per format family, and drag-and-drop file handlers."""
+
+from pathlib import Path
+
+import bpy
+from bpy.props import CollectionProperty, EnumProperty, FloatProperty, StringProperty
+from bpy.types import OperatorFileListElement
+from bpy_extras.io_utils import ImportHelper
+
+from ..solvers.errors import FacecapError
+
+IMPORT_UNIT_ITEMS = [
+    ("AUTO", "From File", "Units written in the file (C3D, TRC, JSON) or guessed from the face size"),
+    ("mm", "Millimetres", "Coordinates are millimetres"),
+    ("cm", "Centimetres", "Coordinates are centimetres"),
+    ("m", "Metres", "Coordinates are metres"),
+    ("bu", "Blender Units", "Coordinates are Blender units of another scene; Unit Scale gives metres per unit"),
+]
+AXIS_ITEMS = [
+    ("Z", "Z Up", "The file is Z-up, like Blender"),
+    ("Y", "Y Up", "The file is Y-up (converted: x, y, z -> x, -z, y)"),
+]
+
+
+class _ImportMarkers(ImportHelper):
+    """Shared options and execution; subclasses set the format and file filter."""
+
+    bl_options = {"REGISTER", "UNDO", "PRESET"}
+    format = None
+
+    directory: StringProperty(subtype="DIR_PATH", options={"SKIP_SAVE", "HIDDEN"})
+    files: CollectionProperty(type=OperatorFileListElement, options={"SKIP_SAVE", "HIDDEN"})
+    units: EnumProperty(name="Units", items=IMPORT_UNIT_ITEMS, default="AUTO")
+    unit_scale: FloatProperty(name="Unit Scale", default=1.0, min=1e-9, precision=6,
+                              description="Metres per file unit (for Blender Units)")
+    fps: FloatProperty(name="FPS", default=0.0, min=0.0, description="Frame rate; 0 takes the file's")
+    up_axis: EnumProperty(name="Up Axis", items=AXIS_ITEMS, default="Z")
+
+    def invoke(self, context, event):
+        if self.directory and len(self.files):  # dropped on the viewport: import directly
+            return self.execute(context)
+        return ImportHelper.invoke(self, context, event)
+
+    def _paths(self):
+        if self.directory and len(self.files):
+            return [Path(self.directory) / f.name for f in self.files if f.name]
+        return [Path(bpy.path.abspath(self.filepath))]
+
+    def execute(self, context):
+        import warnings
+
+        from ..facecap_addon import import_scene
+        from ..solvers.readers import import_markers
+
+        options = {"up_axis": self.up_axis}
+        if self.units == "bu":
+            options["unit_scale"] = self.unit_scale
+        imported = []
+        for path in self._paths():
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    result = import_markers(path, format=self.format if self.format != "csv" else None,
+                                            units=None if self.units == "AUTO" else self.units,
+                                            fps=self.fps or None, **options)
+            except FacecapError as exc:
+                self.report({"ERROR"}, str(exc))
+                return {"CANCELLED"}
+            markers = result.markers
+            coll = import_scene.create_take(context.scene, markers, path.stem)
+            _remember_take(context.scene, markers, path, coll)
+            for note in result.notes:
+                self.report({"INFO"}, f"{path.name}: {note}")
+            gaps = sum(markers.gap_counts().values())
+            imported.append(f"{markers.n_markers} markers over {markers.n_frames} frames ({gaps} gap samples, "
+                            f"{len(markers.segments)} segment labels) into '{coll.name}'")
+        self.report({"INFO"}, "Imported " + "; ".join(imported))
+        return {"FINISHED"}
+
+
+def _remember_take(scene, markers, path, coll):
+    """Point the sidebar settings at the new take, as facecap.import_markers does."""
+    settings = scene.facecap
+    settings.take_name = path.stem
+    settings.markers_path = str(path)
+    if markers.units in ("mm", "cm", "m"):
+        settings.units = markers.units
+    settings.fps = markers.fps
+    settings.marker_collection = coll
+    settings.markers.clear()
+    gaps = markers.gap_counts()
+    for name in markers.names:
+        item = settings.markers.add()
+        item.name = name
+        item.gaps = gaps[name]
+        item.stable = name.startswith("head")
+    first, last = int(markers.frames[0]), int(markers.frames[-1])
+    neutral = markers.segments.get("posed_neutral") or markers.segments.get("neutral")
+    if neutral:
+        settings.neutral_first, settings.neutral_last = int(neutral[0][0]), int(neutral[0][1])
+    elif not (first <= settings.neutral_first <= settings.neutral_last <= last):
+        settings.neutral_first, settings.neutral_last = first, min(first + 29, last)
+
+
+class FACECAP_OT_import_c3d(bpy.types.Operator, _ImportMarkers):
+    """Import C3D motion capture points as animated empties (one collection per take)"""
+
+    bl_idname = "facecap.import_c3d"
+    bl_label = "Import C3D Markers"
+    format = "c3d"
+    filename_ext = ".c3d"
+    filter_glob: StringProperty(default="*.c3d", options={"HIDDEN"})
+
+
+class FACECAP_OT_import_trc(bpy.types.Operator, _ImportMarkers):
+    """Import a TRC marker file (OpenSim / Motion Analysis) as animated empties"""
+
+    bl_idname = "facecap.import_trc"
+    bl_label = "Import TRC Markers"
+    format = "trc"
+    filename_ext = ".trc"
+    filter_glob: StringProperty(default="*.trc", options={"HIDDEN"})
+
+
+class FACECAP_OT_import_csv(bpy.types.Operator, _ImportMarkers):
+    """Import a marker CSV (wide frame,<m>_x,... or long frame,marker,x,y,z); text columns become timeline markers"""
+
+    bl_idname = "facecap.import_csv"
+    bl_label = "Import CSV Markers"
+    format = "csv"
+    filename_ext = ".csv"
+    filter_glob: StringProperty(default="*.csv;*.tsv;*.txt", options={"HIDDEN"})
+
+
+class FACECAP_OT_import_json(bpy.types.Operator, _ImportMarkers):
+    """Import a facecap JSON marker file as animated empties"""
+
+    bl_idname = "facecap.import_json"
+    bl_label = "Import JSON Markers"
+    format = "json"
+    filename_ext = ".json"
+    filter_glob: StringProperty(default="*.json", options={"HIDDEN"})
+
+
+IMPORTERS = (FACECAP_OT_import_c3d, FACECAP_OT_import_trc, FACECAP_OT_import_csv, FACECAP_OT_import_json)
+MENU_LABELS = {
+    FACECAP_OT_import_c3d: "FaceCap Markers (.c3d)",
+    FACECAP_OT_import_trc: "FaceCap Markers (.trc)",
+    FACECAP_OT_import_csv: "FaceCap Markers (.csv)",
+    FACECAP_OT_import_json: "FaceCap Markers (.json)",
+}
+
+
+def menu_func_import(self, context):
+    """Append to ``bpy.types.TOPBAR_MT_file_import``."""
+    for cls in IMPORTERS:
+        self.layout.operator(cls.bl_idname, text=MENU_LABELS[cls])
+
+
+class FACECAP_FH_c3d(bpy.types.FileHandler):
+    bl_idname = "FACECAP_FH_c3d"
+    bl_label = "FaceCap C3D markers"
+    bl_import_operator = "facecap.import_c3d"
+    bl_file_extensions = ".c3d"
+
+    @classmethod
+    def poll_drop(cls, context):
+        return context.area is not None and context.area.type in {"VIEW_3D", "OUTLINER", "SEQUENCE_EDITOR"}
+
+
+class FACECAP_FH_trc(bpy.types.FileHandler):
+    bl_idname = "FACECAP_FH_trc"
+    bl_label = "FaceCap TRC markers"
+    bl_import_operator = "facecap.import_trc"
+    bl_file_extensions = ".trc"
+
+    @classmethod
+    def poll_drop(cls, context):
+        return context.area is not None and context.area.type in {"VIEW_3D", "OUTLINER", "SEQUENCE_EDITOR"}
+
+
+# FileHandler exists from Blender 4.1; the extension targets 4.2+, so it is always there.
+CLASSES = IMPORTERS + (FACECAP_FH_c3d, FACECAP_FH_trc)
