@@ -14,9 +14,9 @@ It is exact: the result is the optimum once the active set has settled.
 """
 
 import numpy as np
-from scipy.linalg import solveh_banded
-
+from .engine_banded import context, solve_window
 from .engine_frames import _FREE, classify, fixed_values, hmul, pattern_hessians, patterns, solve_frames
+from .engine_threads import single_blas_thread
 
 
 def temporal_operator(F, mu1, mu2):
@@ -49,53 +49,39 @@ def _tmul(T, X):
     return Y
 
 
-def _banded_solve(Hp, inv, T, free, rhs):
-    """Solve Q_FF x_F = rhs_F (frame-major order of the free variables)."""
-    F, K = free.shape
-    cnt = free.sum(axis=1)
-    offs = np.concatenate([[0], np.cumsum(cnt)])
-    n = int(offs[-1])
-    x = np.zeros((F, K))
-    if n == 0:
-        return x
-    pos = np.where(free, offs[:-1, None] + np.cumsum(free, axis=1) - 1, -1)
-    diag, off1, off2 = T
-    # bandwidth
-    b = int(cnt.max()) - 1
-    d1 = d2 = None
-    if off1.size:
-        m1 = free[:-1] & free[1:]
-        d1 = (pos[1:] - pos[:-1])[m1]
-        b = max(b, int(d1.max(initial=0)))
-    if off2.size:
-        m2 = free[:-2] & free[2:]
-        d2 = (pos[2:] - pos[:-2])[m2]
-        b = max(b, int(d2.max(initial=0)))
-    ab = np.zeros((b + 1, n))
-    # within-frame blocks, gathered by free-set size
-    idx_all = np.argsort(~free, axis=1, kind="stable")
-    flat_H = Hp.reshape(-1)
-    for s in np.unique(cnt):
-        if s == 0:
-            continue
-        sel = np.flatnonzero(cnt == s)
-        idx = idx_all[sel, :s]
-        M = flat_H[(inv[sel] * (K * K))[:, None, None] + (idx * K)[:, :, None] + idx[:, None, :]]
-        base = offs[sel][:, None]
-        for d in range(s):
-            ab[d, (base + np.arange(s - d)).ravel()] = np.diagonal(M, offset=-d, axis1=1, axis2=2).ravel()
-    # temporal couplings
-    ab[0, pos[free]] += np.broadcast_to(diag[:, None], (F, K))[free]
-    if d1 is not None and d1.size:
-        ab[d1, pos[:-1][m1]] += np.broadcast_to(off1[:, None], (F - 1, K))[m1]
-    if d2 is not None and d2.size:
-        ab[d2, pos[:-2][m2]] += np.broadcast_to(off2[:, None], (F - 2, K))[m2]
-    sol = solveh_banded(ab, rhs[free], lower=True, check_finite=False)
-    x[free] = sol
-    return x
+def _windows(bad, pad, F):
+    """Frame intervals [a, b) covering every frame of ``bad`` dilated by ``pad`` (touching ones merged)."""
+    idx = np.flatnonzero(bad)
+    a = np.maximum(idx - pad, 0)
+    b = np.minimum(idx + pad + 1, F)
+    new = np.concatenate([[True], a[1:] > b[:-1] + 2])  # closer than 3 frames: still coupled, merge
+    starts = a[new]
+    ends = np.maximum.reduceat(b, np.flatnonzero(new))
+    return list(zip(starts.tolist(), ends.tolist()))
 
 
-def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096):
+def _settle(ctx, qmul, G, w, free, lin, tol, pad, max_rounds=8):
+    """Make w exact on the free set: solve ``Q_FF w_F = G_F - lin_F - Q_FB w_B`` by banded windows
+    around the frames whose residual exceeds ``tol`` (all of them at first; afterwards only the
+    edges of earlier windows and frames whose state changed). Returns (w, grad = Q w - G)."""
+    F = w.shape[0]
+    grad = qmul(w) - G
+    for _ in range(max_rounds):
+        res = np.where(free, -(grad + lin), 0.0)
+        bad = (np.abs(res) > tol).any(axis=1)
+        if not bad.any():
+            break
+        r_free = res[free]
+        delta = np.zeros_like(w)
+        for a, b in _windows(bad, pad, F):
+            x = solve_window(ctx, r_free, a, b)
+            delta[a:b][free[a:b]] = x
+        w = w + delta
+        grad = qmul(w) - G
+    return w, grad
+
+
+def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=48):
     """Solve the whole take. Shapes as in ``engine_frames.solve_frames``; mu = (mu1, mu2) absolute.
 
     Returns (W (F, K), iterations, converged).
@@ -115,21 +101,23 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096):
     def qmul(X):
         return hmul(Hp, inv, X) + _tmul(T, X)
 
-    step = 1.0 / np.maximum(np.einsum("nkk->n", Hp)[inv] / K + T[0], 1e-300)
+    diag = np.einsum("nkk->n", Hp)
+    step = 1.0 / np.maximum(diag[inv] / K + T[0], 1e-300)
+    scale = float(np.abs(Hp).max() + np.abs(T[0]).max(initial=0.0))
+    has_l1 = bool(np.any(lam > 0))
     grad = qmul(w) - G
     prev = prev_sg = None
-    for it in range(1, max_iter + 1):
-        st, sg = classify(w - step[:, None] * grad, step, lo, hi, lam)
-        if prev is not None:
-            changed = (st != prev) | ((st == _FREE) & (sg != prev_sg) & (lam > 0))
-            if not changed.any():
-                return w, it, True
-        free = st == _FREE
-        xf = fixed_values(st, lo, hi)
-        rhs = G - qmul(xf)
-        if np.any(lam > 0):
-            rhs -= lam * np.where(free, sg, 0.0)
-        w = xf + _banded_solve(Hp, inv, T, free, rhs)
-        grad = qmul(w) - G
-        prev, prev_sg = st, sg
+    with single_blas_thread():
+        for it in range(1, max_iter + 1):
+            st, sg = classify(w - step[:, None] * grad, step, lo, hi, lam)
+            if prev is not None:
+                changed = (st != prev) | ((st == _FREE) & (sg != prev_sg) & (lam > 0))
+                if not changed.any():
+                    return w, it, True
+            free = st == _FREE
+            w = np.where(free, w, fixed_values(st, lo, hi))
+            lin = lam * np.where(free, sg, 0.0) if has_l1 else 0.0
+            tol = 1e-12 * scale * max(1.0, float(np.abs(w).max(initial=0.0)))
+            w, grad = _settle(context(Hp, inv, T, free), qmul, G, w, free, lin, tol, pad)
+            prev, prev_sg = st, sg
     return np.clip(w, lo, hi), max_iter, False  # active-set iterates can leave the box
