@@ -4,6 +4,7 @@ Commands
 --------
 retarget --config take.toml   solve a take onto its character and write .blend / weights CSV / report
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
+inspect FILE [options]        describe a capture file; non-zero exit with a one-line reason if it is bad
 bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
@@ -28,10 +29,12 @@ def run_retarget(config, *, quiet=False):
     """Run a take config end to end; returns (RetargetResult, output paths dict)."""
     import warnings
 
+    from ..solvers.cleaning import clean
     from ..solvers.errors import ConfigError, InputFileError
     from ..solvers.fileio import write_json_atomic
-    from ..solvers.io_csv import read_markers_csv, write_weights_csv
+    from ..solvers.io_csv import write_weights_csv
     from ..solvers.pipeline import retarget
+    from ..solvers.readers import import_markers
 
     say = (lambda _m: None) if quiet else _progress
     timings = {}
@@ -39,8 +42,11 @@ def run_retarget(config, *, quiet=False):
     say(f"[1/5] reading markers {config.markers_path}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        markers = read_markers_csv(config.markers_path, units=config.units, fps=config.fps)
-    notes = [str(w.message) for w in caught]
+        imported = import_markers(config.markers_path, units=config.units, fps=config.fps, **config.read_options)
+    notes = list(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
+    cleaned = clean(imported.markers, config.clean)
+    markers = cleaned.markers
+    cleaning = cleaned.report.summary().splitlines()
     timings["read"] = time.perf_counter() - t0
 
     import bpy
@@ -85,6 +91,9 @@ def run_retarget(config, *, quiet=False):
         report = result.report()
         report["config"] = str(config.path)
         report["markers_file"] = str(config.markers_path)
+        report["source"] = {"format": imported.format, "units": imported.markers.units, "fps": markers.fps,
+                            "segments": {k: v for k, v in markers.segments.items()}}
+        report["cleaning"] = cleaning
         report["outputs"] = outputs
         report["warnings"] = notes + report["warnings"]
         report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
@@ -169,6 +178,12 @@ def _cmd_demo(args):
     return 0
 
 
+def _cmd_inspect(args):
+    from ..solvers.inspect import main as inspect_main
+
+    return inspect_main(args.rest)
+
+
 def _cmd_bench(args):
     from ..solvers.bench import run_benchmarks
 
@@ -196,6 +211,10 @@ def build_parser():
     p = sub.add_parser("demo", help="retarget the bundled sample take and print its accuracy")
     p.add_argument("--out", default="facecap-demo", help="output folder (default: ./facecap-demo)")
     p.set_defaults(func=_cmd_demo)
+    p = sub.add_parser("inspect", help="describe a marker or weights file (markers, frames, rate, units, gaps, segments)",
+                       add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_inspect)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.set_defaults(func=_cmd_bench)

@@ -3,6 +3,7 @@
 import bpy
 
 from ..operators import CLASSES as OPERATOR_CLASSES
+from ..operators import importers
 from . import panels, properties
 
 CLASSES = properties.CLASSES + OPERATOR_CLASSES + panels.CLASSES
@@ -12,9 +13,11 @@ def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
     properties.register_properties()
+    bpy.types.TOPBAR_MT_file_import.append(importers.menu_func_import)
 
 
 def unregister():
+    bpy.types.TOPBAR_MT_file_import.remove(importers.menu_func_import)
     properties.unregister_properties()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

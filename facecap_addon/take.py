@@ -5,7 +5,7 @@ import glob
 import numpy as np
 
 from ..solvers.errors import FacecapError
-from ..solvers.markers import UNIT_SCALE, MarkerSet
+from ..solvers.markers import MarkerSet
 from ..solvers.pipeline import RetargetSettings
 from ..solvers.shape_options import Region
 from ..solvers.transforms import matrix_to_euler_xyz
@@ -48,32 +48,6 @@ def retarget_settings(settings):
         fine_iterations=settings.fine_iterations,
         head_smoothing=settings.head_smoothing,
     )
-
-
-def create_marker_empties(scene, markers, take_name):
-    """One animated empty per marker (metres) in a new collection ``FaceCap <take>``; gaps get no key."""
-    import bpy
-
-    metres = markers.to_units("m") if markers.units in UNIT_SCALE else markers
-    coll = bpy.data.collections.new(f"FaceCap {take_name}")
-    scene.collection.children.link(coll)
-    for m, name in enumerate(markers.names):
-        empty = bpy.data.objects.new(name, None)
-        empty.empty_display_type = "SPHERE"
-        empty.empty_display_size = 0.002
-        empty["facecap_marker"] = name
-        coll.objects.link(empty)
-        first = np.flatnonzero(~np.isnan(metres.positions[:, m, 0]))
-        if first.size:
-            empty.location = metres.positions[first[0], m]
-        anim.new_action_with_curves(
-            empty,
-            name=f"FC {take_name} {name}",
-            curves=LOCATION,
-            frames=metres.frames,
-            values=metres.positions[:, m, :],
-        )
-    return coll
 
 
 def markers_from_collection(settings):

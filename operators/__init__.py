@@ -1,5 +1,5 @@
 """One operator per user action; thin: read settings -> core -> write -> report."""
 
-from . import markers, neutral, solve, stabilise
+from . import importers, neutral, solve, stabilise
 
-CLASSES = markers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES
+CLASSES = importers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES

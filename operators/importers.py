@@ -102,6 +102,15 @@ def _remember_take(scene, markers, path, coll):
         settings.neutral_first, settings.neutral_last = first, min(first + 29, last)
 
 
+class FACECAP_OT_import_markers(bpy.types.Operator, _ImportMarkers):
+    """Import a marker take in any supported format (C3D, TRC, CSV, JSON) as animated empties, one per marker"""
+
+    bl_idname = "facecap.import_markers"
+    bl_label = "Import Markers"
+    format = None  # detected from the extension and the content
+    filter_glob: StringProperty(default="*.c3d;*.trc;*.csv;*.tsv;*.txt;*.json", options={"HIDDEN"})
+
+
 class FACECAP_OT_import_c3d(bpy.types.Operator, _ImportMarkers):
     """Import C3D motion capture points as animated empties (one collection per take)"""
 
@@ -180,4 +189,4 @@ class FACECAP_FH_trc(bpy.types.FileHandler):
 
 
 # FileHandler exists from Blender 4.1; the extension targets 4.2+, so it is always there.
-CLASSES = IMPORTERS + (FACECAP_FH_c3d, FACECAP_FH_trc)
+CLASSES = (FACECAP_OT_import_markers,) + IMPORTERS + (FACECAP_FH_c3d, FACECAP_FH_trc)

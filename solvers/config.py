@@ -4,7 +4,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import ConfigError
+from .errors import ConfigError, FacecapError
 from .markers import UNIT_SCALE
 from .pipeline import STRATEGIES, RetargetSettings
 from .shape_options import Region
@@ -12,7 +12,28 @@ from .shape_options import Region
 # section -> {key: (type(s), required)}
 SCHEMA = {
     "target": {"blend": (str, False), "object": (str, True)},
-    "source": {"markers": (str, True), "units": (str, False), "fps": ((int, float), False)},
+    "source": {
+        "markers": (str, True),
+        "format": (str, False),
+        "units": (str, False),
+        "unit_scale": ((int, float), False),
+        "fps": ((int, float), False),
+        "up_axis": (str, False),
+        "delimiter": (str, False),
+        "decimal": (str, False),
+    },
+    "clean": {
+        "fix_swaps": (bool, False),
+        "swap_ratio": ((int, float), False),
+        "spike_speed": ((int, float), False),
+        "spike_mad": ((int, float), False),
+        "fill_spline": (int, False),
+        "fill_model": (int, False),
+        "model_rank": (int, False),
+        "lowpass_hz": ((int, float), False),
+        "lowpass_order": (int, False),
+        "one_euro": (list, False),
+    },
     "binding": {"vertex_groups": (bool, False)},
     "stabilise": {
         "markers": (list, True),
@@ -43,8 +64,10 @@ class TakeConfig:
     target_blend: Path | None
     target_object: str
     markers_path: Path
-    units: str
-    fps: float
+    units: str | None  # None: from the file, or guessed from the face size
+    fps: float | None  # None: from the file
+    read_options: dict  # format, unit_scale, up_axis, delimiter, decimal
+    clean: object  # CleanSettings
     bind_vertex_groups: bool
     settings: RetargetSettings
     output_blend: Path | None
@@ -78,12 +101,17 @@ def load_take_config(path):
     def resolve(value):
         return None if value is None else (base / value).resolve()
 
-    units = get("source", "units", "m")
-    if units not in UNIT_SCALE:
-        raise ConfigError(f"units must be one of {sorted(UNIT_SCALE)}; got '{units}'", path=path, key="source.units")
-    fps = float(get("source", "fps", 60.0))
-    if fps <= 0:
+    units = get("source", "units")
+    if units is not None and units not in (*UNIT_SCALE, "bu"):
+        raise ConfigError(f"units must be one of {sorted((*UNIT_SCALE, 'bu'))}; got '{units}'", path=path, key="source.units")
+    fps = get("source", "fps")
+    if fps is not None and fps <= 0:
         raise ConfigError(f"fps must be positive; got {fps}", path=path, key="source.fps")
+    read_options = {k: get("source", k) for k in ("format", "unit_scale", "up_axis", "delimiter", "decimal")}
+    read_options = {k: v for k, v in read_options.items() if v is not None}
+    if units == "bu" and "unit_scale" not in read_options:
+        raise ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale")
+    clean = _clean_settings(path, data.get("clean", {}))
     stable = get("stabilise", "markers")
     if not all(isinstance(s, str) for s in stable) or len(stable) < 3:
         raise ConfigError("expected a list of at least 3 marker names", path=path, key="stabilise.markers")
@@ -116,7 +144,9 @@ def load_take_config(path):
         target_object=get("target", "object"),
         markers_path=markers_path,
         units=units,
-        fps=fps,
+        fps=None if fps is None else float(fps),
+        read_options=read_options,
+        clean=clean,
         bind_vertex_groups=True,
         settings=RetargetSettings(
             stable_markers=tuple(stable),
@@ -179,3 +209,22 @@ def _shape_options(path, solve):
                 raise ConfigError(f"'{field}' must be a non-empty list of name patterns", path=path, key=key)
         regions.append(Region(name, tuple(body["shapes"]), tuple(body["markers"])))
     return {"bounds": tuple(bounds), "locks": tuple(locks), "regions": tuple(regions)}
+
+
+def _clean_settings(path, section):
+    """[clean] -> CleanSettings (every step off unless named)."""
+    from .cleaning import CleanSettings
+
+    values = dict(section)
+    if "one_euro" in values:
+        v = values["one_euro"]
+        if len(v) != 3 or not all(_number(x) and x > 0 for x in v):
+            raise ConfigError(f"expected [min_cutoff_hz, beta, d_cutoff_hz] > 0; got {v}", path=path, key="clean.one_euro")
+        values["one_euro"] = tuple(float(x) for x in v)
+    for key, value in values.items():
+        if _number(value) and value < 0:
+            raise ConfigError(f"must be >= 0; got {value}", path=path, key=f"clean.{key}")
+    try:
+        return CleanSettings(**values)
+    except FacecapError as exc:
+        raise ConfigError(str(exc), path=path, key="clean") from None

@@ -10,17 +10,6 @@ from facecap.solvers import MarkerSet
 from facecap.solvers.readers import write_markers
 
 
-@pytest.fixture(scope="module", autouse=True)
-def importer_classes():
-    for cls in importers.CLASSES:
-        bpy.utils.register_class(cls)
-    bpy.types.TOPBAR_MT_file_import.append(importers.menu_func_import)
-    yield
-    bpy.types.TOPBAR_MT_file_import.remove(importers.menu_func_import)
-    for cls in reversed(importers.CLASSES):
-        bpy.utils.unregister_class(cls)
-
-
 def make_take():
     rng = np.random.default_rng(3)
     pos = rng.normal(size=(30, 4, 3)) * 10

@@ -97,3 +97,18 @@ markers = ["*"]
 def test_shape_option_errors(tmp_path, extra, message):
     with pytest.raises(ConfigError, match=message):
         load_take_config(write(tmp_path, BASE + extra))
+
+
+def test_source_and_clean_sections(tmp_path):
+    text = BASE.replace('units = "mm"', 'units = "bu"\nunit_scale = 0.046\nup_axis = "Y"') + "[clean]\nfill_spline = 6\none_euro = [1.0, 0.01, 1.0]\n"
+    cfg = load_take_config(write(tmp_path, text))
+    assert cfg.units == "bu" and cfg.read_options == {"unit_scale": 0.046, "up_axis": "Y"}
+    assert cfg.clean.fill_spline == 6 and cfg.clean.one_euro == (1.0, 0.01, 1.0)
+    with pytest.raises(ConfigError, match=r"\[source.unit_scale\] Blender units need unit_scale"):
+        load_take_config(write(tmp_path, BASE.replace('units = "mm"', 'units = "bu"')))
+    with pytest.raises(ConfigError, match=r"\[clean.one_euro\] expected"):
+        load_take_config(write(tmp_path, BASE + "[clean]\none_euro = [1]\n"))
+    with pytest.raises(ConfigError, match=r"\[clean.lowpass_hz\] must be >= 0"):
+        load_take_config(write(tmp_path, BASE + "[clean]\nlowpass_hz = -3\n"))
+    with pytest.raises(ConfigError, match=r"\[clean\] choose one filter"):
+        load_take_config(write(tmp_path, BASE + "[clean]\nlowpass_hz = 12\none_euro = [1.0, 0.01, 1.0]\n"))

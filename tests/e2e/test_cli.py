@@ -131,7 +131,7 @@ def test_bad_config_names_the_key(tmp_path):
     config.write_text('[source]\nmarkers = "x.csv"\nunits = "inch"\n[target]\nobject = "Face"\n[stabilise]\nmarkers=["a","b","c"]\n[neutral]\nframes=[1,2]\n')
     proc = run("-m", "facecap", "retarget", "--config", str(config))
     assert proc.returncode == 1
-    assert proc.stderr.strip() == f"facecap: error: {config}: [source.units] units must be one of ['cm', 'm', 'mm']; got 'inch'"
+    assert proc.stderr.strip() == f"facecap: error: {config}: [source.units] units must be one of ['bu', 'cm', 'm', 'mm']; got 'inch'"
 
 
 def test_output_may_not_overwrite_input_blend(tmp_path):
@@ -144,3 +144,24 @@ def test_output_may_not_overwrite_input_blend(tmp_path):
     proc = run("-m", "facecap", "retarget", "--config", str(config))
     assert proc.returncode == 1 and "output.blend" in proc.stderr
     assert blend.read_bytes() == before
+
+
+def test_inspect_describes_a_file_and_refuses_a_bad_one(tmp_path):
+    proc = run("-m", "facecap", "inspect", str(SAMPLES / "sample_take.csv"), "--units", "mm")
+    assert proc.returncode == 0, proc.stderr
+    assert "markers:  68" in proc.stdout and "frames:   720" in proc.stdout
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,a_x,a_y,a_z\n1,0,zero,0\n")
+    proc = run("-m", "facecap", "inspect", str(bad))
+    assert proc.returncode == 1
+    assert proc.stderr.strip().count("\n") == 0 and "bad.csv, line 2" in proc.stderr
+
+
+def test_clean_section_runs_and_is_reported(tmp_path):
+    config, values = make_config(tmp_path)
+    config.write_text(config.read_text() + "\n[clean]\nfill_spline = 8\n")
+    proc = run("-m", "facecap", "retarget", "--config", str(config))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(Path(values["report"]).read_text())
+    assert any("spline" in line for line in report["cleaning"])
+    assert report["source"]["format"] == "csv"
