@@ -151,6 +151,73 @@ class FACECAP_OT_import_json(bpy.types.Operator, _ImportMarkers):
     filter_glob: StringProperty(default="*.json", options={"HIDDEN"})
 
 
+class FACECAP_OT_use_selected_empties(bpy.types.Operator):
+    """Use the selected animated empties as the take's markers (they are linked into a take collection, not copied)"""
+
+    bl_idname = "facecap.use_selected_empties"
+    bl_label = "Use Selected Empties"
+    bl_options = {"REGISTER", "UNDO"}
+
+    take_name: StringProperty(name="Take", default="", description="Take name (default: the active object's name)")
+
+    @classmethod
+    def poll(cls, context):
+        return any(o.type == "EMPTY" for o in context.selected_objects)
+
+    def execute(self, context):
+        from ..facecap_addon.scene_sources import markers_from_empties
+
+        empties = sorted((o for o in context.selected_objects if o.type == "EMPTY"), key=lambda o: o.name)
+        name = self.take_name or (context.active_object.name if context.active_object else "selection")
+        try:
+            markers = markers_from_empties(empties, fps=context.scene.render.fps / context.scene.render.fps_base)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        coll = bpy.data.collections.new(f"FaceCap {name}")
+        context.scene.collection.children.link(coll)
+        coll["facecap_take"] = name
+        for obj in empties:
+            coll.objects.link(obj)
+        _remember_take(context.scene, markers, Path(name), coll)
+        self.report({"INFO"}, f"Take '{name}': {markers.n_markers} empties over {markers.n_frames} keyed frames")
+        return {"FINISHED"}
+
+
+class FACECAP_OT_import_clip_tracks(bpy.types.Operator):
+    """Import a movie clip's tracks as a 2D take (pixels, origin top-left; disabled markers are gaps)"""
+
+    bl_idname = "facecap.import_clip_tracks"
+    bl_label = "Import Clip Tracks"
+    bl_options = {"REGISTER", "UNDO"}
+
+    clip: StringProperty(name="Clip", default="", description="Movie clip (default: the scene's active clip)")
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.active_clip is not None or len(bpy.data.movieclips) > 0
+
+    def execute(self, context):
+        from ..facecap_addon import import_scene
+        from ..facecap_addon.scene_sources import markers_from_clip
+
+        clip = bpy.data.movieclips.get(self.clip) if self.clip else context.scene.active_clip
+        if clip is None:
+            self.report({"ERROR"}, f"no movie clip named '{self.clip}'" if self.clip else "the scene has no active clip")
+            return {"CANCELLED"}
+        try:
+            scene_fps = context.scene.render.fps / context.scene.render.fps_base
+            markers = markers_from_clip(clip, fallback_fps=scene_fps)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        coll = import_scene.create_take(context.scene, markers, clip.name)
+        _remember_take(context.scene, markers, Path(clip.name), coll)
+        gaps = sum(markers.gap_counts().values())
+        self.report({"INFO"}, f"Imported {markers.n_markers} tracks over {markers.n_frames} frames ({gaps} gap samples) from '{clip.name}'")
+        return {"FINISHED"}
+
+
 IMPORTERS = (FACECAP_OT_import_c3d, FACECAP_OT_import_trc, FACECAP_OT_import_csv, FACECAP_OT_import_json)
 MENU_LABELS = {
     FACECAP_OT_import_c3d: "FaceCap Markers (.c3d)",
@@ -189,4 +256,7 @@ class FACECAP_FH_trc(bpy.types.FileHandler):
 
 
 # FileHandler exists from Blender 4.1; the extension targets 4.2+, so it is always there.
-CLASSES = (FACECAP_OT_import_markers,) + IMPORTERS + (FACECAP_FH_c3d, FACECAP_FH_trc)
+CLASSES = (FACECAP_OT_import_markers, FACECAP_OT_use_selected_empties, FACECAP_OT_import_clip_tracks) + IMPORTERS + (
+    FACECAP_FH_c3d,
+    FACECAP_FH_trc,
+)
