@@ -218,6 +218,56 @@ class FACECAP_OT_import_clip_tracks(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class FACECAP_OT_clean_markers(bpy.types.Operator):
+    """Clean the take's markers into a new take collection (the original stays untouched); reports every change"""
+
+    bl_idname = "facecap.clean_markers"
+    bl_label = "Clean Markers"
+    bl_options = {"REGISTER", "UNDO"}
+
+    fix_swaps: bpy.props.BoolProperty(name="Fix Label Swaps", default=False)
+    spike_mad: FloatProperty(name="Spike Threshold", default=0.0, min=0.0,
+                             description="Robust standard deviations of the second difference (0 = off)")
+    fill_spline: bpy.props.IntProperty(name="Spline Fill", default=8, min=0, description="Longest gap (frames) filled by spline; 0 = off")
+    fill_model: bpy.props.IntProperty(name="Model Fill", default=0, min=0,
+                                      description="Longest gap (frames) rebuilt from the other markers; 0 = off")
+    lowpass_hz: FloatProperty(name="Low-pass (Hz)", default=0.0, min=0.0, description="Zero-phase Butterworth cutoff; 0 = off")
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.facecap.marker_collection is not None
+
+    def execute(self, context):
+        from ..facecap_addon import import_scene, take
+        from ..solvers.cleaning import CleanSettings, clean
+
+        settings = context.scene.facecap
+        try:
+            markers = take.markers_from_collection(settings)
+            options = CleanSettings(
+                fix_swaps=self.fix_swaps,
+                spike_mad=self.spike_mad or None,
+                fill_spline=self.fill_spline,
+                fill_model=self.fill_model,
+                lowpass_hz=self.lowpass_hz or None,
+            )
+            result = clean(markers, options)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        name = f"{settings.take_name} clean"
+        stable = {m.name for m in settings.markers if m.stable}
+        coll = import_scene.create_take(context.scene, result.markers, name, set_scene_range=False)
+        _remember_take(context.scene, result.markers, Path(settings.markers_path or name), coll)
+        settings.take_name = name
+        for item in settings.markers:
+            item.stable = item.name in stable
+        for line in result.report.summary().splitlines():
+            self.report({"INFO"}, line)
+        self.report({"INFO"}, f"Cleaned take in '{coll.name}'; the original collection is unchanged")
+        return {"FINISHED"}
+
+
 IMPORTERS = (FACECAP_OT_import_c3d, FACECAP_OT_import_trc, FACECAP_OT_import_csv, FACECAP_OT_import_json)
 MENU_LABELS = {
     FACECAP_OT_import_c3d: "FaceCap Markers (.c3d)",
@@ -256,7 +306,12 @@ class FACECAP_FH_trc(bpy.types.FileHandler):
 
 
 # FileHandler exists from Blender 4.1; the extension targets 4.2+, so it is always there.
-CLASSES = (FACECAP_OT_import_markers, FACECAP_OT_use_selected_empties, FACECAP_OT_import_clip_tracks) + IMPORTERS + (
+CLASSES = (
+    FACECAP_OT_import_markers,
+    FACECAP_OT_use_selected_empties,
+    FACECAP_OT_import_clip_tracks,
+    FACECAP_OT_clean_markers,
+) + IMPORTERS + (
     FACECAP_FH_c3d,
     FACECAP_FH_trc,
 )

@@ -74,3 +74,24 @@ def test_clip_tracks_are_read_in_pixels_top_left(empty_scene, tmp_path):
     bpy.context.scene.active_clip = clip
     assert bpy.ops.facecap.import_clip_tracks() == {"FINISHED"}
     assert bpy.context.scene.facecap.take_name == "frame_0001"
+
+
+def test_clean_markers_makes_a_new_take_and_keeps_the_original(empty_scene):
+    frames = np.arange(1, 121, dtype=float)
+    t = frames / 60
+    truth = np.stack([np.stack([0.01 * np.sin(2 * t + i), 0.01 * np.cos(3 * t), 0.002 * i + 0 * t], 1) for i in range(4)], 1)
+    gappy = truth.copy()
+    gappy[40:45, 2] = np.nan
+    objs = [keyed_empty(f"m{i}", gappy[:, i], frames) for i in range(4)]
+    for o in objs:
+        o.select_set(True)
+    bpy.context.view_layer.objects.active = objs[0]
+    bpy.ops.facecap.use_selected_empties(take_name="take")
+    s = bpy.context.scene.facecap
+    original = s.marker_collection
+    assert bpy.ops.facecap.clean_markers(fill_spline=8) == {"FINISHED"}
+    assert s.marker_collection != original and s.take_name == "take clean"
+    cleaned = take.markers_from_collection(s)
+    np.testing.assert_allclose(cleaned.positions[40:45, cleaned.names.index("m2")], truth[40:45, 2], atol=1e-4)
+    _, raw = anim.read_curves(objs[2], [("location", 0)])
+    assert np.isnan(raw).sum() == 0 and raw.shape[0] == 115  # the original empty still lacks those 5 keys
