@@ -1,7 +1,12 @@
 """The retarget pipeline, Blender-free: markers + character basis -> shape-key weights.
 
-source -> units -> stabilise (rigid, stable markers) -> neutral -> align actor to character
-(similarity on the neutral) -> strategy solve -> diagnostics.
+geometric: source -> units -> stabilise (rigid, stable markers, hierarchical refits) -> neutral ->
+align actor to character (similarity on the neutral) -> bounded solve -> diagnostics.
+
+Every other marker strategy (calibrated, refine, linear, rbf, pca) shares the stabilisation and
+the neutral, then receives the ACTOR-space deltas and the take's neutral (no similarity step: each
+strategy aligns onto what it was fitted on) and is fitted from ``StrategyInputs``.
+``parallel`` copies already-solved weights (``inputs.weights``) and needs no markers.
 """
 
 import time
@@ -10,16 +15,27 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .basis import Basis
 from .engine import DEFAULT_SMOOTHING
 from .errors import FacecapError
 from .diagnostics import basis_warnings
 from .neutral import neutral_from_frames
 from .shape_options import resolve_bounds, resolve_locks, resolve_regions
 from .stabilise import refine_rigid, smooth_head_motion, stabilise_rigid
+from .strategies import STRATEGY_NAMES
+from .strategies.base import Target, as_target
 from .strategies.geometric import GeometricOptions, solve_geometric
+from .strategies.options import (
+    CalibrationSettings,
+    ExampleSettings,
+    MappingSettings,
+    PCASettings,
+    RefineSettings,
+    StrategyInputs,
+)
 from .transforms import fit_similarity
 
-STRATEGIES = ("geometric",)
+STRATEGIES = STRATEGY_NAMES
 
 
 @dataclass(frozen=True)
@@ -38,7 +54,12 @@ class RetargetSettings:
     head_smoothing: float = 0.1  # half-window (s) of the zero-phase head-pose smoothing; 0 = off
     bounds: tuple = ()  # ((shape pattern, lower, upper), ...) overriding the slider ranges
     locks: tuple = ()  # ((shape pattern, value), ...) shapes held fixed (animator-owned)
-    regions: tuple = ()  # (Region, ...) shapes solved from their own marker subsets
+    regions: tuple = ()  # (Region, ...) shapes solved from their own marker subsets (geometric only)
+    calibration: CalibrationSettings = CalibrationSettings()  # calibrated, refine
+    mapping: MappingSettings = MappingSettings()  # calibrated, refine, parallel
+    examples: ExampleSettings = ExampleSettings()  # linear, rbf, pca
+    pca: PCASettings = PCASettings()
+    refine: RefineSettings = RefineSettings()
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,32 +73,41 @@ class RetargetResult:
     residual_rms: np.ndarray  # (F,) RMS marker residual in character space (metres)
     marker_residual: np.ndarray  # (M,) RMS residual per marker over the take (metres)
     at_bound: np.ndarray  # (F,)
-    stabilise: object  # StabiliseResult
-    alignment: object  # Similarity, actor neutral -> character bound points
-    alignment_residual: np.ndarray  # (M,) per-marker distance after alignment (metres)
+    stabilise: object  # StabiliseResult (None for parallel)
+    alignment: object  # Similarity, actor neutral -> character bound points (geometric only, else None)
+    alignment_residual: np.ndarray  # (M,) per-marker distance after alignment (metres; geometric only)
     warnings: tuple = ()
     timings: dict = field(default_factory=dict)
+    strategy: str = "geometric"
+    residual_space: str = "character"  # where residual_rms is measured: "character", "actor" or None
+    source_weights: np.ndarray = None  # (F, S) intermediate activations (actor poses, components, channels)
+    source_names: tuple = ()
+    info: dict = field(default_factory=dict)  # strategy diagnostics, JSON-ready
+    fitted: object = None  # the fitted strategy object (e.g. its actor_basis / refined_basis), not geometric
 
     def report(self):
         """A JSON-ready summary (lengths in millimetres)."""
         ok = np.isfinite(self.residual_rms)
-        return {
+        out = {
+            "strategy": self.strategy,
             "frames": {"count": int(self.frames.size), "first": float(self.frames[0]), "last": float(self.frames[-1])},
             "shapes": list(self.shape_names),
             "markers_used": list(self.marker_names),
-            "stable_markers": list(self.stabilise.stable_names),
+            "stable_markers": [] if self.stabilise is None else list(self.stabilise.stable_names),
+            "residual_space": self.residual_space,
             "residual_rms_mm": {
                 "mean": float(np.mean(self.residual_rms[ok]) * 1e3) if ok.any() else None,
                 "max": float(np.max(self.residual_rms[ok]) * 1e3) if ok.any() else None,
                 "per_frame": [None if not np.isfinite(v) else round(float(v) * 1e3, 6) for v in self.residual_rms],
             },
-            "marker_residual_mm": {n: round(float(v) * 1e3, 6) for n, v in zip(self.marker_names, self.marker_residual)},
-            "stabilise": {
+            "marker_residual_mm": {n: None if not np.isfinite(v) else round(float(v) * 1e3, 6)
+                                   for n, v in zip(self.marker_names, self.marker_residual)},
+            "stabilise": None if self.stabilise is None else {
                 "rms_mm_mean": float(np.nanmean(self.stabilise.rms) * 1e3) if np.isfinite(self.stabilise.rms).any() else None,
                 "flagged_frames": {str(k): v for k, v in self.stabilise.flag_reasons.items()},
                 "stable_marker_trust": {k: round(v, 3) for k, v in self.stabilise.marker_trust.items()},
             },
-            "alignment": {
+            "alignment": None if self.alignment is None else {
                 "scale": self.alignment.scale,
                 "rotation": self.alignment.rotation,
                 "translation_m": self.alignment.translation,
@@ -87,23 +117,70 @@ class RetargetResult:
             "timings_s": self.timings,
             "warnings": list(self.warnings),
         }
+        if self.strategy != "geometric":
+            out["source_channels"] = list(self.source_names)
+            out["strategy_info"] = jsonable(self.info)
+        return out
 
 
-def retarget(markers, basis, settings):
-    """Retarget a marker take onto a character basis.
+def jsonable(value):
+    """``value`` with numpy arrays/scalars turned into lists/floats (NaN -> None) for JSON."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer, int)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        return None if not np.isfinite(value) else round(float(value), 9)
+    return value
+
+
+def retarget(markers, basis, settings, *, inputs=None):
+    """Retarget a take onto a character with the strategy ``settings.strategy``.
 
     Parameters
     ----------
-    markers : MarkerSet, 3D, any of m/cm/mm
-    basis : Basis, the character's shapes at the bound points (metres)
+    markers : MarkerSet, 3D, any of m/cm/mm (ignored, may be None, for ``parallel``)
+    basis : Basis, the character's shapes at the bound points (metres). Strategies other than
+        ``geometric`` only use its shape names and bounds, so a ``Target`` or a sequence of shape
+        names is accepted for them.
     settings : RetargetSettings
+    inputs : StrategyInputs, optional
+        What the strategy learns from (calibration take or actor basis, posed examples, training
+        take) or, for ``parallel``, the solved weights themselves.
 
     Returns
     -------
     RetargetResult
+
+    Raises
+    ------
+    FacecapError for an unknown strategy or when its inputs are missing
+    ("strategy 'calibrated' needs [calibration] markers and poses ...").
     """
     if settings.strategy not in STRATEGIES:
         raise FacecapError(f"unknown strategy '{settings.strategy}'; available: {', '.join(STRATEGIES)}")
+    inputs = StrategyInputs() if inputs is None else inputs
+    if settings.strategy == "geometric":
+        if not isinstance(basis, Basis):
+            raise FacecapError("strategy 'geometric' needs the character's shapes at the bound points (a Basis)")
+        return _retarget_geometric(markers, basis, settings)
+    from .strategies.wiring import require_inputs
+
+    require_inputs(settings.strategy, inputs, settings)
+    if settings.strategy == "parallel":
+        return _retarget_parallel(basis, settings, inputs)
+    if markers is None:
+        raise FacecapError(f"strategy '{settings.strategy}' needs a marker take ([source] markers)")
+    return _retarget_markers(markers, basis, settings, inputs)
+
+
+def _retarget_geometric(markers, basis, settings):
     timings = {}
     notes = []
     t0 = time.perf_counter()
@@ -209,4 +286,108 @@ def retarget(markers, basis, settings):
         alignment_residual=align_res,
         warnings=tuple(notes),
         timings={k: round(v, 6) for k, v in timings.items()},
+    )
+
+
+def _target(character, settings):
+    """The character's shape names with ``settings.bounds`` applied."""
+    target = as_target(character)
+    lower, upper = resolve_bounds(target.names, target.lower, target.upper, settings.bounds)
+    return Target(target.names, np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64))
+
+
+def _finish(target, weights, settings, notes):
+    """Hold locked shapes at their values; note the options that do not apply."""
+    locks = resolve_locks(target.names, settings.locks)
+    held = ~np.isnan(locks)
+    if held.any():
+        weights = weights.copy()
+        rows = ~np.isnan(weights).all(axis=1)
+        weights[np.ix_(rows, held)] = locks[held]
+    if settings.regions:
+        notes.append(f"[solve] regions apply to the geometric strategy only; ignored by '{settings.strategy}'")
+    return weights
+
+
+def _retarget_markers(markers, character, settings, inputs):
+    """calibrated, refine, linear, rbf, pca: shared stabilisation and neutral, actor-space deltas."""
+    from .strategies.wiring import fit_strategy, prepare_take
+
+    timings = {}
+    notes = list(inputs.notes)
+    t0 = time.perf_counter()
+
+    def prepare(take_markers):
+        return prepare_take(take_markers, settings.stable_markers, settings.neutral_frames,
+                            head_smoothing=settings.head_smoothing)
+
+    take = prepare(markers)
+    stab = take.stabilise
+    moving = [n for n, w in stab.marker_trust.items() if w < 0.5]
+    if moving:
+        notes.append(f"stable marker(s) {moving} move relative to the others and were left out of the head fit")
+    if stab.flagged.any():
+        notes.append(f"{int(stab.flagged.sum())} frame(s) could not be stabilised; their weights are left unsolved "
+                     "or bridged by the strategy's temporal smoothing")
+    timings["stabilise"] = time.perf_counter() - t0
+    target = _target(character, settings)
+    t1 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        strategy, fit_notes = fit_strategy(settings, target, inputs, take, prepare=prepare)
+        t2 = time.perf_counter()
+        res = strategy.solve(take.deltas, names=take.names, neutral=take.neutral)
+    t3 = time.perf_counter()
+    timings.update(fit=t2 - t1, solve=t3 - t2)
+    notes += fit_notes
+    notes.extend(res.warnings)
+    weights = _finish(target, res.weights, settings, notes)
+
+    fitted_names = getattr(getattr(strategy, "actor_basis", None), "marker_names", None) or take.names
+    used = tuple(n for n in fitted_names if n in set(take.names))
+    F = take.frames.size
+    residual_rms = np.full(F, np.nan) if res.residual_rms is None else np.asarray(res.residual_rms, dtype=np.float64)
+    marker_residual = np.full(len(used), np.nan)
+    if res.solve is not None and res.solve.residuals.shape[1] == 3 * len(fitted_names):
+        r2 = (res.solve.residuals.reshape(F, len(fitted_names), 3) ** 2).sum(axis=2)
+        seen = np.isfinite(r2) & (r2 > 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
+        marker_residual = per[[fitted_names.index(n) for n in used]]
+    at_bound = res.solve.at_bound if res.solve is not None else res.clamped
+    info = dict(res.info)
+    for attr in ("version", "history", "basis_frames", "n_examples"):
+        if hasattr(strategy, attr):
+            info[attr] = getattr(strategy, attr)
+    timings["total"] = time.perf_counter() - t0
+    return RetargetResult(
+        frames=take.frames, shape_names=target.names, weights=weights, marker_names=used,
+        residual_rms=residual_rms, marker_residual=marker_residual,
+        at_bound=np.zeros(F, dtype=int) if at_bound is None else np.asarray(at_bound),
+        stabilise=stab, alignment=None, alignment_residual=None,
+        warnings=tuple(dict.fromkeys(notes)), timings={k: round(v, 6) for k, v in timings.items()},
+        strategy=settings.strategy, residual_space="actor" if res.residual_rms is not None else None,
+        source_weights=res.source_weights, source_names=tuple(res.source_names), info=info, fitted=strategy,
+    )
+
+
+def _retarget_parallel(character, settings, inputs):
+    """parallel: copy the solved weights of ``inputs.weights`` (a WeightTrack) onto the shapes."""
+    from .strategies.wiring import fit_parallel
+
+    t0 = time.perf_counter()
+    track = inputs.weights
+    target = _target(character, settings)
+    strategy = fit_parallel(settings, target, track)
+    res = strategy.solve(track.values, names=track.names)
+    notes = list(inputs.notes) + list(res.warnings)
+    weights = _finish(target, res.weights, settings, notes)
+    F = len(track.frames)
+    return RetargetResult(
+        frames=np.asarray(track.frames, dtype=np.float64), shape_names=target.names, weights=weights,
+        marker_names=(), residual_rms=np.full(F, np.nan), marker_residual=np.zeros(0), at_bound=res.clamped,
+        stabilise=None, alignment=None, alignment_residual=None, warnings=tuple(dict.fromkeys(notes)),
+        timings={"solve": round(time.perf_counter() - t0, 6), "total": round(time.perf_counter() - t0, 6)},
+        strategy="parallel", residual_space=None, source_weights=res.source_weights,
+        source_names=tuple(res.source_names), info=dict(res.info), fitted=strategy,
     )

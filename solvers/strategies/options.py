@@ -1,0 +1,144 @@
+"""Frozen settings and data inputs of the non-geometric strategies, as the pipeline receives them.
+
+The take config (``solvers.config``) and the Blender sidebar (``facecap_addon.take``) both build
+these; ``wiring.fit_strategy`` turns them into a fitted strategy. Settings are small values that
+live in a config or a .blend (names, frame ranges, gains, options); inputs are data read from
+files or the scene (a calibration take, posed example weights, a training take, solved weights).
+"""
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """``[calibration]``: the actor's calibration session (``calibrated`` and ``refine``).
+
+    poses : ((name, ((first, last), ...)), ...) inclusive frame ranges of each held pose; a name
+        may carry several ranges (the pose performed more than once)
+    neutral_frames : (first, last) of the calibration take's relaxed neutral; None = the take's
+        ``[neutral] frames``
+    split : pose names split into ``<pose>Left`` / ``<pose>Right`` by marker side
+    stable_markers : markers the calibration take is stabilised on; () = ``[stabilise] markers``
+    align : "rigid" (default), "similarity" or "none": how the take's neutral is brought onto the
+        calibration neutral (the master T-pose alignment)
+    """
+
+    poses: tuple = ()
+    neutral_frames: tuple = None
+    split: tuple = ()
+    stable_markers: tuple = ()
+    align: str = "rigid"
+
+    def pose_table(self):
+        """``{name: [[first, last], ...]}`` for ``actor_basis_from_poses``."""
+        return {name: [list(r) for r in ranges] for name, ranges in self.poses}
+
+
+@dataclass(frozen=True)
+class MappingSettings:
+    """``[mapping]``: source channels (actor poses, capture channels) -> character shapes.
+
+    table : ((source, target, gain), ...); channels the table does not mention map by name/alias
+    keyed_by : "source" or "target" (how the config's table was keyed; rows are the same either way)
+    aliases : match names through the alias tables (ARKit, Live Link Face, MediaPipe, FACS units)
+    gain, offset : float or ((shape, value), ...) per character shape (``parallel``)
+    clamp : None (the shape's slider range), (lo, hi) or ((shape, (lo, hi)), ...) (``parallel``)
+    curve : "linear", "smoothstep", "gamma:<g>" or ((shape, curve), ...) (``parallel``)
+    mirror : swap Left/Right source channels (``parallel``)
+    neutral_frames : (first, last) of the source weights whose median is subtracted (``parallel``)
+    """
+
+    table: tuple = ()
+    keyed_by: str = "source"
+    aliases: bool = True
+    gain: object = 1.0
+    offset: object = 0.0
+    clamp: object = None
+    curve: object = "linear"
+    mirror: bool = False
+    neutral_frames: tuple = None
+
+    def table_dict(self):
+        """``{source: {target: gain}}`` for ``Mapping.from_table`` (keyed by source), or None."""
+        if not self.table:
+            return None
+        out = {}
+        for source, target, gain in self.table:
+            row = out.setdefault(source, {})
+            row[target] = row.get(target, 0.0) + float(gain)
+        return out
+
+
+@dataclass(frozen=True)
+class ExampleSettings:
+    """``[examples]``: posed example frames (``linear``, ``rbf``, ``pca``) and their options.
+
+    frames : frame numbers to use (subset of the example weights' frames); () = all of them
+    ridge : ``linear`` ridge weight (relative), default 1e-3
+    kernel, rbf_smoothing, degree, far : ``rbf`` options (see ``RBFStrategy``)
+    n_components : ``rbf`` / ``pca`` component count; None = the strategy's default
+    """
+
+    frames: tuple = ()
+    ridge: float = 1e-3
+    kernel: str = "thin_plate_spline"
+    rbf_smoothing: float = 0.0
+    degree: int = 1
+    n_components: int = None
+    far: float = 2.0
+
+
+@dataclass(frozen=True)
+class PCASettings:
+    """``[pca]``: mode "related" (default) or "posed", FastICA, basis frames, kept variance."""
+
+    mode: str = "related"
+    ica: bool = False
+    n_basis: int = 8
+    variance: float = 0.99
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """``[refine]``: Choe & Ko iteration limits and the pull towards the original library."""
+
+    max_iterations: int = 10
+    tol: float = 1e-3
+    stiffness: float = 1e-2
+
+
+@dataclass(frozen=True, eq=False)
+class ExamplePairs:
+    """Character weights an animator posed for frames of a take.
+
+    frames : (N,) frame numbers of the example take (``markers``, or the take being solved)
+    weights : (N, S) posed values
+    names : S character shape names of ``weights`` columns (matched to the character's shapes;
+        shapes not named here are 0 in every example)
+    markers : MarkerSet or None; the take the frames belong to (None = the take being solved)
+    """
+
+    frames: object
+    weights: object
+    names: tuple
+    markers: object = None
+
+
+@dataclass(frozen=True, eq=False)
+class StrategyInputs:
+    """Data a strategy learns from or solves, besides the take's markers and the character.
+
+    calibration : MarkerSet of the actor's calibration session (``calibrated``, ``refine``)
+    actor_basis : Basis, a stored actor library used instead of ``calibration`` + poses
+    examples : ExamplePairs (``linear``, ``rbf``, ``pca``)
+    training : MarkerSet of a training take (``refine``; default: the take being solved)
+    weights : WeightTrack of already-solved weights (``parallel``; the source itself)
+    notes : what reading the inputs reported (carried into the result's warnings)
+    """
+
+    calibration: object = None
+    actor_basis: object = None
+    examples: object = None
+    training: object = None
+    weights: object = None
+    notes: tuple = field(default_factory=tuple)
