@@ -2,7 +2,9 @@
 
 Commands
 --------
-retarget --config take.toml   solve a take onto its character and write .blend / weights CSV / report
+retarget --config take.toml   solve a take onto its character with its [solve] strategy and write
+                              .blend / weights CSV / report (/ the actor basis, [output] actor_basis)
+compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
 inspect FILE [options]        describe a capture file; non-zero exit with a one-line reason if it is bad
 bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
@@ -35,25 +37,32 @@ def run_retarget(config, *, quiet=False):
     from ..solvers.io_csv import write_weights_csv
     from ..solvers.pipeline import retarget
     from ..solvers.readers import import_markers
+    from ..solvers.strategy_config import load_strategy_inputs
 
     say = (lambda _m: None) if quiet else _progress
+    strategy = config.settings.strategy
     timings = {}
     t0 = time.perf_counter()
-    say(f"[1/5] reading markers {config.markers_path}")
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        imported = import_markers(config.markers_path, units=config.units, fps=config.fps, **config.read_options)
-    notes = list(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
-    cleaned = clean(imported.markers, config.clean)
-    markers = cleaned.markers
-    cleaning = cleaned.report.summary().splitlines()
+    markers, imported, notes, cleaning = None, None, [], []
+    if config.markers_path is not None:
+        say(f"[1/5] reading markers {config.markers_path}")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            imported = import_markers(config.markers_path, units=config.units, fps=config.fps, **config.read_options)
+        notes = list(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
+        cleaned = clean(imported.markers, config.clean)
+        markers = cleaned.markers
+        cleaning = cleaned.report.summary().splitlines()
+    else:
+        say(f"[1/5] reading solved weights {config.weights_path}")
+    inputs = load_strategy_inputs(config)
     timings["read"] = time.perf_counter() - t0
 
     import bpy
 
     from . import anim
     from .scene_data import basis_from_object
-    from .take import key_weights
+    from .take import character_target, key_weights
 
     t1 = time.perf_counter()
     if config.target_blend is not None:
@@ -64,14 +73,21 @@ def run_retarget(config, *, quiet=False):
     source_blend = Path(bpy.data.filepath).resolve() if bpy.data.filepath else None
     if config.output_blend is not None and source_blend is not None and config.output_blend == source_blend:
         raise ConfigError("must differ from the input .blend (inputs are never overwritten)", path=config.path, key="output.blend")
+    if config.output_actor_basis is not None and config.output_actor_basis == config.actor_basis_path:
+        raise ConfigError("must differ from [calibration] basis (a stored library is never overwritten)",
+                          path=config.path, key="output.actor_basis")
     obj = bpy.data.objects.get(config.target_object)
     if obj is None:
         raise ConfigError(f"no object named '{config.target_object}' in the .blend", path=config.path, key="target.object")
-    basis = basis_from_object(obj, markers.names)
+    # Only geometric samples the character at bound vertices; the others need its shape names and ranges.
+    character = basis_from_object(obj, markers.names) if strategy == "geometric" else character_target(obj)
     timings["load_character"] = time.perf_counter() - t1
 
-    say(f"[3/5] solving {markers.n_frames} frames x {basis.n_shapes} shapes from {basis.n_markers} markers")
-    result = retarget(markers, basis, config.settings)
+    source = f"{markers.n_frames} frames from {markers.n_markers} markers" if markers is not None else (
+        f"{len(inputs.weights.frames)} frames of {len(inputs.weights.names)} solved channels")
+    say(f"[3/5] solving {source} x {len(character.shape_names if strategy == 'geometric' else character.names)} "
+        f"shapes (strategy: {strategy})")
+    result = retarget(markers, character, config.settings, inputs=inputs)
 
     t3 = time.perf_counter()
     say("[4/5] keying")
@@ -83,6 +99,14 @@ def run_retarget(config, *, quiet=False):
     if config.output_weights is not None:
         write_weights_csv(config.output_weights, result.frames, result.shape_names, result.weights)
         outputs["weights"] = str(config.output_weights)
+    if config.output_actor_basis is not None:
+        actor_basis = getattr(result.fitted, "actor_basis", None)
+        if actor_basis is None:
+            raise ConfigError(f"strategy '{strategy}' has no actor basis to store (calibrated and refine do)",
+                              path=config.path, key="output.actor_basis")
+        config.output_actor_basis.parent.mkdir(parents=True, exist_ok=True)
+        actor_basis.save_npz(config.output_actor_basis)
+        outputs["actor_basis"] = str(config.output_actor_basis)
     if config.output_blend is not None:
         _save_blend_atomic(config.output_blend)
         outputs["blend"] = str(config.output_blend)
@@ -90,9 +114,14 @@ def run_retarget(config, *, quiet=False):
     if config.output_report is not None:
         report = result.report()
         report["config"] = str(config.path)
-        report["markers_file"] = str(config.markers_path)
-        report["source"] = {"format": imported.format, "units": imported.markers.units, "fps": markers.fps,
-                            "segments": {k: v for k, v in markers.segments.items()}}
+        if markers is not None:
+            report["markers_file"] = str(config.markers_path)
+            report["source"] = {"format": imported.format, "units": imported.markers.units, "fps": markers.fps,
+                                "segments": {k: v for k, v in markers.segments.items()}}
+        else:
+            track = inputs.weights
+            report["weights_file"] = str(config.weights_path)
+            report["source"] = {"format": track.format, "fps": track.fps, "timecode": track.timecode}
         report["cleaning"] = cleaning
         report["outputs"] = outputs
         report["warnings"] = notes + report["warnings"]
@@ -125,10 +154,10 @@ def _cmd_retarget(args):
     result, outputs = run_retarget(config)
     import numpy as np
 
-    print(
-        f"retargeted {result.frames.size} frames, {len(result.shape_names)} shapes; "
-        f"mean residual {np.nanmean(result.residual_rms) * 1e3:.3f} mm"
-    )
+    ok = np.isfinite(result.residual_rms)
+    residual = (f"mean residual {np.mean(result.residual_rms[ok]) * 1e3:.3f} mm ({result.residual_space} space)"
+                if ok.any() else "no marker residual for this strategy")
+    print(f"retargeted {result.frames.size} frames, {len(result.shape_names)} shapes (strategy: {result.strategy}); {residual}")
     for key, value in outputs.items():
         print(f"  {key}: {value}")
     return 0
@@ -184,6 +213,12 @@ def _cmd_inspect(args):
     return inspect_main(args.rest)
 
 
+def _cmd_compare(args):
+    from ..solvers.compare import main as compare_main
+
+    return compare_main(args.rest)
+
+
 def _cmd_bench(args):
     from ..solvers.bench import run_benchmarks
 
@@ -215,6 +250,10 @@ def build_parser():
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_inspect)
+    p = sub.add_parser("compare", help="accuracy and time of every strategy on the same synthetic takes (Markdown)",
+                       add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_compare)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.set_defaults(func=_cmd_bench)

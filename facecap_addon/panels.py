@@ -38,6 +38,27 @@ class FACECAP_UL_regions(bpy.types.UIList):
         row.prop(item, "markers", text="")
 
 
+class FACECAP_UL_calib_poses(bpy.types.UIList):
+    """Calibration poses: name, first and last frame, split into Left/Right."""
+
+    def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index):
+        row = layout.row(align=True)
+        row.prop(item, "name", text="", emboss=False)
+        row.prop(item, "first", text="")
+        row.prop(item, "last", text="")
+        row.prop(item, "split", text="", icon="MOD_MIRROR")
+
+
+class FACECAP_UL_mapping(bpy.types.UIList):
+    """Mapping rows: source channel -> character shape, gain."""
+
+    def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index):
+        row = layout.row(align=True)
+        row.prop(item, "source", text="")
+        row.prop(item, "target", text="")
+        row.prop(item, "gain", text="")
+
+
 class FacecapPanel:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
@@ -87,8 +108,12 @@ class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
             layout.label(text=f"{s.flagged_frames} frame(s) could not be stabilised", icon="ERROR")
 
 
+MARKER_FIT = ("geometric", "calibrated", "refine")  # strategies with a bounded solve (priors apply)
+EXAMPLES = ("linear", "rbf", "pca")
+
+
 class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
-    """Strategy options and the solve."""
+    """Strategy, its options (only those that apply) and the solve."""
 
     bl_label = "Solve"
     bl_idname = "FACECAP_PT_solve"
@@ -97,21 +122,38 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
         s = context.scene.facecap
         layout = self.layout
         layout.prop(s, "strategy")
-        col = layout.column(align=True)
-        col.prop(s, "regularisation")
-        col.prop(s, "sparsity")
-        col.prop(s, "symmetry")
-        col = layout.column(align=True)
-        col.prop(s, "smoothing_first")
-        col.prop(s, "smoothing_second")
-        layout.label(text="Shapes (lock, min, max, region)")
+        if s.strategy in ("calibrated", "refine"):
+            _draw_calibration(layout, s)
+        if s.strategy == "parallel":
+            _draw_parallel(layout, s)
+        if s.strategy in EXAMPLES:
+            _draw_examples(layout, s)
+        if s.strategy in ("calibrated", "refine", "parallel"):
+            _draw_mapping(layout, s)
+        if s.strategy == "refine":
+            col = layout.box().column(align=True)
+            col.label(text="Refine the library on this take")
+            col.prop(s, "refine_max_iterations")
+            col.prop(s, "refine_tol")
+            col.prop(s, "refine_stiffness")
+        if s.strategy in MARKER_FIT:
+            col = layout.column(align=True)
+            col.prop(s, "regularisation")
+            col.prop(s, "sparsity")
+            col.prop(s, "symmetry")
+        if s.strategy in MARKER_FIT or (s.strategy == "pca" and s.pca_mode == "posed"):
+            col = layout.column(align=True)
+            col.prop(s, "smoothing_first")
+            col.prop(s, "smoothing_second")
+        layout.label(text="Shapes (lock, min, max" + (", region)" if s.strategy == "geometric" else ")"))
         layout.template_list("FACECAP_UL_shapes", "", s, "shapes", s, "active_shape", rows=4)
         layout.operator("facecap.refresh_shapes", icon="FILE_REFRESH")
-        row = layout.row()
-        row.template_list("FACECAP_UL_regions", "", s, "regions", s, "active_region", rows=2)
-        col = row.column(align=True)
-        col.operator("facecap.region_add", icon="ADD", text="")
-        col.operator("facecap.region_remove", icon="REMOVE", text="")
+        if s.strategy == "geometric":
+            row = layout.row()
+            row.template_list("FACECAP_UL_regions", "", s, "regions", s, "active_region", rows=2)
+            col = row.column(align=True)
+            col.operator("facecap.region_add", icon="ADD", text="")
+            col.operator("facecap.region_remove", icon="REMOVE", text="")
         layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
         if s.last_report:
             box = layout.box()
@@ -119,4 +161,84 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
                 box.label(text=line)
 
 
-CLASSES = (FACECAP_UL_markers, FACECAP_UL_shapes, FACECAP_UL_regions, FACECAP_PT_take, FACECAP_PT_stabilise, FACECAP_PT_solve)
+def _draw_calibration(layout, s):
+    box = layout.box()
+    box.label(text="Actor calibration")
+    box.prop(s, "calib_source")
+    if s.calib_source == "COLLECTION":
+        box.prop(s, "calib_collection", text="Markers")
+    else:
+        box.prop(s, "calib_path", text="File")
+        box.prop(s, "calib_units")
+    row = box.row(align=True)
+    row.label(text="Neutral")
+    row.prop(s, "calib_neutral_first")
+    row.prop(s, "calib_neutral_last")
+    row.operator("facecap.calib_neutral_from_timeline", icon="TIME", text="")
+    box.label(text="Poses (name, first, last, split)")
+    row = box.row()
+    row.template_list("FACECAP_UL_calib_poses", "", s, "calib_poses", s, "active_calib_pose", rows=3)
+    col = row.column(align=True)
+    col.operator("facecap.calib_pose_add", icon="ADD", text="")
+    col.operator("facecap.calib_pose_remove", icon="REMOVE", text="")
+    row = box.row(align=True)
+    row.prop(s, "calib_pose_name", text="")
+    row.operator("facecap.calib_pose_add", icon="TIME")
+    box.prop(s, "calib_align")
+
+
+def _draw_mapping(layout, s):
+    box = layout.box()
+    box.label(text="Mapping (empty rows: one-to-one by name)")
+    row = box.row()
+    row.template_list("FACECAP_UL_mapping", "", s, "mapping", s, "active_mapping", rows=3)
+    col = row.column(align=True)
+    col.operator("facecap.mapping_add", icon="ADD", text="")
+    col.operator("facecap.mapping_remove", icon="REMOVE", text="")
+    row = box.row(align=True)
+    row.operator("facecap.mapping_fill_by_name", icon="SORTALPHA")
+    row.operator("facecap.mapping_clear", icon="X")
+    box.prop(s, "mapping_aliases")
+
+
+def _draw_parallel(layout, s):
+    box = layout.box()
+    box.label(text="Solved weights")
+    box.prop(s, "weights_path", text="File")
+    col = box.column(align=True)
+    col.prop(s, "parallel_gain")
+    col.prop(s, "parallel_offset")
+    col.prop(s, "parallel_curve")
+    if s.parallel_curve == "gamma":
+        col.prop(s, "parallel_gamma")
+    box.prop(s, "parallel_mirror")
+    row = box.row(align=True)
+    row.prop(s, "parallel_use_neutral")
+    if s.parallel_use_neutral:
+        row.prop(s, "parallel_neutral_first")
+        row.prop(s, "parallel_neutral_last")
+
+
+def _draw_examples(layout, s):
+    box = layout.box()
+    box.label(text="Posed examples (keyed frames of an action)")
+    box.prop(s, "examples_action")
+    col = box.column(align=True)
+    if s.strategy == "linear":
+        col.prop(s, "ridge")
+    elif s.strategy == "rbf":
+        col.prop(s, "rbf_kernel")
+        col.prop(s, "rbf_smoothing")
+        col.prop(s, "rbf_degree")
+        col.prop(s, "rbf_far")
+        col.prop(s, "n_components")
+    else:
+        col.prop(s, "pca_mode")
+        col.prop(s, "pca_ica")
+        col.prop(s, "pca_n_basis")
+        col.prop(s, "pca_variance")
+        col.prop(s, "n_components")
+
+
+CLASSES = (FACECAP_UL_markers, FACECAP_UL_shapes, FACECAP_UL_regions, FACECAP_UL_calib_poses, FACECAP_UL_mapping,
+           FACECAP_PT_take, FACECAP_PT_stabilise, FACECAP_PT_solve)

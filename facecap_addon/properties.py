@@ -13,6 +13,35 @@ from bpy.props import (
 
 STRATEGY_ITEMS = [
     ("geometric", "Geometric", "Solve marker deltas against the character's shape keys at the bound vertices"),
+    ("calibrated", "Calibrated", "Solve the actor's calibration poses, then map them to the character's shapes "
+     "(characters whose proportions differ from the actor's)"),
+    ("parallel", "Parallel", "Copy already-solved weights (Live Link Face / ARKit / MediaPipe CSV) to the shape keys "
+     "by name or mapping table"),
+    ("linear", "Linear", "Linear map (cloning matrix) learned from frames you posed on the character"),
+    ("rbf", "RBF", "Radial-basis interpolation between frames you posed on the character (Pyun)"),
+    ("pca", "PCA", "Basis learned from the performance itself, mapped by frames you posed on the character"),
+    ("refine", "Refine", "Calibrated, with the actor's pose library refined on this take (Choe & Ko)"),
+]
+CALIB_SOURCE_ITEMS = [
+    ("COLLECTION", "Collection", "Calibration markers are empties in a collection (an imported calibration take)"),
+    ("FILE", "File", "Calibration markers are read from a capture file"),
+]
+ALIGN_ITEMS = [
+    ("rigid", "Rigid", "Rotate the take's neutral onto the calibration neutral"),
+    ("similarity", "Similarity", "Rotate and scale the take's neutral onto the calibration neutral"),
+    ("none", "None", "The take and the calibration share a head frame"),
+]
+CURVE_ITEMS = [
+    ("linear", "Linear", "Values as they are"),
+    ("smoothstep", "Smoothstep", "Ease in and out (3x^2 - 2x^3)"),
+    ("gamma", "Gamma", "x^gamma: gamma < 1 boosts small values, > 1 suppresses them"),
+]
+KERNEL_ITEMS = [(k, k.replace("_", " ").title(), f"RBF kernel {k}") for k in (
+    "thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric", "inverse_multiquadric",
+    "inverse_quadratic")]
+PCA_MODE_ITEMS = [
+    ("related", "Related Basis", "Regression from the performance's principal components to the posed weights"),
+    ("posed", "Posed Basis Frames", "Non-negative blend of the posed basis frames (Chuang & Bregler)"),
 ]
 UNIT_ITEMS = [
     ("mm", "Millimetres", "Marker coordinates are in millimetres"),
@@ -52,6 +81,23 @@ class FACECAP_PG_region(bpy.types.PropertyGroup):
     markers: StringProperty(
         name="Markers", description="Comma-separated marker name patterns, e.g. brow*, eye*, forehead*, head_*"
     )
+
+
+class FACECAP_PG_pose(bpy.types.PropertyGroup):
+    """A calibration pose held over a frame range; ``name`` is the pose (several rows may share one)."""
+
+    first: IntProperty(name="First", default=1, description="First frame of the held pose")
+    last: IntProperty(name="Last", default=1, description="Last frame of the held pose")
+    split: BoolProperty(name="Split", default=False,
+                        description="Performed on both sides at once: split into <pose>Left / <pose>Right by marker side")
+
+
+class FACECAP_PG_mapping(bpy.types.PropertyGroup):
+    """One mapping-table row: a source channel drives a character shape with a gain."""
+
+    source: StringProperty(name="Source", description="Actor pose or capture channel")
+    target: StringProperty(name="Target", description="Character shape key")
+    gain: FloatProperty(name="Gain", default=1.0, description="Contribution of the source to the target")
 
 
 class FACECAP_PG_settings(bpy.types.PropertyGroup):
@@ -129,13 +175,67 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     active_shape: IntProperty(default=0)
     regions: CollectionProperty(type=FACECAP_PG_region)
     active_region: IntProperty(default=0)
+    # -- calibrated / refine ------------------------------------------------------------------
+    calib_source: EnumProperty(name="Calibration", items=CALIB_SOURCE_ITEMS, default="COLLECTION")
+    calib_collection: PointerProperty(name="Calibration Markers", type=bpy.types.Collection,
+                                      description="Collection holding the calibration take's marker empties")
+    calib_path: StringProperty(name="Calibration File", subtype="FILE_PATH", description="Calibration take (capture file)")
+    calib_units: EnumProperty(name="Units", items=UNIT_ITEMS, default="mm", description="Units of the calibration file")
+    calib_neutral_first: IntProperty(name="First", default=1, description="First frame of the calibration neutral")
+    calib_neutral_last: IntProperty(name="Last", default=30, description="Last frame of the calibration neutral")
+    calib_poses: CollectionProperty(type=FACECAP_PG_pose)
+    active_calib_pose: IntProperty(default=0)
+    calib_pose_name: StringProperty(name="Pose Name", default="jawOpen",
+                                    description="Name of the next pose added from the timeline")
+    calib_align: EnumProperty(name="Align", items=ALIGN_ITEMS, default="rigid",
+                              description="How the take's neutral is brought onto the calibration neutral")
+    # -- mapping (calibrated, refine, parallel) -----------------------------------------------
+    mapping: CollectionProperty(type=FACECAP_PG_mapping)
+    active_mapping: IntProperty(default=0)
+    mapping_aliases: BoolProperty(name="Aliases", default=True,
+                                  description="Match names through ARKit / Live Link Face / MediaPipe / FACS alias tables")
+    # -- parallel -----------------------------------------------------------------------------
+    weights_path: StringProperty(name="Weights File", subtype="FILE_PATH",
+                                 description="Solved weights: Live Link Face / ARKit / MediaPipe CSV")
+    parallel_gain: FloatProperty(name="Gain", default=1.0, description="Gain on every channel")
+    parallel_offset: FloatProperty(name="Offset", default=0.0, description="Offset added to every channel")
+    parallel_curve: EnumProperty(name="Curve", items=CURVE_ITEMS, default="linear")
+    parallel_gamma: FloatProperty(name="Gamma", default=1.0, min=0.05, description="Exponent of the gamma curve")
+    parallel_mirror: BoolProperty(name="Mirror", default=False, description="Swap Left/Right source channels")
+    parallel_use_neutral: BoolProperty(name="Neutral Offset", default=False,
+                                       description="Subtract the median of the source over a neutral frame range")
+    parallel_neutral_first: IntProperty(name="First", default=1)
+    parallel_neutral_last: IntProperty(name="Last", default=30)
+    # -- examples (linear, rbf, pca) ------------------------------------------------------------
+    examples_action: PointerProperty(name="Examples", type=bpy.types.Action,
+                                     description="Action on the character's shape keys whose keyed frames are the posed examples")
+    ridge: FloatProperty(name="Ridge", default=1e-3, min=0.0, precision=6, description="Ridge weight of the linear map")
+    rbf_kernel: EnumProperty(name="Kernel", items=KERNEL_ITEMS, default="thin_plate_spline")
+    rbf_smoothing: FloatProperty(name="Smoothing", default=0.0, min=0.0, precision=4,
+                                 description="0 reproduces the examples exactly")
+    rbf_degree: IntProperty(name="Tail Degree", default=1, min=-1, max=2, description="Polynomial tail (-1 = none)")
+    rbf_far: FloatProperty(name="Far", default=2.0, min=0.01,
+                           description="Frames farther than this x the example spacing are reported as extrapolated")
+    n_components: IntProperty(name="Components", default=0, min=0, description="Principal components (0 = default)")
+    pca_mode: EnumProperty(name="Mode", items=PCA_MODE_ITEMS, default="related")
+    pca_ica: BoolProperty(name="ICA", default=False, description="Rotate the components to independent ones (FastICA)")
+    pca_n_basis: IntProperty(name="Basis Components", default=8, min=1,
+                             description="Leading components whose extreme frames are the basis frames")
+    pca_variance: FloatProperty(name="Variance", default=0.99, min=0.01, max=1.0, description="Share of variance kept")
+    # -- refine ----------------------------------------------------------------------------------
+    refine_max_iterations: IntProperty(name="Iterations", default=10, min=0, max=100)
+    refine_tol: FloatProperty(name="Tolerance", default=1e-3, min=0.0, precision=5,
+                              description="Stop when the fit error falls by less than this fraction")
+    refine_stiffness: FloatProperty(name="Stiffness", default=1e-2, min=0.0, precision=5,
+                                    description="Pull towards the original library (larger = smaller corrections)")
     head_object: PointerProperty(name="Head Motion", type=bpy.types.Object, description="Empty keyed with the removed head motion")
     flagged_frames: IntProperty(name="Flagged Frames", default=0, description="Frames the last stabilisation could not fit")
     last_action: StringProperty(name="Last Action", description="Action created by the last solve")
     last_report: StringProperty(name="Last Result", description="Summary of the last solve")
 
 
-CLASSES = (FACECAP_PG_marker, FACECAP_PG_shape, FACECAP_PG_region, FACECAP_PG_settings)
+CLASSES = (FACECAP_PG_marker, FACECAP_PG_shape, FACECAP_PG_region, FACECAP_PG_pose, FACECAP_PG_mapping,
+           FACECAP_PG_settings)
 
 
 def register_properties():

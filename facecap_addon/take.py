@@ -8,6 +8,16 @@ from ..solvers.errors import FacecapError
 from ..solvers.markers import MarkerSet
 from ..solvers.pipeline import RetargetSettings
 from ..solvers.shape_options import Region
+from ..solvers.strategies.base import Target
+from ..solvers.strategies.options import (
+    CalibrationSettings,
+    ExamplePairs,
+    ExampleSettings,
+    MappingSettings,
+    PCASettings,
+    RefineSettings,
+    StrategyInputs,
+)
 from ..solvers.transforms import matrix_to_euler_xyz
 from . import anim
 
@@ -33,11 +43,40 @@ def shape_options(settings):
     return {"bounds": bounds, "locks": locks, "regions": tuple(regions)}
 
 
+def strategy_settings(settings):
+    """The strategy sections of RetargetSettings from the Solve panel."""
+    s = settings
+    poses = {}
+    for pose in s.calib_poses:
+        poses.setdefault(pose.name, []).append((pose.first, pose.last))
+    curve = f"gamma:{s.parallel_gamma:g}" if s.parallel_curve == "gamma" else s.parallel_curve
+    return {
+        "calibration": CalibrationSettings(
+            poses=tuple((name, tuple(ranges)) for name, ranges in poses.items()),
+            neutral_frames=(s.calib_neutral_first, s.calib_neutral_last),
+            split=tuple(dict.fromkeys(p.name for p in s.calib_poses if p.split)),
+            align=s.calib_align,
+        ),
+        "mapping": MappingSettings(
+            table=tuple((row.source, row.target, row.gain) for row in s.mapping if row.source and row.target),
+            aliases=s.mapping_aliases, gain=s.parallel_gain, offset=s.parallel_offset, curve=curve,
+            mirror=s.parallel_mirror,
+            neutral_frames=(s.parallel_neutral_first, s.parallel_neutral_last) if s.parallel_use_neutral else None,
+        ),
+        "examples": ExampleSettings(ridge=s.ridge, kernel=s.rbf_kernel, rbf_smoothing=s.rbf_smoothing,
+                                    degree=s.rbf_degree, n_components=s.n_components or None, far=s.rbf_far),
+        "pca": PCASettings(mode=s.pca_mode, ica=s.pca_ica, n_basis=s.pca_n_basis, variance=s.pca_variance),
+        "refine": RefineSettings(max_iterations=s.refine_max_iterations, tol=s.refine_tol,
+                                 stiffness=s.refine_stiffness),
+    }
+
+
 def retarget_settings(settings):
     """Frozen solver settings from the scene's PropertyGroup."""
     stable = tuple(m.name for m in settings.markers if m.stable)
     return RetargetSettings(
         **shape_options(settings),
+        **strategy_settings(settings),
         stable_markers=stable,
         neutral_frames=(settings.neutral_first, settings.neutral_last),
         strategy=settings.strategy,
@@ -55,8 +94,14 @@ def markers_from_collection(settings):
     coll = settings.marker_collection
     if coll is None:
         raise FacecapError("no marker collection: import a take first")
+    return markers_from_empties(coll, [m.name for m in settings.markers], settings.fps)
+
+
+def markers_from_empties(coll, names, fps):
+    """A MarkerSet (metres) from the keyed marker empties of ``coll`` (``names`` first, in order;
+    every empty when none of them is there)."""
     objects = {o.get("facecap_marker", o.name): o for o in coll.objects if o.type == "EMPTY"}
-    names = [m.name for m in settings.markers if m.name in objects] or sorted(objects)
+    names = [n for n in names if n in objects] or sorted(objects)
     if not names:
         raise FacecapError(f"collection '{coll.name}' holds no marker empties")
     tracks = [anim.read_curves(objects[n], LOCATION) for n in names]
@@ -66,7 +111,97 @@ def markers_from_collection(settings):
     pos = np.full((frames.size, len(names), 3), np.nan)
     for m, (f, v) in enumerate(tracks):
         pos[np.searchsorted(frames, f), m] = v
-    return MarkerSet(tuple(names), frames, pos, fps=settings.fps, units="m", source=f"collection '{coll.name}'")
+    return MarkerSet(tuple(names), frames, pos, fps=fps, units="m", source=f"collection '{coll.name}'")
+
+
+def character_target(obj):
+    """The character as non-geometric strategies see it: shape-key names and slider ranges."""
+    key = getattr(obj.data, "shape_keys", None)
+    if key is None or len(key.key_blocks) < 2:
+        raise FacecapError(f"object '{obj.name}' has no shape keys to solve for")
+    blocks = [b for b in key.key_blocks if b != key.reference_key]
+    return Target(tuple(b.name for b in blocks), np.array([b.slider_min for b in blocks], dtype=np.float64),
+                  np.array([b.slider_max for b in blocks], dtype=np.float64))
+
+
+def examples_from_action(action, obj):
+    """ExamplePairs from the keyed frames of ``action`` on ``obj``'s shape keys.
+
+    Every frame that has a key on any ``key_blocks["<shape>"].value`` curve is a posed example;
+    each curve is evaluated there (a shape keyed elsewhere but not on that frame takes its curve's
+    value), shapes without a curve are 0.
+    """
+    key = obj.data.shape_keys
+    if key is None:
+        raise FacecapError(f"object '{obj.name}' has no shape keys")
+    curves = {}
+    for fc in anim.action_fcurves(action, key):
+        path = fc.data_path
+        if path.startswith('key_blocks["') and path.endswith('"].value'):
+            curves[path[len('key_blocks["'):-len('"].value')]] = fc
+    if not curves:
+        raise FacecapError(f"action '{action.name}' keys no shape-key values of '{obj.name}'")
+    keyed = []
+    for fc in curves.values():
+        co = np.empty(2 * len(fc.keyframe_points), dtype=np.float32)
+        fc.keyframe_points.foreach_get("co", co)
+        keyed.append(co[0::2])
+    frames = np.unique(np.round(np.concatenate(keyed)))
+    names = tuple(curves)
+    values = np.array([[curves[n].evaluate(float(f)) for n in names] for f in frames], dtype=np.float64)
+    return ExamplePairs(frames.astype(np.float64), values, names)
+
+
+def strategy_inputs(settings):
+    """StrategyInputs for the Solve panel's strategy, read from the scene and the files it names."""
+    import bpy
+
+    strategy = settings.strategy
+    inputs, notes = {}, []
+    if strategy in ("calibrated", "refine"):
+        if settings.calib_source == "COLLECTION":
+            if settings.calib_collection is not None:
+                inputs["calibration"] = markers_from_empties(settings.calib_collection, [m.name for m in settings.markers],
+                                                             settings.fps)
+        elif settings.calib_path:
+            from ..solvers.readers import import_markers
+
+            imported = import_markers(bpy.path.abspath(settings.calib_path), units=settings.calib_units)
+            inputs["calibration"] = imported.markers
+            notes.extend(imported.notes)
+    elif strategy in ("linear", "rbf", "pca"):
+        if settings.examples_action is not None:
+            if settings.target is None:
+                raise FacecapError("choose the character first")
+            inputs["examples"] = examples_from_action(settings.examples_action, settings.target)
+    elif strategy == "parallel" and settings.weights_path:
+        from ..solvers.io_weights import read_weights
+
+        track = read_weights(bpy.path.abspath(settings.weights_path))
+        inputs["weights"] = track
+        notes.extend(track.notes)
+    return StrategyInputs(**inputs, notes=tuple(notes))
+
+
+def source_channel_names(settings):
+    """Names on the source side of the mapping table: calibration poses, or the weights file's channels."""
+    import bpy
+
+    if settings.strategy == "parallel":
+        if not settings.weights_path:
+            raise FacecapError("choose the weights file first")
+        from ..solvers.io_weights import read_weights
+
+        return read_weights(bpy.path.abspath(settings.weights_path)).names
+    names = []
+    split = {p.name for p in settings.calib_poses if p.split}
+    for pose in settings.calib_poses:
+        for name in ([pose.name + "Left", pose.name + "Right"] if pose.name in split else [pose.name]):
+            if name not in names:
+                names.append(name)
+    if not names:
+        raise FacecapError("define calibration poses first")
+    return tuple(names)
 
 
 DIAGNOSTIC_CURVES = ("facecap_residual_mm", "facecap_at_bound")
@@ -85,7 +220,7 @@ def key_weights(obj, result, action_name):
         key[prop] = 0.0
     curves = [(f'key_blocks["{n}"].value', 0) for n in result.shape_names]
     curves += [(f'["{p}"]', 0) for p in DIAGNOSTIC_CURVES]
-    values = np.column_stack([result.weights, result.residual_rms * 1e3, result.at_bound.astype(np.float64)])
+    values = np.column_stack([result.weights, result.residual_rms * 1e3, np.asarray(result.at_bound, dtype=np.float64)])
     return anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values)
 
 

@@ -1,5 +1,6 @@
 """One operator per user action; thin: read settings -> core -> write -> report."""
 
-from . import importers, neutral, solve, stabilise
+from . import calibration, importers, mapping, neutral, solve, stabilise
 
-CLASSES = importers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES
+CLASSES = (importers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
+           + mapping.CLASSES)

@@ -15,7 +15,7 @@ class FACECAP_OT_solve(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         s = context.scene.facecap
-        return s.target is not None and s.marker_collection is not None
+        return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
 
     def execute(self, context):
         import numpy as np
@@ -25,19 +25,26 @@ class FACECAP_OT_solve(bpy.types.Operator):
         from ..solvers.pipeline import retarget
 
         settings = context.scene.facecap
+        strategy = settings.strategy
         try:
-            markers = take.markers_from_collection(settings)
-            basis = basis_from_object(settings.target, markers.names)
-            result = retarget(markers, basis, take.retarget_settings(settings))
+            markers = None if strategy == "parallel" else take.markers_from_collection(settings)
+            if strategy == "geometric":
+                character = basis_from_object(settings.target, markers.names)
+            else:
+                character = take.character_target(settings.target)
+            inputs = take.strategy_inputs(settings)
+            result = retarget(markers, character, take.retarget_settings(settings), inputs=inputs)
+            action = take.key_weights(settings.target, result, anim.unique_action_name(settings.take_name or "FaceCap"))
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        action = take.key_weights(settings.target, result, anim.unique_action_name(settings.take_name or "FaceCap"))
         settings.last_action = action.name
-        rms = float(np.nanmean(result.residual_rms) * 1e3)
+        ok = np.isfinite(result.residual_rms)
+        source = f"{len(result.marker_names)} markers" if markers is not None else f"{len(result.source_names)} channels"
+        residual = f", RMS residual {float(np.mean(result.residual_rms[ok]) * 1e3):.2f} mm" if ok.any() else ""
         summary = (
             f"Solved {len(result.shape_names)} shapes over {result.frames.size} frames from "
-            f"{len(result.marker_names)} markers, RMS residual {rms:.2f} mm, action '{action.name}'"
+            f"{source} ({strategy}){residual}, action '{action.name}'"
         )
         settings.last_report = summary
         for note in result.warnings:

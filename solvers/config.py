@@ -1,4 +1,11 @@
-"""Take configs: a TOML file describing one retarget (paths resolve against the file's folder)."""
+"""Take configs: a TOML file describing one retarget (paths resolve against the file's folder).
+
+Sections: [target] [source] [clean] [binding] [stabilise] [neutral] [solve] [output], plus the
+strategy sections [calibration] [mapping] [examples] [pca] [refine] (see
+``solvers/strategies/README.md`` for every key and its default). ``[stabilise] markers`` and
+``[neutral] frames`` are required for marker strategies; ``parallel`` reads ``[source] weights``
+instead of ``[source] markers``.
+"""
 
 import tomllib
 from dataclasses import dataclass
@@ -8,12 +15,14 @@ from .errors import ConfigError, FacecapError
 from .markers import UNIT_SCALE
 from .pipeline import STRATEGIES, RetargetSettings
 from .shape_options import Region
+from .strategy_config import strategy_settings
 
 # section -> {key: (type(s), required)}
 SCHEMA = {
     "target": {"blend": (str, False), "object": (str, True)},
     "source": {
-        "markers": (str, True),
+        "markers": (str, False),
+        "weights": (str, False),
         "format": (str, False),
         "units": (str, False),
         "unit_scale": ((int, float), False),
@@ -36,12 +45,12 @@ SCHEMA = {
     },
     "binding": {"vertex_groups": (bool, False)},
     "stabilise": {
-        "markers": (list, True),
+        "markers": (list, False),
         "fine_iterations": (int, False),
         "fine_weight": ((int, float), False),
         "head_smoothing": ((int, float), False),
     },
-    "neutral": {"frames": (list, True)},
+    "neutral": {"frames": (list, False)},
     "solve": {
         "strategy": (str, False),
         "regularisation": ((int, float), False),
@@ -52,7 +61,48 @@ SCHEMA = {
         "locks": (dict, False),
         "regions": (dict, False),
     },
-    "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False)},
+    "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False),
+               "actor_basis": (str, False)},
+    "calibration": {
+        "markers": (str, False),
+        "units": (str, False),
+        "fps": ((int, float), False),
+        "neutral": (list, False),
+        "poses": (dict, False),
+        "split": (list, False),
+        "stable_markers": (list, False),
+        "basis": (str, False),
+        "align": (str, False),
+    },
+    "mapping": {
+        "aliases": (bool, False),
+        "keyed_by": (str, False),
+        "table": (dict, False),
+        "gain": ((int, float, dict), False),
+        "offset": ((int, float, dict), False),
+        "clamp": ((list, dict), False),
+        "curve": ((str, dict), False),
+        "mirror": (bool, False),
+        "neutral": (list, False),
+    },
+    "examples": {
+        "weights": (str, False),
+        "markers": (str, False),
+        "frames": (list, False),
+        "ridge": ((int, float), False),
+        "kernel": (str, False),
+        "rbf_smoothing": ((int, float), False),
+        "degree": (int, False),
+        "n_components": (int, False),
+        "far": ((int, float), False),
+    },
+    "pca": {"mode": (str, False), "ica": (bool, False), "n_basis": (int, False), "variance": ((int, float), False)},
+    "refine": {
+        "training": (str, False),
+        "max_iterations": (int, False),
+        "tol": ((int, float), False),
+        "stiffness": ((int, float), False),
+    },
 }
 
 
@@ -74,6 +124,15 @@ class TakeConfig:
     output_weights: Path | None
     output_report: Path | None
     action_name: str
+    weights_path: Path | None = None  # [source] weights: solved weights for ``parallel``
+    calibration_path: Path | None = None  # [calibration] markers
+    calibration_units: str | None = None
+    calibration_fps: float | None = None
+    actor_basis_path: Path | None = None  # [calibration] basis (a stored library, Basis.save_npz)
+    examples_weights_path: Path | None = None  # [examples] weights (frame,<shape>... posed weights)
+    examples_markers_path: Path | None = None  # [examples] markers (the take they belong to; default this one)
+    training_path: Path | None = None  # [refine] training (default: the take itself)
+    output_actor_basis: Path | None = None  # [output] actor_basis: the actor library used (refine: refined)
 
 
 def load_take_config(path):
@@ -112,15 +171,21 @@ def load_take_config(path):
     if units == "bu" and "unit_scale" not in read_options:
         raise ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale")
     clean = _clean_settings(path, data.get("clean", {}))
-    stable = get("stabilise", "markers")
-    if not all(isinstance(s, str) for s in stable) or len(stable) < 3:
-        raise ConfigError("expected a list of at least 3 marker names", path=path, key="stabilise.markers")
-    frames = get("neutral", "frames")
-    if len(frames) != 2 or not all(isinstance(v, int) for v in frames) or frames[1] < frames[0]:
-        raise ConfigError(f"expected [first, last] frame numbers; got {frames}", path=path, key="neutral.frames")
     strategy = get("solve", "strategy", "geometric")
     if strategy not in STRATEGIES:
         raise ConfigError(f"unknown strategy '{strategy}'; available: {', '.join(STRATEGIES)}", path=path, key="solve.strategy")
+    _check_source(path, data, strategy)
+    stable, frames = (), [1, 1]
+    if strategy != "parallel" or "markers" in data.get("stabilise", {}) or "frames" in data.get("neutral", {}):
+        for section, key in (("stabilise", "markers"), ("neutral", "frames")):
+            if key not in data.get(section, {}):
+                raise ConfigError("missing required key", path=path, key=f"{section}.{key}")
+        stable = get("stabilise", "markers")
+        if not all(isinstance(s, str) for s in stable) or len(stable) < 3:
+            raise ConfigError("expected a list of at least 3 marker names", path=path, key="stabilise.markers")
+        frames = get("neutral", "frames")
+        if len(frames) != 2 or not all(isinstance(v, int) for v in frames) or frames[1] < frames[0]:
+            raise ConfigError(f"expected [first, last] frame numbers; got {frames}", path=path, key="neutral.frames")
     defaults = RetargetSettings(stable_markers=(), neutral_frames=(1, 1))
     numbers = {}
     for section, key in (
@@ -138,6 +203,14 @@ def load_take_config(path):
     if not get("binding", "vertex_groups", True):
         raise ConfigError("only vertex-group binding is available (set vertex_groups = true)", path=path, key="binding.vertex_groups")
     markers_path = resolve(get("source", "markers"))
+    weights_path = resolve(get("source", "weights"))
+    strategy_options = strategy_settings(path, data, strategy)
+    cal_units = get("calibration", "units")
+    if cal_units is not None and cal_units not in UNIT_SCALE:
+        raise ConfigError(f"units must be one of {sorted(UNIT_SCALE)}; got '{cal_units}'", path=path, key="calibration.units")
+    cal_fps = get("calibration", "fps")
+    if cal_fps is not None and cal_fps <= 0:
+        raise ConfigError(f"fps must be positive; got {cal_fps}", path=path, key="calibration.fps")
     return TakeConfig(
         path=path,
         target_blend=resolve(get("target", "blend")),
@@ -155,12 +228,42 @@ def load_take_config(path):
             smoothing=(float(smoothing[0]), float(smoothing[1])),
             **numbers,
             **shape_options,
+            **strategy_options,
         ),
         output_blend=resolve(get("output", "blend")),
         output_weights=resolve(get("output", "weights")),
         output_report=resolve(get("output", "report")),
-        action_name=get("output", "action", markers_path.stem),
+        action_name=get("output", "action", (markers_path or weights_path).stem),
+        weights_path=weights_path,
+        calibration_path=resolve(get("calibration", "markers")),
+        calibration_units=cal_units,
+        calibration_fps=None if cal_fps is None else float(cal_fps),
+        actor_basis_path=resolve(get("calibration", "basis")),
+        examples_weights_path=resolve(get("examples", "weights")),
+        examples_markers_path=resolve(get("examples", "markers")),
+        training_path=resolve(get("refine", "training")),
+        output_actor_basis=resolve(get("output", "actor_basis")),
     )
+
+
+def _check_source(path, data, strategy):
+    """Exactly one of [source] markers / weights, the one the strategy reads."""
+    source = data.get("source", {})
+    if strategy == "parallel":
+        if "weights" not in source:
+            raise ConfigError("strategy 'parallel' needs [source] weights (a Live Link Face / ARKit / MediaPipe CSV "
+                              "of solved weights)", path=path, key="source.weights")
+        if "markers" in source:
+            raise ConfigError("give [source] weights or markers, not both (parallel reads weights)", path=path,
+                              key="source.markers")
+    else:
+        if "markers" not in source:
+            raise ConfigError("missing required key" + ("" if "weights" not in source else
+                              f" (strategy '{strategy}' solves markers; [source] weights is for 'parallel')"),
+                              path=path, key="source.markers")
+        if "weights" in source:
+            raise ConfigError(f"[source] weights is only read by strategy 'parallel', not '{strategy}'", path=path,
+                              key="source.weights")
 
 
 def _check_schema(path, data):
