@@ -48,31 +48,33 @@ def _frame_band(ctx, f0, f1):
     base = lay.offs[f0:f1] - lay.offs[f0]
     n = int(lay.offs[f1] - lay.offs[f0])
     B = np.zeros((n, max(int(cnt.max(initial=0)), 1)))
-    order = np.argsort(~fr, axis=1, kind="stable")  # free shapes first, in index order
+    order = np.argsort(~fr, axis=1, kind="stable").astype(np.int32)  # free shapes first, in order
+    itype = np.int32 if Hflat.size < 2**31 else np.int64
     for s in np.unique(cnt):
         if s == 0:
             continue
         sel = np.flatnonzero(cnt == s)
-        idx = order[sel, :s]
-        M = np.zeros((sel.size + 1, s, s))  # one spare block: the shear below reads past the last
-        M[:-1] = Hflat[(inv[f0 + sel] * (K * K))[:, None, None] + (idx * K)[:, :, None] + idx[:, None, :]]
-        # V[i, j, d] = M[i, j + d, j]: the lower band of every block, rows j, offsets d
-        V = np.lib.stride_tricks.as_strided(M, shape=(sel.size, s, s), strides=(M.strides[0], M.strides[1] + M.strides[2], M.strides[1]))
-        rows = (base[sel][:, None] + np.arange(s)).ravel()
-        B[rows, :s] = (V * _lower_mask(s)).reshape(-1, s)
+        idx = order[sel, :s].astype(itype)
+        jd, j, keep = _band_index(s)
+        # B rows of a frame: B[j, d] = H[idx[j + d], idx[j]] for j + d < s, else 0
+        rows = (inv[f0 + sel].astype(itype) * K)[:, None] + idx
+        vals = np.take(Hflat, (rows[:, jd] * K) + idx[:, j])
+        vals *= keep
+        B[(base[sel][:, None] + np.arange(s)).ravel(), :s] = vals.reshape(-1, s)
     B[:, 0] += np.repeat(dT[f0:f1], cnt)
     return B
 
 
-_MASKS = {}
+_INDEX = {}
 
 
-def _lower_mask(s):
-    m = _MASKS.get(s)
-    if m is None:
+def _band_index(s):
+    """(jd, j, keep) of shape (s, s): row index min(j + d, s - 1), column j, and j + d < s."""
+    out = _INDEX.get(s)
+    if out is None:
         j, d = np.indices((s, s))
-        m = _MASKS[s] = (j + d < s).astype(np.float64)
-    return m
+        out = _INDEX[s] = (np.minimum(j + d, s - 1), j, (j + d < s).astype(np.float64))
+    return out
 
 
 def _band(ctx, B, b0, s0, s1, kd_min):
@@ -116,7 +118,7 @@ def _tail_coupling(ctx, s0, s1, s2):
     return C, m, mh
 
 
-def solve_window(ctx, rhs_free, a, b, seg=48, group=64):
+def solve_window(ctx, rhs_free, a, b, seg=64, group=48):
     """Solve the free system of frames [a, b) (variables outside held at 0); returns x (n,)."""
     lay = ctx[3]
     edges = _cuts(a, b, seg)

@@ -97,6 +97,7 @@ def solve_free(Hp, inv, free, rhs):
     cnt = free.sum(axis=1)
     idx_all = np.argsort(~free, axis=1, kind="stable")  # free indices first, in order
     flat_H = Hp.reshape(-1)
+    itype = np.int32 if Hp.size < 2**31 else np.int64  # smaller index arrays gather faster
     order = np.lexsort((inv, cnt))  # by size, then by pattern (cache-friendly gathers)
     sizes = cnt[order]
     starts = np.searchsorted(sizes, np.arange(K + 2))
@@ -104,16 +105,16 @@ def solve_free(Hp, inv, free, rhs):
         sel = order[starts[s] : starts[s + 1]]
         if sel.size == 0:
             continue
-        idx = idx_all[sel, :s]
-        flat = (inv[sel] * (K * K))[:, None, None] + (idx * K)[:, :, None] + idx[:, None, :]
-        M = flat_H[flat]
+        idx = idx_all[sel, :s].astype(itype)
+        rows = (inv[sel].astype(itype) * K)[:, None] + idx  # row of H_p, flattened over patterns
+        M = np.take(flat_H, (rows * K)[:, :, None] + idx[:, None, :])
         b = np.take_along_axis(rhs[sel], idx, axis=1)
         sol = np.linalg.solve(M, b[:, :, None])[:, :, 0]
         x[sel[:, None], idx] = sol
     return x
 
 
-def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None):
+def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None, exact=True):
     """Solve every frame. C (F, P) confidences, G (F, K) = A' (c * d), lo/hi (F, K), lam (K,).
 
     Chunks of frames run on ``workers`` threads (default: CPU count, at most 4); BLAS is pinned to
@@ -135,7 +136,9 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
         pats, inv = patterns(C[sl])
         Hp = pattern_hessians(A, pats, R, H_full)
         w, it, bad, sign = _pdas(Hp, inv, G[sl], lo[sl], hi[sl], lam, max_iter)
-        if bad.size:
+        if bad.size and not exact:  # a starting guess is enough: clip the last iterate
+            w[bad] = np.clip(w[bad], lo[sl][bad], hi[sl][bad])
+        elif bad.size:
             g, l, h = G[sl], lo[sl], hi[sl]
             for i in bad:
                 w[i] = exact_frame(Hp[inv[i]], g[i], l[i], h[i], lam, sign[i])
@@ -157,7 +160,11 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
 def _pdas(Hp, inv, g, lo, hi, lam, max_iter):
     n, K = g.shape
     Hinv = np.linalg.inv(Hp)
-    w = hmul(Hinv, inv, g)  # unconstrained optimum of the smooth part
+    # The fixed-set ("dual") form solves with Hinv_BB, |B| = fixed count: cheaper than H_FF when
+    # fewer shapes are fixed than free, and accurate while H is well conditioned.
+    dual_ok = (np.abs(Hp).max(axis=(1, 2)) * np.abs(Hinv).max(axis=(1, 2)) < 1e8)[inv]
+    u0 = hmul(Hinv, inv, g)  # unconstrained optimum of the smooth part
+    w = u0.copy()
     step = 1.0 / np.maximum(np.einsum("nkk->n", Hp) / K, 1e-300)[inv]
     grad = np.zeros_like(w)
     prev = None
@@ -175,15 +182,41 @@ def _pdas(Hp, inv, g, lo, hi, lam, max_iter):
                 return w, it, active, sign
         free = st == _FREE
         xf = fixed_values(st, lo[active], hi[active])
-        rhs = g[active] - hmul(Hp, ia, xf)
-        if has_l1:
-            rhs = rhs - lam * sg
-        wa = xf + solve_free(Hp, ia, free, rhs)
+        lin = lam * np.where(free, sg, 0.0) if has_l1 else None
+        wa, grad = _equality_solve(Hp, Hinv, ia, free, xf, g[active], u0[active], lin, dual_ok[active])
         w[active] = wa
         sign[active] = np.where(free, sg, 0.0)
-        grad = hmul(Hp, ia, wa) - g[active]
         prev, prev_sg = st, sg
     return w, it, active, sign
+
+
+def _equality_solve(Hp, Hinv, ia, free, xf, g, u0, lin, dual_ok):
+    """Per frame: w with w_B = xf_B minimising 1/2 w'Hw - q'w (q = g - lin); returns (w, Hw - g).
+
+    Frames with fewer fixed than free shapes (and a well-conditioned H) solve for the multipliers
+    of the fixed set, ``Hinv_BB m = xf_B - u_B`` with ``u = Hinv q``, then ``w = u + Hinv m``;
+    the others solve ``H_FF w_F = q_F - H_FB xf_B``."""
+    n, K = free.shape
+    w = np.empty((n, K))
+    grad = np.empty((n, K))
+    nf = free.sum(axis=1)
+    dual = dual_ok & (2 * nf > K)
+    P = np.flatnonzero(~dual)
+    if P.size:
+        q = g[P] if lin is None else g[P] - lin[P]
+        fx = np.where(free[P], 0.0, xf[P])
+        wp = fx + solve_free(Hp, ia[P], free[P], q - hmul(Hp, ia[P], fx))
+        w[P] = wp
+        grad[P] = hmul(Hp, ia[P], wp) - g[P]
+    Dn = np.flatnonzero(dual)
+    if Dn.size:
+        iD = ia[Dn]
+        u = u0[Dn] if lin is None else u0[Dn] - hmul(Hinv, iD, lin[Dn])
+        fixed = ~free[Dn]
+        m = solve_free(Hinv, iD, fixed, xf[Dn] - u)
+        w[Dn] = np.where(fixed, xf[Dn], u + hmul(Hinv, iD, m))
+        grad[Dn] = m if lin is None else m - lin[Dn]
+    return w, grad
 
 
 def exact_frame(H, g, lo, hi, lam, sign0=None):

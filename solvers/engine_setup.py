@@ -185,7 +185,8 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
         for a, b in pairs:
             if owner[a] != owner[b]:
                 raise FacecapError(f"`symmetry` pair ({a}, {b}) spans two regions")
-    return Problem(A, np.where(C > 0, np.nan_to_num(D), 0.0), C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu)
+    Dz = np.where(C > 0, D, 0.0)  # C == 0 wherever D is NaN
+    return Problem(A, Dz, C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu)
 
 
 def run(prob, *, max_iter, chunk):
@@ -210,15 +211,16 @@ def run(prob, *, max_iter, chunk):
     for shapes, coords in prob.regions:
         var = np.concatenate([shapes, prob.held])  # region shapes first, then held ones (fixed)
         nr = shapes.size
-        Ar = A[np.ix_(coords, var)]
-        Cr = C[:, coords]
+        every = coords.size == P and np.array_equal(coords, np.arange(P))  # no copies of (F, P) arrays
+        Ar = A[:, var] if every else A[np.ix_(coords, var)]
+        Cr = C if every else C[:, coords]
         Rr = prob.R[np.ix_(var, var)]
         lo = np.where(locked[:, var], prob.lock[:, var], prob.lo[:, var])
         hi = np.where(locked[:, var], prob.lock[:, var], prob.hi[:, var])
         lo[:, nr:] = hold[:, prob.held]
         hi[:, nr:] = hold[:, prob.held]
         l1 = np.concatenate([prob.l1[shapes], np.zeros(prob.held.size)]) * 0.5
-        G = (Cr * Dz[:, coords]) @ Ar
+        G = (Cr * (Dz if every else Dz[:, coords])) @ Ar
         has = Cr.sum(axis=1) > 0
         if temporal:
             if not has.any():
@@ -243,8 +245,10 @@ def run(prob, *, max_iter, chunk):
         if miss.any():
             W[:, shapes] = np.where(miss, prob.lock[:, shapes], W[:, shapes])
 
-    Wz = np.nan_to_num(W)
-    residuals = np.where(C > 0, Wz @ A.T - Dz, 0.0)
+    Wz = np.where(np.isnan(W), 0.0, W)
+    residuals = Wz @ A.T
+    residuals -= Dz
+    residuals[C == 0] = 0.0
     tol = 1e-9 * np.maximum(1.0, np.abs(prob.hi - prob.lo))
     free_shape = ~locked
     if prob.held.size:

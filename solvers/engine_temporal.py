@@ -49,6 +49,9 @@ def _tmul(T, X):
     return Y
 
 
+INIT_ITER = 2
+
+
 def _windows(bad, pad, F):
     """Frame intervals [a, b) covering every frame of ``bad`` dilated by ``pad`` (touching ones merged)."""
     idx = np.flatnonzero(bad)
@@ -96,7 +99,7 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=
     has = C.sum(axis=1) > 0
     if has.any():
         idx = np.flatnonzero(has)
-        w[idx] = solve_frames(A, C[idx], G[idx], R, lo[idx], hi[idx], lam, max_iter=max_iter, chunk=chunk)[0]
+        w[idx] = solve_frames(A, C[idx], G[idx], R, lo[idx], hi[idx], lam, max_iter=INIT_ITER, chunk=chunk, exact=False)[0]
 
     def qmul(X):
         return hmul(Hp, inv, X) + _tmul(T, X)
