@@ -264,7 +264,12 @@ def main(argv=None):
     """Entry point; returns the process exit status."""
     from ..solvers.errors import FacecapError
 
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        if args.command != "compare":  # compare forwards its options to solvers.compare.main
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        args.rest = extra + list(args.rest)
     try:
         return args.func(args)
     except FacecapError as exc:
