@@ -1,0 +1,264 @@
+"""The strategies from the sidebar: Solve panel options by strategy, calibration poses, mapping table,
+examples from an action, solved weights; every new operator through bpy.ops; settings saved in the .blend."""
+
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import bpy
+import numpy as np
+import pytest
+
+from conftest import build_character
+
+from facecap.facecap_addon import anim, import_scene
+from facecap.solvers.basis import Basis
+from facecap.solvers.compare import SAMPLE_BASIS, STABLE, _phone_weights, actor_take, calibration_weights, make_actor
+from facecap.solvers.io_csv import write_markers_csv
+from facecap.solvers.synth import performance_weights, synthesize_take
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+STRATEGIES = ("geometric", "calibrated", "parallel", "linear", "rbf", "pca", "refine")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """An actor with its own proportions and expressions (calibration + performance) and the sample character."""
+    out = tmp_path_factory.mktemp("ui")
+    character = Basis.load_npz(SAMPLE_BASIS)
+    actor = make_actor(character, seed=0)
+    Wc, poses, neutral = calibration_weights(actor.shape_names, hold=30)
+    calib = synthesize_take(actor, Wc, rest=30, stable=STABLE, units="mm", actor_scale=1.0, gap_fraction=0.0,
+                            max_deg=10.0, seed=5)
+    write_markers_csv(out / "calib.csv", calib.markers)
+    truth = performance_weights(character.shape_names, 600, seed=0)
+    take = actor_take(actor, truth, gaps=0.05, seed=2)
+    write_markers_csv(out / "take01.csv", take.markers)
+    phone, names = _phone_weights(truth, character.shape_names)
+    rows = ["Timecode,BlendShapeCount," + ",".join(names)]
+    rows += [f"00:00:{f // 60:02d}:{f % 60:02d}.000,{len(names)}," + ",".join(f"{v:.6f}" for v in values)
+             for f, values in enumerate(phone)]
+    (out / "llf.csv").write_text("\n".join(rows) + "\n")
+    return SimpleNamespace(dir=out, character=character, calib=calib.markers, poses=poses, neutral=neutral,
+                           truth=truth, take=take)
+
+
+@pytest.fixture
+def scene(empty_scene, data):
+    obj = build_character(data.character)
+    assert bpy.ops.facecap.import_markers(filepath=str(data.dir / "take01.csv"), units="mm", fps=60.0) == {"FINISHED"}
+    s = empty_scene.facecap
+    s.target = obj
+    s.neutral_first, s.neutral_last = 1, 60
+    assert sorted(m.name for m in s.markers if m.stable) == sorted(STABLE)
+    return SimpleNamespace(scene=empty_scene, s=s, obj=obj)
+
+
+def _solved(obj, names):
+    _, values = anim.read_curves(obj.data.shape_keys, [(f'key_blocks["{n}"].value', 0) for n in names])
+    return values
+
+
+def _add_poses(scene, poses):
+    scene.use_preview_range = True
+    for name, (first, last) in poses.items():
+        scene.facecap.calib_pose_name = name
+        scene.frame_preview_start, scene.frame_preview_end = first, last
+        assert bpy.ops.facecap.calib_pose_add() == {"FINISHED"}
+    scene.use_preview_range = False
+
+
+def test_calibrated_solve_from_the_sidebar(scene, data):
+    s = scene.s
+    s.strategy = "calibrated"
+    with pytest.raises(RuntimeError, match=r"strategy 'calibrated' needs \[calibration\] markers and poses"):
+        bpy.ops.facecap.solve()
+    # calibration take as a collection of empties (an imported calibration session)
+    s.calib_collection = import_scene.create_take(scene.scene, data.calib, "calib", set_scene_range=False)
+    scene.scene.use_preview_range = True
+    scene.scene.frame_preview_start, scene.scene.frame_preview_end = data.neutral
+    assert bpy.ops.facecap.calib_neutral_from_timeline() == {"FINISHED"}
+    assert (s.calib_neutral_first, s.calib_neutral_last) == tuple(data.neutral)
+    _add_poses(scene.scene, data.poses)
+    assert len(s.calib_poses) == len(data.poses) and s.calib_poses[0].name == "eyeBlinkLeft"
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    solved = _solved(scene.obj, data.character.shape_names)
+    rmse = float(np.sqrt(np.mean(np.nan_to_num(solved - data.truth, nan=1.0) ** 2)))
+    print(f"calibrated from the sidebar: RMSE {rmse:.4f}")
+    assert rmse <= 0.04
+    assert "(calibrated)" in s.last_report
+
+
+def test_calibration_from_file_with_mapping_table(scene, data):
+    s = scene.s
+    s.strategy = "calibrated"
+    s.calib_source, s.calib_path, s.calib_units = "FILE", str(data.dir / "calib.csv"), "mm"
+    s.calib_neutral_first, s.calib_neutral_last = data.neutral
+    _add_poses(scene.scene, data.poses)
+    assert bpy.ops.facecap.mapping_fill_by_name() == {"FINISHED"}
+    assert len(s.mapping) == 52 and all(r.source == r.target and r.gain == 1.0 for r in s.mapping)
+    s.mapping[0].gain = 0.0  # eyeBlinkLeft is driven by nothing now
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    solved = _solved(scene.obj, data.character.shape_names)
+    assert np.allclose(solved[:, 0], 0.0)
+    assert solved[:, data.character.shape_names.index("jawOpen")].max() > 0.5
+
+
+def test_mapping_rows_add_remove_clear(scene):
+    s = scene.s
+    assert not bpy.ops.facecap.mapping_remove.poll() and not bpy.ops.facecap.mapping_clear.poll()
+    assert bpy.ops.facecap.mapping_add() == {"FINISHED"}
+    s.mapping[0].source, s.mapping[0].target, s.mapping[0].gain = "AU26", "jawOpen", 0.8
+    assert bpy.ops.facecap.mapping_add() == {"FINISHED"}
+    assert bpy.ops.facecap.mapping_remove() == {"FINISHED"}
+    assert len(s.mapping) == 1
+    s.strategy = "geometric"
+    assert not bpy.ops.facecap.mapping_fill_by_name.poll()  # geometric has no mapping
+    s.strategy = "calibrated"
+    with pytest.raises(RuntimeError, match="define calibration poses first"):
+        bpy.ops.facecap.mapping_fill_by_name()
+    assert bpy.ops.facecap.mapping_clear() == {"FINISHED"}
+    assert len(s.mapping) == 0
+
+
+def test_pose_from_current_frame_and_remove(scene):
+    s = scene.s
+    assert not bpy.ops.facecap.calib_pose_remove.poll()
+    scene.scene.use_preview_range = False
+    scene.scene.frame_current = 42
+    s.calib_pose_name = "AU12"
+    assert bpy.ops.facecap.calib_pose_add() == {"FINISHED"}
+    assert (s.calib_poses[0].name, s.calib_poses[0].first, s.calib_poses[0].last) == ("AU12", 42, 42)
+    s.calib_pose_name = "  "
+    with pytest.raises(RuntimeError, match="type a pose name first"):
+        bpy.ops.facecap.calib_pose_add()
+    assert bpy.ops.facecap.calib_pose_remove() == {"FINISHED"}
+    assert len(s.calib_poses) == 0
+
+
+def test_parallel_from_a_weights_file_needs_no_markers(scene, data):
+    s = scene.s
+    s.marker_collection = None
+    s.strategy = "parallel"
+    assert bpy.ops.facecap.solve.poll()
+    with pytest.raises(RuntimeError, match=r"strategy 'parallel' needs \[source\] weights"):
+        bpy.ops.facecap.solve()
+    s.weights_path = str(data.dir / "llf.csv")
+    s.parallel_use_neutral, s.parallel_neutral_first, s.parallel_neutral_last = True, 1, 50
+    assert bpy.ops.facecap.mapping_fill_by_name() == {"FINISHED"}
+    assert len(s.mapping) == 52 and s.mapping[0].source == "eyeBlinkLeft"  # LLF names read as ARKit
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    solved = _solved(scene.obj, data.character.shape_names)
+    assert np.sqrt(np.mean((solved - data.truth) ** 2)) <= 0.04
+
+
+@pytest.mark.parametrize("strategy", ["linear", "rbf", "pca"])
+def test_examples_from_the_keyed_frames_of_an_action(scene, data, strategy):
+    s = scene.s
+    s.strategy = strategy
+    frames = data.take.markers.frames
+    picks = np.linspace(70, 590, 50).astype(int)
+    values = np.full((frames.size, data.character.n_shapes), np.nan)
+    values[picks] = data.truth[picks]
+    key = scene.obj.data.shape_keys
+    curves = [(f'key_blocks["{n}"].value', 0) for n in data.character.shape_names]
+    posed = anim.new_action_with_curves(key, name="posed", curves=curves, frames=frames, values=values)
+    s.examples_action = posed
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    assert key.animation_data.action != posed and posed.name in bpy.data.actions
+    solved = _solved(scene.obj, data.character.shape_names)
+    assert np.sqrt(np.mean((solved - data.truth) ** 2)) <= 0.2
+
+
+class _Layout:
+    """UILayout stand-in: checks every property, operator and list a panel references."""
+
+    def __init__(self):
+        self.calls = []
+
+    def prop(self, data, name, **_kw):
+        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
+        self.calls.append(("prop", name))
+
+    def operator(self, idname, **_kw):
+        module, op = idname.split(".")
+        assert hasattr(getattr(bpy.ops, module), op), f"no operator {idname}"
+        self.calls.append(("operator", idname))
+        return SimpleNamespace()
+
+    def template_list(self, list_type, _list_id, data, prop, active_data, active_prop, **_kw):
+        assert hasattr(bpy.types, list_type)
+        assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
+        self.calls.append(("template_list", prop))
+
+    def label(self, **_kw):
+        self.calls.append(("label", _kw.get("text")))
+
+    def row(self, **_kw):
+        return self
+
+    column = box = row
+
+
+def _draw(strategy, **extra):
+    s = bpy.context.scene.facecap
+    s.strategy = strategy
+    for k, v in extra.items():
+        setattr(s, k, v)
+    layout = _Layout()
+    bpy.types.FACECAP_PT_solve.draw(SimpleNamespace(layout=layout), bpy.context)
+    return {name for _, name in layout.calls}
+
+
+def test_solve_panel_draws_only_what_applies(scene):
+    drawn = {st: _draw(st) for st in STRATEGIES}
+    assert {"calib_poses", "mapping", "facecap.calib_pose_add", "facecap.mapping_fill_by_name",
+            "facecap.mapping_clear", "calib_collection", "regularisation"} <= drawn["calibrated"]
+    assert "calib_poses" not in drawn["geometric"] and "mapping" not in drawn["geometric"]
+    assert "regions" in drawn["geometric"] and "regions" not in drawn["calibrated"]
+    assert {"weights_path", "parallel_gain", "parallel_mirror", "mapping"} <= drawn["parallel"]
+    assert "regularisation" not in drawn["parallel"] and "calib_poses" not in drawn["parallel"]
+    assert {"examples_action", "ridge"} <= drawn["linear"] and "rbf_kernel" not in drawn["linear"]
+    assert {"examples_action", "rbf_kernel", "rbf_far"} <= drawn["rbf"]
+    assert {"examples_action", "pca_mode", "pca_ica"} <= drawn["pca"]
+    assert {"refine_max_iterations", "calib_poses", "mapping"} <= drawn["refine"]
+    assert "calib_path" in _draw("calibrated", calib_source="FILE")
+    assert "parallel_gamma" in _draw("parallel", parallel_curve="gamma")
+    assert "smoothing_second" in _draw("pca", pca_mode="posed") and "smoothing_second" not in _draw("pca", pca_mode="related")
+    items = tuple(item.identifier for item in bpy.context.scene.facecap.bl_rna.properties["strategy"].enum_items)
+    assert items == STRATEGIES
+
+
+@pytest.mark.parametrize("ui_list, collection, op", [("FACECAP_UL_calib_poses", "calib_poses", "calib_pose_add"),
+                                                     ("FACECAP_UL_mapping", "mapping", "mapping_add")])
+def test_new_lists_draw_their_items(scene, ui_list, collection, op):
+    getattr(bpy.ops.facecap, op)()
+    s = scene.s
+    item = getattr(s, collection)[0]
+    layout = _Layout()
+    getattr(bpy.types, ui_list).draw_item(None, bpy.context, layout, s, item, 0, s, "", 0)
+    assert len(layout.calls) >= 3
+
+
+def test_strategy_settings_are_saved_in_the_blend(scene, tmp_path):
+    s = scene.s
+    s.strategy = "refine"
+    _add_poses(scene.scene, {"jawOpen": (120, 135), "AU12": (200, 215)})
+    bpy.ops.facecap.mapping_add()
+    s.mapping[0].source, s.mapping[0].target, s.mapping[0].gain = "AU12", "mouthSmileLeft", 0.7
+    s.calib_poses[1].split = True
+    s.refine_stiffness = 0.05
+    path = tmp_path / "saved.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    s = bpy.context.scene.facecap
+    assert s.strategy == "refine" and s.refine_stiffness == pytest.approx(0.05)
+    assert [(p.name, p.first, p.last, p.split) for p in s.calib_poses] == [("jawOpen", 120, 135, False), ("AU12", 200, 215, True)]
+    assert [(r.source, r.target, round(r.gain, 6)) for r in s.mapping] == [("AU12", "mouthSmileLeft", 0.7)]
+    from facecap.facecap_addon.take import retarget_settings
+
+    settings = retarget_settings(s)
+    assert settings.calibration.pose_table() == {"jawOpen": [[120, 135]], "AU12": [[200, 215]]}
+    assert settings.calibration.split == ("AU12",) and settings.mapping.table_dict() == {"AU12": {"mouthSmileLeft": pytest.approx(0.7)}}
