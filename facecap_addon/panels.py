@@ -75,6 +75,10 @@ class FACECAP_PT_take(FacecapPanel, bpy.types.Panel):
         s = context.scene.facecap
         layout = self.layout
         layout.operator("facecap.import_markers", icon="IMPORT")
+        row = layout.row(align=True)
+        row.operator("facecap.use_selected_empties", icon="EMPTY_DATA", text="Selected Empties")
+        row.operator("facecap.import_clip_tracks", icon="TRACKER", text="Clip Tracks")
+        layout.operator("facecap.clean_markers", icon="BRUSH_DATA")
         col = layout.column(align=True)
         col.prop(s, "take_name")
         col.prop(s, "marker_collection", text="Markers")

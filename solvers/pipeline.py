@@ -195,8 +195,9 @@ def _retarget_geometric(markers, basis, settings):
         notes.append(f"{len(absent)} bound point(s) have no marker in the take: {absent}")
     if len(used) < 3:
         raise FacecapError(
-            f"only {len(used)} marker(s) of the take are bound on the character; "
-            f"take markers: {list(markers.names)[:10]}..., bound: {list(basis.marker_names)[:10]}..."
+            f"{markers.source or 'take'}: only {len(used)} of its {markers.n_markers} marker(s) are bound on the "
+            f"character (need 3; markers bind to vertex groups of the same name); take markers: "
+            f"{list(markers.names)[:10]}..., bound points: {list(basis.marker_names)[:10]}..."
         )
 
     half_window = int(round(settings.head_smoothing * markers.fps))

@@ -7,7 +7,7 @@ import bpy
 import numpy as np
 import pytest
 
-from conftest import build_character
+from scene_fixtures import build_character
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from synthetic_face import make_basis  # noqa: E402

@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 import pytest
 
-from conftest import build_character
+from scene_fixtures import build_character
 
 from facecap.facecap_addon import anim, import_scene
 from facecap.solvers.basis import Basis
