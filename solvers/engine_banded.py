@@ -37,16 +37,18 @@ def _cuts(a, b, seg):
     return np.linspace(a, b, k + 1).round().astype(np.int64)
 
 
-def _frame_band(ctx, f0, f1):
-    """Within-frame blocks of frames [f0, f1) in row-wise band form: ``B[p, d] = Q[p + d, p]``
-    for free variables p, p + d of the same frame (offsets relative to frame f0's first variable);
-    the diagonal includes the temporal operator's. Gathered by free-set size, no per-frame loop."""
+def frame_band(ctx, frames):
+    """Within-frame blocks of the given frames (sorted indices) in row-wise band form:
+    ``B[p, d] = Q[p + d, p]`` for free variables p, p + d of the same frame, rows in the order of
+    ``frames`` (frame ``frames[i]`` starts at row ``start[i]``); the diagonal includes the temporal
+    operator's. Gathered by free-set size, no per-frame loop. Returns (B, start)."""
     Hflat, inv, (dT, _, _), lay, _ = ctx
     K = lay.free.shape[1]
-    fr = lay.free[f0:f1]
-    cnt = lay.cnt[f0:f1]
-    base = lay.offs[f0:f1] - lay.offs[f0]
-    n = int(lay.offs[f1] - lay.offs[f0])
+    fr = lay.free[frames]
+    cnt = lay.cnt[frames]
+    base = np.concatenate([[0], np.cumsum(cnt)])
+    n = int(base[-1])
+    base = base[:-1]
     B = np.zeros((n, max(int(cnt.max(initial=0)), 1)))
     order = np.argsort(~fr, axis=1, kind="stable").astype(np.int32)  # free shapes first, in order
     itype = np.int32 if Hflat.size < 2**31 else np.int64
@@ -57,12 +59,12 @@ def _frame_band(ctx, f0, f1):
         idx = order[sel, :s].astype(itype)
         jd, j, keep = _band_index(s)
         # B rows of a frame: B[j, d] = H[idx[j + d], idx[j]] for j + d < s, else 0
-        rows = (inv[f0 + sel].astype(itype) * K)[:, None] + idx
+        rows = (inv[frames[sel]].astype(itype) * K)[:, None] + idx
         vals = np.take(Hflat, (rows[:, jd] * K) + idx[:, j])
         vals *= keep
         B[(base[sel][:, None] + np.arange(s)).ravel(), :s] = vals.reshape(-1, s)
-    B[:, 0] += np.repeat(dT[f0:f1], cnt)
-    return B
+    B[:, 0] += np.repeat(dT[frames], cnt)
+    return B, base
 
 
 _INDEX = {}
@@ -77,9 +79,9 @@ def _band_index(s):
     return out
 
 
-def _band(ctx, B, b0, s0, s1, kd_min):
+def _band(ctx, B, r0, s0, s1, kd_min):
     """Lower band storage (kd + 1, n) of Q restricted to the free variables of frames [s0, s1);
-    ``B`` holds the within-frame band of frames from ``b0`` on (see ``_frame_band``)."""
+    their within-frame band is ``B[r0 : r0 + n]`` (see ``frame_band``)."""
     _, _, (_, o1, o2), lay, _ = ctx
     fr = lay.free[s0:s1]
     pl = lay.pos[s0:s1] - lay.offs[s0]
@@ -93,7 +95,6 @@ def _band(ctx, B, b0, s0, s1, kd_min):
             couple.append((q - p, p, off[s0 + f]))
             kd = max(kd, int((q - p).max(initial=0)))
     ab = np.zeros((kd + 1, n), order="F")
-    r0 = int(lay.offs[s0] - lay.offs[b0])
     w = min(B.shape[1], kd + 1)
     ab[:w] = B[r0 : r0 + n, :w].T
     for dd, p, v in couple:
@@ -118,18 +119,25 @@ def _tail_coupling(ctx, s0, s1, s2):
     return C, m, mh
 
 
-def solve_window(ctx, rhs_free, a, b, seg=64, group=48):
-    """Solve the free system of frames [a, b) (variables outside held at 0); returns x (n,)."""
+def solve_window(ctx, rhs_free, a, b, seg=64, group=48, band=None):
+    """Solve the free system of frames [a, b) (variables outside held at 0); returns x (n,).
+
+    ``band``: optional (B, row) from ``frame_band`` for a set of frames including [a, b), with
+    ``row[f]`` the first row of frame f; without it the bands are built ``group`` segments at a time.
+    """
     lay = ctx[3]
     edges = _cuts(a, b, seg)
     parts = []
     S = None
-    B, b0, b1 = None, a, a
+    B, row = band if band is not None else (None, None)
+    b1 = a if band is None else b
     for i in range(edges.size - 1):
         s0, s1 = int(edges[i]), int(edges[i + 1])
         if s1 > b1:  # within-frame bands for the next group of segments (bounded memory)
-            b0, b1 = s0, int(edges[min(i + group, edges.size - 1)])
-            B = _frame_band(ctx, b0, b1)
+            b1 = int(edges[min(i + group, edges.size - 1)])
+            B, start = frame_band(ctx, np.arange(s0, b1))
+            row = np.empty(lay.free.shape[0], dtype=np.int64)
+            row[s0:b1] = start
         n = int(lay.offs[s1] - lay.offs[s0])
         r = rhs_free[lay.offs[s0] : lay.offs[s1]].copy()
         if n == 0:
@@ -137,7 +145,7 @@ def solve_window(ctx, rhs_free, a, b, seg=64, group=48):
             S = None
             continue
         mh_prev = 0 if S is None else S.shape[0]
-        ab, kd = _band(ctx, B, b0, s0, s1, max(mh_prev - 1, 0))
+        ab, kd = _band(ctx, B, int(row[s0]), s0, s1, max(mh_prev - 1, 0))
         if S is not None:
             ii, jj = np.tril_indices(mh_prev)
             ab[ii - jj, jj] -= S[ii, jj]

@@ -18,7 +18,7 @@ a few frames). It is exact: the result is the optimum once the active set has se
 
 import numpy as np
 
-from .engine_banded import context, solve_window
+from .engine_banded import context, frame_band, solve_window
 from .engine_frames import _FREE, classify, fixed_values, hmul, pattern_hessians, patterns, solve_frames
 from .engine_threads import single_blas_thread
 
@@ -69,6 +69,24 @@ def _windows(bad, pad, F):
     return list(zip(starts.tolist(), ends.tolist()))
 
 
+#: Frames whose within-frame bands are built together when a pass solves many small windows.
+BAND_FRAMES = 4096
+
+
+def _batches(wins, limit):
+    """Consecutive windows grouped so each group spans at most ``limit`` frames (or one window)."""
+    out, cur, size = [], [], 0
+    for a, b in wins:
+        if cur and size + (b - a) > limit:
+            out.append(cur)
+            cur, size = [], 0
+        cur.append((a, b))
+        size += b - a
+    if cur:
+        out.append(cur)
+    return out
+
+
 def _settle(ctx, qmul, G, w, free, lin, tol, pad, max_rounds=8):
     """Make w exact on the free set: solve ``Q_FF w_F = G_F - lin_F - Q_FB w_B`` by banded windows
     around the frames whose residual exceeds ``tol`` (all of them at first; afterwards only the
@@ -83,9 +101,17 @@ def _settle(ctx, qmul, G, w, free, lin, tol, pad, max_rounds=8):
             break
         r_free = res[free]
         delta = np.zeros_like(w)
-        for a, b in _windows(bad, pad, F) if rnd < max_rounds - 1 else [(0, F)]:
-            x = solve_window(ctx, r_free, a, b)
-            delta[a:b][free[a:b]] = x
+        wins = _windows(bad, pad, F) if rnd < max_rounds - 1 else [(0, F)]
+        for batch in _batches(wins, BAND_FRAMES):
+            band = None
+            if len(batch) > 1:  # many small windows: build their within-frame bands at once
+                frames = np.concatenate([np.arange(a, b) for a, b in batch])
+                B, start = frame_band(ctx, frames)
+                row = np.empty(F, dtype=np.int64)
+                row[frames] = start
+                band = (B, row)
+            for a, b in batch:
+                delta[a:b][free[a:b]] = solve_window(ctx, r_free, a, b, band=band)
         w = w + delta
         grad = qmul(w) - G
     return w, grad
