@@ -29,13 +29,46 @@ class StabiliseResult:
     flag_reasons: dict = field(default_factory=dict)  # frame number -> reason
     unreliable: np.ndarray = None  # (F,) bool: fitted, but too few stable markers agreed (robust fit)
     marker_trust: dict = field(default_factory=dict)  # stable marker -> mean robust weight (1 = rigid)
+    scales: np.ndarray = None  # (F,) uniform scale raw -> stabilised (mode "similarity"); None = 1
+    mode: str = "rigid"
+
+    def scale_array(self):
+        """(F,) per-frame scale raw -> stabilised (ones for a rigid fit)."""
+        return np.ones(len(self.rotations)) if self.scales is None else self.scales
 
     def head_rotations(self):
         """Head rotation per frame relative to the reference (raw = R_head @ stabilised + ...)."""
         return self.rotations.transpose(0, 2, 1)
 
 
-def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, robust=True, iterations=6):
+MODES = ("rigid", "similarity")
+
+
+def _apply(R, t, scales, X):
+    """s_f * R_f @ x + t_f for every point of every frame."""
+    out = np.einsum("fij,fmj->fmi", R, X)
+    if scales is not None:
+        out = out * scales[:, None, None]
+    return out + t[:, None, :]
+
+
+def _frame_scales(R, pts, reference, weights):
+    """Per-frame least-squares scale (Umeyama) for fixed rotations, and the matching translation."""
+    w = np.where(np.isnan(pts[:, :, 0]), 0.0, weights)
+    safe = np.maximum(w.sum(axis=1), 1e-300)
+    src = np.nan_to_num(pts)
+    cs = np.einsum("fn,fnd->fd", w, src) / safe[:, None]
+    ct = np.einsum("fn,nd->fd", w, reference) / safe[:, None]
+    s0 = np.einsum("fij,fnj->fni", R, src - cs[:, None])
+    t0 = reference[None] - ct[:, None]
+    num = np.einsum("fn,fnd,fnd->f", w, t0, s0)
+    den = np.einsum("fn,fnd,fnd->f", w, s0, s0)
+    s = np.where(den > 0, num / np.maximum(den, 1e-300), 1.0)
+    return s, ct - s[:, None] * np.einsum("fij,fj->fi", R, cs)
+
+
+def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, robust=True, iterations=6,
+                    mode="rigid"):
     """Remove rigid head motion with a closed-form fit of ``stable`` markers per frame.
 
     Parameters
@@ -56,11 +89,18 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
         ``min_points`` markers keep a weight above one half are reported as ``unreliable``.
     iterations : int
         Re-weighting passes of the robust fit.
+    mode : "rigid" or "similarity"
+        "similarity" also fits a uniform scale per frame (captures from different days, a camera
+        rig whose distance changes); the robust weights come from the rigid fit.
 
     Returns
     -------
     StabiliseResult
     """
+    if mode not in MODES:
+        raise FacecapError(f"stabilise: mode must be one of {MODES}; got '{mode}'")
+    if markers.dim == 2:
+        return stabilise_2d(markers, stable, reference_frames=reference_frames, mode=mode, min_points=min_points)
     if markers.dim != 3:
         raise FacecapError(f"{markers.source}: rigid stabilisation needs 3D markers; got {markers.dim}D")
     stable = tuple(stable)
@@ -101,9 +141,12 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
         trust = np.where(vis, weights, np.nan)
         trust = {n: float(np.nanmean(trust[:, i])) for i, n in enumerate(stable) if vis[:, i].any()}
 
-    moved = np.einsum("fij,fmj->fmi", R, markers.positions) + t[:, None, :]
+    scales = None
+    if mode == "similarity":
+        scales, t = _frame_scales(R, pts, reference, weights)
+    moved = _apply(R, t, scales, markers.positions)
     moved[flagged] = np.nan
-    fitted = np.einsum("fij,fsj->fsi", R, pts) + t[:, None, :]
+    fitted = _apply(R, t, scales, pts)
     err = np.linalg.norm(fitted - reference[None], axis=2)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
@@ -119,6 +162,8 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
         flag_reasons=reasons,
         unreliable=unreliable,
         marker_trust=trust,
+        scales=scales,
+        mode=mode,
     )
 
 
@@ -239,7 +284,12 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     flagged = stab.flagged | ~rank_ok
     R = np.where(flagged[:, None, None], stab.rotations, R)
     t = np.where(flagged[:, None], stab.translations, t)
-    moved = np.einsum("fij,fmj->fmi", R, markers.positions) + t[:, None, :]
+    if stab.scales is not None:  # keep the gross fit's scale; refit rotation/translation on scaled points
+        raw = raw * stab.scales[:, None, None]
+        R, t, rank_ok = fit_rigid_batch(raw, predicted, w)
+        R = np.where(flagged[:, None, None], stab.rotations, R)
+        t = np.where(flagged[:, None], stab.translations, t)
+    moved = _apply(R, t, stab.scales, markers.positions)
     moved[flagged] = np.nan
     sidx = markers.index(stab.stable_names)
     fitted = moved[:, sidx]
@@ -260,6 +310,8 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
         flag_reasons=reasons,
         unreliable=stab.unreliable,
         marker_trust=stab.marker_trust,
+        scales=stab.scales,
+        mode=stab.mode,
     )
 
 
@@ -272,10 +324,10 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     """
     from .smoothing import local_polynomial
 
-    if half_window <= 0:
+    if half_window <= 0 or markers.dim != 3:
         return stab
     ok = (~stab.flagged).astype(np.float64)
-    pose = np.concatenate([stab.rotations.reshape(-1, 9), stab.translations], axis=1)
+    pose = np.concatenate([stab.rotations.reshape(-1, 9), stab.translations, stab.scale_array()[:, None]], axis=1)
     smooth = local_polynomial(pose, half_window=half_window, order=order, weights=ok)
     lost = np.isnan(smooth).any(axis=1) & ~stab.flagged
     smooth[stab.flagged | lost] = pose[stab.flagged | lost]
@@ -283,8 +335,9 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     d = np.sign(np.linalg.det(U @ Vt))
     U[:, :, 2] *= d[:, None]
     R = U @ Vt
-    t = smooth[:, 9:]
-    moved = np.einsum("fij,fmj->fmi", R, markers.positions) + t[:, None, :]
+    t = smooth[:, 9:12]
+    scales = None if stab.scales is None else smooth[:, 12]
+    moved = _apply(R, t, scales, markers.positions)
     moved[stab.flagged] = np.nan
     fitted = moved[:, markers.index(stab.stable_names)]
     with np.errstate(invalid="ignore"):
@@ -300,4 +353,87 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
         flag_reasons=stab.flag_reasons,
         unreliable=stab.unreliable,
         marker_trust=stab.marker_trust,
+        scales=scales,
+        mode=stab.mode,
+    )
+
+
+def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", min_points=None):
+    """Stabilise 2D tracks on stable points: per-frame similarity (or rigid) or affine map onto a reference.
+
+    Parameters
+    ----------
+    markers : MarkerSet (2D image tracks)
+    stable : sequence of str, points that move only with the head (>= 2 for similarity, >= 3 for affine)
+    reference_frames : (first, last) or None; the median of that range (default: the first frame
+        with every stable point) is the reference
+    mode : "similarity", "rigid" or "affine"
+
+    Returns
+    -------
+    StabiliseResult with ``rotations`` (F, 2, 2) holding the linear part (rotation x scale, or the
+    affine matrix), ``translations`` (F, 2); frames with too few points are flagged.
+    """
+    if mode not in ("rigid", "similarity", "affine"):
+        raise FacecapError(f"stabilise 2D: mode must be 'rigid', 'similarity' or 'affine'; got '{mode}'")
+    stable = tuple(stable)
+    need = 3 if mode == "affine" else 2
+    min_points = need if min_points is None else max(min_points, need)
+    if len(stable) < need:
+        raise FacecapError(f"stabilise 2D ({mode}): need at least {need} stable points; got {len(stable)} {list(stable)}")
+    idx = markers.index(stable, what="stable marker")
+    pts = markers.positions[:, idx]
+    vis = ~np.isnan(pts[:, :, 0])
+    F = markers.n_frames
+    if reference_frames is None:
+        complete = np.flatnonzero(vis.all(axis=1))
+        if complete.size == 0:
+            raise FacecapError("stabilise 2D: no frame shows all stable points")
+        reference = pts[complete[0]]
+    else:
+        sel = markers.frame_range_mask(*reference_frames)
+        if not sel.any():
+            raise FacecapError(f"stabilise 2D: reference frames {reference_frames[0]}-{reference_frames[1]} are outside the take")
+        with np.errstate(invalid="ignore"), __import__("warnings").catch_warnings():
+            __import__("warnings").simplefilter("ignore", RuntimeWarning)
+            reference = np.nanmedian(pts[sel], axis=0)
+        if np.isnan(reference).any():
+            raise FacecapError("stabilise 2D: a stable point is never visible in the reference frames")
+    A = np.tile(np.eye(2), (F, 1, 1))
+    t = np.zeros((F, 2))
+    flagged = vis.sum(axis=1) < min_points
+    for f in np.flatnonzero(~flagged):
+        x, y = pts[f, vis[f]], reference[vis[f]]
+        cx, cy = x.mean(axis=0), y.mean(axis=0)
+        x0, y0 = x - cx, y - cy
+        if mode == "affine":
+            sol, _, rank, _ = np.linalg.lstsq(x0, y0, rcond=None)
+            if rank < 2:
+                flagged[f] = True
+                continue
+            M = sol.T
+        else:
+            U, sv, Vt = np.linalg.svd(x0.T @ y0)
+            d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+            Rf = Vt.T @ np.diag([1.0, d]) @ U.T
+            var = (x0**2).sum()
+            if var <= 1e-24:
+                flagged[f] = True
+                continue
+            scale = 1.0 if mode == "rigid" else float((y0 * (x0 @ Rf.T)).sum() / var)
+            M = scale * Rf
+        A[f], t[f] = M, cy - M @ cx
+    moved = np.einsum("fij,fmj->fmi", A, markers.positions) + t[:, None, :]
+    moved[flagged] = np.nan
+    err = np.linalg.norm(moved[:, idx] - reference[None], axis=2)
+    with np.errstate(invalid="ignore"), __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("ignore", RuntimeWarning)
+        rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
+    rms[flagged] = np.nan
+    reasons = {_frame_label(markers.frames[f]): f"only {int(vis[f].sum())} of {len(stable)} stable points visible "
+               f"(need {min_points}) or they are degenerate" for f in np.flatnonzero(flagged)}
+    return StabiliseResult(
+        markers=markers.with_positions(moved), stable_names=stable, reference=reference, rotations=A,
+        translations=t, rms=rms, flagged=flagged, flag_reasons=reasons, unreliable=np.zeros(F, dtype=bool),
+        marker_trust={n: 1.0 for n in stable}, scales=None, mode=mode,
     )
