@@ -1,0 +1,311 @@
+"""Reading footage through OpenCV: video files (mp4, mov, avi, mkv) and image sequences.
+
+Frames come out as 8-bit grayscale arrays (tracking and flow work on luminance). Frame numbers are
+the 0-based index in the file (video) or the number in the file name (image sequence), plus
+``frame_offset``. ``scale`` < 1 downsamples for speed; :class:`FootageInfo` keeps both the source
+and the working resolution so results can be reported in source pixels.
+"""
+
+import glob
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FacecapError, InputFileError
+
+VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".webp", ".pgm", ".ppm")
+
+
+class Cancelled(FacecapError):
+    """The user cancelled a long video operation (a progress callback returned False)."""
+
+
+@dataclass(frozen=True)
+class FootageInfo:
+    """What was read and how.
+
+    ``width``/``height`` are the source resolution, ``work_width``/``work_height`` the resolution
+    of the frames handed out (after ``scale``). ``frames`` are the frame numbers that will be read.
+    """
+
+    path: str
+    kind: str  # "video" or "images"
+    fps: float
+    width: int
+    height: int
+    scale: float
+    work_width: int
+    work_height: int
+    frames: tuple
+
+    @property
+    def n_frames(self):
+        return len(self.frames)
+
+
+def _cv2():
+    try:
+        import cv2
+    except ImportError:  # pragma: no cover - the pinned environment has it
+        raise FacecapError("video input needs OpenCV: pip install opencv-contrib-python-headless") from None
+    return cv2
+
+
+def report_progress(progress, done, total, what="frames"):
+    """Call ``progress(done, total)``; a False return cancels with :class:`Cancelled`."""
+    if progress is not None and progress(done, total) is False:
+        raise Cancelled(f"cancelled after {done} of {total} {what}")
+
+
+class Footage:
+    """Frames of a video file or an image sequence, read lazily.
+
+    Parameters
+    ----------
+    source : str or Path
+        A video file, a folder of images, a glob (``shots/img_*.png``) or a printf pattern
+        (``shots/img_%04d.png``).
+    first, last : int, optional
+        Inclusive frame-number range to read (default: everything).
+    step : int
+        Read every ``step``-th frame.
+    scale : float
+        Downscale factor in (0, 1]; frames are resized with area interpolation.
+    fps : float, optional
+        Frame rate for image sequences (default 24), or to override a video's.
+    frame_offset : int
+        Added to every frame number (e.g. 1 for Blender's 1-based movie clips).
+    """
+
+    def __init__(self, source, *, first=None, last=None, step=1, scale=1.0, fps=None, frame_offset=0):
+        self.cv2 = _cv2()
+        self.path = Path(source)
+        if int(step) != step or step < 1:
+            raise FacecapError(f"`step` must be a positive integer; got {step}")
+        if not (0 < float(scale) <= 1.0):
+            raise FacecapError(f"`scale` must be in (0, 1]; got {scale}")
+        if fps is not None and not (np.isfinite(fps) and fps > 0):
+            raise FacecapError(f"`fps` must be positive; got {fps}")
+        self.step, self.scale, self.frame_offset = int(step), float(scale), int(frame_offset)
+        self._images = None
+        if self._is_image_source():
+            self._open_images()
+            native_fps = 24.0
+            kind = "images"
+        else:
+            native_fps, kind = self._open_video(), "video"
+        all_frames = self._all_frames()
+        lo = all_frames[0] if first is None else int(first)
+        hi = all_frames[-1] if last is None else int(last)
+        if lo > hi:
+            raise FacecapError(f"{self.path}: first frame {lo} is after last frame {hi}")
+        chosen = [f for f in all_frames if lo <= f <= hi][:: self.step]
+        if not chosen:
+            raise InputFileError(self.path, f"no frames in range {lo}..{hi} "
+                                 f"(the footage has {all_frames[0]}..{all_frames[-1]})")
+        ww = max(1, int(round(self._width * self.scale)))
+        wh = max(1, int(round(self._height * self.scale)))
+        self.info = FootageInfo(str(self.path), kind, float(fps or native_fps), self._width, self._height,
+                                self.scale, ww, wh, tuple(chosen))
+
+    # -- opening -------------------------------------------------------------------------------
+    def _is_image_source(self):
+        text = str(self.path)
+        return self.path.is_dir() or "%" in text or any(c in text for c in "*?[") or \
+            self.path.suffix.lower() in IMAGE_EXTENSIONS
+
+    def _open_images(self):
+        text = str(self.path)
+        if self.path.is_dir():
+            files = [p for p in sorted(self.path.iterdir()) if p.suffix.lower() in IMAGE_EXTENSIONS]
+        elif "%" in text:
+            rx = re.escape(text)
+            rx = re.sub(r"%0?(\d*)d", lambda m: r"(\d+)", rx.replace(r"\%", "%"))
+            files = [Path(p) for p in sorted(glob.glob(re.sub(r"%0?\d*d", "*", text))) if re.fullmatch(rx, p)]
+        elif any(c in text for c in "*?["):
+            files = [Path(p) for p in sorted(glob.glob(text))]
+        else:
+            if not self.path.exists():
+                raise InputFileError(self.path, "file not found")
+            files = [self.path]
+        files = [p for p in files if p.suffix.lower() in IMAGE_EXTENSIONS]
+        if not files:
+            raise InputFileError(self.path, "no image files match")
+        numbers = [_trailing_number(p.stem) for p in files]
+        if None in numbers or len(set(numbers)) != len(numbers):
+            numbers = list(range(len(files)))
+        order = np.argsort(numbers, kind="stable")
+        self._images = {numbers[i] + self.frame_offset: files[i] for i in order}
+        first = self._read_image(files[order[0]])
+        self._height, self._width = first.shape[:2]
+
+    def _open_video(self):
+        cv2 = self.cv2
+        if not self.path.exists():
+            raise InputFileError(self.path, "file not found")
+        if self.path.is_dir():
+            raise InputFileError(self.path, "is a directory with no images")
+        cap = cv2.VideoCapture(str(self.path))
+        ok = cap.isOpened()
+        ok_frame = ok and cap.read()[0]
+        if not ok_frame:
+            cap.release()
+            raise InputFileError(self.path, "cannot decode as video (unsupported codec or not a video file)")
+        self._width = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+        self._height = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        fps = cap.get(cv2.CAP_PROP_FPS)
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        cap.release()
+        if count <= 0:  # some containers do not say: count by decoding
+            cap = cv2.VideoCapture(str(self.path))
+            count = 0
+            while cap.grab():
+                count += 1
+            cap.release()
+        self._count = count
+        return float(fps) if fps and np.isfinite(fps) and fps > 0 else 24.0
+
+    def _all_frames(self):
+        if self._images is not None:
+            return sorted(self._images)
+        return [i + self.frame_offset for i in range(self._count)]
+
+    def _read_image(self, path):
+        img = self.cv2.imread(str(path), self.cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputFileError(path, "cannot read as an image")
+        return img
+
+    # -- frames --------------------------------------------------------------------------------
+    def _prepare(self, img, where):
+        cv2 = self.cv2
+        if img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+        if img.dtype != np.uint8:
+            if img.dtype.kind == "f":
+                img = np.clip(img * 255.0, 0, 255)
+            else:
+                img = img / (np.iinfo(img.dtype).max / 255.0)
+            img = img.astype(np.uint8)
+        if img.shape != (self._height, self._width):
+            raise InputFileError(where, f"frame size {img.shape[1]}x{img.shape[0]} differs from "
+                                        f"{self._width}x{self._height}")
+        if self.scale != 1.0:
+            img = cv2.resize(img, (self.info.work_width, self.info.work_height), interpolation=cv2.INTER_AREA)
+        return img
+
+    def __len__(self):
+        return self.info.n_frames
+
+    def __iter__(self):
+        """Yield ``(frame_number, gray uint8 image)`` for every chosen frame."""
+        if self._images is not None:
+            for f in self.info.frames:
+                yield f, self._prepare(self._read_image(self._images[f]), self._images[f])
+            return
+        cv2 = self.cv2
+        wanted = set(self.info.frames)
+        last = self.info.frames[-1]
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            first_index = self.info.frames[0] - self.frame_offset
+            if first_index > 0:
+                cap.set(cv2.CAP_PROP_POS_FRAMES, first_index)
+                pos = int(cap.get(cv2.CAP_PROP_POS_FRAMES))
+                if pos != first_index:  # container cannot seek exactly: decode from the start
+                    cap.release()
+                    cap = cv2.VideoCapture(str(self.path))
+                    first_index = 0
+            f = first_index + self.frame_offset
+            while f <= last:
+                if f in wanted:
+                    ok, img = cap.read()
+                    if not ok:
+                        raise InputFileError(self.path, f"cannot decode frame {f}")
+                    yield f, self._prepare(img, self.path)
+                elif not cap.grab():
+                    raise InputFileError(self.path, f"cannot decode frame {f}")
+                f += 1
+        finally:
+            cap.release()
+
+    def frame(self, number):
+        """One frame by number (must be in the footage, not necessarily in the chosen range)."""
+        if self._images is not None:
+            if number not in self._images:
+                raise FacecapError(f"{self.path}: no frame {number}")
+            return self._prepare(self._read_image(self._images[number]), self._images[number])
+        index = int(number) - self.frame_offset
+        if not 0 <= index < self._count:
+            raise FacecapError(f"{self.path}: no frame {number} (the video has "
+                               f"{self.frame_offset}..{self._count - 1 + self.frame_offset})")
+        cap = self.cv2.VideoCapture(str(self.path))
+        try:
+            cap.set(self.cv2.CAP_PROP_POS_FRAMES, index)
+            if int(cap.get(self.cv2.CAP_PROP_POS_FRAMES)) != index:
+                cap.release()
+                cap = self.cv2.VideoCapture(str(self.path))
+                for _ in range(index):
+                    cap.grab()
+            ok, img = cap.read()
+            if not ok:
+                raise InputFileError(self.path, f"cannot decode frame {number}")
+            return self._prepare(img, self.path)
+        finally:
+            cap.release()
+
+    def read_all(self, *, progress=None):
+        """All chosen frames as ``(frames (F,), images (F, H, W) uint8)``."""
+        frames, images = [], []
+        total = len(self)
+        for i, (f, img) in enumerate(self):
+            frames.append(f)
+            images.append(img)
+            report_progress(progress, i + 1, total)
+        return np.asarray(frames, dtype=np.float64), np.stack(images)
+
+
+def open_footage(source, **options):
+    """A :class:`Footage` for ``source`` (see its parameters)."""
+    return Footage(source, **options)
+
+
+def _trailing_number(stem):
+    m = re.search(r"(\d+)(?!.*\d)", stem)
+    return None if m is None else int(m.group(1))
+
+
+def write_video(path, images, *, fps=30.0, codec=None):
+    """Write grayscale or BGR uint8 ``images`` (F, H, W[, 3]) as a video file; returns the codec used.
+
+    ``codec`` defaults to lossless FFV1 for .avi/.mkv (falls back to MJPG if the build lacks it)
+    and mp4v for .mp4/.mov.
+    """
+    cv2 = _cv2()
+    path = Path(path)
+    images = np.asarray(images)
+    if images.ndim not in (3, 4) or images.dtype != np.uint8:
+        raise FacecapError(f"`images` must be uint8 of shape (F, H, W[, 3]); got {images.dtype} {images.shape}")
+    color = images.ndim == 4
+    h, w = images.shape[1:3]
+    if codec is None:
+        candidates = ["mp4v"] if path.suffix.lower() in (".mp4", ".mov", ".m4v") else ["FFV1", "MJPG"]
+    else:
+        candidates = [codec]
+    os.makedirs(path.parent, exist_ok=True)
+    for cc in candidates:
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*cc), float(fps), (w, h), color)
+        if writer.isOpened():
+            break
+    else:
+        raise FacecapError(f"{path}: this OpenCV build cannot write {', '.join(candidates)}")
+    try:
+        for img in images:
+            writer.write(img)
+    finally:
+        writer.release()
+    return cc

@@ -1,0 +1,335 @@
+"""Sparse 2D tracking: pyramidal Lucas-Kanade with a forward-backward check and drift control.
+
+Per frame and point there are two estimates (the thesis' Alg. 4.3, applied to points):
+
+* **continuous** - LK from the previous frame, starting at the previous position;
+* **direct** - LK from the neutral *reference* frame's patch straight to this frame, started at
+  the continuous estimate (or, for a lost point, at a prediction from the points still held).
+
+Each passes a forward-backward check; where both pass they are fused with weights from their patch
+reconstruction errors against the reference, ``w_cont = E_dir / (E_cont + E_dir)``, so errors no
+longer accumulate (drift stays bounded) while large expressions, which the reference patch matches
+badly, lean on the continuous estimate. A point that fails both is a gap (NaN) until the direct
+registration re-acquires it (``reseed``); losses and recoveries are reported by name.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import FacecapError, InputFileError
+from ..markers import MarkerSet
+from .reading import Footage, _cv2, report_progress
+
+
+@dataclass(frozen=True, eq=False)
+class TrackResult:
+    """Tracked 2D markers (source pixels, origin top-left) plus per-sample confidence.
+
+    ``confidence`` (F, M) is in [0, 1] (0 at gaps); ``lost`` maps a marker name to the frame
+    numbers where it was lost, ``reseeded`` to those where it was re-acquired.
+    """
+
+    markers: MarkerSet
+    confidence: np.ndarray
+    reference: int
+    method: str
+    lost: dict = field(default_factory=dict)
+    reseeded: dict = field(default_factory=dict)
+
+    def summary(self):
+        vis = self.markers.visible
+        return (f"tracked {self.markers.n_markers} points over {self.markers.n_frames} frames with "
+                f"{self.method}: {100 * vis.mean():.1f}% visible, mean confidence "
+                f"{self.confidence[vis].mean() if vis.any() else 0:.2f}, "
+                f"{sum(len(v) for v in self.lost.values())} losses, "
+                f"{sum(len(v) for v in self.reseeded.values())} re-acquisitions")
+
+
+def read_seed_points(path):
+    """Named 2D seed positions from a ``name,x,y`` text file (header optional): ``(names, (M, 2))``."""
+    names, xy = [], []
+    try:
+        text = open(path, encoding="utf-8-sig").read().splitlines()
+    except FileNotFoundError:
+        raise InputFileError(path, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read: {exc}") from None
+    for line_no, line in enumerate(text, 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        cells = [c.strip() for c in line.replace(";", ",").replace("\t", ",").split(",")]
+        if len(cells) < 3:
+            raise InputFileError(path, f"expected name,x,y; got {line!r}", line=line_no)
+        try:
+            x, y = float(cells[1]), float(cells[2])
+        except ValueError:
+            if not names and line_no == 1 + sum(1 for t in text[: line_no - 1] if not t.strip()):
+                continue  # header
+            raise InputFileError(path, f"x, y must be numbers; got {cells[1]!r}, {cells[2]!r}", line=line_no) from None
+        if not (np.isfinite(x) and np.isfinite(y)):
+            raise InputFileError(path, "x, y must be finite", line=line_no)
+        if cells[0] in names:
+            raise InputFileError(path, f"duplicate point name {cells[0]!r}", line=line_no)
+        names.append(cells[0])
+        xy.append((x, y))
+    if not names:
+        raise InputFileError(path, "no points")
+    return tuple(names), np.asarray(xy, dtype=np.float64)
+
+
+def auto_seeds(image, region, *, max_points=100, quality=0.01, min_distance=None, prefix="p"):
+    """Corner features (Shi-Tomasi) inside ``region`` = [x, y, w, h] of a grayscale image: ``(names, (M, 2))``."""
+    cv2 = _cv2()
+    x, y, w, h = (int(round(v)) for v in _check_region(region, image.shape))
+    mask = np.zeros(image.shape[:2], np.uint8)
+    mask[y: y + h, x: x + w] = 255
+    if min_distance is None:
+        min_distance = max(3.0, 0.5 * np.sqrt(w * h / max(max_points, 1)))
+    pts = cv2.goodFeaturesToTrack(image, int(max_points), float(quality), float(min_distance), mask=mask,
+                                  blockSize=7)
+    if pts is None or len(pts) == 0:
+        raise FacecapError(f"no trackable features in region {list(region)}: too little texture")
+    pts = pts.reshape(-1, 2).astype(np.float64)
+    pts = pts[np.lexsort((pts[:, 0], pts[:, 1]))]  # stable order: top to bottom, left to right
+    names = tuple(f"{prefix}{i:03d}" for i in range(len(pts)))
+    return names, pts
+
+
+def _check_region(region, shape):
+    try:
+        x, y, w, h = (float(v) for v in region)
+    except (TypeError, ValueError):
+        raise FacecapError(f"`region` must be [x, y, w, h]; got {region!r}") from None
+    H, W = shape[:2]
+    if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > W or y + h > H:
+        raise FacecapError(f"`region` {list(region)} must be a non-empty box inside the {W}x{H} frame")
+    return x, y, w, h
+
+
+def fit_similarity_2d(src, dst, weights=None):
+    """Least-squares 2D similarity ``dst ~ s R src + t``; returns a (2, 3) matrix."""
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
+    w = w / w.sum()
+    ms, md = w @ src, w @ dst
+    a, b = src - ms, dst - md
+    var = w @ np.sum(a * a, axis=1)
+    c = w @ (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]) / var
+    s = w @ (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) / var
+    A = np.array([[c, -s], [s, c]])
+    return np.hstack([A, (md - A @ ms)[:, None]])
+
+
+class LKTracker:
+    """Frame-by-frame LK tracker of reference points (working-resolution pixels)."""
+
+    def __init__(self, ref_image, ref_points, *, win_size=21, levels=3, fb_threshold=1.0, reregister=True,
+                 reseed=True, patch_radius=6):
+        self.cv2 = cv2 = _cv2()
+        self.win = (int(win_size), int(win_size))
+        self.levels = int(levels)
+        self.fb = float(fb_threshold)
+        self.reregister, self.reseed = bool(reregister), bool(reseed)
+        self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        self.ref_pts = np.asarray(ref_points, np.float32).reshape(-1, 2)
+        self.ref_pyr = self._pyramid(ref_image)
+        self.prev_pyr = self.ref_pyr
+        self.pos = self.ref_pts.copy()
+        self.ok = np.ones(len(self.ref_pts), bool)
+        self.shape = ref_image.shape
+        r = int(patch_radius)
+        off = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), -1).reshape(-1, 2)
+        self.offsets = off.astype(np.float32)
+        self.ref_patch = self._patches(ref_image, self.ref_pts)
+
+    def _pyramid(self, img):
+        # OpenCV's Python binding does not accept prebuilt pyramids here, so LK builds its own.
+        return img
+
+    def _lk(self, pyr_a, pyr_b, pts, init=None):
+        cv2 = self.cv2
+        if init is None:
+            out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, None, winSize=self.win, maxLevel=self.levels,
+                                                  criteria=self.criteria)
+        else:
+            out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, init.copy(), winSize=self.win,
+                                                  maxLevel=self.levels, criteria=self.criteria,
+                                                  flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+        return out.reshape(-1, 2), st.reshape(-1).astype(bool)
+
+    def _patches(self, img, pts):
+        grid = pts[:, None, :] + self.offsets[None]
+        return self.cv2.remap(img, grid[..., 0], grid[..., 1], self.cv2.INTER_LINEAR,
+                              borderMode=self.cv2.BORDER_REPLICATE).astype(np.float32)
+
+    def _inside(self, pts):
+        h, w = self.shape[:2]
+        m = 2.0
+        return (pts[:, 0] >= m) & (pts[:, 0] <= w - 1 - m) & (pts[:, 1] >= m) & (pts[:, 1] <= h - 1 - m)
+
+    def _predict(self):
+        """Positions for lost points from a similarity fitted on the held ones."""
+        pred = self.pos.copy()
+        if self.ok.sum() >= 3:
+            M = fit_similarity_2d(self.ref_pts[self.ok].astype(float), self.pos[self.ok].astype(float))
+            pred[~self.ok] = (self.ref_pts[~self.ok] @ M[:, :2].T + M[:, 2]).astype(np.float32)
+        return pred
+
+    def step(self, img):
+        """Track into ``img``; returns positions (M, 2) (NaN = lost), confidence (M,), re-acquired mask."""
+        n = len(self.ref_pts)
+        cur = self._pyramid(img)
+        was_ok = self.ok.copy()
+        p_c = np.full((n, 2), np.nan, np.float32)
+        q_c = np.zeros(n)
+        if was_ok.any():
+            idx = np.flatnonzero(was_ok)
+            fwd, st = self._lk(self.prev_pyr, cur, self.pos[idx])
+            back, st2 = self._lk(cur, self.prev_pyr, fwd)
+            fb = np.linalg.norm(back - self.pos[idx], axis=1)
+            good = st & st2 & (fb < self.fb) & self._inside(fwd)
+            p_c[idx[good]] = fwd[good]
+            q_c[idx[good]] = 1.0 - fb[good] / self.fb
+        ok_c = q_c > 0
+        want_direct = np.ones(n, bool) if self.reregister else (~ok_c & self.reseed)
+        p_d = np.full((n, 2), np.nan, np.float32)
+        q_d = np.zeros(n)
+        if want_direct.any():
+            init = np.where(ok_c[:, None], p_c, self._predict() if (~ok_c).any() else p_c)
+            idx = np.flatnonzero(want_direct & np.isfinite(init[:, 0]))
+            fwd, st = self._lk(self.ref_pyr, cur, self.ref_pts[idx], init[idx])
+            back, st2 = self._lk(cur, self.ref_pyr, fwd)
+            fb = np.linalg.norm(back - self.ref_pts[idx], axis=1)
+            good = st & st2 & (fb < self.fb) & self._inside(fwd)
+            if not self.reregister:  # re-acquisition only: demand a close match to the reference
+                good &= fb < 0.5 * self.fb
+            p_d[idx[good]] = fwd[good]
+            q_d[idx[good]] = 1.0 - fb[good] / self.fb
+        ok_d = q_d > 0
+        both = ok_c & ok_d
+        w_c = ok_c.astype(float)
+        if both.any():
+            e_c = np.abs(self._patches(img, p_c[both]) - self.ref_patch[both]).mean(axis=1)
+            e_d = np.abs(self._patches(img, p_d[both]) - self.ref_patch[both]).mean(axis=1)
+            w_c[both] = e_d / np.maximum(e_c + e_d, 1e-6)
+        pos = np.where(ok_c[:, None], p_c, 0) * w_c[:, None] + np.where(ok_d[:, None], p_d, 0) * (1 - w_c)[:, None]
+        ok = ok_c | ok_d
+        conf = np.where(ok, w_c * q_c + (1 - w_c) * q_d, 0.0)
+        pos[~ok] = np.nan
+        self.pos = np.where(ok[:, None], pos, self.pos).astype(np.float32)
+        self.ok = ok
+        self.prev_pyr = cur
+        return pos.astype(np.float64), conf, ok & ~was_ok
+
+
+def _to_work(xy, scale):
+    return (np.asarray(xy, float) + 0.5) * scale - 0.5
+
+
+def _to_source(xy, scale):
+    return (np.asarray(xy, float) + 0.5) / scale - 0.5
+
+
+def track_points(footage, *, points=None, names=None, region=None, reference=None, max_points=100,
+                 win_size=21, levels=3, fb_threshold=1.0, reregister=True, reseed=True, progress=None):
+    """Track named 2D points through footage with pyramidal Lucas-Kanade.
+
+    Parameters
+    ----------
+    footage : Footage or str
+        What to track (a path is opened with default options).
+    points : array (M, 2) or str, optional
+        Seed positions in source pixels at the ``reference`` frame, or a ``name,x,y`` file.
+    names : sequence of str, optional
+        Names for array ``points`` (default ``p000``...).
+    region : [x, y, w, h], optional
+        Instead of ``points``: detect up to ``max_points`` corner features in this box (source pixels).
+    reference : int, optional
+        Neutral reference frame number (default: the first frame read). Tracking runs forward and
+        backward from it.
+    win_size, levels : int
+        LK window (pixels, working resolution) and pyramid levels.
+    fb_threshold : float
+        Forward-backward error (working pixels) above which an estimate is rejected.
+    reregister : bool
+        Drift control: fuse each frame's continuous estimate with a direct registration to the
+        reference. Without it errors accumulate frame to frame.
+    reseed : bool
+        Re-acquire lost points by direct registration from the reference patch.
+    progress : callable(done, total) -> bool or None, optional
+        Called once per frame; returning False cancels (:class:`~.reading.Cancelled`).
+
+    Returns
+    -------
+    TrackResult
+    """
+    if not isinstance(footage, Footage):
+        footage = Footage(footage)
+    info = footage.info
+    ref_frame = info.frames[0] if reference is None else int(reference)
+    ref_img = footage.frame(ref_frame)
+    if (points is None) == (region is None):
+        raise FacecapError("give exactly one of `points` (positions or a name,x,y file) and `region`")
+    if region is not None:
+        x, y, w, h = _check_region(region, (info.height, info.width))
+        box = _to_work([x, y], info.scale).tolist() + [w * info.scale, h * info.scale]
+        box = [max(0, box[0]), max(0, box[1]), min(box[2], ref_img.shape[1] - max(0, box[0])),
+               min(box[3], ref_img.shape[0] - max(0, box[1]))]
+        names, work_pts = auto_seeds(ref_img, box, max_points=max_points)
+    else:
+        if isinstance(points, (str, bytes)) or hasattr(points, "__fspath__"):
+            names, src_pts = read_seed_points(points)
+        else:
+            src_pts = np.asarray(points, float)
+            if src_pts.ndim != 2 or src_pts.shape[1] != 2 or not np.isfinite(src_pts).all():
+                raise FacecapError(f"`points` must be finite with shape (M, 2); got {src_pts.shape}")
+            names = tuple(names) if names is not None else tuple(f"p{i:03d}" for i in range(len(src_pts)))
+            if len(names) != len(src_pts):
+                raise FacecapError(f"{len(names)} names for {len(src_pts)} points")
+        outside = [n for n, (px, py) in zip(names, src_pts)
+                   if not (0 <= px <= info.width - 1 and 0 <= py <= info.height - 1)]
+        if outside:
+            raise FacecapError(f"seed points outside the {info.width}x{info.height} frame: {outside}")
+        work_pts = _to_work(src_pts, info.scale)
+    frames = np.asarray(info.frames, dtype=np.float64)
+    F, M = len(frames), len(names)
+    pos = np.full((F, M, 2), np.nan)
+    conf = np.zeros((F, M))
+    lost = {n: [] for n in names}
+    found = {n: [] for n in names}
+    row = {f: i for i, f in enumerate(info.frames)}
+    done = 0
+
+    def run(sequence):
+        nonlocal done
+        tracker = LKTracker(ref_img, work_pts, win_size=win_size, levels=levels, fb_threshold=fb_threshold,
+                            reregister=reregister, reseed=reseed)
+        held = np.ones(M, bool)
+        for f, img in sequence:
+            if f == ref_frame:
+                p, c, back = work_pts.astype(float), np.ones(M), np.zeros(M, bool)
+                tracker.pos, tracker.ok, tracker.prev_pyr = work_pts.astype(np.float32), np.ones(M, bool), tracker.ref_pyr
+            else:
+                p, c, back = tracker.step(img)
+            i = row[f]
+            pos[i], conf[i] = p, c
+            ok = np.isfinite(p[:, 0])
+            for j in np.flatnonzero(held & ~ok):
+                lost[names[j]].append(int(f))
+            for j in np.flatnonzero(back):
+                found[names[j]].append(int(f))
+            held = ok
+            done += 1
+            report_progress(progress, done, F)
+
+    forward = (item for item in footage if item[0] >= ref_frame)
+    run(forward)
+    before = [f for f in info.frames if f < ref_frame]
+    if before:
+        cached = [item for item in footage if item[0] < ref_frame]  # read once, track in reverse
+        run(reversed(cached))
+    out = _to_source(pos, info.scale)
+    markers = MarkerSet(names, frames, out, fps=info.fps, units="px", source=info.path)
+    return TrackResult(markers, conf, ref_frame, "lk", {k: v for k, v in lost.items() if v},
+                       {k: v for k, v in found.items() if v})
