@@ -96,6 +96,12 @@ class Motion:
             p = q - self.local(t, p)
         return p
 
+    def flow_between(self, a, b):
+        """True field f_ab on frame a's grid pointing into frame b: (H, W, 2)."""
+        w, h = self.size
+        grid = np.stack(np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float)), axis=-1)
+        return self.forward(b, self.inverse(a, grid, iterations=20)) - grid
+
     def flow(self, t):
         """True flow of frame t relative to the reference, on the reference grid: (H, W, 2)."""
         w, h = self.size
@@ -157,11 +163,16 @@ class SyntheticClip:
 
 
 def write_synthetic_clip(path, n_frames=60, width=320, height=240, *, fps=30.0, noise=0.0, codec=None,
-                         seed=0, **motion_options):
-    """Render a synthetic performance and write it as a real video file; returns a :class:`SyntheticClip`."""
+                         seed=0, occlusions=(), **motion_options):
+    """Render a synthetic performance and write it as a real video file; returns a :class:`SyntheticClip`.
+
+    ``occlusions``: ``[(first, last, (x, y, w, h)), ...]`` flat grey boxes painted over those frames.
+    """
     tex = face_texture(width, height, seed=seed)
     motion = make_motion(n_frames, width, height, seed=seed, **motion_options)
     rng = np.random.default_rng(seed + 1)
     frames = np.stack([render(tex, motion, t, noise=noise, rng=rng) for t in range(n_frames)])
+    for first, last, (x, y, w, h) in occlusions:
+        frames[first: last + 1, y: y + h, x: x + w] = 128
     used = write_video(path, frames, fps=fps, codec=codec)
     return SyntheticClip(str(path), tex, motion, used, float(fps))

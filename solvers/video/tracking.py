@@ -231,6 +231,34 @@ def _to_source(xy, scale):
     return (np.asarray(xy, float) + 0.5) / scale - 0.5
 
 
+def _seeds(info, ref_img, *, points, names, region, max_points):
+    """Seed names and working-pixel positions from ``points`` (array or file) or a ``region``."""
+    if (points is None) == (region is None):
+        raise FacecapError("give exactly one of `points` (positions or a name,x,y file) and `region`")
+    if region is not None:
+        x, y, w, h = _check_region(region, (info.height, info.width))
+        box = _to_work([x, y], info.scale).tolist() + [w * info.scale, h * info.scale]
+        box = [max(0, box[0]), max(0, box[1]), min(box[2], ref_img.shape[1] - max(0, box[0])),
+               min(box[3], ref_img.shape[0] - max(0, box[1]))]
+        names, work_pts = auto_seeds(ref_img, box, max_points=max_points)
+    else:
+        if isinstance(points, (str, bytes)) or hasattr(points, "__fspath__"):
+            names, src_pts = read_seed_points(points)
+        else:
+            src_pts = np.asarray(points, float)
+            if src_pts.ndim != 2 or src_pts.shape[1] != 2 or not np.isfinite(src_pts).all():
+                raise FacecapError(f"`points` must be finite with shape (M, 2); got {src_pts.shape}")
+            names = tuple(names) if names is not None else tuple(f"p{i:03d}" for i in range(len(src_pts)))
+            if len(names) != len(src_pts):
+                raise FacecapError(f"{len(names)} names for {len(src_pts)} points")
+        outside = [n for n, (px, py) in zip(names, src_pts)
+                   if not (0 <= px <= info.width - 1 and 0 <= py <= info.height - 1)]
+        if outside:
+            raise FacecapError(f"seed points outside the {info.width}x{info.height} frame: {outside}")
+        work_pts = _to_work(src_pts, info.scale)
+    return tuple(names), np.asarray(work_pts, float)
+
+
 def track_points(footage, *, points=None, names=None, region=None, reference=None, max_points=100,
                  win_size=21, levels=3, fb_threshold=1.0, reregister=True, reseed=True, progress=None):
     """Track named 2D points through footage with pyramidal Lucas-Kanade.
@@ -269,29 +297,7 @@ def track_points(footage, *, points=None, names=None, region=None, reference=Non
     info = footage.info
     ref_frame = info.frames[0] if reference is None else int(reference)
     ref_img = footage.frame(ref_frame)
-    if (points is None) == (region is None):
-        raise FacecapError("give exactly one of `points` (positions or a name,x,y file) and `region`")
-    if region is not None:
-        x, y, w, h = _check_region(region, (info.height, info.width))
-        box = _to_work([x, y], info.scale).tolist() + [w * info.scale, h * info.scale]
-        box = [max(0, box[0]), max(0, box[1]), min(box[2], ref_img.shape[1] - max(0, box[0])),
-               min(box[3], ref_img.shape[0] - max(0, box[1]))]
-        names, work_pts = auto_seeds(ref_img, box, max_points=max_points)
-    else:
-        if isinstance(points, (str, bytes)) or hasattr(points, "__fspath__"):
-            names, src_pts = read_seed_points(points)
-        else:
-            src_pts = np.asarray(points, float)
-            if src_pts.ndim != 2 or src_pts.shape[1] != 2 or not np.isfinite(src_pts).all():
-                raise FacecapError(f"`points` must be finite with shape (M, 2); got {src_pts.shape}")
-            names = tuple(names) if names is not None else tuple(f"p{i:03d}" for i in range(len(src_pts)))
-            if len(names) != len(src_pts):
-                raise FacecapError(f"{len(names)} names for {len(src_pts)} points")
-        outside = [n for n, (px, py) in zip(names, src_pts)
-                   if not (0 <= px <= info.width - 1 and 0 <= py <= info.height - 1)]
-        if outside:
-            raise FacecapError(f"seed points outside the {info.width}x{info.height} frame: {outside}")
-        work_pts = _to_work(src_pts, info.scale)
+    names, work_pts = _seeds(info, ref_img, points=points, names=names, region=region, max_points=max_points)
     frames = np.asarray(info.frames, dtype=np.float64)
     F, M = len(frames), len(names)
     pos = np.full((F, M, 2), np.nan)
