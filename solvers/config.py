@@ -45,12 +45,15 @@ SCHEMA = {
     },
     "binding": {"vertex_groups": (bool, False)},
     "stabilise": {
-        "markers": (list, False),
+        "markers": ((list, str), False),
+        "mode": (str, False),
         "fine_iterations": (int, False),
         "fine_weight": ((int, float), False),
         "head_smoothing": ((int, float), False),
     },
-    "neutral": {"frames": (list, False)},
+    "neutral": {"frames": (list, False), "file": (str, False), "detect": (bool, False), "master": (str, False),
+                "landmarks": (list, False)},
+    "align": {"regions": ((bool, dict), False), "flag_mm": ((int, float), False)},
     "solve": {
         "strategy": (str, False),
         "regularisation": ((int, float), False),
@@ -62,7 +65,8 @@ SCHEMA = {
         "regions": (dict, False),
     },
     "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False),
-               "actor_basis": (str, False)},
+               "actor_basis": (str, False),
+               "head": (str, False)},
     "calibration": {
         "markers": (str, False),
         "units": (str, False),
@@ -176,16 +180,9 @@ def load_take_config(path):
         raise ConfigError(f"unknown strategy '{strategy}'; available: {', '.join(STRATEGIES)}", path=path, key="solve.strategy")
     _check_source(path, data, strategy)
     stable, frames = (), [1, 1]
-    if strategy != "parallel" or "markers" in data.get("stabilise", {}) or "frames" in data.get("neutral", {}):
-        for section, key in (("stabilise", "markers"), ("neutral", "frames")):
-            if key not in data.get(section, {}):
-                raise ConfigError("missing required key", path=path, key=f"{section}.{key}")
-        stable = get("stabilise", "markers")
-        if not all(isinstance(s, str) for s in stable) or len(stable) < 3:
-            raise ConfigError("expected a list of at least 3 marker names", path=path, key="stabilise.markers")
-        frames = get("neutral", "frames")
-        if len(frames) != 2 or not all(isinstance(v, int) for v in frames) or frames[1] < frames[0]:
-            raise ConfigError(f"expected [first, last] frame numbers; got {frames}", path=path, key="neutral.frames")
+    normalise = {}
+    if strategy != "parallel" or "markers" in data.get("stabilise", {}) or data.get("neutral"):
+        stable, frames, normalise = _stabilise_neutral(path, data, resolve)
     defaults = RetargetSettings(stable_markers=(), neutral_frames=(1, 1))
     numbers = {}
     for section, key in (
@@ -224,6 +221,8 @@ def load_take_config(path):
         settings=RetargetSettings(
             stable_markers=tuple(stable),
             neutral_frames=(frames[0], frames[1]),
+            **normalise,
+            head_target=get("output", "head", ""),
             strategy=strategy,
             smoothing=(float(smoothing[0]), float(smoothing[1])),
             **numbers,
@@ -244,6 +243,75 @@ def load_take_config(path):
         training_path=resolve(get("refine", "training")),
         output_actor_basis=resolve(get("output", "actor_basis")),
     )
+
+
+def _frame_pair(value):
+    return (isinstance(value, list) and len(value) == 2 and all(isinstance(v, int) and not isinstance(v, bool)
+            for v in value) and value[0] <= value[1])
+
+
+def _stabilise_neutral(path, data, resolve):
+    """[stabilise] markers / mode, [neutral] frames / file / detect / master / landmarks, [align]."""
+    st, ne, al = data.get("stabilise", {}), data.get("neutral", {}), data.get("align", {})
+    out = {}
+    if "markers" not in st:
+        raise ConfigError("missing required key (a list of marker names, or \"auto\")", path=path, key="stabilise.markers")
+    stable = st["markers"]
+    if isinstance(stable, str):
+        if stable != "auto":
+            raise ConfigError(f"expected a list of marker names or \"auto\"; got '{stable}'", path=path,
+                              key="stabilise.markers")
+        stable, out["auto_stable"] = (), True
+    elif not all(isinstance(s, str) for s in stable) or len(stable) < 3:
+        raise ConfigError("expected a list of at least 3 marker names (or \"auto\")", path=path, key="stabilise.markers")
+    mode = st.get("mode", "rigid")
+    if mode not in ("rigid", "similarity"):
+        raise ConfigError(f"expected \"rigid\" or \"similarity\"; got '{mode}'", path=path, key="stabilise.mode")
+    out["stabilise_mode"] = mode
+    frames = ne.get("frames")
+    if frames is None:
+        if not (ne.get("detect") or "file" in ne):
+            raise ConfigError("missing required key (or set detect = true, or file = \"neutral.csv\")", path=path,
+                              key="neutral.frames")
+        if "master" in ne:
+            raise ConfigError("master T-pose normalisation needs the take's T-pose frames", path=path, key="neutral.frames")
+        frames = [1, 1]
+    elif frames and all(isinstance(r, list) for r in frames):
+        if not all(_frame_pair(r) for r in frames):
+            raise ConfigError(f"expected [[first, last], ...] frame ranges; got {frames}", path=path, key="neutral.frames")
+        out["neutral_ranges"] = tuple(tuple(r) for r in frames)
+        frames = frames[0]
+    elif not _frame_pair(frames):
+        raise ConfigError(f"expected [first, last] frame numbers or [[first, last], ...]; got {frames}", path=path,
+                          key="neutral.frames")
+    if ne.get("detect"):
+        if "frames" in ne:
+            raise ConfigError("give frames or detect = true, not both", path=path, key="neutral.detect")
+        out["neutral_detect"] = True
+    for key, field in (("file", "neutral_file"), ("master", "master")):
+        if key in ne:
+            p = resolve(ne[key])
+            if not p.is_file():
+                raise ConfigError(f"file not found: {p}", path=path, key=f"neutral.{key}")
+            out[field] = str(p)
+    if "landmarks" in ne:
+        marks = ne["landmarks"]
+        if len(marks) < 3 or not all(isinstance(v, str) for v in marks):
+            raise ConfigError("expected a list of at least 3 marker names or patterns", path=path, key="neutral.landmarks")
+        out["landmarks"] = tuple(marks)
+    regions = al.get("regions", False)
+    if isinstance(regions, dict):
+        for name, pats in regions.items():
+            if not (isinstance(pats, list) and pats and all(isinstance(v, str) for v in pats)):
+                raise ConfigError("expected a non-empty list of marker patterns", path=path, key=f"align.regions.{name}")
+    from .align import region_patterns
+
+    out["align_regions"] = region_patterns(regions)
+    if "flag_mm" in al:
+        if al["flag_mm"] <= 0:
+            raise ConfigError(f"must be > 0; got {al['flag_mm']}", path=path, key="align.flag_mm")
+        out["align_flag_mm"] = float(al["flag_mm"])
+    return stable, frames, out
 
 
 def _check_source(path, data, strategy):

@@ -19,7 +19,6 @@ from .basis import Basis
 from .engine import DEFAULT_SMOOTHING
 from .errors import FacecapError
 from .diagnostics import basis_warnings
-from .neutral import neutral_from_frames
 from .shape_options import resolve_bounds, resolve_locks, resolve_regions
 from .stabilise import refine_rigid, smooth_head_motion, stabilise_rigid
 from .strategies import STRATEGY_NAMES
@@ -33,7 +32,7 @@ from .strategies.options import (
     RefineSettings,
     StrategyInputs,
 )
-from .transforms import fit_similarity
+from .align import align_actor
 
 STRATEGIES = STRATEGY_NAMES
 
@@ -60,6 +59,16 @@ class RetargetSettings:
     examples: ExampleSettings = ExampleSettings()  # linear, rbf, pca
     pca: PCASettings = PCASettings()
     refine: RefineSettings = RefineSettings()
+    stabilise_mode: str = "rigid"  # "rigid" | "similarity" (captures from different days)
+    auto_stable: bool = False  # [stabilise] markers = "auto": suggest the stable set from the data
+    neutral_ranges: tuple = ()  # ((first, last), ...): several T-pose ranges (start, end); overrides neutral_frames
+    neutral_detect: bool = False  # the "most neutral" frames, detected
+    neutral_file: object = None  # path or MarkerSet: a separately captured neutral
+    master: object = None  # path or MarkerSet: the performer's master T-pose
+    landmarks: tuple = ()  # glob patterns of the master alignment's landmarks (default: eye/mouth corners)
+    align_regions: tuple = ()  # ((region name, (patterns...)), ...) actor->character with separate scales
+    align_flag_mm: float = None  # alignment residual (mm) above which a binding is flagged (None: robust)
+    head_target: str = ""  # "Object" or "Armature:bone": key the removed head motion there
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,6 +93,9 @@ class RetargetResult:
     source_names: tuple = ()
     info: dict = field(default_factory=dict)  # strategy diagnostics, JSON-ready
     fitted: object = None  # the fitted strategy object (e.g. its actor_basis / refined_basis), not geometric
+    normalise: dict = field(default_factory=dict)  # neutral source, detected frames, master offsets (JSON-ready)
+    stable_suggestion: object = None  # StableSuggestion when [stabilise] markers = "auto"
+    head_target: str = ""
 
     def report(self):
         """A JSON-ready summary (lengths in millimetres)."""
@@ -106,12 +118,19 @@ class RetargetResult:
                 "rms_mm_mean": float(np.nanmean(self.stabilise.rms) * 1e3) if np.isfinite(self.stabilise.rms).any() else None,
                 "flagged_frames": {str(k): v for k, v in self.stabilise.flag_reasons.items()},
                 "stable_marker_trust": {k: round(v, 3) for k, v in self.stabilise.marker_trust.items()},
+                "mode": self.stabilise.mode,
+                "unreliable_frames": [float(f) for f in self.frames[np.asarray(self.stabilise.unreliable, dtype=bool)]]
+                if self.stabilise.unreliable is not None else [],
+                "suggested": None if self.stable_suggestion is None else self.stable_suggestion.report(),
             },
+            "neutral": jsonable(self.normalise),
             "alignment": None if self.alignment is None else {
                 "scale": self.alignment.scale,
                 "rotation": self.alignment.rotation,
                 "translation_m": self.alignment.translation,
                 "residual_mm": {n: round(float(v) * 1e3, 6) for n, v in zip(self.marker_names, self.alignment_residual)},
+                **({"regions": self.alignment.report(self.marker_names)["regions"],
+                    "flagged": list(self.alignment.flagged)} if hasattr(self.alignment, "flagged") else {}),
             },
             "weights_at_bound_mean": float(np.mean(self.at_bound)),
             "timings_s": self.timings,
@@ -207,11 +226,8 @@ def _retarget_geometric(markers, basis, settings):
         symmetry=settings.symmetry,
         smoothing=tuple(settings.smoothing),
     )
-    stab = stabilise_rigid(markers, settings.stable_markers, reference_frames=settings.neutral_frames)
-    stab = smooth_head_motion(markers, stab, half_window=half_window)
-    moving = [n for n, w in stab.marker_trust.items() if w < 0.5]
-    if moving:
-        notes.append(f"stable marker(s) {moving} move relative to the others and were left out of the head fit")
+    stab, suggestion = _stabilise(markers, settings, notes)
+    stable_set = set(stab.stable_names)
     if stab.flagged.any():
         bridged = any(settings.smoothing)
         notes.append(
@@ -220,7 +236,6 @@ def _retarget_geometric(markers, basis, settings):
         )
     timings["stabilise"] = time.perf_counter() - t0
 
-    first, last = settings.neutral_frames
     sub = basis.subset_markers(used)
     lower, upper = resolve_bounds(basis.shape_names, basis.lower, basis.upper, settings.bounds)
     locks = resolve_locks(basis.shape_names, settings.locks)
@@ -229,14 +244,15 @@ def _retarget_geometric(markers, basis, settings):
         notes.append(f"{len(held)} shape(s) are in no region and are held: {list(held)}")
     notes.extend(dict.fromkeys(basis_warnings(sub.matrix(), sub.shape_names)))  # unique, in order
     used_idx = markers.index(used)
-    stable_set = set(settings.stable_markers)
     trust = np.array([1.0 if n in stable_set else settings.fine_weight for n in used])
     t_solve = t_align = 0.0
     for iteration in range(settings.fine_iterations + 1):
         t1 = time.perf_counter()
-        neutral = neutral_from_frames(stab.markers, first, last)[used_idx]
-        align = fit_similarity(neutral, sub.neutral)
-        deltas = align.apply_vectors(stab.markers.positions[:, used_idx] - neutral[None])
+        neutral_all, offsets, norm_info = _normalise(stab, settings, notes if iteration == 0 else [])
+        neutral = neutral_all[used_idx]
+        align = align_actor(neutral, sub.neutral, used, regions=settings.align_regions, flag_mm=settings.align_flag_mm)
+        positions = stab.markers.positions if offsets is None else stab.markers.positions + offsets
+        deltas = align.apply_vectors(positions[:, used_idx] - neutral[None])
         t2 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -256,11 +272,17 @@ def _retarget_geometric(markers, basis, settings):
         # Hierarchical stabilisation: refit the head on all markers against the solve's prediction.
         char_pred = np.einsum("fk,kmd->fmd", np.nan_to_num(solved.weights), sub.deltas)
         predicted = neutral[None] + align.inverse_vectors(char_pred)
+        if offsets is not None:  # back to where the (un-normalised) markers are
+            predicted = predicted - offsets[:, used_idx]
         predicted[~solved.solved] = np.nan
         stab = refine_rigid(markers, stab, used, predicted, weights=trust)
         stab = smooth_head_motion(markers, stab, half_window=half_window)
         timings["stabilise"] += time.perf_counter() - t3
-    align_res = np.linalg.norm(align.apply(neutral) - sub.neutral, axis=1)
+    align_res = align.residual
+    if align.flagged:
+        notes.append(f"binding(s) {list(align.flagged)} are far from their marker after the actor->character "
+                     f"alignment ({', '.join(f'{align.residual[used.index(n)] * 1e3:.1f} mm' for n in align.flagged)}); "
+                     "check the vertex groups")
     timings["align"] = t_align
     timings["solve"] = t_solve
     notes.extend(solved.warnings)
@@ -285,8 +307,11 @@ def _retarget_geometric(markers, basis, settings):
         stabilise=stab,
         alignment=align,
         alignment_residual=align_res,
-        warnings=tuple(notes),
+        warnings=tuple(dict.fromkeys(notes)),
         timings={k: round(v, 6) for k, v in timings.items()},
+        normalise=norm_info,
+        stable_suggestion=suggestion,
+        head_target=settings.head_target,
     )
 
 
@@ -322,11 +347,10 @@ def _retarget_markers(markers, character, settings, inputs):
         return prepare_take(take_markers, settings.stable_markers, settings.neutral_frames,
                             head_smoothing=settings.head_smoothing)
 
-    take = prepare(markers)
+    take, suggestion, norm_info = _prepare_main(markers, settings, notes)
     stab = take.stabilise
-    moving = [n for n, w in stab.marker_trust.items() if w < 0.5]
-    if moving:
-        notes.append(f"stable marker(s) {moving} move relative to the others and were left out of the head fit")
+    if suggestion is not None:
+        settings = replace(settings, stable_markers=stab.stable_names)
     if stab.flagged.any():
         notes.append(f"{int(stab.flagged.sum())} frame(s) could not be stabilised; their weights are left unsolved "
                      "or bridged by the strategy's temporal smoothing")
@@ -369,7 +393,108 @@ def _retarget_markers(markers, character, settings, inputs):
         warnings=tuple(dict.fromkeys(notes)), timings={k: round(v, 6) for k, v in timings.items()},
         strategy=settings.strategy, residual_space="actor" if res.residual_rms is not None else None,
         source_weights=res.source_weights, source_names=tuple(res.source_names), info=info, fitted=strategy,
+        normalise=norm_info, stable_suggestion=suggestion, head_target=settings.head_target,
     )
+
+
+def _reference_range(settings):
+    """The frames whose pose is the stabilisation reference: the first neutral range (None if detected only)."""
+    if settings.neutral_ranges:
+        return tuple(settings.neutral_ranges[0])
+    if settings.neutral_detect and settings.neutral_frames in ((), None, (1, 1)):
+        return None
+    return tuple(settings.neutral_frames) if settings.neutral_frames else None
+
+
+def _stabilise(markers, settings, notes):
+    """Gross stabilisation (auto stable set, rigid or similarity, smoothed head motion); markers in metres."""
+    suggestion = None
+    stable = tuple(settings.stable_markers)
+    if settings.auto_stable:
+        from .stable_selection import suggest_stable_markers
+
+        suggestion = suggest_stable_markers(markers)
+        stable = suggestion.names
+        notes.append(f"stable markers suggested from the take ({len(stable)}, score gap x{suggestion.gap:.1f}"
+                     f"{'' if suggestion.clear else ', NOT a clear split: check them'}): {list(stable)}")
+    stab = stabilise_rigid(markers, stable, reference_frames=_reference_range(settings), mode=settings.stabilise_mode)
+    stab = smooth_head_motion(markers, stab, half_window=int(round(settings.head_smoothing * markers.fps)))
+    moving = [n for n, w in stab.marker_trust.items() if w < 0.5]
+    if moving:
+        notes.append(f"stable marker(s) {moving} move relative to the others and were left out of the head fit")
+    if stab.unreliable is not None and stab.unreliable.any():
+        notes.append(f"{int(stab.unreliable.sum())} frame(s) have an unreliable head fit (too few stable markers "
+                     "agree); see stabilise.unreliable_frames")
+    return stab, suggestion
+
+
+def _load(source, what):
+    if source is None or hasattr(source, "positions"):
+        return source
+    from .readers import import_markers
+
+    return import_markers(source).markers.to_units("m")
+
+
+def _normalise(stab, settings, notes):
+    """The neutral (M, 3) in the stabilised head frame, per-frame master offsets (F, M, 3) or None, and info."""
+    from .normalise import DEFAULT_LANDMARKS, detect_neutral_frames, master_offsets, neutral_from_file, neutral_from_ranges
+
+    sm = stab.markers
+    ranges = tuple(tuple(r) for r in settings.neutral_ranges) or (
+        (tuple(settings.neutral_frames),) if settings.neutral_frames and not settings.neutral_detect else ())
+    info = {}
+    if settings.master is not None:
+        if not ranges:
+            raise FacecapError("master T-pose normalisation needs the take's T-pose frames ([neutral] frames)")
+        master = _load(settings.master, "master")
+        norm = master_offsets(sm, master, ranges, landmarks=settings.landmarks or DEFAULT_LANDMARKS)
+        info = {"source": "master", "ranges": [list(r) for r in ranges], "master": norm.report(sm.names)}
+        return norm.master, norm.offsets, info
+    if settings.neutral_file is not None:
+        fm = _load(settings.neutral_file, "neutral file")
+        pose = neutral_from_file(fm, stab, stable_names=stab.stable_names)
+        missing = [n for n in sm.names if n not in set(fm.names)]
+        if missing:
+            raise FacecapError(f"neutral file {fm.source}: has no marker(s) {missing[:8]}")
+        return pose[fm.index(sm.names)], None, {"source": "file", "file": str(fm.source)}
+    if settings.neutral_detect:
+        frames, dev = detect_neutral_frames(sm)
+        info = {"source": "detected", "frames": [float(f) for f in frames]}
+        if notes is not None:
+            notes.append(f"neutral detected from {len(frames)} frame(s): {_spans(frames)}")
+        sel = np.isin(sm.frames, frames)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return np.nanmedian(sm.positions[sel], axis=0), None, info
+    return neutral_from_ranges(sm, ranges), None, {"source": "frames", "ranges": [list(r) for r in ranges]}
+
+
+def _spans(frames):
+    """'1-30, 571-600' for sorted frame numbers."""
+    out, start, prev = [], None, None
+    for f in frames:
+        if start is None:
+            start = prev = f
+        elif f == prev + 1:
+            prev = f
+        else:
+            out.append((start, prev))
+            start = prev = f
+    if start is not None:
+        out.append((start, prev))
+    return ", ".join(f"{a:g}" if a == b else f"{a:g}-{b:g}" for a, b in out)
+
+
+def _prepare_main(markers, settings, notes):
+    """The take as marker strategies receive it, with every stabilisation / neutral option applied."""
+    from .strategies.wiring import PreparedTake
+
+    markers = markers.to_units("m")
+    stab, suggestion = _stabilise(markers, settings, notes)
+    neutral, offsets, info = _normalise(stab, settings, notes)
+    pos = stab.markers.positions if offsets is None else stab.markers.positions + offsets
+    return PreparedTake(pos - neutral[None], neutral, markers.names, markers.frames, stab), suggestion, info
 
 
 def _retarget_parallel(character, settings, inputs):
