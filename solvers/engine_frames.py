@@ -8,11 +8,14 @@ with ``H_f = A' diag(c_f) A + R``. ``H_f`` only depends on the frame's confidenc
 so it is formed once per distinct pattern (per chunk of frames). The iteration is a primal-dual
 active-set / semi-smooth Newton method on the proximal fixed point
 ``w = clip(soft(w - s grad, s lam), lo, hi)``: each variable is either fixed (at ``lo``, ``hi`` or at
-the L1 kink 0) or free with a known sign, and the free variables solve a linear system. Frames
-only re-solve while their state changes; the free systems are gathered by size and solved in
-batches of exactly that size, so a frame costs O(free^3), not O(K^3). Frames that have not
-settled after ``max_iter`` iterations go to an exact per-frame fallback (scipy's BVLS, with a
-finite sign search for L1 on shapes whose range contains 0).
+the L1 kink 0) or free with a known sign, and the free variables solve a linear system, or, when
+fewer shapes are fixed than free, the fixed ones solve for their multipliers with ``H^-1``
+(``Hinv_BB m = x_B - u_B``, u the unconstrained optimum). Frames only re-solve while their state
+changes; the systems are gathered by size and solved in batches of exactly that size, so a frame
+costs O(min(free, fixed)^3), not O(K^3). Frames that have not settled after ``max_iter``
+iterations go to an exact per-frame fallback (``box_qp``, a BVLS-style primal active set in plain
+numpy, with a finite sign search for L1 on shapes whose range contains 0): per-frame solves need
+no scipy, which Blender does not ship.
 
 Inputs are trusted (validated by ``engine.solve_bounded``). Locked shapes arrive as lo == hi.
 """
@@ -224,8 +227,8 @@ def exact_frame(H, g, lo, hi, lam, sign0=None):
 
     Fixed variables (lo == hi) are eliminated; shapes whose range excludes 0 carry their L1 term as
     a linear term; shapes whose range straddles 0 (with lam > 0) are solved orthant by orthant with
-    BVLS, flipping the sign of any variable stuck at 0 whose subgradient condition fails. Each flip
-    strictly lowers the objective, so the search ends. Numpy only (``box_qp``), no scipy.
+    ``box_qp``, flipping the sign of any variable stuck at 0 whose subgradient condition fails. Each flip
+    strictly lowers the objective, so the search ends.
     """
     K = g.size
     w = np.where(lo == hi, lo, 0.0).astype(float)
