@@ -1,0 +1,182 @@
+"""``facecap track --config take.toml``: track footage and write 2D markers as a wide CSV.
+
+Config (paths relative to the config file)::
+
+    [source]
+    video = "clip.mp4"          # video file, image folder, glob or printf pattern
+    first = 0                   # optional frame range / step / downscale / rate
+    last = 599
+    step = 1
+    scale = 1.0
+    fps = 30.0                  # override (image sequences default to 24)
+    frame_offset = 0            # added to frame numbers (1 for Blender-style numbering)
+
+    [tracking]
+    points = "points2d.csv"     # name,x,y at the reference frame (source pixels) ...
+    region = [x, y, w, h]       # ... or automatic features in this box
+    method = "lk"               # "lk" | "dis" | "farneback" | "tvl1"
+    reference = 0               # neutral reference frame (default: first frame read)
+    max_points = 100            # automatic features
+    reregister = true           # lk: drift control by re-registration to the reference
+    reseed = true               # lk: re-acquire lost points
+    drift = "fuse"              # dense: "fuse" | "direct" | "none"
+    win_size = 21               # lk window
+    fb_threshold = 1.0          # lk forward-backward threshold (working pixels)
+
+    [output]
+    markers = "tracks.csv"      # frame,<name>_x,<name>_y (pixels, origin top-left)
+    confidence = "conf.csv"     # optional: frame,<name> per-sample confidence in [0, 1]
+    report = "track.json"       # optional: summary, losses, re-acquisitions, footage info
+"""
+
+import argparse
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+from ..errors import ConfigError, FacecapError
+from ..fileio import write_json_atomic
+from ..io_csv import write_markers_csv, write_weights_csv
+
+SCHEMA = {
+    "source": {"video", "first", "last", "step", "scale", "fps", "frame_offset"},
+    "tracking": {"points", "region", "method", "reference", "max_points", "reregister", "reseed", "drift",
+                 "win_size", "fb_threshold", "levels", "preset"},
+    "output": {"markers", "confidence", "report"},
+}
+METHODS = ("lk", "dis", "farneback", "tvl1")
+
+
+def load_track_config(path):
+    """Parse and check a track config; returns a dict of resolved settings."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError("config file not found", path=path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read: {exc}", path=path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", path=path) from None
+    base = path.resolve().parent
+    for section, keys in SCHEMA.items():
+        table = data.get(section, {})
+        if not isinstance(table, dict):
+            raise ConfigError("must be a table", path=path, key=section)
+        unknown = sorted(set(table) - keys)
+        if unknown:
+            raise ConfigError(f"unknown key(s) {unknown}; expected some of {sorted(keys)}", path=path, key=section)
+    src, trk, out = (data.get(s, {}) for s in ("source", "tracking", "output"))
+    if "video" not in src:
+        raise ConfigError("missing `video` (a video file or image sequence)", path=path, key="source")
+    if "markers" not in out:
+        raise ConfigError("missing `markers` (the output CSV)", path=path, key="output")
+    if ("points" in trk) == ("region" in trk):
+        raise ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
+                          path=path, key="tracking")
+    method = str(trk.get("method", "lk")).lower()
+    if method not in METHODS:
+        raise ConfigError(f"`method` must be one of {', '.join(METHODS)}; got {trk.get('method')!r}",
+                          path=path, key="tracking")
+    region = trk.get("region")
+    if region is not None and (not isinstance(region, list) or len(region) != 4
+                               or not all(isinstance(v, (int, float)) for v in region)):
+        raise ConfigError(f"`region` must be [x, y, w, h] in pixels; got {region!r}", path=path, key="tracking")
+
+    def resolve(value, key):
+        if not isinstance(value, str) or not value:
+            raise ConfigError(f"`{key}` must be a path string; got {value!r}", path=path, key=key.split(".")[0])
+        p = Path(value)
+        return str(p if p.is_absolute() else base / p)
+
+    footage = {k: src[k] for k in ("first", "last", "step", "scale", "fps", "frame_offset") if k in src}
+    options = {k: trk[k] for k in trk if k not in ("points", "region", "method", "reference")}
+    lk_only, dense_only = {"reregister", "reseed", "win_size", "fb_threshold", "levels"}, {"drift", "preset"}
+    wrong = sorted(set(options) & (dense_only if method == "lk" else lk_only))
+    if wrong:
+        raise ConfigError(f"{wrong} do not apply to method {method!r}", path=path, key="tracking")
+    return {
+        "video": resolve(src["video"], "source.video"),
+        "footage": footage,
+        "points": resolve(trk["points"], "tracking.points") if "points" in trk else None,
+        "region": region,
+        "method": method,
+        "reference": trk.get("reference"),
+        "options": options,
+        "markers": resolve(out["markers"], "output.markers"),
+        "confidence": resolve(out["confidence"], "output.confidence") if "confidence" in out else None,
+        "report": resolve(out["report"], "output.report") if "report" in out else None,
+    }
+
+
+def _progress_printer(stream, label):
+    state = {"last": 0.0, "start": time.monotonic()}
+
+    def progress(done, total):
+        now = time.monotonic()
+        if done == total or now - state["last"] >= 0.5:
+            state["last"] = now
+            rate = done / max(now - state["start"], 1e-9)
+            end = "\n" if done == total else "\r"
+            print(f"{label}: {done}/{total} frames ({rate:.0f} frames/s)", end=end, file=stream, flush=True)
+        return True
+
+    return progress
+
+
+def run_track(settings, *, progress=None):
+    """Track as described by ``load_track_config`` output; writes the outputs, returns the TrackResult."""
+    from .flow import track_with_flow
+    from .reading import Footage
+    from .tracking import track_points
+
+    footage = Footage(settings["video"], **settings["footage"])
+    common = dict(points=settings["points"], region=settings["region"], reference=settings["reference"],
+                  progress=progress)
+    try:
+        if settings["method"] == "lk":
+            result = track_points(footage, **common, **settings["options"])
+        else:
+            result = track_with_flow(footage, method=settings["method"], **common, **settings["options"])
+    except TypeError as exc:  # a wrongly typed option value
+        raise FacecapError(f"bad [tracking] option: {exc}") from None
+    write_markers_csv(settings["markers"], result.markers)
+    if settings["confidence"]:
+        write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, result.confidence)
+    if settings["report"]:
+        info = footage.info
+        write_json_atomic(settings["report"], {
+            "summary": result.summary(), "method": result.method, "reference": result.reference,
+            "footage": {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
+                        "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames},
+            "markers": list(result.markers.names), "lost": result.lost, "reseeded": result.reseeded,
+        })
+    return result
+
+
+def main(argv=None):
+    """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 interrupted)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["track"]:
+        argv = argv[1:]
+    parser = argparse.ArgumentParser(prog="facecap track", description="Track 2D markers in footage.")
+    parser.add_argument("--config", required=True, help="take config (.toml) with [source], [tracking], [output]")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    args = parser.parse_args(argv)
+    try:
+        settings = load_track_config(args.config)
+        progress = None if args.quiet else _progress_printer(sys.stderr, f"track ({settings['method']})")
+        result = run_track(settings, progress=progress)
+    except FacecapError as exc:
+        print(f"facecap: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("facecap: interrupted", file=sys.stderr)
+        return 130
+    print(f"{result.summary()}; wrote {settings['markers']}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""`track --config take.toml`: footage -> wide marker CSV (pixels), progress on stderr, one-line errors."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cv2")
+
+from facecap.solvers import read_markers_csv, read_weights_csv  # noqa: E402
+from facecap.solvers.video.cli import main  # noqa: E402
+from facecap.solvers.video.synthetic import write_synthetic_clip  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def take(tmp_path_factory):
+    d = tmp_path_factory.mktemp("take")
+    clip = write_synthetic_clip(d / "clip.avi", 24, 200, 150, seed=6)
+    (d / "points2d.csv").write_text("name,x,y\nbrow_L,80,50\nbrow_R,120,50\nmouth,100,110\n")
+    return d, clip
+
+
+def write_config(d, tracking, extra=""):
+    cfg = d / "take.toml"
+    cfg.write_text(f'[source]\nvideo = "clip.avi"\n\n[tracking]\n{tracking}\n\n'
+                   f'[output]\nmarkers = "out/tracks.csv"\nconfidence = "out/conf.csv"\nreport = "out/track.json"\n{extra}')
+    return cfg
+
+
+@pytest.mark.parametrize("method", ["lk", "dis"])
+def test_track_writes_wide_csv_in_pixels(take, method, capsys):
+    d, clip = take
+    cfg = write_config(d, f'points = "points2d.csv"\nmethod = "{method}"\nreference = 0')
+    assert main(["track", "--config", str(cfg)]) == 0
+    err = capsys.readouterr().err
+    assert f"track ({method}): 24/24 frames" in err and "tracked 3 points over 24 frames" in err
+    header = (d / "out/tracks.csv").read_text().splitlines()[0]
+    assert header == "frame,brow_L_x,brow_L_y,brow_R_x,brow_R_y,mouth_x,mouth_y"
+    mk = read_markers_csv(d / "out/tracks.csv", units="px", fps=30.0)
+    np.testing.assert_allclose(mk.positions[0], [[80, 50], [120, 50], [100, 110]], atol=1e-6)
+    truth = np.stack([clip.motion.forward(t, mk.positions[0]) for t in range(24)])
+    assert np.median(np.linalg.norm(mk.positions - truth, axis=2)) <= 0.5
+    frames, names, conf = read_weights_csv(d / "out/conf.csv")
+    assert names == mk.names and conf.shape == (24, 3) and (conf <= 1).all()
+    report = json.loads((d / "out/track.json").read_text())
+    assert report["footage"]["fps"] == 30.0 and report["footage"]["width"] == 200 and report["method"] == method
+
+
+def test_track_region_from_a_subprocess(take):
+    d, _ = take
+    cfg = write_config(d, "region = [50, 30, 100, 100]\nmax_points = 20")
+    run = subprocess.run([sys.executable, "-m", "facecap.solvers.video.cli", "track", "--config", str(cfg)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    mk = read_markers_csv(d / "out/tracks.csv", units="px", fps=30.0)
+    assert 5 <= mk.n_markers <= 20 and mk.n_frames == 24
+
+
+@pytest.mark.parametrize("tracking,extra,message", [
+    ('points = "points2d.csv"\nmethod = "sift"', "", r"\[tracking\] `method` must be one of lk, dis"),
+    ('points = "points2d.csv"\nregion = [0, 0, 10, 10]', "", "exactly one of"),
+    ('region = [0, 0, 10]', "", "must be \\[x, y, w, h\\]"),
+    ('points = "missing.csv"', "", "missing.csv: file not found"),
+    ('points = "points2d.csv"\ncolour = 1', "", r"\[tracking\] unknown key\(s\) \['colour'\]"),
+    ('points = "points2d.csv"\nmethod = "dis"\nwin_size = 11', "", "do not apply to method 'dis'"),
+])
+def test_config_errors_are_one_line_and_exit_non_zero(take, capsys, tracking, extra, message):
+    d, _ = take
+    cfg = write_config(d, tracking, extra)
+    assert main(["--config", str(cfg)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("facecap: error: ")
+    assert pytest.importorskip("re").search(message, err[0]), err[0]
+
+
+def test_unreadable_video_and_missing_config(tmp_path, capsys):
+    (tmp_path / "clip.avi").write_bytes(b"\x00" * 100)
+    (tmp_path / "p.csv").write_text("a,1,1\n")
+    cfg = write_config(tmp_path, 'points = "p.csv"')
+    assert main(["--config", str(cfg)]) == 1
+    assert "cannot decode as video" in capsys.readouterr().err
+    assert main(["--config", str(tmp_path / "nope.toml")]) == 1
+    assert "config file not found" in capsys.readouterr().err
