@@ -8,6 +8,7 @@ Everything here works on *stabilised* markers (the head frame), so rigid fits ar
 """
 
 import fnmatch
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,20 +43,24 @@ def neutral_from_ranges(markers, ranges):
     return np.nanmedian(block, axis=0)
 
 
-def detect_neutral_frames(markers, *, count=None, fraction=0.05, reference=None):
-    """The "most neutral" frames: least deformation relative to a robust reference.
+def detect_neutral_frames(markers, *, count=None, fraction=0.05, max_compare=1500):
+    """The "most neutral" frames: the pose the face holds longest and returns to most.
 
-    ``markers`` are stabilised. The reference is the per-marker median over the take (most of a
-    performance is near rest for most markers); each frame's deformation is the RMS distance of
-    its visible markers from it (frames missing over half the markers are skipped). A second pass
-    uses the median of the chosen frames as the reference.
+    ``markers`` are stabilised. A relaxed face is the densest point of the take's poses (T-poses,
+    and the rest the face returns to between expressions), whereas the take's median pose is an
+    average expression. The densest frame (closest ``count``-th neighbour, RMS marker distance
+    between poses smoothed over ~0.15 s) is the robust reference, and the ``count`` frames least
+    deformed from it are returned.
 
     Returns
     -------
     frames : ndarray of the chosen frame numbers (sorted)
-    deformation : (F,) RMS deformation per frame (metres, NaN where skipped)
+    deformation : (F,) RMS deformation per frame from the reference (metres, NaN where skipped)
     """
-    P = markers.positions
+    from .stable_selection import _moving_mean
+
+    # Compare poses smoothed over ~0.15 s: frame-to-frame noise would hide a held pose otherwise.
+    P = _moving_mean(markers.positions, max(1, int(round(0.075 * markers.fps))))
     F = markers.n_frames
     n = max(3, int(round(fraction * F))) if count is None else int(count)
     n = min(n, F)
@@ -63,15 +68,25 @@ def detect_neutral_frames(markers, *, count=None, fraction=0.05, reference=None)
     ok = vis.sum(axis=1) >= 0.5 * markers.n_markers
     if not ok.any():
         raise FacecapError("neutral detection: no frame shows at least half of the markers")
-    ref = np.nanmedian(P[ok], axis=0) if reference is None else np.asarray(reference)
+    fill = np.where(np.isnan(P), np.nanmedian(P[ok], axis=0)[None], P).reshape(F, -1)
+    rows = np.flatnonzero(ok)
+    cmp = rows if rows.size <= max_compare else rows[np.linspace(0, rows.size - 1, max_compare).astype(int)]
+    sq = (fill**2).sum(axis=1)
+    d = np.sqrt(np.maximum(sq[:, None] + sq[None, cmp] - 2.0 * fill @ fill[cmp].T, 0.0) / markers.n_markers)
+    k = min(n, cmp.size - 1)
+    kth = np.partition(d[rows], k, axis=1)[:, k]
+    ref = fill[rows[int(np.argmin(kth))]].reshape(P.shape[1:])  # the most often held pose
     for _ in range(2):
-        d = np.linalg.norm(P - ref[None], axis=2)
-        with np.errstate(invalid="ignore"):
-            dev = np.sqrt(np.nanmean(np.where(vis, d, np.nan) ** 2, axis=1))
+        dist = np.linalg.norm(P - ref[None], axis=2)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            dev = np.sqrt(np.nanmean(np.where(vis, dist, np.nan) ** 2, axis=1))
         dev[~ok] = np.nan
         order = np.argsort(np.where(np.isfinite(dev), dev, np.inf))[:n]
-        ref = np.nanmedian(P[order], axis=0)
-        ref = np.where(np.isnan(ref), np.nanmedian(P[ok], axis=0), ref)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            new = np.nanmedian(P[order], axis=0)
+        ref = np.where(np.isnan(new), ref, new)
     return np.sort(markers.frames[order]), dev
 
 

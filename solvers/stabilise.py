@@ -97,10 +97,10 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
     -------
     StabiliseResult
     """
-    if mode not in MODES:
-        raise FacecapError(f"stabilise: mode must be one of {MODES}; got '{mode}'")
     if markers.dim == 2:
         return stabilise_2d(markers, stable, reference_frames=reference_frames, mode=mode, min_points=min_points)
+    if mode not in MODES:
+        raise FacecapError(f"stabilise: mode must be one of {MODES} for 3D markers; got '{mode}'")
     if markers.dim != 3:
         raise FacecapError(f"{markers.source}: rigid stabilisation needs 3D markers; got {markers.dim}D")
     stable = tuple(stable)
