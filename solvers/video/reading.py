@@ -8,7 +8,9 @@ and the working resolution so results can be reported in source pixels.
 
 import glob
 import os
+import queue
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +19,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
+PREFETCH = 8  # frames decoded ahead by the reader thread
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".webp", ".pgm", ".ppm")
 
 
@@ -202,7 +205,49 @@ class Footage:
         return self.info.n_frames
 
     def __iter__(self):
-        """Yield ``(frame_number, gray uint8 image)`` for every chosen frame."""
+        """Yield ``(frame_number, gray uint8 image)`` for every chosen frame.
+
+        Frames are decoded by a background thread a few frames ahead (OpenCV releases the GIL while
+        decoding), so decoding overlaps with whatever the caller does with each frame.
+        """
+        q = queue.Queue(maxsize=PREFETCH)
+        stop = threading.Event()
+        done = object()
+
+        def produce():
+            try:
+                for item in self._frames():
+                    while not stop.is_set():
+                        try:
+                            q.put(item, timeout=0.1)
+                            break
+                        except queue.Full:
+                            continue
+                    if stop.is_set():
+                        return
+                q.put(done)
+            except BaseException as exc:  # handed to the consumer, raised there
+                q.put(exc)
+
+        worker = threading.Thread(target=produce, name="facecap-decode", daemon=True)
+        worker.start()
+        try:
+            while True:
+                item = q.get()
+                if item is done:
+                    return
+                if isinstance(item, BaseException):
+                    raise item
+                yield item
+        finally:
+            stop.set()
+            while worker.is_alive():
+                try:
+                    q.get_nowait()
+                except queue.Empty:
+                    worker.join(0.05)
+
+    def _frames(self):
         if self._images is not None:
             for f in self.info.frames:
                 yield f, self._prepare(self._read_image(self._images[f]), self._images[f])

@@ -1,0 +1,94 @@
+"""Video benchmarks: ``python -m facecap.solvers.video.bench [--frames N]``.
+
+* LK tracking of 100 points on 1280x720 (goal >= 60 frames/s): the tracker alone on decoded
+  frames, with and without re-registration, and end to end from an FFV1 video file (decode included).
+* DIS dense flow at 640x480 (goal >= 30 frames/s): one DIS call per frame, and the drift-controlled
+  reference flow (two DIS calls plus the fusion) per frame.
+Figures depend on the machine (the reference machine has 2 shared cores); they are printed, not asserted.
+"""
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from .flow import FlowEstimator, ReferenceFlow
+from .reading import Footage, _cv2, write_video
+from .synthetic import face_texture, make_motion, render
+from .tracking import LKTracker, auto_seeds, track_points
+
+
+def _frames(n, w, h, seed=0):
+    tex = face_texture(w, h, seed=seed)
+    motion = make_motion(n, w, h, seed=seed, amplitude=3.0 * w / 320, shift=6.0 * w / 320)
+    return np.stack([render(tex, motion, t, noise=2.0) for t in range(n)])
+
+
+def _rate(n, seconds):
+    return n / max(seconds, 1e-9)
+
+
+def bench_tracking(n_frames=120, width=1280, height=720, n_points=100):
+    """Frames/s of 100-point LK tracking at 1280x720; returns a list of (name, frames/s)."""
+    imgs = _frames(n_frames, width, height)
+    names, pts = auto_seeds(imgs[0], [width * 0.2, height * 0.1, width * 0.6, height * 0.8], max_points=n_points)
+    rows = []
+    for label, rereg in (("LK 1280x720, %d pts, re-registration (4 LK calls/frame)" % len(pts), True),
+                         ("LK 1280x720, %d pts, continuous only (2 LK calls/frame)" % len(pts), False)):
+        tr = LKTracker(imgs[0], pts, reregister=rereg)
+        t0 = time.perf_counter()
+        for img in imgs[1:]:
+            tr.step(img)
+        rows.append((label, _rate(n_frames - 1, time.perf_counter() - t0)))
+    with tempfile.TemporaryDirectory() as d:
+        for ext, codec in (("avi", "FFV1 (lossless)"), ("mp4", "mp4v (MPEG-4 part 2)")):
+            path = os.path.join(d, "bench." + ext)
+            write_video(path, imgs)
+            t0 = time.perf_counter()
+            n = sum(1 for _ in Footage(path))
+            rows.append((f"decode + gray only, {codec} 1280x720", _rate(n, time.perf_counter() - t0)))
+            t0 = time.perf_counter()
+            track_points(Footage(path), points=pts, names=names)
+            rows.append((f"LK 1280x720 end to end from {codec} (decode + gray + track)",
+                         _rate(n_frames, time.perf_counter() - t0)))
+    return rows
+
+
+def bench_flow(n_frames=60, width=640, height=480):
+    """Frames/s of DIS flow at 640x480; returns a list of (name, frames/s)."""
+    imgs = _frames(n_frames, width, height, seed=1)
+    rows = []
+    for preset in ("medium", "fast"):
+        est = FlowEstimator("dis", preset=preset)
+        t0 = time.perf_counter()
+        for img in imgs[1:]:
+            est.calc(imgs[0], img)
+        rows.append((f"DIS ({preset}) 640x480, one flow per frame", _rate(n_frames - 1, time.perf_counter() - t0)))
+    for preset in ("medium", "fast"):
+        rf = ReferenceFlow(imgs[0], drift="fuse", preset=preset)
+        t0 = time.perf_counter()
+        for img in imgs[1:]:
+            rf.step(img)
+        rows.append((f"DIS ({preset}) 640x480, reference flow with drift fusion", _rate(n_frames - 1,
+                                                                                     time.perf_counter() - t0)))
+    return rows
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m facecap.solvers.video.bench")
+    parser.add_argument("--frames", type=int, default=120, help="frames per tracking run (default 120)")
+    args = parser.parse_args(argv)
+    cv2 = _cv2()
+    print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {os.cpu_count()} CPUs", flush=True)
+    for name, fps in bench_tracking(args.frames):
+        print(f"{name}: {fps:.0f} frames/s (goal >= 60)", flush=True)
+    for name, fps in bench_flow(max(args.frames // 2, 10)):
+        print(f"{name}: {fps:.0f} frames/s (goal >= 30)", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
