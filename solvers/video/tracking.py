@@ -55,18 +55,20 @@ def read_seed_points(path):
         raise InputFileError(path, "file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"cannot read: {exc}") from None
+    first = True
     for line_no, line in enumerate(text, 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
         cells = [c.strip() for c in line.replace(";", ",").replace("\t", ",").split(",")]
+        header, first = first, False
         if len(cells) < 3:
             raise InputFileError(path, f"expected name,x,y; got {line!r}", line=line_no)
         try:
             x, y = float(cells[1]), float(cells[2])
         except ValueError:
-            if not names and line_no == 1 + sum(1 for t in text[: line_no - 1] if not t.strip()):
-                continue  # header
+            if header:
+                continue  # e.g. "name,x,y"
             raise InputFileError(path, f"x, y must be numbers; got {cells[1]!r}, {cells[2]!r}", line=line_no) from None
         if not (np.isfinite(x) and np.isfinite(y)):
             raise InputFileError(path, "x, y must be finite", line=line_no)
