@@ -10,6 +10,8 @@ class FACECAP_UL_markers(bpy.types.UIList):
         row = layout.row(align=True)
         row.prop(item, "stable", text="")
         row.label(text=item.name)
+        if item.stable_score >= 0:
+            row.label(text=f"{item.stable_score:.1f}")
         if item.gaps:
             row.label(text=f"{item.gaps} gaps")
 
@@ -99,17 +101,48 @@ class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
         layout.label(text=f"Stable markers: {n_stable} of {len(s.markers)}")
         layout.template_list("FACECAP_UL_markers", "", s, "markers", s, "active_marker", rows=5)
         row = layout.row(align=True)
-        row.prop(s, "neutral_first")
-        row.prop(s, "neutral_last")
-        layout.operator("facecap.set_neutral", icon="RESTRICT_SELECT_OFF")
+        row.operator("facecap.suggest_stable", icon="VIEWZOOM")
+        row.prop(s, "auto_stable")
+        if s.stable_gap:
+            layout.label(text=f"Suggested set: score gap x{s.stable_gap:.1f}",
+                         icon="CHECKMARK" if s.stable_gap >= 2.0 else "ERROR")
+        layout.prop(s, "stabilise_mode")
+        layout.prop(s, "neutral_mode")
+        if s.neutral_mode in ("RANGE", "RANGES"):
+            row = layout.row(align=True)
+            row.prop(s, "neutral_first")
+            row.prop(s, "neutral_last")
+            layout.operator("facecap.set_neutral", icon="RESTRICT_SELECT_OFF")
+        if s.neutral_mode == "RANGES":
+            row = layout.row(align=True)
+            row.prop(s, "neutral_end_first")
+            row.prop(s, "neutral_end_last")
+        elif s.neutral_mode == "DETECT":
+            layout.operator("facecap.detect_neutral", icon="VIEWZOOM")
+        elif s.neutral_mode == "FILE":
+            layout.prop(s, "neutral_file")
+        box = layout.box()
+        box.prop(s, "use_master")
+        box.label(text=f"Master: {s.master_source}" if s.master_data else "No master T-pose stored")
+        row = box.row(align=True)
+        row.operator("facecap.load_master", icon="FILE_FOLDER")
+        row.operator("facecap.master_from_take", icon="IMPORT")
+        box.prop(s, "landmarks")
+        layout.prop(s, "align_regions")
         col = layout.column(align=True)
         col.prop(s, "fine_iterations")
         col.prop(s, "head_smoothing")
+        col = layout.column(align=True)
+        col.prop(s, "head_target")
+        if s.head_target is not None and s.head_target.type == "ARMATURE":
+            col.prop(s, "head_bone")
         layout.operator("facecap.stabilise", icon="ORIENTATION_GIMBAL")
         if s.head_object is not None:
             layout.prop(s, "head_object")
         if s.flagged_frames:
             layout.label(text=f"{s.flagged_frames} frame(s) could not be stabilised", icon="ERROR")
+        if s.unreliable_frames:
+            layout.label(text=f"{s.unreliable_frames} frame(s) with an unreliable head fit", icon="ERROR")
 
 
 MARKER_FIT = ("geometric", "calibrated", "refine")  # strategies with a bounded solve (priors apply)

@@ -63,6 +63,11 @@ class FACECAP_PG_marker(bpy.types.PropertyGroup):
         default=False,
     )
     gaps: IntProperty(name="Gaps", description="Missing samples in the take", default=0)
+    stable_score: FloatProperty(
+        name="Stable Score", default=-1.0,
+        description="Motion synchronous with the expression, in noise units (Suggest Stable Markers; "
+        "about 1 or less = rigid; -1 = not scored)",
+    )
 
 
 class FACECAP_PG_shape(bpy.types.PropertyGroup):
@@ -230,6 +235,40 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
                                     description="Pull towards the original library (larger = smaller corrections)")
     head_object: PointerProperty(name="Head Motion", type=bpy.types.Object, description="Empty keyed with the removed head motion")
     flagged_frames: IntProperty(name="Flagged Frames", default=0, description="Frames the last stabilisation could not fit")
+    unreliable_frames: IntProperty(name="Unreliable Frames", default=0,
+                                   description="Frames where too few stable markers agreed in the last stabilisation")
+    # -- stabilise / neutral / master / align (issue 4) -----------------------------------------
+    stabilise_mode: EnumProperty(
+        name="Fit", default="rigid",
+        items=[("rigid", "Rigid", "Rotation and translation per frame"),
+               ("similarity", "Similarity", "Also a uniform scale per frame (captures from different days)")],
+    )
+    auto_stable: BoolProperty(name="Auto Stable Set", default=False,
+                              description="Suggest the stable markers from the take at every solve")
+    stable_gap: FloatProperty(name="Score Gap", default=0.0,
+                              description="Score ratio between the suggested set and the next marker (>= 2: clear)")
+    neutral_mode: EnumProperty(
+        name="Neutral", default="RANGE",
+        items=[("RANGE", "Range", "Robust average of one frame range"),
+               ("RANGES", "Start + End", "Start and end T-pose ranges"),
+               ("DETECT", "Detect", "The most neutral frames: the pose the face holds longest"),
+               ("FILE", "File", "A neutral captured in a separate file")],
+    )
+    neutral_end_first: IntProperty(name="End First", default=1, description="First frame of the end T-pose")
+    neutral_end_last: IntProperty(name="End Last", default=30, description="Last frame of the end T-pose")
+    neutral_file: StringProperty(name="Neutral File", subtype="FILE_PATH", description="Separately captured neutral")
+    use_master: BoolProperty(name="Master T-Pose", default=False,
+                             description="Normalise the take to the performer's master T-pose stored in this .blend")
+    master_data: StringProperty(name="Master Data", description="Master T-pose (JSON: names, positions in metres)")
+    master_source: StringProperty(name="Master Source", description="Where the stored master T-pose came from")
+    landmarks: StringProperty(name="Landmarks", default="",
+                              description="Comma-separated marker patterns the master alignment uses "
+                              "(empty: eye and mouth corners)")
+    align_regions: BoolProperty(name="Regional Scale", default=False,
+                                description="Align upper and lower face to the character with separate scales")
+    head_target: PointerProperty(name="Head Target", type=bpy.types.Object,
+                                 description="Character head object (or armature) keyed with the head motion")
+    head_bone: StringProperty(name="Bone", description="Bone of the head target armature (empty: the object)")
     last_action: StringProperty(name="Last Action", description="Action created by the last solve")
     last_report: StringProperty(name="Last Result", description="Summary of the last solve")
 

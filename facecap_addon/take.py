@@ -71,12 +71,66 @@ def strategy_settings(settings):
     }
 
 
+def master_markers(settings):
+    """The performer's master T-pose stored in the .blend (``settings.master_data``), or None."""
+    import json
+
+    if not settings.master_data:
+        return None
+    data = json.loads(settings.master_data)
+    pos = np.array(data["positions"], dtype=np.float64)[None]
+    return MarkerSet(tuple(data["names"]), np.array([1.0]), pos, fps=settings.fps, units="m",
+                     source=f"master T-pose '{data.get('source', '')}'")
+
+
+def store_master(settings, names, pose, source):
+    """Store a master T-pose (M, 3, metres) in the .blend."""
+    import json
+
+    pose = np.asarray(pose, dtype=np.float64)
+    settings.master_data = json.dumps({"names": list(names), "positions": np.round(pose, 9).tolist(),
+                                       "source": str(source)})
+    settings.master_source = str(source)
+
+
+def neutral_options(settings):
+    """The [neutral] / [stabilise] / [align] / [output] head part of RetargetSettings from the sidebar."""
+    import bpy
+
+    mode = settings.neutral_mode
+    out = {"stabilise_mode": settings.stabilise_mode, "align_regions": (), "landmarks": _patterns(settings.landmarks)}
+    if settings.align_regions:
+        from ..solvers.align import region_patterns
+
+        out["align_regions"] = region_patterns(True)
+    if mode == "RANGES":
+        out["neutral_ranges"] = ((settings.neutral_first, settings.neutral_last),
+                                 (settings.neutral_end_first, settings.neutral_end_last))
+    elif mode == "DETECT":
+        out["neutral_detect"] = True
+    elif mode == "FILE":
+        if not settings.neutral_file:
+            raise FacecapError("choose the neutral file first (Stabilise panel)")
+        out["neutral_file"] = bpy.path.abspath(settings.neutral_file)
+    if settings.use_master:
+        master = master_markers(settings)
+        if master is None:
+            raise FacecapError("no master T-pose stored: load one first (Stabilise panel)")
+        out["master"] = master
+    if settings.head_target is not None:
+        bone = settings.head_bone.strip()
+        out["head_target"] = settings.head_target.name + (f":{bone}" if bone else "")
+    return out
+
+
 def retarget_settings(settings):
     """Frozen solver settings from the scene's PropertyGroup."""
     stable = tuple(m.name for m in settings.markers if m.stable)
     return RetargetSettings(
         **shape_options(settings),
         **strategy_settings(settings),
+        **neutral_options(settings),
+        auto_stable=settings.auto_stable,
         stable_markers=stable,
         neutral_frames=(settings.neutral_first, settings.neutral_last),
         strategy=settings.strategy,
@@ -221,7 +275,86 @@ def key_weights(obj, result, action_name):
     curves = [(f'key_blocks["{n}"].value', 0) for n in result.shape_names]
     curves += [(f'["{p}"]', 0) for p in DIAGNOSTIC_CURVES]
     values = np.column_stack([result.weights, result.residual_rms * 1e3, np.asarray(result.at_bound, dtype=np.float64)])
-    return anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values)
+    action = anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values)
+    if getattr(result, "head_target", "") and result.stabilise is not None:
+        scale = getattr(result.alignment, "scale", 1.0) if result.alignment is not None else 1.0
+        key_head_on_target(result.head_target, result.stabilise, f"{action_name} Head", scale=scale)
+    return action
+
+
+def _head_pose(stab):
+    """Per-frame head rotation Rh (F, 3, 3) and the displacement (F, 3) of the head's reference centre.
+
+    The raw markers are ``Rh (x - c) + c + delta`` for a stabilised point x, with c the centroid of
+    the stable markers in the reference head frame.
+    """
+    Rh = stab.head_rotations()
+    c = stab.reference.mean(axis=0)
+    s = stab.scale_array()
+    raw_c = np.einsum("fij,fj->fi", Rh, c[None] - stab.translations) / s[:, None]
+    return Rh, raw_c - c, c
+
+
+def _euler(R):
+    # Unwrapped so a head turning past 180 deg never flips between frames.
+    return np.unwrap(matrix_to_euler_xyz(R), axis=0)
+
+
+def _unreliable(stab):
+    bad = np.asarray(stab.flagged, dtype=bool)
+    if stab.unreliable is not None:
+        bad = bad | np.asarray(stab.unreliable, dtype=bool)
+    return bad.astype(np.float64)
+
+
+def key_head_on_target(target, stab, name, *, scale=1.0):
+    """Key the removed head motion onto a character's head object or bone.
+
+    ``target`` is "Object" or "Armature:bone" (an object in ``bpy.data.objects``). The object (or
+    bone) keeps its rest placement and turns about its own origin by the actor's head rotation;
+    its translation is the actor's head displacement times ``scale`` (actor -> character). Euler
+    angles are unwrapped (no flips); flagged frames get no key. A ``facecap_unreliable`` curve
+    (1 = the head fit is flagged or unreliable there) is keyed on the object.
+    """
+    import bpy
+
+    obj_name, _, bone_name = target.partition(":")
+    obj = bpy.data.objects.get(obj_name)
+    if obj is None:
+        raise FacecapError(f"head target: no object named '{obj_name}'")
+    Rh, delta, pivot = _head_pose(stab)
+    delta = delta * scale
+    bad = np.asarray(stab.flagged, dtype=bool)
+    obj["facecap_unreliable"] = 0.0
+    obj["facecap_head_pivot"] = [float(v) for v in pivot]  # the actor-space point the head turns about
+    if not bone_name:
+        rest = obj.get("facecap_rest")
+        if rest is None:
+            rest = [v for row in obj.matrix_basis for v in row]
+            obj["facecap_rest"] = rest
+        rest = np.array(rest, dtype=np.float64).reshape(4, 4)
+        rot = np.einsum("fij,jk->fik", Rh, rest[:3, :3] / np.linalg.norm(rest[:3, :3], axis=0))
+        loc = rest[:3, 3] + delta
+        path = ""
+    else:
+        if obj.type != "ARMATURE" or bone_name not in obj.pose.bones:
+            raise FacecapError(f"head target: '{obj_name}' has no bone '{bone_name}'")
+        pbone = obj.pose.bones[bone_name]
+        pbone.rotation_mode = "XYZ"
+        B = np.array(obj.data.bones[bone_name].matrix_local, dtype=np.float64)
+        Binv = np.linalg.inv(B)
+        P = np.tile(np.eye(4), (len(Rh), 1, 1))
+        P[:, :3, :3] = np.einsum("fij,jk->fik", Rh, B[:3, :3])
+        P[:, :3, 3] = B[:3, 3] + delta
+        L = np.einsum("ij,fjk->fik", Binv, P)
+        rot, loc = L[:, :3, :3], L[:, :3, 3]
+        path = f'pose.bones["{bone_name}"].'
+    values = np.concatenate([loc, _euler(rot)], axis=1)
+    values[bad] = np.nan
+    values = np.column_stack([values, _unreliable(stab)])
+    curves = [(path + "location", i) for i in range(3)] + [(path + "rotation_euler", i) for i in range(3)]
+    curves.append(('["facecap_unreliable"]', 0))
+    return anim.new_action_with_curves(obj, name=name, curves=curves, frames=stab.markers.frames, values=values)
 
 
 def key_head_motion(scene, stab, name):
@@ -238,6 +371,8 @@ def key_head_motion(scene, stab, name):
     euler = np.unwrap(matrix_to_euler_xyz(Rh), axis=0)
     values = np.concatenate([loc, euler], axis=1)
     values[stab.flagged] = np.nan
-    curves = LOCATION + [("rotation_euler", 0), ("rotation_euler", 1), ("rotation_euler", 2)]
+    head["facecap_unreliable"] = 0.0
+    values = np.column_stack([values, _unreliable(stab)])
+    curves = LOCATION + [("rotation_euler", 0), ("rotation_euler", 1), ("rotation_euler", 2), ('["facecap_unreliable"]', 0)]
     anim.new_action_with_curves(head, name=name, curves=curves, frames=stab.markers.frames, values=values)
     return head

@@ -1,7 +1,7 @@
 """Choose the neutral / T-pose frame range."""
 
 import bpy
-from bpy.props import IntProperty
+from bpy.props import IntProperty, StringProperty
 
 from ..solvers.errors import FacecapError
 
@@ -43,4 +43,112 @@ class FACECAP_OT_set_neutral(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (FACECAP_OT_set_neutral,)
+class FACECAP_OT_detect_neutral(bpy.types.Operator):
+    """Find the most neutral frames (the pose the face holds longest) and use them as the neutral"""
+
+    bl_idname = "facecap.detect_neutral"
+    bl_label = "Detect Neutral"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        s = context.scene.facecap
+        return s.marker_collection is not None and (s.auto_stable or sum(m.stable for m in s.markers) >= 3)
+
+    def execute(self, context):
+        from dataclasses import replace
+
+        from ..facecap_addon import take
+        from ..solvers.normalise import detect_neutral_frames
+        from ..solvers.pipeline import _spans, stabilise_take
+
+        settings = context.scene.facecap
+        try:
+            markers = take.markers_from_collection(settings)
+            opts = replace(take.retarget_settings(settings), neutral_detect=True, neutral_ranges=())
+            stab, _ = stabilise_take(markers, opts, [])
+            frames, _dev = detect_neutral_frames(stab.markers)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        settings.neutral_mode = "DETECT"
+        self.report({"INFO"}, f"Neutral detected from {len(frames)} frame(s): {_spans(frames)}")
+        return {"FINISHED"}
+
+
+class FACECAP_OT_load_master(bpy.types.Operator):
+    """Read the performer's master T-pose from a marker file and store it in this .blend"""
+
+    bl_idname = "facecap.load_master"
+    bl_label = "Load Master"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(subtype="FILE_PATH")
+
+    def invoke(self, context, _event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        import numpy as np
+
+        from ..facecap_addon import take
+        from ..solvers.readers import import_markers
+
+        settings = context.scene.facecap
+        try:
+            markers = import_markers(bpy.path.abspath(self.filepath)).markers.to_units("m")
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            pose = np.nanmedian(markers.positions, axis=0)
+        missing = [n for n, p in zip(markers.names, pose) if np.isnan(p).any()]
+        if missing:
+            self.report({"ERROR"}, f"master T-pose {self.filepath}: marker(s) {missing[:8]} have no sample")
+            return {"CANCELLED"}
+        take.store_master(settings, markers.names, pose, bpy.path.basename(self.filepath))
+        settings.use_master = True
+        self.report({"INFO"}, f"Master T-pose: {len(markers.names)} markers from {markers.n_frames} frame(s) stored")
+        return {"FINISHED"}
+
+
+class FACECAP_OT_master_from_take(bpy.types.Operator):
+    """Store this take's T-pose (the neutral frames, head motion removed) as the performer's master T-pose"""
+
+    bl_idname = "facecap.master_from_take"
+    bl_label = "Master From Take"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        s = context.scene.facecap
+        return s.marker_collection is not None and (s.auto_stable or sum(m.stable for m in s.markers) >= 3)
+
+    def execute(self, context):
+        from dataclasses import replace
+
+        from ..facecap_addon import take
+        from ..solvers.neutral import neutral_from_frames
+        from ..solvers.pipeline import stabilise_take
+
+        settings = context.scene.facecap
+        try:
+            markers = take.markers_from_collection(settings)
+            opts = replace(take.retarget_settings(settings), master=None)
+            stab, _ = stabilise_take(markers, opts, [])
+            pose = neutral_from_frames(stab.markers, settings.neutral_first, settings.neutral_last)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        take.store_master(settings, markers.names, pose,
+                          f"{settings.take_name or 'take'} frames {settings.neutral_first}-{settings.neutral_last}")
+        self.report({"INFO"}, f"Master T-pose stored from frames {settings.neutral_first}-{settings.neutral_last} "
+                    f"({len(markers.names)} markers)")
+        return {"FINISHED"}
+
+
+CLASSES = (FACECAP_OT_set_neutral, FACECAP_OT_detect_neutral, FACECAP_OT_load_master, FACECAP_OT_master_from_take)

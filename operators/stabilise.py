@@ -1,4 +1,4 @@
-"""Remove head motion and keep it on an empty."""
+"""Remove head motion and keep it on an empty (or the character's head); suggest the stable set."""
 
 import bpy
 
@@ -6,7 +6,8 @@ from ..solvers.errors import FacecapError
 
 
 class FACECAP_OT_stabilise(bpy.types.Operator):
-    """Fit the stable markers per frame, report the fit and key the removed head motion on an empty"""
+    """Fit the stable markers per frame, report the fit and key the removed head motion on an empty
+    (and on the character's head object or bone when one is set)"""
 
     bl_idname = "facecap.stabilise"
     bl_label = "Stabilise"
@@ -15,36 +16,77 @@ class FACECAP_OT_stabilise(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         s = context.scene.facecap
-        return s.marker_collection is not None and sum(m.stable for m in s.markers) >= 3
+        return s.marker_collection is not None and (s.auto_stable or sum(m.stable for m in s.markers) >= 3)
 
     def execute(self, context):
+        import numpy as np
+
         from ..facecap_addon import take
-        from ..solvers.stabilise import stabilise_rigid
+        from ..solvers.pipeline import stabilise_take
 
         settings = context.scene.facecap
+        notes = []
         try:
             markers = take.markers_from_collection(settings)
             opts = take.retarget_settings(settings)
-            stab = stabilise_rigid(markers, opts.stable_markers, reference_frames=opts.neutral_frames)
+            stab, _ = stabilise_take(markers, opts, notes)
+            head = take.key_head_motion(context.scene, stab, f"FaceCap Head {settings.take_name}")
+            if opts.head_target:
+                take.key_head_on_target(opts.head_target, stab, f"FaceCap Head {settings.take_name} on target")
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        head = take.key_head_motion(context.scene, stab, f"FaceCap Head {settings.take_name}")
         settings.head_object = head
         settings.flagged_frames = int(stab.flagged.sum())
-        import numpy as np
-
-        moving = [n for n, w in stab.marker_trust.items() if w < 0.5]
-        if moving:
-            self.report({"WARNING"}, f"Stable markers {moving} move with the face; they were left out of the fit")
-
+        settings.unreliable_frames = int(np.sum(stab.unreliable)) if stab.unreliable is not None else 0
+        for note in notes:
+            self.report({"WARNING"}, note)
         rms = float(np.nanmean(stab.rms) * 1e3) if np.isfinite(stab.rms).any() else float("nan")
+        bad = settings.flagged_frames + settings.unreliable_frames
         self.report(
-            {"WARNING" if stab.flagged.any() else "INFO"},
-            f"Stabilised {markers.n_frames} frames on {len(opts.stable_markers)} markers, "
-            f"stable-marker RMS {rms:.3f} mm, {int(stab.flagged.sum())} frame(s) flagged; head motion on '{head.name}'",
+            {"WARNING" if bad else "INFO"},
+            f"Stabilised {markers.n_frames} frames on {len(stab.stable_names)} markers ({stab.mode}), "
+            f"stable-marker RMS {rms:.3f} mm, {settings.flagged_frames} frame(s) flagged, "
+            f"{settings.unreliable_frames} unreliable; head motion on '{head.name}'",
         )
         return {"FINISHED"}
 
 
-CLASSES = (FACECAP_OT_stabilise,)
+class FACECAP_OT_suggest_stable(bpy.types.Operator):
+    """Suggest the markers that move only with the head, tick them and show each marker's score
+    (expression-synchronous motion in noise units: about 1 or less is rigid)"""
+
+    bl_idname = "facecap.suggest_stable"
+    bl_label = "Suggest Stable Markers"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.facecap.marker_collection is not None
+
+    def execute(self, context):
+        from ..facecap_addon import take
+        from ..solvers.stable_selection import suggest_stable_markers
+
+        settings = context.scene.facecap
+        try:
+            markers = take.markers_from_collection(settings)
+            suggestion = suggest_stable_markers(markers)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        chosen = set(suggestion.names)
+        for m in settings.markers:
+            m.stable = m.name in chosen
+            m.stable_score = suggestion.scores.get(m.name, -1.0)
+        settings.stable_gap = suggestion.gap
+        top = ", ".join(f"{n} {suggestion.scores[n]:.2f}" for n in suggestion.names)
+        self.report(
+            {"INFO" if suggestion.clear else "WARNING"},
+            f"Suggested {len(chosen)} stable markers (score gap x{suggestion.gap:.1f}"
+            f"{'' if suggestion.clear else ', not a clear split: check them'}): {top}",
+        )
+        return {"FINISHED"}
+
+
+CLASSES = (FACECAP_OT_stabilise, FACECAP_OT_suggest_stable)

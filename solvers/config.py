@@ -346,7 +346,8 @@ def _check_schema(path, data):
                     f"unknown key; known keys: {', '.join(SCHEMA[section])}", path=path, key=f"{section}.{key}"
                 )
             kind, _ = SCHEMA[section][key]
-            if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+            allows_bool = kind is bool or (isinstance(kind, tuple) and bool in kind)
+            if not isinstance(value, kind) or (not allows_bool and isinstance(value, bool)):
                 raise ConfigError(f"wrong type {type(value).__name__}", path=path, key=f"{section}.{key}")
     for section, keys in SCHEMA.items():
         for key, (_, required) in keys.items():

@@ -226,7 +226,7 @@ def _retarget_geometric(markers, basis, settings):
         symmetry=settings.symmetry,
         smoothing=tuple(settings.smoothing),
     )
-    stab, suggestion = _stabilise(markers, settings, notes)
+    stab, suggestion = stabilise_take(markers, settings, notes)
     stable_set = set(stab.stable_names)
     if stab.flagged.any():
         bridged = any(settings.smoothing)
@@ -406,7 +406,7 @@ def _reference_range(settings):
     return tuple(settings.neutral_frames) if settings.neutral_frames else None
 
 
-def _stabilise(markers, settings, notes):
+def stabilise_take(markers, settings, notes):
     """Gross stabilisation (auto stable set, rigid or similarity, smoothed head motion); markers in metres."""
     suggestion = None
     stable = tuple(settings.stable_markers)
@@ -491,7 +491,7 @@ def _prepare_main(markers, settings, notes):
     from .strategies.wiring import PreparedTake
 
     markers = markers.to_units("m")
-    stab, suggestion = _stabilise(markers, settings, notes)
+    stab, suggestion = stabilise_take(markers, settings, notes)
     neutral, offsets, info = _normalise(stab, settings, notes)
     pos = stab.markers.positions if offsets is None else stab.markers.positions + offsets
     return PreparedTake(pos - neutral[None], neutral, markers.names, markers.frames, stab), suggestion, info

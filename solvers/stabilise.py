@@ -1,5 +1,6 @@
 """Head stabilisation: remove rigid head motion using markers that do not deform with expression."""
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -148,7 +149,8 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
     moved[flagged] = np.nan
     fitted = _apply(R, t, scales, pts)
     err = np.linalg.norm(fitted - reference[None], axis=2)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
     rms[flagged] = np.nan
     return StabiliseResult(
@@ -187,7 +189,9 @@ def _least_median_start(pts, reference, vis, R0, t0, n_triples=40, seed=0):
         Rc, tc, ok = fit_rigid_batch(pts, reference, w)
         ok &= vis[:, triple].all(axis=1)
         r = np.linalg.norm(np.einsum("fij,fsj->fsi", Rc, filled) + tc[:, None] - reference[None], axis=2)
-        med = np.nanmedian(np.where(vis, r, np.nan), axis=1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # frames with no stable marker at all
+            med = np.nanmedian(np.where(vis, r, np.nan), axis=1)
         better = ok & (med < best)
         best[better] = med[better]
         R[better], t[better] = Rc[better], tc[better]
@@ -394,8 +398,8 @@ def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", m
         sel = markers.frame_range_mask(*reference_frames)
         if not sel.any():
             raise FacecapError(f"stabilise 2D: reference frames {reference_frames[0]}-{reference_frames[1]} are outside the take")
-        with np.errstate(invalid="ignore"), __import__("warnings").catch_warnings():
-            __import__("warnings").simplefilter("ignore", RuntimeWarning)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
             reference = np.nanmedian(pts[sel], axis=0)
         if np.isnan(reference).any():
             raise FacecapError("stabilise 2D: a stable point is never visible in the reference frames")
@@ -426,8 +430,8 @@ def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", m
     moved = np.einsum("fij,fmj->fmi", A, markers.positions) + t[:, None, :]
     moved[flagged] = np.nan
     err = np.linalg.norm(moved[:, idx] - reference[None], axis=2)
-    with np.errstate(invalid="ignore"), __import__("warnings").catch_warnings():
-        __import__("warnings").simplefilter("ignore", RuntimeWarning)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
         rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
     rms[flagged] = np.nan
     reasons = {_frame_label(markers.frames[f]): f"only {int(vis[f].sum())} of {len(stable)} stable points visible "

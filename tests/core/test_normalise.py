@@ -238,3 +238,43 @@ def test_detect_neutral_frames_on_a_synthetic_take():
     frames, dev = detect_neutral_frames(m, count=8)
     assert set(frames) <= set(range(41, 71))
     np.testing.assert_allclose(neutral_from_ranges(m, [(41, 45), (46, 50)]), np.median(pos[40:50], axis=0))
+
+
+def _config(tmp_path, stabilise, neutral, extra=""):
+    (tmp_path / "take.csv").write_text("frame,a_x,a_y,a_z\n1,0,0,0\n")
+    (tmp_path / "master.csv").write_text("frame,a_x,a_y,a_z\n1,0,0,0\n")
+    path = tmp_path / "take.toml"
+    path.write_text(f'[target]\nobject = "Face"\n[source]\nmarkers = "take.csv"\n[stabilise]\n{stabilise}\n'
+                    f'[neutral]\n{neutral}\n{extra}')
+    return load_take_config(path)
+
+
+def test_config_keys_for_stabilisation_neutral_master_align_and_head(tmp_path):
+    from facecap.solvers import ConfigError
+
+    cfg = _config(tmp_path, 'markers = "auto"\nmode = "similarity"',
+                  'frames = [[1, 30], [571, 600]]\nmaster = "master.csv"\nlandmarks = ["eye*", "mouth_corner*", "x"]',
+                  '[align]\nregions = true\nflag_mm = 4\n[output]\nhead = "Rig:head"\n')
+    s = cfg.settings
+    assert s.auto_stable and s.stable_markers == () and s.stabilise_mode == "similarity"
+    assert s.neutral_ranges == ((1, 30), (571, 600)) and s.neutral_frames == (1, 30)
+    assert s.master == str(tmp_path / "master.csv") and s.landmarks == ("eye*", "mouth_corner*", "x")
+    assert [name for name, _ in s.align_regions] == ["upper", "lower"] and s.align_flag_mm == 4.0
+    assert s.head_target == "Rig:head"
+    d = _config(tmp_path, 'markers = ["a", "b", "c"]', "detect = true").settings
+    assert d.neutral_detect
+    f = _config(tmp_path, 'markers = ["a", "b", "c"]', 'file = "master.csv"').settings
+    assert f.neutral_file == str(tmp_path / "master.csv")
+    r = _config(tmp_path, 'markers = ["a", "b", "c"]', "frames = [1, 30]", '[align]\nregions = {mouth = ["lip*"]}\n')
+    assert r.settings.align_regions == (("mouth", ("lip*",)),)
+    for stabilise, neutral, key in [
+        ('markers = "all"', "frames = [1, 30]", "stabilise.markers"),
+        ('markers = ["a", "b", "c"]\nmode = "affine"', "frames = [1, 30]", "stabilise.mode"),
+        ('markers = ["a", "b", "c"]', "frames = [[1, 30], [5]]", "neutral.frames"),
+        ('markers = ["a", "b", "c"]', 'file = "nope.csv"', "neutral.file"),
+        ('markers = ["a", "b", "c"]', "detect = true\nframes = [1, 2]", "neutral.detect"),
+        ('markers = ["a", "b", "c"]', 'detect = true\nmaster = "master.csv"', "neutral.frames"),
+        ('markers = ["a", "b", "c"]', "", "neutral.frames"),
+    ]:
+        with pytest.raises(ConfigError, match=rf"\[{key}\]"):
+            _config(tmp_path, stabilise, neutral)
