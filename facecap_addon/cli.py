@@ -7,6 +7,7 @@ retarget --config take.toml   solve a take onto its character with its [solve] s
 compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
 inspect FILE [options]        describe a capture file; non-zero exit with a one-line reason if it is bad
+track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
@@ -219,6 +220,12 @@ def _cmd_compare(args):
     return compare_main(args.rest)
 
 
+def _cmd_track(args):
+    from ..solvers.video.cli import main as track_main
+
+    return track_main(args.rest)
+
+
 def _cmd_bench(args):
     from ..solvers.bench import run_benchmarks
 
@@ -254,6 +261,9 @@ def build_parser():
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_compare)
+    p = sub.add_parser("track", help="track markers or dense flow in video footage and write 2D tracks", add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_track)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.set_defaults(func=_cmd_bench)
@@ -267,7 +277,7 @@ def main(argv=None):
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:
-        if args.command != "compare":  # compare forwards its options to solvers.compare.main
+        if args.command not in ("compare", "track", "inspect"):  # these forward their options
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         args.rest = extra + list(args.rest)
     try:

@@ -165,3 +165,19 @@ def test_clean_section_runs_and_is_reported(tmp_path):
     report = json.loads(Path(values["report"]).read_text())
     assert any("spline" in line for line in report["cleaning"])
     assert report["source"]["format"] == "csv"
+
+
+def test_track_subcommand_writes_tracks(tmp_path):
+    from facecap.solvers.video.synthetic import write_synthetic_clip
+
+    clip = tmp_path / "clip.avi"
+    write_synthetic_clip(clip, 12, 160, 120, seed=1)
+    config = tmp_path / "track.toml"
+    config.write_text('[source]\nvideo = "clip.avi"\n[tracking]\nregion = [30, 20, 100, 80]\nmethod = "lk"\n'
+                      '[output]\nmarkers = "tracks.csv"\n')
+    proc = run("-m", "facecap", "track", "--config", str(config))
+    assert proc.returncode == 0, proc.stderr
+    header = (tmp_path / "tracks.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "frame" and header[1].endswith("_x") and header[2].endswith("_y")
+    proc = run("-m", "facecap", "track", "--config", str(tmp_path / "missing.toml"))
+    assert proc.returncode == 1 and "missing.toml" in proc.stderr and "Traceback" not in proc.stderr
