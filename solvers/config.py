@@ -5,6 +5,14 @@ strategy sections [calibration] [mapping] [examples] [pca] [refine] (see
 ``solvers/strategies/README.md`` for every key and its default). ``[stabilise] markers`` and
 ``[neutral] frames`` are required for marker strategies; ``parallel`` reads ``[source] weights``
 instead of ``[source] markers``.
+
+Stabilisation and normalisation (issue 4): ``[stabilise] markers = "auto"`` suggests the stable set
+from the take, ``mode = "rigid" | "similarity"``; ``[neutral] frames = [first, last]`` or several
+ranges ``[[1, 30], [571, 600]]`` (start and end T-poses), or ``file = "neutral.csv"``, or
+``detect = true``; ``master = "master.csv"`` normalises to the performer's master T-pose on the
+``landmarks`` (glob patterns; default eye and mouth corners); ``[align] regions = true`` (upper /
+lower face) or ``{name = [patterns]}`` with separate scales, ``flag_mm`` the residual that flags a
+binding; ``[output] head = "Object"`` or ``"Armature:bone"`` keys the removed head motion there.
 """
 
 import tomllib
