@@ -610,7 +610,6 @@ def _mouth_keys(f):
                                       (0.0004, -0.0006, -0.0042))
     keys["mouthUpperUpLeft"] = _vec(f.upper_lip(0.011, 0.016, 0.016) * f.left(-0.006, 0.004),
                                     (0.0, -0.0006, 0.0042))
-    lips = f.upper_lip(rx=0.034, rz=0.016) + f.lower_lip(rx=0.034, rz=0.017)
     corners = f.b2(f.corner[0], f.corner[2], 0.012, 0.012, mirror_x=True)
     keys["mouthFunnel"] = (_vec(f.upper_lip(rx=0.036, rz=0.024), (0.0, -0.0055, 0.0018))
                            + _vec(f.lower_lip(rx=0.036, rz=0.024), (0.0, -0.0055, -0.0022))

@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .engine_frames import exact_frame, solve_frames  # noqa: F401  (exact_frame re-exported for tests)
-from .errors import FacecapError
 
 #: Default smoothing (mu1, mu2) for ``relative=True``, in units of the basis scale (see ``basis_scale``).
 #: Chosen by ``tests/core/test_engine_temporal.py``: a 3-frame lip closure at 60 fps keeps >= 90 % of
