@@ -38,10 +38,12 @@ class Alignment:
         return self.scales[:, None] * np.einsum("mij,mj->mi", self.rotations, points) + self.translations
 
     def apply_vectors(self, vectors):
-        return self.scales[:, None] * np.einsum("mij,...mj->...mi", self.rotations, vectors)
+        v = np.asarray(vectors)
+        return self.scales[:, None] * (v[..., None, :] @ self.rotations.transpose(0, 2, 1))[..., 0, :]
 
     def inverse_vectors(self, vectors):
-        return np.einsum("mji,...mj->...mi", self.rotations, vectors) / self.scales[:, None]
+        v = np.asarray(vectors)
+        return (v[..., None, :] @ self.rotations)[..., 0, :] / self.scales[:, None]
 
     def report(self, names):
         return {

@@ -270,7 +270,7 @@ def _retarget_geometric(markers, basis, settings):
         if iteration == settings.fine_iterations:
             break
         # Hierarchical stabilisation: refit the head on all markers against the solve's prediction.
-        char_pred = np.einsum("fk,kmd->fmd", np.nan_to_num(solved.weights), sub.deltas)
+        char_pred = _predict(solved.weights, sub.deltas)
         predicted = neutral[None] + align.inverse_vectors(char_pred)
         if offsets is not None:  # back to where the (un-normalised) markers are
             predicted = predicted - offsets[:, used_idx]
@@ -288,7 +288,7 @@ def _retarget_geometric(markers, basis, settings):
     notes.extend(solved.warnings)
 
     measured = ~np.isnan(deltas[:, :, 0])
-    res = np.einsum("fk,kmd->fmd", np.nan_to_num(solved.weights), sub.deltas) - deltas
+    res = _predict(solved.weights, sub.deltas) - deltas
     sq = np.where(measured, (res**2).sum(axis=2), 0.0)
     vis = measured
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -517,3 +517,9 @@ def _retarget_parallel(character, settings, inputs):
         strategy="parallel", residual_space=None, source_weights=res.source_weights,
         source_names=tuple(res.source_names), info=dict(res.info), fitted=strategy,
     )
+
+
+def _predict(weights, deltas):
+    """Marker displacements (F, M, D) of weights (F, K) on deltas (K, M, D); NaN weights count as 0."""
+    K, M, D = deltas.shape
+    return (np.nan_to_num(weights) @ deltas.reshape(K, M * D)).reshape(-1, M, D)

@@ -47,7 +47,7 @@ MODES = ("rigid", "similarity")
 
 def _apply(R, t, scales, X):
     """s_f * R_f @ x + t_f for every point of every frame."""
-    out = np.einsum("fij,fmj->fmi", R, X)
+    out = (X @ R.transpose(0, 2, 1))
     if scales is not None:
         out = out * scales[:, None, None]
     return out + t[:, None, :]
@@ -179,28 +179,37 @@ def _least_median_start(pts, reference, vis, R0, t0, n_triples=40, seed=0):
     combos = combos[area > 0.25 * np.median(area)]
     if len(combos) > n_triples:
         combos = combos[np.random.default_rng(seed).choice(len(combos), n_triples, replace=False)]
-    F = pts.shape[0]
-    best = np.full(F, np.inf)
     R, t = R0.copy(), t0.copy()
+    # Only frames the plain fit leaves with an outlying stable marker need the search.
     filled = np.nan_to_num(pts)
+    r0 = np.where(vis, np.linalg.norm(filled @ R0.transpose(0, 2, 1) + t0[:, None] - reference[None], axis=2), 0.0)
+    sigma = 1.4826 * np.median(r0[vis]) if vis.any() else 0.0
+    todo = np.flatnonzero(r0.max(axis=1) > 4.0 * max(sigma, 1e-12))
+    if todo.size == 0:
+        return R, t
+    pts, vis, filled = pts[todo], vis[todo], filled[todo]
+    F = todo.size
+    best = np.full(F, np.inf)
+    Rs, ts = R[todo], t[todo]
     for triple in combos:
         w = np.zeros((F, S))
         w[:, triple] = vis[:, triple]
         Rc, tc, ok = fit_rigid_batch(pts, reference, w)
         ok &= vis[:, triple].all(axis=1)
-        r = np.linalg.norm(np.einsum("fij,fsj->fsi", Rc, filled) + tc[:, None] - reference[None], axis=2)
+        r = np.linalg.norm((filled @ Rc.transpose(0, 2, 1)) + tc[:, None] - reference[None], axis=2)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # frames with no stable marker at all
             med = np.nanmedian(np.where(vis, r, np.nan), axis=1)
         better = ok & (med < best)
         best[better] = med[better]
-        R[better], t[better] = Rc[better], tc[better]
+        Rs[better], ts[better] = Rc[better], tc[better]
+    R[todo], t[todo] = Rs, ts
     return R, t
 
 
 def _rigid_markers(R, t, pts, reference, vis, keep, factor=3.0):
     """Stable markers whose 90th-percentile residual stays within ``factor`` x the typical one."""
-    fitted = np.einsum("fij,fsj->fsi", R, np.nan_to_num(pts)) + t[:, None, :]
+    fitted = (np.nan_to_num(pts) @ R.transpose(0, 2, 1)) + t[:, None, :]
     r = np.where(vis, np.linalg.norm(fitted - reference[None], axis=2), np.nan)
     with np.errstate(invalid="ignore"):
         p90 = np.nanpercentile(r, 90, axis=0)
@@ -214,7 +223,7 @@ def _rigid_markers(R, t, pts, reference, vis, keep, factor=3.0):
 
 def _tukey_weights(R, t, pts, reference, vis, c=4.685):
     """Tukey biweight of each stable marker's distance from the reference after the current fit."""
-    fitted = np.einsum("fij,fsj->fsi", R, np.nan_to_num(pts)) + t[:, None, :]
+    fitted = (np.nan_to_num(pts) @ R.transpose(0, 2, 1)) + t[:, None, :]
     r = np.linalg.norm(fitted - reference[None], axis=2)
     sigma = 1.4826 * np.median(r[vis]) if vis.any() else 0.0
     sigma = max(sigma, 1e-12)
@@ -254,7 +263,7 @@ def _reference_pose(markers, pts, vis, stable, reference_frames):
     # pose, which would carry the noise of whichever frame came first).
     for _ in range(2):
         R, t, ok = fit_rigid_batch(pts[sel], reference, w)
-        aligned = np.einsum("fij,fsj->fsi", R, pts[sel]) + t[:, None, :]
+        aligned = (pts[sel] @ R.transpose(0, 2, 1)) + t[:, None, :]
         aligned[~ok] = np.nan
         shape = np.nanmedian(aligned, axis=0)
         back = np.einsum("fji,fsj->fsi", R[ok], shape[None] - t[ok, None, :])  # shape in each frame's pose
@@ -427,7 +436,7 @@ def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", m
             scale = 1.0 if mode == "rigid" else float((y0 * (x0 @ Rf.T)).sum() / var)
             M = scale * Rf
         A[f], t[f] = M, cy - M @ cx
-    moved = np.einsum("fij,fmj->fmi", A, markers.positions) + t[:, None, :]
+    moved = (markers.positions @ A.transpose(0, 2, 1)) + t[:, None, :]
     moved[flagged] = np.nan
     err = np.linalg.norm(moved[:, idx] - reference[None], axis=2)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():

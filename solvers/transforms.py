@@ -53,21 +53,23 @@ def fit_rigid_batch(source, target, weights):
     tgt = np.nan_to_num(target)
     wsum = w.sum(axis=1)
     safe = np.where(wsum > 0, wsum, 1.0)
-    cs = np.einsum("fn,fnd->fd", w, src) / safe[:, None]
-    ct = np.einsum("fn,fnd->fd", w, tgt) / safe[:, None]
+    # Batched matmuls, not einsum: three-operand einsum is ~10x slower on long takes.
+    cs = (w[:, None, :] @ src)[:, 0] / safe[:, None]
+    ct = (w[:, None, :] @ tgt)[:, 0] / safe[:, None]
     s0 = src - cs[:, None]
     t0 = tgt - ct[:, None]
-    H = np.einsum("fn,fni,fnj->fij", w, s0, t0)
+    ws0 = s0 * w[:, :, None]
+    H = ws0.transpose(0, 2, 1) @ t0
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.transpose(0, 2, 1) @ U.transpose(0, 2, 1)))
     d = np.where(d == 0, 1.0, d)
     D = np.broadcast_to(np.eye(3), H.shape).copy()
     D[:, 2, 2] = d
     R = Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1)
-    t = ct - np.einsum("fij,fj->fi", R, cs)
+    t = ct - (R @ cs[:, :, None])[:, :, 0]
 
     # Spread of the source points: rotation is determined only with >= 3 non-collinear points.
-    cov = np.einsum("fn,fni,fnj->fij", w, s0, s0) / safe[:, None, None]
+    cov = (ws0.transpose(0, 2, 1) @ s0) / safe[:, None, None]
     sv = np.sqrt(np.clip(np.linalg.eigvalsh(cov), 0.0, None))  # ascending
     count = (w > 0).sum(axis=1)
     rank_ok = (count >= 3) & (sv[:, 1] > 1e-3 * np.maximum(sv[:, 2], 1e-300))
