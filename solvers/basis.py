@@ -67,6 +67,24 @@ class Basis:
         idx = [lookup[n] for n in names]
         return Basis(self.shape_names, names, self.neutral[idx], self.deltas[:, idx], self.lower, self.upper)
 
+    def front_view(self):
+        """The basis seen by a camera in front of the face (orthographic): image x = X, image y = -Z.
+
+        The character faces -Y with Z up, so this is a 2D basis in the character's units with the
+        image convention of tracked footage (x right, y down). Depth (Y) motion is not observed.
+        """
+        if self.neutral.shape[1] != 3:
+            raise FacecapError("front_view needs a 3D basis")
+        flip = np.array([1.0, -1.0])
+        return Basis(
+            self.shape_names,
+            self.marker_names,
+            self.neutral[:, [0, 2]] * flip,
+            self.deltas[:, :, [0, 2]] * flip,
+            self.lower,
+            self.upper,
+        )
+
     def matrix(self):
         """The solve matrix A, shape (M * D, K): column k is shape k's flattened deltas."""
         return self.deltas.reshape(self.n_shapes, -1).T

@@ -173,8 +173,8 @@ def load_take_config(path):
         return None if value is None else (base / value).resolve()
 
     units = get("source", "units")
-    if units is not None and units not in (*UNIT_SCALE, "bu"):
-        raise ConfigError(f"units must be one of {sorted((*UNIT_SCALE, 'bu'))}; got '{units}'", path=path, key="source.units")
+    if units is not None and units not in (*UNIT_SCALE, "bu", "px"):
+        raise ConfigError(f"units must be one of {sorted((*UNIT_SCALE, 'bu', 'px'))}; got '{units}'", path=path, key="source.units")
     fps = get("source", "fps")
     if fps is not None and fps <= 0:
         raise ConfigError(f"fps must be positive; got {fps}", path=path, key="source.fps")

@@ -125,3 +125,26 @@ def matrix_to_euler_xyz(R):
     b = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 2, 1], R[..., 2, 2]))
     c = np.arctan2(R[..., 1, 0], R[..., 0, 0])
     return np.stack([a, b, c], axis=-1)
+
+
+def fit_similarity_2d(source, target):
+    """Similarity (scale, proper rotation, translation) from 2D points ``source`` (N, 2) to ``target`` (N, 2).
+
+    Points with a NaN in either set are ignored. Returns a :class:`Similarity` with a 2x2 rotation.
+    """
+    source = np.asarray(source, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    ok = np.isfinite(source).all(axis=1) & np.isfinite(target).all(axis=1)
+    if ok.sum() < 2:
+        raise FacecapError(f"2D similarity fit needs at least 2 corresponding points; got {int(ok.sum())}")
+    src, tgt = source[ok], target[ok]
+    cs, ct = src.mean(axis=0), tgt.mean(axis=0)
+    s0, t0 = src - cs, tgt - ct
+    U, S, Vt = np.linalg.svd(t0.T @ s0)
+    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    R = U @ np.diag([1.0, d]) @ Vt
+    var = float((s0**2).sum())
+    if var <= 0:
+        raise FacecapError("2D similarity fit: the source points coincide")
+    scale = float((S * [1.0, d]).sum() / var)
+    return Similarity(scale=scale, rotation=R, translation=ct - scale * R @ cs)

@@ -131,7 +131,7 @@ def test_bad_config_names_the_key(tmp_path):
     config.write_text('[source]\nmarkers = "x.csv"\nunits = "inch"\n[target]\nobject = "Face"\n[stabilise]\nmarkers=["a","b","c"]\n[neutral]\nframes=[1,2]\n')
     proc = run("-m", "facecap", "retarget", "--config", str(config))
     assert proc.returncode == 1
-    assert proc.stderr.strip() == f"facecap: error: {config}: [source.units] units must be one of ['bu', 'cm', 'm', 'mm']; got 'inch'"
+    assert proc.stderr.strip() == f"facecap: error: {config}: [source.units] units must be one of ['bu', 'cm', 'm', 'mm', 'px']; got 'inch'"
 
 
 def test_output_may_not_overwrite_input_blend(tmp_path):
@@ -181,3 +181,29 @@ def test_track_subcommand_writes_tracks(tmp_path):
     assert header[0] == "frame" and header[1].endswith("_x") and header[2].endswith("_y")
     proc = run("-m", "facecap", "track", "--config", str(tmp_path / "missing.toml"))
     assert proc.returncode == 1 and "missing.toml" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_retarget_2d_tracks_from_the_command_line(tmp_path):
+    """Tracks as `facecap track` writes them (pixels) solve through the character's front view."""
+    import sys as _sys
+
+    _sys.path.insert(0, str(ROOT / "tests" / "core"))
+    from test_pipeline_2d import tracks_2d
+
+    from facecap.solvers import Basis
+    from facecap.solvers.io_csv import write_markers_csv
+    from facecap.solvers.synth import performance_weights
+
+    basis = Basis.load_npz(SAMPLES / "character_basis.npz")
+    layout = json.loads((SAMPLES / "marker_layout.json").read_text())
+    stable = tuple(m["name"] for m in layout["markers"] if m["stable"])
+    weights = performance_weights(basis.shape_names, 240, seed=3)
+    write_markers_csv(tmp_path / "tracks.csv", tracks_2d(basis, weights, stable))
+    config, values = make_config(tmp_path, markers=tmp_path / "tracks.csv")
+    config.write_text(config.read_text().replace('units = "mm"', 'units = "px"'))
+    proc = run("-m", "facecap", "retarget", "--config", str(config))
+    assert proc.returncode == 0, proc.stderr
+    _, _, solved = read_weights_csv(values["weights"])
+    assert np.sqrt(np.mean((solved - weights) ** 2)) <= 0.06
+    report = json.loads(Path(values["report"]).read_text())
+    assert any("front view" in w for w in report["warnings"])
