@@ -80,6 +80,7 @@ class FACECAP_PT_take(FacecapPanel, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("facecap.use_selected_empties", icon="EMPTY_DATA", text="Selected Empties")
         row.operator("facecap.import_clip_tracks", icon="TRACKER", text="Clip Tracks")
+        layout.operator("facecap.track_clip", icon="TRACKING")
         layout.operator("facecap.clean_markers", icon="BRUSH_DATA")
         col = layout.column(align=True)
         col.prop(s, "take_name")
