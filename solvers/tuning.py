@@ -21,17 +21,21 @@ The method (``retune``)
 2. **Per-pose gain.** A pose calibrated at 40% strength is explained by one number: its marker
    pattern scaled by a gain g_k. Model d_t = sum_k g_k w*_tk a_k (g = 1 off the implicated set),
    linear in g: a tiny least-squares problem over all observed coordinates of the corrected frames,
-   with a weak ridge pulling g to 1. g is clipped to [``gain_bounds``].
+   with a weak ridge pulling g to 1. g is clipped to [``gain_bounds``]. A wider candidate set adds
+   every pose the animator set to >= ``active_weight`` on a corrected frame: a pose calibrated too weak can
+   sit at its upper bound in the solve, so its *weight* barely changes; only the markers show it.
 3. **Small per-marker correction with a strong prior.** On the implicated columns only,
    A'_I = g A_I + E, minimising sum_t ||d_t - A' w*_t||^2 + mu ||E||^2 (per coordinate, missing
    markers skipped). mu is in "frames at full weight" (a pose seen at weight 1 on mu frames weighs
    as much as the prior).
-4. **Model choice by leave-one-frame-out.** Candidates, from simplest: no change; gains only;
-   gains + E for each mu of ``mu_grid`` (largest first). For each candidate and each corrected
+4. **Model choice by leave-one-frame-out.** Candidates, from simplest: no change; gains of the
+   implicated poses; gains of all exercised poses; gains + E for each mu of ``mu_grid`` (largest
+   first). For each candidate and each corrected
    frame t: fit on the other corrected frames, re-solve frame t with the candidate library, compare
    with the animator's weights. A more complex candidate is chosen only if it lowers the LOO error by
    ``min_improvement`` (relative) over the best simpler one. A fixed ``mu`` skips the search over mu
-   (gains are still fitted; ``mu=inf`` = gains only).
+   (gains are still fitted; ``mu=inf`` = gains only) but is still compared with "no change"
+   unless ``force=True``.
 5. **Verify.** The whole take is re-solved with the new library; if the error on the corrected
    frames is not lower than before, the original library is kept (reported in ``notes``).
 
@@ -68,7 +72,8 @@ class TuneResult:
     corrected_rmse_before, corrected_rmse_after : RMS of (solved - corrected) over the corrected entries
     moved_rms : RMS change of the weights on the other (not corrected) frames
     moved_relative : ``moved_rms`` / RMS of the previous weights on those frames
-    implicated : tuple of pose names the corrections implicate (size and consistency)
+    implicated : tuple of pose names whose columns the chosen model was allowed to change (the
+        evidence set when the library stays unchanged)
     evidence : {pose: (size, consistency)} for every pose the animator changed at all
     gains : (K,) per-pose gain applied (1 off the implicated set)
     pose_changes : {pose: {"gain", "delta_rms" (library units), "relative"}} for the changed poses
@@ -195,8 +200,8 @@ def corrected_rmse(weights, frames, Wc):
 
 
 def retune(library, deltas, solved, corrections, *, mu=None, mu_grid=MU_GRID, min_change=0.05,
-           min_consistency=0.6, min_improvement=0.05, gain_ridge=1e-3, gain_bounds=(0.2, 5.0), solver=None,
-           frame_solver=None, parent="v0", version=None):
+           min_consistency=0.6, active_weight=0.05, min_improvement=0.05, gain_ridge=1e-3, gain_bounds=(0.2, 5.0), solver=None,
+           frame_solver=None, force=False, parent="v0", version=None):
     """Re-tune the actor calibration library from an animator's corrected frames.
 
     Parameters
@@ -209,12 +214,16 @@ def retune(library, deltas, solved, corrections, *, mu=None, mu_grid=MU_GRID, mi
         full weight) or inf (gains only)
     mu_grid : mu candidates for the search
     min_change, min_consistency : evidence a pose needs to be implicated (see the module docstring)
+    active_weight : a pose whose corrected weight reaches this on some corrected frame joins the
+        wider gain candidate set
     min_improvement : relative LOO improvement a more complex model needs over a simpler one
     gain_ridge, gain_bounds : ridge of the gain fit (relative to the implicated columns' squared
         norm) and the gain range
     solver : callable (Basis, deltas) -> (F, K), the re-solve of the whole take (default: the
         ``calibrated`` strategy's solve, ``default_solver``)
     frame_solver : the same for single frames in the leave-one-out (default: per-frame solve)
+    force : bool, drop "no change" from the candidates (the implicated poses are re-fitted even if
+        the leave-one-out does not favour it; the final re-solve check still applies)
     parent, version : name of the input library; name of the new one (default: content-hashed)
 
     Returns
@@ -249,52 +258,64 @@ def retune(library, deltas, solved, corrections, *, mu=None, mu_grid=MU_GRID, mi
     size = np.sqrt((change**2).sum(axis=0) / np.maximum(n_set, 1))
     absum = np.abs(change).sum(axis=0)
     consistency = np.divide(np.abs(change.sum(axis=0)), absum, out=np.zeros(K), where=absum > 0)
-    implicated = np.flatnonzero((size >= min_change) & (consistency >= min_consistency))
+    strong = np.flatnonzero((size >= min_change) & (consistency >= min_consistency))
+    # poses the corrected frames exercise (a pose saturated at a bound changes little in weight
+    # although its calibration is off: only the markers can tell); tried as a wider gain set
+    exercised = np.abs(np.where(set_, Wc, 0.0)).max(axis=0) >= active_weight  # set by the animator only
+    active = np.flatnonzero(exercised | np.isin(np.arange(K), strong))
     evidence = {library.shape_names[k]: (float(size[k]), float(consistency[k])) for k in np.flatnonzero(absum > 0)}
 
     A = library.matrix().T  # (K, P)
     D = deltas[frames].reshape(len(frames), -1)
     fit = dict(gain_ridge=gain_ridge, gain_bounds=gain_bounds)
 
-    # 4. candidates, simplest first, chosen by leave-one-frame-out
-    candidates = [("unchanged", None)]
-    if len(implicated):
+    # 4. candidates (label, poses, mu), simplest first, chosen by leave-one-frame-out
+    candidates = [] if (force and len(strong)) else [("unchanged", None, None)]
+    if len(strong):
         if mu is None:
-            candidates += [("gain", np.inf)] + [(f"gain+markers mu={m:g}", float(m)) for m in sorted(mu_grid, reverse=True)]
+            candidates.append(("gain", strong, np.inf))
+            if len(active) > len(strong):
+                candidates.append(("gain (all active poses)", active, np.inf))
+            candidates += [(f"gain+markers mu={m:g}", strong, float(m)) for m in sorted(mu_grid, reverse=True)]
         else:
-            candidates += [("gain" if not np.isfinite(mu) else f"gain+markers mu={mu:g}", float(mu))]
+            candidates.append(("gain" if not np.isfinite(mu) else f"gain+markers mu={mu:g}", strong, float(mu)))
     cv = {}
     T = len(frames)
-    if len(candidates) > 1 and T >= 3:
-        for label, m in candidates:
+    if not len(strong):
+        chosen = candidates[0]
+        notes.append("tuning: no pose changed consistently enough to implicate it; library unchanged")
+    elif len(candidates) == 1:
+        chosen = candidates[0]
+    elif T < 3:
+        notes.append(f"tuning: {T} corrected frame(s) are too few for leave-one-out; fitting gains only")
+        chosen = candidates[1] if mu is None else candidates[-1]
+    else:
+        for label, poses, m in candidates:
             errs = []
             for i in range(T):
-                if m is None:
+                if poses is None:
                     Ai = A
                 else:
                     keep = np.arange(T) != i
-                    Ai, _ = _fit(A, D[keep], Wt[keep], implicated, m, **fit)
+                    Ai, _ = _fit(A, D[keep], Wt[keep], poses, m, **fit)
                 lib_i = Basis(library.shape_names, library.marker_names, library.neutral,
                               Ai.reshape(K, M, Dm), library.lower, library.upper)
                 w = frame_solver(lib_i, deltas[frames[i]][None])[0]
                 errs.append(np.where(set_[i], w - Wc[i], np.nan))
             cv[label] = _rms(np.array(errs))
-        best_label, best_err = candidates[0][0], cv[candidates[0][0]]
-        for label, _ in candidates[1:]:
-            if cv[label] < best_err * (1.0 - min_improvement):
-                best_label, best_err = label, cv[label]
-        chosen = dict(candidates)[best_label]
-    elif len(candidates) > 1:
-        notes.append(f"tuning: {T} corrected frame(s) are too few for leave-one-out; fitting gains only")
-        best_label, chosen = "gain", (np.inf if mu is None else float(mu))
-    else:
-        best_label, chosen = "unchanged", None
-        notes.append("tuning: no pose changed consistently enough to implicate it; library unchanged")
+        chosen, best_err = candidates[0], cv[candidates[0][0]]
+        for cand in candidates[1:]:
+            if cv[cand[0]] < best_err * (1.0 - min_improvement):
+                chosen, best_err = cand, cv[cand[0]]
+        if chosen[1] is None:
+            notes.append("tuning: leave-one-frame-out does not favour changing the library; library unchanged")
 
-    if chosen is None:
-        newA, gains = A.copy(), np.ones(K)
+    _, implicated, chosen_mu = chosen
+    if implicated is None:
+        implicated, newA, gains = np.zeros(0, dtype=np.int64), A.copy(), np.ones(K)
     else:
-        newA, gains = _fit(A, D, Wt, implicated, chosen, **fit)
+        newA, gains = _fit(A, D, Wt, implicated, chosen_mu, **fit)
+    chosen = None if chosen[1] is None else chosen_mu
     new = Basis(library.shape_names, library.marker_names, library.neutral.copy(), newA.reshape(K, M, Dm),
                 library.lower.copy(), library.upper.copy())
 
@@ -307,7 +328,7 @@ def retune(library, deltas, solved, corrections, *, mu=None, mu_grid=MU_GRID, mi
                      "library unchanged")
         new = Basis(library.shape_names, library.marker_names, library.neutral.copy(), library.deltas.copy(),
                     library.lower.copy(), library.upper.copy())
-        weights, after, chosen, best_label, gains = solved.copy(), before, None, "unchanged", np.ones(K)
+        weights, after, chosen, gains = solved.copy(), before, None, np.ones(K)
 
     other = np.ones(F, dtype=bool)
     other[frames] = False
@@ -329,7 +350,7 @@ def retune(library, deltas, solved, corrections, *, mu=None, mu_grid=MU_GRID, mi
     return TuneResult(
         library=new, weights=weights, version=version, frames=frames, corrected_rmse_before=before,
         corrected_rmse_after=after, moved_rms=moved, moved_relative=moved / base if base > 0 else 0.0,
-        implicated=tuple(library.shape_names[k] for k in implicated), evidence=evidence, gains=gains,
+        implicated=tuple(library.shape_names[k] for k in (implicated if len(implicated) else strong)), evidence=evidence, gains=gains,
         pose_changes=pose_changes, changed=tuple(library.shape_names[k] for k in changed), model=model,
         mu=float("inf") if chosen is None else float(chosen), cv=cv, notes=tuple(notes),
     )

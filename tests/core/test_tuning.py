@@ -124,6 +124,11 @@ def test_no_harm_when_corrections_agree_with_the_library():
     print(f"\nno harm (truth on a right library): held-out {h0:.4f} -> {h1:.4f}, moved {r.moved_relative:.2%}, "
           f"model {r.model}, LOO {r.cv}")
     assert r.moved_relative < 0.02 and abs(h1 - h0) < 0.02 * h0
+    forced = retune(actor, D, Ws, {t: W[t] for t in frames}, force=True)  # skip the leave-one-out gate
+    h2 = _rmse(forced.weights[other] - W[other])
+    print(f"no harm, forced refit: model {forced.model}, held-out {h0:.4f} -> {h2:.4f}, moved {forced.moved_relative:.2%}, "
+          f"gains {dict((n, round(float(g), 3)) for n, g in zip(actor.shape_names, forced.gains) if g != 1)}")
+    assert forced.model == "gain" and forced.moved_relative < 0.02 and abs(h2 - h0) < 0.02 * h0
     same = retune(actor, D, Ws, {t: Ws[t] for t in frames})  # corrections = current solve
     print(f"no harm (corrections = solve): moved {same.moved_relative:.2%}, model {same.model}")
     assert same.moved_relative < 0.02 and same.model == "unchanged" and same.version == "v0"
@@ -216,3 +221,41 @@ def test_fit_gain_offset_on_the_weak_scenario(weak):
     h0, h1 = _rmse(Ws[other] - W[other]), _rmse(out[other] - W[other])
     print(f"\ngain/offset one-click: corrected {c0:.4f} -> {c1:.4f}, held-out {h0:.4f} -> {h1:.4f}")
     assert c1 < 0.5 * c0
+
+
+def test_through_the_calibrated_strategy():
+    """The 40% poses come from a synthetic calibration session (holds at 0.4) through
+    ``actor_basis_from_poses``; the take is solved by ``CalibratedStrategy`` (head motion, rigid
+    alignment onto the calibration neutral); the tuned library goes back in as ``actor_basis``."""
+    from facecap.solvers.compare import STABLE, actor_take, calibration_weights
+    from facecap.solvers.strategies.base import align_to, reorder
+    from facecap.solvers.strategies.calibrated import CalibratedStrategy
+    from facecap.solvers.synth import synthesize_take
+
+    character = Basis.load_npz(SAMPLE_BASIS)
+    actor = make_actor(character, seed=0)
+    Wcal, poses, neutral = calibration_weights(actor.shape_names, hold=30)
+    for name in WEAK:
+        Wcal[:, actor.shape_names.index(name)] *= 0.4
+    calib = synthesize_take(actor, Wcal, rest=30, stable=STABLE, units="mm", actor_scale=1.0, gap_fraction=0.0,
+                            max_deg=10.0, seed=5)
+    s = CalibratedStrategy().fit(character, calibration=calib.markers, poses=poses, neutral=neutral,
+                                 stable_markers=STABLE)
+    take = actor_take(actor, performance_weights(character.shape_names, 600, seed=0), gaps=0.05, seed=2)
+    res = s.solve(take.deltas, names=take.names, neutral=take.neutral)
+    lib = s.actor_basis
+    D = reorder(take.deltas, take.names, lib.marker_names)
+    D, _ = align_to(D, reorder(take.neutral[None], take.names, lib.marker_names)[0], lib.neutral, mode=s.align)
+    Ws, W = res.source_weights, take.weights
+    assert np.nanmax(np.abs(default_solver(lib, D) - Ws)) < 1e-9  # default_solver = the strategy's solve
+    frames = _worst_frames(W, Ws)
+    other = np.setdiff1d(np.arange(len(W)), frames)
+    r = retune(lib, D, Ws, {t: W[t] for t in frames}, parent="calib")
+    again = CalibratedStrategy().fit(character, actor_basis=r.library).solve(take.deltas, names=take.names,
+                                                                             neutral=take.neutral)
+    h0, h1 = _rmse(Ws[other] - W[other]), _rmse(again.weights[other] - W[other])
+    print(f"\nthrough CalibratedStrategy: corrected {r.corrected_rmse_before:.4f} -> {r.corrected_rmse_after:.4f}, "
+          f"held-out {h0:.4f} -> {h1:.4f} ({(h1 - h0) / h0:+.1%}), {len(r.changed)} poses changed, LOO {r.cv}")
+    assert r.corrected_rmse_after <= 0.05 and h1 <= 0.85 * h0
+    assert np.allclose(again.source_weights, r.weights, equal_nan=True)
+    assert r.version.startswith("calib+tune8f-")
