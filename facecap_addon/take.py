@@ -123,6 +123,11 @@ def neutral_options(settings):
     return out
 
 
+def can_stabilise(settings):
+    """A take is loaded and its stable set is chosen (ticked markers, or automatic)."""
+    return settings.marker_collection is not None and (settings.auto_stable or sum(m.stable for m in settings.markers) >= 3)
+
+
 def retarget_settings(settings):
     """Frozen solver settings from the scene's PropertyGroup."""
     stable = tuple(m.name for m in settings.markers if m.stable)

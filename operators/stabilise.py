@@ -15,8 +15,9 @@ class FACECAP_OT_stabilise(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        s = context.scene.facecap
-        return s.marker_collection is not None and (s.auto_stable or sum(m.stable for m in s.markers) >= 3)
+        from ..facecap_addon.take import can_stabilise
+
+        return can_stabilise(context.scene.facecap)
 
     def execute(self, context):
         import numpy as np

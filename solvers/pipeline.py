@@ -292,12 +292,7 @@ def _retarget_geometric(markers, basis, settings):
     notes.extend(solved.warnings)
 
     measured = ~np.isnan(deltas[:, :, 0])
-    res = _predict(solved.weights, sub.deltas) - deltas
-    sq = np.where(measured, (res**2).sum(axis=2), 0.0)
-    vis = measured
-    with np.errstate(invalid="ignore", divide="ignore"):
-        residual_rms = np.sqrt(sq.sum(axis=1) / vis.sum(axis=1))
-        marker_residual = np.sqrt(sq.sum(axis=0) / vis.sum(axis=0))
+    residual_rms, marker_residual = _residuals(solved.weights, sub.deltas, deltas, measured)
     residual_rms[~solved.solved] = np.nan
     timings["total"] = time.perf_counter() - t0
     return RetargetResult(
@@ -527,3 +522,11 @@ def _predict(weights, deltas):
     """Marker displacements (F, M, D) of weights (F, K) on deltas (K, M, D); NaN weights count as 0."""
     K, M, D = deltas.shape
     return (np.nan_to_num(weights) @ deltas.reshape(K, M * D)).reshape(-1, M, D)
+
+
+def _residuals(weights, basis_deltas, deltas, measured):
+    """RMS residual per frame (F,) and per marker (M,) over the measured samples only."""
+    res = _predict(weights, basis_deltas) - deltas
+    sq = np.where(measured, (res**2).sum(axis=2), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(sq.sum(axis=1) / measured.sum(axis=1)), np.sqrt(sq.sum(axis=0) / measured.sum(axis=0))

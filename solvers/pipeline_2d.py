@@ -8,7 +8,7 @@ import numpy as np
 from .diagnostics import basis_warnings
 from .errors import FacecapError
 from .neutral import neutral_from_frames
-from .pipeline import RetargetResult, _predict, _reference_range
+from .pipeline import RetargetResult, _reference_range, _residuals
 from .shape_options import resolve_bounds, resolve_locks
 from .stabilise import stabilise_2d
 from .strategies.geometric import GeometricOptions, solve_geometric
@@ -60,11 +60,7 @@ def retarget_geometric_2d(markers, basis, settings):
     timings["solve"] = time.perf_counter() - t1
     notes.extend(solved.warnings)
     measured = ~np.isnan(deltas[:, :, 0])
-    res = _predict(solved.weights, sub.deltas) - deltas
-    sq = np.where(measured, (res**2).sum(axis=2), 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        residual_rms = np.sqrt(sq.sum(axis=1) / measured.sum(axis=1))
-        marker_residual = np.sqrt(sq.sum(axis=0) / measured.sum(axis=0))
+    residual_rms, marker_residual = _residuals(solved.weights, sub.deltas, deltas, measured)
     timings["total"] = time.perf_counter() - t0
     return RetargetResult(
         frames=markers.frames,

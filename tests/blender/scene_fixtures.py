@@ -1,5 +1,7 @@
 """Scenes built through bpy.data for the Blender tests (imported by name: conftest modules are not importable)."""
 
+from types import SimpleNamespace
+
 import bpy
 import numpy as np
 
@@ -24,3 +26,33 @@ def build_character(basis, name="Face"):
     for m, marker in enumerate(basis.marker_names):
         obj.vertex_groups.new(name=marker).add([m], 1.0, "REPLACE")
     return obj
+
+
+class LayoutStub:
+    """UILayout stand-in for panel draw tests: checks every property, operator and list a panel references."""
+
+    def __init__(self):
+        self.calls = []
+
+    def prop(self, data, name, **_kw):
+        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
+        self.calls.append(("prop", name))
+
+    def operator(self, idname, **_kw):
+        module, op = idname.split(".")
+        assert hasattr(getattr(bpy.ops, module), op), f"no operator {idname}"
+        self.calls.append(("operator", idname))
+        return SimpleNamespace()  # panels may set operator properties on it
+
+    def template_list(self, list_type, _list_id, data, prop, active_data, active_prop, **_kw):
+        assert hasattr(bpy.types, list_type)
+        assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
+        self.calls.append(("template_list", prop))
+
+    def label(self, **_kw):
+        self.calls.append(("label", _kw.get("text")))
+
+    def row(self, **_kw):
+        return self
+
+    column = box = row

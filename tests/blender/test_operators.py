@@ -7,7 +7,7 @@ import bpy
 import numpy as np
 import pytest
 
-from scene_fixtures import build_character
+from scene_fixtures import LayoutStub, build_character
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from synthetic_face import make_basis  # noqa: E402
@@ -123,33 +123,6 @@ def test_solve_without_character_is_greyed_out(take):
     assert not bpy.ops.facecap.solve.poll()
 
 
-class _Layout:
-    """A stand-in for UILayout that checks every property and operator the panels reference."""
-
-    def __init__(self):
-        self.calls = []
-
-    def prop(self, data, name, **_kw):
-        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
-        self.calls.append(("prop", name))
-
-    def operator(self, idname, **_kw):
-        module, op = idname.split(".")
-        assert hasattr(getattr(bpy.ops, module), op), f"no operator {idname}"
-        self.calls.append(("operator", idname))
-
-    def template_list(self, list_type, _list_id, data, prop, active_data, active_prop, **_kw):
-        assert hasattr(bpy.types, list_type)
-        assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
-        self.calls.append(("template_list", prop))
-
-    def label(self, **_kw):
-        self.calls.append(("label", _kw.get("text")))
-
-    def row(self, **_kw):
-        return self
-
-    column = box = row
 
 
 @pytest.mark.parametrize("panel", ["FACECAP_PT_take", "FACECAP_PT_stabilise", "FACECAP_PT_solve"])
@@ -157,7 +130,7 @@ def test_panels_draw(take, panel):
     _import(take)
     cls = getattr(bpy.types, panel)
     assert cls.bl_category == "FaceCap" and cls.bl_space_type == "VIEW_3D"
-    layout = _Layout()
+    layout = LayoutStub()
     stub = type("PanelStub", (), {"layout": layout})()
     cls.draw(stub, bpy.context)
     assert layout.calls
@@ -211,6 +184,6 @@ def test_lists_draw_their_items(take, ui_list, collection):
     bpy.ops.facecap.refresh_shapes()
     bpy.ops.facecap.region_add()
     item = getattr(s, collection)[0]
-    layout = _Layout()
+    layout = LayoutStub()
     getattr(bpy.types, ui_list).draw_item(None, bpy.context, layout, s, item, 0, s, "", 0)
     assert ("label", item.name) in layout.calls or ("prop", "name") in layout.calls

@@ -5,7 +5,8 @@ import bpy
 import numpy as np
 import pytest
 
-from test_operators import _Layout, _import, _solved_values, take  # noqa: F401  (fixture)
+from scene_fixtures import LayoutStub
+from test_operators import _import, _solved_values, take  # noqa: F401  (fixture)
 
 from facecap.facecap_addon import anim, take as take_mod
 from facecap.solvers.stabilise import stabilise_rigid
@@ -118,7 +119,7 @@ def test_stabilise_panel_draws_every_neutral_mode(take, mode):
     s.neutral_mode = mode
     s.unreliable_frames = 3
     s.stable_gap = 1.5
-    layout = _Layout()
+    layout = LayoutStub()
     stub = type("PanelStub", (), {"layout": layout})()
     bpy.types.FACECAP_PT_stabilise.draw(stub, bpy.context)
     assert ("operator", "facecap.suggest_stable") in layout.calls

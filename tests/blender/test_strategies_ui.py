@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 import pytest
 
-from scene_fixtures import build_character
+from scene_fixtures import LayoutStub, build_character
 
 from facecap.facecap_addon import anim, import_scene
 from facecap.solvers.basis import Basis
@@ -171,34 +171,6 @@ def test_examples_from_the_keyed_frames_of_an_action(scene, data, strategy):
     assert np.sqrt(np.mean((solved - data.truth) ** 2)) <= 0.2
 
 
-class _Layout:
-    """UILayout stand-in: checks every property, operator and list a panel references."""
-
-    def __init__(self):
-        self.calls = []
-
-    def prop(self, data, name, **_kw):
-        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
-        self.calls.append(("prop", name))
-
-    def operator(self, idname, **_kw):
-        module, op = idname.split(".")
-        assert hasattr(getattr(bpy.ops, module), op), f"no operator {idname}"
-        self.calls.append(("operator", idname))
-        return SimpleNamespace()
-
-    def template_list(self, list_type, _list_id, data, prop, active_data, active_prop, **_kw):
-        assert hasattr(bpy.types, list_type)
-        assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
-        self.calls.append(("template_list", prop))
-
-    def label(self, **_kw):
-        self.calls.append(("label", _kw.get("text")))
-
-    def row(self, **_kw):
-        return self
-
-    column = box = row
 
 
 def _draw(strategy, **extra):
@@ -206,7 +178,7 @@ def _draw(strategy, **extra):
     s.strategy = strategy
     for k, v in extra.items():
         setattr(s, k, v)
-    layout = _Layout()
+    layout = LayoutStub()
     bpy.types.FACECAP_PT_solve.draw(SimpleNamespace(layout=layout), bpy.context)
     return {name for _, name in layout.calls}
 
@@ -236,7 +208,7 @@ def test_new_lists_draw_their_items(scene, ui_list, collection, op):
     getattr(bpy.ops.facecap, op)()
     s = scene.s
     item = getattr(s, collection)[0]
-    layout = _Layout()
+    layout = LayoutStub()
     getattr(bpy.types, ui_list).draw_item(None, bpy.context, layout, s, item, 0, s, "", 0)
     assert len(layout.calls) >= 3
 
