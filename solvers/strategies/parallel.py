@@ -17,26 +17,14 @@ import numpy as np
 
 from ..aliases import canonical_names, mirror_name, name_key
 from ..errors import FacecapError
+from ..shape_controls import curve_function
 from .base import StrategyResult, as_target
 from .mapping import Mapping
 
-CURVES = ("linear", "smoothstep", "gamma:<g>")
-
 
 def _curve(spec):
-    if spec in (None, "linear"):
-        return None
-    if spec == "smoothstep":
-        return lambda x: (lambda s: s * s * (3.0 - 2.0 * s))(np.clip(x, 0.0, 1.0))
-    if isinstance(spec, str) and spec.startswith("gamma:"):
-        try:
-            g = float(spec[6:])
-        except ValueError:
-            g = -1.0
-        if not g > 0:
-            raise FacecapError(f"parallel: gamma curve needs a positive exponent ('gamma:0.8'); got {spec!r}")
-        return lambda x: np.sign(x) * np.abs(x) ** g
-    raise FacecapError(f"parallel: unknown curve {spec!r}; available: {', '.join(CURVES)}")
+    """The shared response curve (``shape_controls.curve_function``) with parallel's error prefix."""
+    return curve_function(spec, what="parallel")
 
 
 class ParallelStrategy:
