@@ -79,7 +79,7 @@ def ensure_animation_data(id_data):
 
 
 def new_action_with_curves(
-    id_data, *, name, curves, frames, values, group=None, interpolation="LINEAR"
+    id_data, *, name, curves, frames, values, group=None, interpolation="LINEAR", assign=True
 ):
     """Create a new action keyed from arrays and assign it (and its slot) to ``id_data``.
 
@@ -98,12 +98,15 @@ def new_action_with_curves(
         Value of curve ``c`` at ``frames[f]``; NaN means "no key at this frame for this curve".
         A curve whose column is all NaN gets no F-curve at all (an empty F-curve would only clutter
         the editors).
-    group : str or None, optional
-        F-curve group (channel group) for all curves. Default: no group.
+    group : str, sequence of str, or None, optional
+        F-curve group (channel group) for all curves, or one per curve. Default: no group.
     interpolation : str, optional
         Keyframe interpolation, one of ``bpy.types.Keyframe.interpolation``'s identifiers. Default
         ``"LINEAR"``: dense solved data is reproduced exactly between frames and gaps left by NaN
         are bridged by straight lines (no Bezier overshoot). Handles stay ``AUTO_CLAMPED``.
+    assign : bool, optional
+        Assign the new action to ``id_data`` (default). False leaves ``id_data``'s animation data
+        alone (the caller places the action, e.g. in an NLA strip; see ``layers``).
 
     Returns
     -------
@@ -146,12 +149,15 @@ def new_action_with_curves(
         action.id_root = id_data.id_type
 
     interp = _INTERPOLATION_ITEMS[interpolation]
+    groups = [group] * len(curves) if group is None or isinstance(group, str) else list(group)
+    if len(groups) != len(curves):
+        raise FacecapError(f"`group` must be one name or one per curve ({len(curves)}); got {len(groups)}")
     for column, (data_path, index) in enumerate(curves):
         keep = ~np.isnan(values[:, column])
         count = int(np.count_nonzero(keep))
         if count == 0:
             continue
-        fcurve = _new_fcurve(action, channelbag, data_path, index, group)
+        fcurve = _new_fcurve(action, channelbag, data_path, index, groups[column])
         co = np.empty((count, 2), dtype=np.float32)
         co[:, 0] = frames[keep]
         co[:, 1] = values[keep, column]
@@ -161,7 +167,8 @@ def new_action_with_curves(
         points.foreach_set("interpolation", np.full(count, interp, dtype=np.int32))
         fcurve.update()
 
-    _assign(id_data, action, slot)
+    if assign:
+        _assign(id_data, action, slot)
     return action
 
 
@@ -200,14 +207,16 @@ def action_fcurves(action, id_data=None):
     return result
 
 
-def read_curves(id_data, curves):
-    """Read back the keys of ``curves`` on ``id_data``'s assigned action, in bulk.
+def read_curves(id_data, curves, action=None):
+    """Read back the keys of ``curves`` on ``id_data``'s assigned action (or ``action``), in bulk.
 
     Parameters
     ----------
     id_data : bpy.types.ID
     curves : sequence of (str, int)
         ``(data_path, array_index)`` per curve, as for :func:`new_action_with_curves`.
+    action : bpy.types.Action or None, optional
+        Read this action (e.g. an NLA strip's) instead of the one assigned to ``id_data``.
 
     Returns
     -------
@@ -218,8 +227,9 @@ def read_curves(id_data, curves):
         and for a whole column when the curve does not exist. With no action assigned, F = 0.
     """
     curves = _check_curves(curves)
-    anim = id_data.animation_data
-    action = None if anim is None else anim.action
+    if action is None:
+        anim = id_data.animation_data
+        action = None if anim is None else anim.action
     by_path = {(fc.data_path, fc.array_index): fc for fc in action_fcurves(action, id_data)}
     keys = []
     for path_index in curves:

@@ -19,7 +19,7 @@ from ..solvers.strategies.options import (
     StrategyInputs,
 )
 from ..solvers.transforms import matrix_to_euler_xyz
-from . import anim
+from . import anim, layers
 
 LOCATION = [("location", 0), ("location", 1), ("location", 2)]
 
@@ -264,23 +264,38 @@ def source_channel_names(settings):
 
 
 DIAGNOSTIC_CURVES = ("facecap_residual_mm", "facecap_at_bound")
+MARKER_ERROR_PREFIX = "facecap_error_mm_"
 
 
-def key_weights(obj, result, action_name):
-    """Key the solved weights on ``obj``'s shape keys in a new action; returns the action.
+def key_weights(obj, result, action_name, *, take_name=""):
+    """Key the solved weights on ``obj``'s shape keys as the *solve layer*; returns the new action.
 
-    The same action carries the per-frame diagnostics as custom-property curves on the shape-key
-    datablock (``facecap_residual_mm``, ``facecap_at_bound``), visible in the Graph Editor.
+    The action goes into the ``FaceCap Solve`` NLA strip (``layers``); the animator's own active
+    action is never touched, so manual keys survive re-solves. The same action carries the
+    per-frame diagnostics as custom-property curves on the shape-key datablock
+    (``facecap_residual_mm``, ``facecap_at_bound``) and, when the result has them, the per-marker
+    error (``facecap_error_mm_<marker>``, group "FaceCap Marker Error"), visible in the Graph Editor.
     """
     key = obj.data.shape_keys
     if key is None:
         raise FacecapError(f"object '{obj.name}' has no shape keys")
-    for prop in DIAGNOSTIC_CURVES:
+    curves = [(layers.shape_path(n), 0) for n in result.shape_names]
+    groups = ["FaceCap Weights"] * len(curves)
+    columns = [result.weights, result.residual_rms * 1e3, np.asarray(result.at_bound, dtype=np.float64)]
+    props = list(DIAGNOSTIC_CURVES)
+    groups += ["FaceCap Diagnostics"] * len(DIAGNOSTIC_CURVES)
+    per_marker = getattr(result, "frame_marker_residual", None)
+    if per_marker is not None and per_marker.shape == (result.frames.size, len(result.marker_names)):
+        props += [MARKER_ERROR_PREFIX + n for n in result.marker_names]
+        groups += ["FaceCap Marker Error"] * len(result.marker_names)
+        columns.append(per_marker * 1e3)
+    for prop in props:
         key[prop] = 0.0
-    curves = [(f'key_blocks["{n}"].value', 0) for n in result.shape_names]
-    curves += [(f'["{p}"]', 0) for p in DIAGNOSTIC_CURVES]
-    values = np.column_stack([result.weights, result.residual_rms * 1e3, np.asarray(result.at_bound, dtype=np.float64)])
-    action = anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values)
+    curves += [(f'["{p}"]', 0) for p in props]
+    values = np.column_stack(columns)
+    action = anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values,
+                                         group=groups, assign=False)
+    layers.place_solved_action(key, action, take_name or action_name)
     if getattr(result, "head_target", "") and result.stabilise is not None:
         scale = getattr(result.alignment, "scale", 1.0) if result.alignment is not None else 1.0
         key_head_on_target(result.head_target, result.stabilise, f"{action_name} Head", scale=scale)

@@ -12,7 +12,7 @@ from scene_fixtures import LayoutStub, build_character
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from synthetic_face import make_basis  # noqa: E402
 
-from facecap.facecap_addon import anim  # noqa: E402
+from facecap.facecap_addon import anim, layers  # noqa: E402
 from facecap.solvers.io_csv import write_markers_csv  # noqa: E402
 from facecap.solvers.synth import synthesize_take  # noqa: E402
 
@@ -37,7 +37,8 @@ def _import(take):
 
 
 def _solved_values(obj, names):
-    _, values = anim.read_curves(obj.data.shape_keys, [(f'key_blocks["{n}"].value', 0) for n in names])
+    key = obj.data.shape_keys
+    _, values = anim.read_curves(key, [(f'key_blocks["{n}"].value', 0) for n in names], action=layers.solved_action(key))
     return values
 
 
@@ -92,7 +93,7 @@ def test_stabilise_needs_three_stable_markers(take):
     assert not bpy.ops.facecap.stabilise.poll()
 
 
-def test_solve_keys_new_action_and_keeps_the_previous(take):
+def test_solve_keys_a_new_solve_layer_and_keeps_the_previous(take):
     _import(take)
     s = bpy.context.scene.facecap
     s.target = take["obj"]
@@ -100,8 +101,9 @@ def test_solve_keys_new_action_and_keeps_the_previous(take):
     s.regularisation = s.sparsity = s.symmetry = s.head_smoothing = s.smoothing_second = 0.0  # exact data, no priors
     assert bpy.ops.facecap.solve() == {"FINISHED"}
     key = take["obj"].data.shape_keys
-    first = key.animation_data.action
+    first = layers.solved_action(key)
     assert first.name == "take01"
+    assert key.animation_data.action is None, "the animator's layer stays theirs (empty here)"
     names = take["basis"].shape_names
     solved = _solved_values(take["obj"], names)
     assert solved.shape == (N_FRAMES, len(names))
@@ -110,8 +112,9 @@ def test_solve_keys_new_action_and_keeps_the_previous(take):
     before = [fc.keyframe_points[10].co[1] for fc in anim.action_fcurves(first, key)]
     s.regularisation = 0.05
     assert bpy.ops.facecap.solve() == {"FINISHED"}
-    second = key.animation_data.action
+    second = layers.solved_action(key)
     assert second != first and second.name == "take01.001"
+    assert first.use_fake_user and len(layers.solve_track(key).strips) == 1
     assert first.name in bpy.data.actions
     after = [fc.keyframe_points[10].co[1] for fc in anim.action_fcurves(first, key)]
     assert before == after, "the first take's keys must be untouched"
@@ -168,7 +171,8 @@ def test_diagnostic_curves_are_keyed_with_the_weights(take):
     bpy.ops.facecap.set_neutral(first=1, last=50)
     bpy.ops.facecap.solve()
     key = take["obj"].data.shape_keys
-    frames, values = anim.read_curves(key, [('["facecap_residual_mm"]', 0), ('["facecap_at_bound"]', 0)])
+    frames, values = anim.read_curves(key, [('["facecap_residual_mm"]', 0), ('["facecap_at_bound"]', 0)],
+                                      action=layers.solved_action(key))
     assert frames.size == N_FRAMES
     assert np.all(values[:, 0] >= 0) and values[:, 0].max() > 0  # residual in mm, priors leave some
     assert np.all(values[:, 1] == np.round(values[:, 1]))

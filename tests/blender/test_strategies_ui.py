@@ -11,7 +11,7 @@ import pytest
 
 from scene_fixtures import LayoutStub, build_character
 
-from facecap.facecap_addon import anim, import_scene
+from facecap.facecap_addon import anim, import_scene, layers
 from facecap.solvers.basis import Basis
 from facecap.solvers.compare import SAMPLE_BASIS, STABLE, _phone_weights, actor_take, calibration_weights, make_actor
 from facecap.solvers.io_csv import write_markers_csv
@@ -56,7 +56,8 @@ def scene(empty_scene, data):
 
 
 def _solved(obj, names):
-    _, values = anim.read_curves(obj.data.shape_keys, [(f'key_blocks["{n}"].value', 0) for n in names])
+    key = obj.data.shape_keys
+    _, values = anim.read_curves(key, [(f'key_blocks["{n}"].value', 0) for n in names], action=layers.solved_action(key))
     return values
 
 
@@ -166,7 +167,8 @@ def test_examples_from_the_keyed_frames_of_an_action(scene, data, strategy):
     posed = anim.new_action_with_curves(key, name="posed", curves=curves, frames=frames, values=values)
     s.examples_action = posed
     assert bpy.ops.facecap.solve() == {"FINISHED"}
-    assert key.animation_data.action != posed and posed.name in bpy.data.actions
+    assert layers.solved_action(key) != posed and posed.name in bpy.data.actions
+    assert key.animation_data.action == posed, "the user's own active action is never replaced"
     solved = _solved(scene.obj, data.character.shape_names)
     assert np.sqrt(np.mean((solved - data.truth) ** 2)) <= 0.2
 

@@ -99,7 +99,8 @@ def test_output_blend_holds_the_new_action(tmp_path):
     assert run("-m", "facecap", "retarget", "--config", str(config)).returncode == 0
     code = (
         "import bpy, sys; bpy.ops.wm.open_mainfile(filepath=sys.argv[1]);"
-        "k = bpy.data.objects['Face'].data.shape_keys; print(k.animation_data.action.name)"
+        "k = bpy.data.objects['Face'].data.shape_keys;"
+        "print(next(t for t in k.animation_data.nla_tracks if t.name == 'FaceCap Solve').strips[0].action.name)"
     )
     proc = run("-c", code, str(values["out_blend"]))
     assert proc.returncode == 0, proc.stderr
