@@ -155,7 +155,7 @@ def edit_key_frames(key, names):
         co = np.empty(2 * len(fc.keyframe_points), dtype=np.float32)
         fc.keyframe_points.foreach_get("co", co)
         keyed.append(co[0::2])
-    return np.unique(np.round(np.concatenate(keyed))) if keyed else np.zeros(0)
+    return np.unique(np.round(np.concatenate(keyed))).astype(np.float64) if keyed else np.zeros(0)
 
 
 def edited_frames(key, names, *, tolerance=1e-4):
