@@ -37,3 +37,49 @@ def clip_seeds(clip, frame):
         names.append(track.name)
         points.append((marker.co[0] * width, (1.0 - marker.co[1]) * height))
     return names, np.array(points, dtype=np.float64).reshape(-1, 2)
+
+
+class ClipTracking:
+    """Tracking of a movie clip that advances in steps; nothing in the scene changes until the caller
+    writes :attr:`result` (so a cancelled run leaves the scene as it was).
+
+    Seeds are the clip's enabled track markers at ``frame`` or, when it has none there, up to
+    ``max_points`` automatic features in ``region`` = (x, y, w, h) pixels.
+    """
+
+    def __init__(self, scene, clip, frame, *, region=(0, 0, 0, 0), max_points=100):
+        from ..solvers.video import Footage
+        from ..solvers.video.tracking import track_points_job
+
+        source, offset = clip_footage(clip)
+        names, points = clip_seeds(clip, frame)
+        if names:
+            seeds = dict(points=points, names=names)
+        elif region[2] * region[3] > 0:
+            seeds = dict(region=tuple(region), max_points=max_points)
+        else:
+            raise FacecapError(f"movie clip '{clip.name}' has no enabled track markers at frame {frame}; "
+                               "add markers or give a Region")
+        fps = clip.fps or scene.render.fps / scene.render.fps_base
+        self.clip_name = clip.name
+        self.job = track_points_job(Footage(source, frame_offset=offset, fps=fps), reference=frame, **seeds)
+
+    @property
+    def result(self):
+        """The TrackResult once finished, else None."""
+        return self.job.result
+
+    def step(self, max_frames=1, *, seconds=None):
+        """Track up to ``max_frames`` more frames (or for ``seconds``); True when finished."""
+        return self.job.step(max_frames, seconds=seconds)
+
+    def run(self, progress=None):
+        return self.job.run(progress)
+
+    def cancel(self):
+        self.job.cancel()
+
+    def status(self):
+        """``"Tracking 'clip': frame N (k/T)"`` for the status bar."""
+        frame = "" if self.job.frame is None else f"frame {self.job.frame} "
+        return f"Tracking '{self.clip_name}': {frame}({self.job.done}/{self.job.total}) - Esc to cancel"

@@ -218,61 +218,6 @@ class FACECAP_OT_import_clip_tracks(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class FACECAP_OT_track_clip(bpy.types.Operator):
-    """Track the scene's movie clip with Lucas-Kanade from its own track markers at the current frame
-    (or features in a region) and add the 2D tracks as a take; progress shows in the status bar"""
-
-    bl_idname = "facecap.track_clip"
-    bl_label = "Track Clip Footage"
-    bl_options = {"REGISTER", "UNDO"}
-
-    region: bpy.props.IntVectorProperty(
-        name="Region", size=4, default=(0, 0, 0, 0), min=0,
-        description="x, y, width, height in pixels for automatic features when the clip has no track markers at this frame",
-    )
-    max_points: bpy.props.IntProperty(name="Max Points", default=100, min=1)
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene.active_clip is not None
-
-    def execute(self, context):
-        from ..facecap_addon import import_scene
-        from ..facecap_addon.video_scene import clip_footage, clip_seeds
-        from ..solvers.video import Footage, track_points
-
-        scene, clip = context.scene, context.scene.active_clip
-        wm = context.window_manager
-        frame = scene.frame_current
-        try:
-            source, offset = clip_footage(clip)
-            names, points = clip_seeds(clip, frame)
-            seeds = dict(points=points, names=names) if names else dict(region=tuple(self.region), max_points=self.max_points)
-            if not names and self.region[2] * self.region[3] == 0:
-                raise FacecapError(f"movie clip '{clip.name}' has no enabled track markers at frame {frame}; "
-                                   "add markers or give a Region")
-            footage = Footage(source, frame_offset=offset, fps=clip.fps or scene.render.fps / scene.render.fps_base)
-            wm.progress_begin(0, 100)
-
-            def progress(done, total):
-                wm.progress_update(int(100 * done / max(total, 1)))
-                return True
-
-            try:
-                result = track_points(footage, reference=frame, progress=progress, **seeds)
-            finally:
-                wm.progress_end()
-        except FacecapError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        markers = result.markers
-        coll = import_scene.create_take(scene, markers, f"{clip.name} tracks", set_scene_range=False)
-        _remember_take(scene, markers, Path(f"{clip.name} tracks"), coll)
-        self.report({"INFO"}, f"Tracked {markers.n_markers} points over {markers.n_frames} frames into '{coll.name}'; "
-                              + result.summary().splitlines()[0])
-        return {"FINISHED"}
-
-
 class FACECAP_OT_clean_markers(bpy.types.Operator):
     """Clean the take's markers into a new take collection (the original stays untouched); reports every change"""
 
@@ -365,7 +310,6 @@ CLASSES = (
     FACECAP_OT_import_markers,
     FACECAP_OT_use_selected_empties,
     FACECAP_OT_import_clip_tracks,
-    FACECAP_OT_track_clip,
     FACECAP_OT_clean_markers,
 ) + IMPORTERS + (
     FACECAP_FH_c3d,

@@ -30,7 +30,9 @@ Config (paths relative to the config file)::
 """
 
 import argparse
+import signal
 import sys
+import threading
 import time
 import tomllib
 from pathlib import Path
@@ -110,53 +112,83 @@ def load_track_config(path):
     }
 
 
-def _progress_printer(stream, label):
-    state = {"last": 0.0, "start": time.monotonic()}
+class _Progress:
+    """``label: done/total frames (rate)`` on one self-overwriting stderr line, at most twice a second."""
 
-    def progress(done, total):
+    def __init__(self, stream, label):
+        self.stream, self.label = stream, label
+        self.last, self.start = 0.0, time.monotonic()
+        self.open_line = False  # a "\r"-ended line is showing
+
+    def __call__(self, done, total):
         now = time.monotonic()
-        if done == total or now - state["last"] >= 0.5:
-            state["last"] = now
-            rate = done / max(now - state["start"], 1e-9)
+        if done == total or now - self.last >= 0.5:
+            self.last = now
+            rate = done / max(now - self.start, 1e-9)
             end = "\n" if done == total else "\r"
-            print(f"{label}: {done}/{total} frames ({rate:.0f} frames/s)", end=end, file=stream, flush=True)
+            print(f"{self.label}: {done}/{total} frames ({rate:.0f} frames/s)", end=end, file=self.stream, flush=True)
+            self.open_line = done != total
         return True
 
-    return progress
+    def close_line(self):
+        if self.open_line:
+            print(file=self.stream, flush=True)
+            self.open_line = False
 
 
-def run_track(settings, *, progress=None):
-    """Track as described by ``load_track_config`` output; writes the outputs, returns the TrackResult."""
-    from .flow import track_with_flow
+def tracking_job(settings):
+    """The :class:`~.reading.Job` described by ``load_track_config`` output (seeds read and checked)."""
+    from .flow import track_with_flow_job
     from .reading import Footage
-    from .tracking import track_points
+    from .tracking import track_points_job
 
     footage = Footage(settings["video"], **settings["footage"])
-    common = dict(points=settings["points"], region=settings["region"], reference=settings["reference"],
-                  progress=progress)
+    common = dict(points=settings["points"], region=settings["region"], reference=settings["reference"])
     try:
         if settings["method"] == "lk":
-            result = track_points(footage, **common, **settings["options"])
-        else:
-            result = track_with_flow(footage, method=settings["method"], **common, **settings["options"])
+            return track_points_job(footage, **common, **settings["options"])
+        return track_with_flow_job(footage, method=settings["method"], **common, **settings["options"])
     except TypeError as exc:  # a wrongly typed option value
         raise FacecapError(f"bad [tracking] option: {exc}") from None
+
+
+def write_outputs(settings, result, info):
+    """Write the markers CSV (and the confidence CSV and JSON report when asked), each atomically."""
     write_markers_csv(settings["markers"], result.markers)
     if settings["confidence"]:
         write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, result.confidence)
     if settings["report"]:
-        info = footage.info
         write_json_atomic(settings["report"], {
             "summary": result.summary(), "method": result.method, "reference": result.reference,
             "footage": {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
                         "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames},
             "markers": list(result.markers.names), "lost": result.lost, "reseeded": result.reseeded,
         })
+
+
+def run_track(settings, *, progress=None):
+    """Track as described by ``load_track_config`` output; writes the outputs, returns the TrackResult.
+
+    ``progress(done, total)`` returning False cancels with :class:`~.reading.Cancelled` before
+    anything is written.
+    """
+    job = tracking_job(settings)
+    try:
+        result = job.run(progress)
+    except TypeError as exc:
+        raise FacecapError(f"bad [tracking] option: {exc}") from None
+    write_outputs(settings, result, job.info)
     return result
 
 
 def main(argv=None):
-    """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 interrupted)."""
+    """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 cancelled).
+
+    Ctrl-C (SIGINT) stops tracking between two frames: one line ``cancelled at frame N``, exit
+    status 130, no output written. A second Ctrl-C interrupts at once.
+    """
+    from .reading import Cancelled
+
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["track"]:
         argv = argv[1:]
@@ -164,16 +196,43 @@ def main(argv=None):
     parser.add_argument("--config", required=True, help="take config (.toml) with [source], [tracking], [output]")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
+    stop = threading.Event()
+    restore = None
+    if threading.current_thread() is threading.main_thread():
+        def on_sigint(signum, frame):
+            stop.set()
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts at once
+
+        restore = signal.signal(signal.SIGINT, on_sigint)
+    shown = None
     try:
         settings = load_track_config(args.config)
-        progress = None if args.quiet else _progress_printer(sys.stderr, f"track ({settings['method']})")
+        shown = None if args.quiet else _Progress(sys.stderr, f"track ({settings['method']})")
+
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
         result = run_track(settings, progress=progress)
+    except Cancelled as exc:
+        if shown is not None:
+            shown.close_line()
+        print(f"facecap: {exc}; nothing written", file=sys.stderr)
+        return 130
     except FacecapError as exc:
+        if shown is not None:
+            shown.close_line()
         print(f"facecap: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        if shown is not None:
+            shown.close_line()
         print("facecap: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if restore is not None:
+            signal.signal(signal.SIGINT, restore)
     print(f"{result.summary()}; wrote {settings['markers']}", file=sys.stderr)
     return 0
 

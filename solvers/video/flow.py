@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..markers import MarkerSet
-from .reading import Footage, _cv2, report_progress
+from .reading import Footage, Job, _cv2
 
 METHODS = ("dis", "farneback", "tvl1")
 
@@ -216,28 +216,33 @@ class DenseFlowResult:
     fps: float
 
 
-def _iterate_from_reference(footage, ref_frame, ref_img, flow_options, progress, visit):
-    """Run a ReferenceFlow forward then backward from the reference, calling visit(frame, F, err)."""
-    info = footage.info
-    total, done = info.n_frames, 0
-
-    def run(sequence):
-        nonlocal done
-        rf = ReferenceFlow(ref_img, **flow_options)
-        for f, img in sequence:
+def _reference_steps(footage, ref_frame, ref_img, flow_options, visit):
+    """Generator: a ReferenceFlow forward then backward from the reference, calling visit(frame, F, err)."""
+    before = []
+    rf = ReferenceFlow(ref_img, **flow_options)
+    reader = iter(footage)
+    try:
+        for f, img in reader:
+            if f < ref_frame:  # read once, run in reverse after the forward pass
+                before.append((f, img))
+                yield None
+                continue
             if f == ref_frame:
                 rf.reset()
-                F = rf.field
-            else:
-                F = rf.step(img)
-            visit(f, F, rf.error)
-            done += 1
-            report_progress(progress, done, total)
+            visit(f, rf.field if f == ref_frame else rf.step(img), rf.error)
+            yield f
+    finally:
+        reader.close()
+    rf = ReferenceFlow(ref_img, **flow_options)
+    while before:
+        f, img = before.pop()
+        visit(f, rf.step(img), rf.error)
+        yield f
 
-    run(item for item in footage if item[0] >= ref_frame)
-    before = [item for item in footage if item[0] < ref_frame]
-    if before:
-        run(reversed(before))
+
+def _check_flow_options(method, options):
+    """Bad method / preset / option names fail when the job is made, not at its first step."""
+    FlowEstimator(method, **{k: v for k, v in options.items() if k != "error_sigma"})
 
 
 def _open(footage, reference):
@@ -252,8 +257,15 @@ def dense_flow(footage, *, method="dis", reference=None, region=None, grid_step=
     """Dense flow of every frame relative to the neutral ``reference`` frame.
 
     ``region`` [x, y, w, h] (source pixels) crops what is kept; ``grid_step`` subsamples it (the flow is
-    always computed on the whole frame). See :class:`ReferenceFlow` for ``drift``.
+    always computed on the whole frame). See :class:`ReferenceFlow` for ``drift``. ``progress(done,
+    total)`` returning False cancels (:class:`~.reading.Cancelled`).
     """
+    return dense_flow_job(footage, method=method, reference=reference, region=region, grid_step=grid_step,
+                          drift=drift, **options).run(progress)
+
+
+def dense_flow_job(footage, *, method="dis", reference=None, region=None, grid_step=1, drift="fuse", **options):
+    """:func:`dense_flow` as a :class:`~.reading.Job` (a frame per step)."""
     footage, ref_frame, ref_img = _open(footage, reference)
     info = footage.info
     H, W = ref_img.shape
@@ -271,14 +283,17 @@ def dense_flow(footage, *, method="dis", reference=None, region=None, grid_step=
     ys, xs = np.arange(y0, y1, step), np.arange(x0, x1, step)
     row = {f: i for i, f in enumerate(info.frames)}
     flows = np.zeros((info.n_frames, len(ys), len(xs), 2), np.float32)
+    _check_flow_options(method, options)
 
     def visit(f, F, err):
         flows[row[f]] = F[y0:y1:step, x0:x1:step]
 
-    _iterate_from_reference(footage, ref_frame, ref_img, dict(method=method, drift=drift, **options), progress,
-                            visit)
-    pts = np.stack(np.meshgrid(xs, ys), axis=-1).astype(np.float32)
-    return DenseFlowResult(np.asarray(info.frames, float), flows, pts, ref_frame, method, info.scale, info.fps)
+    def steps():
+        yield from _reference_steps(footage, ref_frame, ref_img, dict(method=method, drift=drift, **options), visit)
+        pts = np.stack(np.meshgrid(xs, ys), axis=-1).astype(np.float32)
+        return DenseFlowResult(np.asarray(info.frames, float), flows, pts, ref_frame, method, info.scale, info.fps)
+
+    return Job(steps(), info.n_frames, info=info)
 
 
 def track_with_flow(footage, *, points=None, names=None, region=None, reference=None, method="dis",
@@ -288,28 +303,40 @@ def track_with_flow(footage, *, points=None, names=None, region=None, reference=
     Confidence per sample is ``max(0, 1 - E / error_scale)``, E the blurred reconstruction error
     (grey levels) of the fused flow at the point. Returns a :class:`~.tracking.TrackResult`.
     """
+    return track_with_flow_job(footage, points=points, names=names, region=region, reference=reference,
+                               method=method, max_points=max_points, drift=drift, error_scale=error_scale,
+                               **options).run(progress)
+
+
+def track_with_flow_job(footage, *, points=None, names=None, region=None, reference=None, method="dis",
+                        max_points=100, drift="fuse", error_scale=25.0, **options):
+    """:func:`track_with_flow` as a :class:`~.reading.Job` (a frame per step)."""
     from .tracking import TrackResult, _seeds, _to_source
 
     footage, ref_frame, ref_img = _open(footage, reference)
     info = footage.info
     names, work_pts = _seeds(info, ref_img, points=points, names=names, region=region, max_points=max_points)
+    _check_flow_options(method, options)
     row = {f: i for i, f in enumerate(info.frames)}
     F_, M = info.n_frames, len(names)
     pos = np.full((F_, M, 2), np.nan)
     conf = np.zeros((F_, M))
     H, W = ref_img.shape
     pts32 = np.asarray(work_pts, np.float32)
+    cv2 = _cv2()
 
     def visit(f, F, err):
         p = work_pts + sample_flow(F, pts32)
-        e = _cv2().remap(err, pts32[None, :, 0], pts32[None, :, 1], _cv2().INTER_LINEAR).ravel()
+        e = cv2.remap(err, pts32[None, :, 0], pts32[None, :, 1], cv2.INTER_LINEAR).ravel()
         inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
         p[~inside] = np.nan
         pos[row[f]] = p
         conf[row[f]] = np.where(inside, np.clip(1 - e / error_scale, 0, 1), 0)
 
-    _iterate_from_reference(footage, ref_frame, ref_img, dict(method=method, drift=drift, **options), progress,
-                            visit)
-    markers = MarkerSet(names, np.asarray(info.frames, float), _to_source(pos, info.scale), fps=info.fps,
-                        units="px", source=info.path)
-    return TrackResult(markers, conf, ref_frame, method)
+    def steps():
+        yield from _reference_steps(footage, ref_frame, ref_img, dict(method=method, drift=drift, **options), visit)
+        markers = MarkerSet(names, np.asarray(info.frames, float), _to_source(pos, info.scale), fps=info.fps,
+                            units="px", source=info.path)
+        return TrackResult(markers, conf, ref_frame, method)
+
+    return Job(steps(), F_, info=info)

@@ -64,6 +64,79 @@ def report_progress(progress, done, total, what="frames"):
         raise Cancelled(f"cancelled after {done} of {total} {what}")
 
 
+class Job:
+    """Long work that advances a frame at a time and can stop between frames.
+
+    ``steps`` is a generator that yields the frame number after each processed frame (``None``
+    for a frame only read, e.g. cached for the backward pass) and returns the result. Blender's
+    modal operators call :meth:`step` from a timer; :meth:`run` goes to the end with a progress
+    callback (the CLI, ``bpy.ops`` in background mode). Nothing is written by a job: callers
+    write the result, so a cancelled job leaves no partial output.
+    """
+
+    def __init__(self, steps, total, *, info=None, what="frames"):
+        self._steps = steps
+        self.info = info  # FootageInfo of what is read
+        self.total = int(total)
+        self.what = what
+        self.done = 0  # frames processed
+        self.frame = None  # last frame number processed
+        self.result = None
+        self.cancelled = False
+
+    @property
+    def finished(self):
+        return self.result is not None
+
+    @property
+    def fraction(self):
+        return self.done / max(self.total, 1)
+
+    def step(self, max_frames=1, *, seconds=None):
+        """Process up to ``max_frames`` frames (or until ``seconds`` have passed); True when finished."""
+        if self.cancelled:
+            raise Cancelled(f"cancelled at frame {self.frame}")
+        if self.result is not None:
+            return True
+        import time
+
+        end = None if seconds is None else time.perf_counter() + float(seconds)
+        count = 0
+        while count < max_frames or (end is not None and time.perf_counter() < end):
+            try:
+                frame = next(self._steps)
+            except StopIteration as stop:
+                self.result = stop.value
+                return True
+            if frame is not None:
+                self.done += 1
+                self.frame = frame
+                count += 1
+        return False
+
+    def cancel(self):
+        """Stop: close the generator (and with it the footage reader). Safe to call twice."""
+        if self.result is None and not self.cancelled:
+            self.cancelled = True
+            self._steps.close()
+
+    def message(self):
+        """``"cancelled at frame N (k of T frames)"``."""
+        return f"cancelled at frame {self.frame} ({self.done} of {self.total} {self.what} done)"
+
+    def run(self, progress=None):
+        """Run to the end; ``progress(done, total)`` returning False cancels with :class:`Cancelled`."""
+        try:
+            while not self.step():
+                if progress is not None and progress(self.done, self.total) is False:
+                    self.cancel()
+                    raise Cancelled(self.message())
+        except BaseException:
+            self.cancel()
+            raise
+        return self.result
+
+
 class Footage:
     """Frames of a video file or an image sequence, read lazily.
 

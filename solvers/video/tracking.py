@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import FacecapError, InputFileError
 from ..markers import MarkerSet
-from .reading import Footage, _cv2, report_progress
+from .reading import Footage, Job, _cv2
 
 
 @dataclass(frozen=True, eq=False)
@@ -294,12 +294,27 @@ def track_points(footage, *, points=None, names=None, region=None, reference=Non
     -------
     TrackResult
     """
+    return track_points_job(footage, points=points, names=names, region=region, reference=reference,
+                            max_points=max_points, win_size=win_size, levels=levels, fb_threshold=fb_threshold,
+                            reregister=reregister, reseed=reseed).run(progress)
+
+
+def track_points_job(footage, *, points=None, names=None, region=None, reference=None, max_points=100,
+                     win_size=21, levels=3, fb_threshold=1.0, reregister=True, reseed=True):
+    """:func:`track_points` as a :class:`~.reading.Job` that advances a frame per step (seeds checked here)."""
     if not isinstance(footage, Footage):
         footage = Footage(footage)
     info = footage.info
     ref_frame = info.frames[0] if reference is None else int(reference)
     ref_img = footage.frame(ref_frame)
     names, work_pts = _seeds(info, ref_img, points=points, names=names, region=region, max_points=max_points)
+    options = dict(win_size=win_size, levels=levels, fb_threshold=fb_threshold, reregister=reregister, reseed=reseed)
+    return Job(_track_steps(footage, ref_frame, ref_img, names, work_pts, options), info.n_frames, info=info)
+
+
+def _track_steps(footage, ref_frame, ref_img, names, work_pts, options):
+    """Generator: forward from the reference, then backward over the frames before it (cached on the way)."""
+    info = footage.info
     frames = np.asarray(info.frames, dtype=np.float64)
     F, M = len(frames), len(names)
     pos = np.full((F, M, 2), np.nan)
@@ -307,36 +322,40 @@ def track_points(footage, *, points=None, names=None, region=None, reference=Non
     lost = {n: [] for n in names}
     found = {n: [] for n in names}
     row = {f: i for i, f in enumerate(info.frames)}
-    done = 0
 
-    def run(sequence):
-        nonlocal done
-        tracker = LKTracker(ref_img, work_pts, win_size=win_size, levels=levels, fb_threshold=fb_threshold,
-                            reregister=reregister, reseed=reseed)
-        held = np.ones(M, bool)
-        for f, img in sequence:
-            if f == ref_frame:
-                p, c, back = work_pts.astype(float), np.ones(M), np.zeros(M, bool)
-                tracker.pos, tracker.ok, tracker.prev_pyr = work_pts.astype(np.float32), np.ones(M, bool), tracker.ref_pyr
-            else:
-                p, c, back = tracker.step(img)
-            i = row[f]
-            pos[i], conf[i] = p, c
-            ok = np.isfinite(p[:, 0])
-            for j in np.flatnonzero(held & ~ok):
-                lost[names[j]].append(int(f))
-            for j in np.flatnonzero(back):
-                found[names[j]].append(int(f))
-            held = ok
-            done += 1
-            report_progress(progress, done, F)
+    def track(f, img, tracker, held):
+        if f == ref_frame:
+            p, c, back = work_pts.astype(float), np.ones(M), np.zeros(M, bool)
+            tracker.pos, tracker.ok, tracker.prev_pyr = work_pts.astype(np.float32), np.ones(M, bool), tracker.ref_pyr
+        else:
+            p, c, back = tracker.step(img)
+        i = row[f]
+        pos[i], conf[i] = p, c
+        ok = np.isfinite(p[:, 0])
+        for j in np.flatnonzero(held & ~ok):
+            lost[names[j]].append(int(f))
+        for j in np.flatnonzero(back):
+            found[names[j]].append(int(f))
+        return ok
 
-    forward = (item for item in footage if item[0] >= ref_frame)
-    run(forward)
-    before = [f for f in info.frames if f < ref_frame]
-    if before:
-        cached = [item for item in footage if item[0] < ref_frame]  # read once, track in reverse
-        run(reversed(cached))
+    before = []
+    tracker, held = LKTracker(ref_img, work_pts, **options), np.ones(M, bool)
+    reader = iter(footage)
+    try:
+        for f, img in reader:
+            if f < ref_frame:  # read once, tracked in reverse after the forward pass
+                before.append((f, img))
+                yield None
+                continue
+            held = track(f, img, tracker, held)
+            yield f
+    finally:
+        reader.close()
+    tracker, held = LKTracker(ref_img, work_pts, **options), np.ones(M, bool)
+    while before:
+        f, img = before.pop()
+        held = track(f, img, tracker, held)
+        yield f
     out = _to_source(pos, info.scale)
     markers = MarkerSet(names, frames, out, fps=info.fps, units="px", source=info.path)
     return TrackResult(markers, conf, ref_frame, "lk", {k: v for k, v in lost.items() if v},

@@ -40,3 +40,41 @@ def test_clip_without_markers_needs_a_region(clip):
     with pytest.raises(RuntimeError, match="no enabled track markers at frame 1"):
         bpy.ops.facecap.track_clip()
     assert bpy.ops.facecap.track_clip(region=(80, 60, 160, 120), max_points=20) == {"FINISHED"}
+
+
+def test_cancelling_after_a_chunk_leaves_the_scene_untouched(clip):
+    """The modal operator's steps, driven directly: track a chunk, cancel, nothing written."""
+    from facecap.facecap_addon.video_scene import ClipTracking
+    from facecap.solvers.video import Cancelled
+
+    clip, _ = clip
+    scene = bpy.context.scene
+    before = (set(bpy.data.collections.keys()), set(bpy.data.objects.keys()), set(bpy.data.actions.keys()),
+              scene.facecap.take_name, len(scene.facecap.markers), scene.frame_start, scene.frame_end)
+    session = ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20)
+    assert session.step(5) is False
+    assert session.job.done == 5 and session.job.frame == 5 and session.result is None
+    assert "frame 5 (5/24)" in session.status()
+    session.cancel()
+    session.cancel()  # Esc twice is harmless
+    with pytest.raises(Cancelled, match="cancelled at frame 5"):
+        session.step()
+    after = (set(bpy.data.collections.keys()), set(bpy.data.objects.keys()), set(bpy.data.actions.keys()),
+             scene.facecap.take_name, len(scene.facecap.markers), scene.frame_start, scene.frame_end)
+    assert after == before
+
+
+def test_stepping_to_the_end_gives_the_same_tracks_as_one_run(clip):
+    from facecap.facecap_addon.video_scene import ClipTracking
+
+    clip, _ = clip
+    scene = bpy.context.scene
+    stepped = ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20)
+    ticks = 0
+    while not stepped.step(4):
+        ticks += 1
+    whole = ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20).run()
+    assert ticks == 6 and stepped.job.done == 24
+    np.testing.assert_array_equal(stepped.result.markers.positions, whole.markers.positions)
+    # Background mode: INVOKE falls back to running to completion.
+    assert bpy.ops.facecap.track_clip("INVOKE_DEFAULT", region=(80, 60, 160, 120), max_points=20) == {"FINISHED"}

@@ -83,3 +83,46 @@ def test_unreadable_video_and_missing_config(tmp_path, capsys):
     assert "cannot decode as video" in capsys.readouterr().err
     assert main(["--config", str(tmp_path / "nope.toml")]) == 1
     assert "config file not found" in capsys.readouterr().err
+
+
+def test_progress_false_cancels_before_anything_is_written(take, capsys):
+    from facecap.solvers.video.cli import load_track_config, run_track
+    from facecap.solvers.video.reading import Cancelled
+
+    d, _ = take
+    cfg = write_config(d, 'points = "points2d.csv"').read_text().replace("out/", "stopped/")
+    (d / "stopped.toml").write_text(cfg)
+    settings = load_track_config(d / "stopped.toml")
+    with pytest.raises(Cancelled, match=r"cancelled at frame 4 \(5 of 24 frames done\)"):
+        run_track(settings, progress=lambda done, total: done < 5)
+    assert not (d / "stopped").exists()
+
+
+def test_ctrl_c_stops_cleanly_with_one_line_and_no_output(take):
+    """SIGINT during `python -m facecap track`: 'cancelled at frame N', exit 130, no markers file."""
+    import os
+    import signal
+    import time
+
+    d, _ = take
+    # TV-L1 takes ~0.5 s a frame here, so the signal lands mid-take.
+    cfg = write_config(d, 'points = "points2d.csv"\nmethod = "tvl1"').read_text().replace("out/", "interrupted/")
+    (d / "interrupted.toml").write_text(cfg)
+    proc = subprocess.Popen([sys.executable, "-m", "facecap", "track", "--config", str(d / "interrupted.toml")],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=d)
+    seen, deadline = b"", time.monotonic() + 60
+    while b"track (tvl1): " not in seen and time.monotonic() < deadline:
+        chunk = os.read(proc.stderr.fileno(), 4096)
+        if not chunk:
+            break
+        seen += chunk
+    assert b"track (tvl1): 1/24 frames" in seen, seen
+    proc.send_signal(signal.SIGINT)
+    rest = proc.communicate(timeout=60)[1]
+    lines = (seen + rest).decode().splitlines()
+    assert proc.returncode == 130
+    assert len([line for line in lines if "cancelled" in line]) == 1
+    assert pytest.importorskip("re").fullmatch(r"facecap: cancelled at frame \d+ \(\d+ of 24 frames done\); "
+                                               r"nothing written", lines[-1]), lines
+    assert "Traceback" not in "\n".join(lines)
+    assert not (d / "interrupted").exists()
