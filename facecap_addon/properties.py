@@ -78,6 +78,46 @@ class FACECAP_PG_shape(bpy.types.PropertyGroup):
     lower: FloatProperty(name="Min", default=0.0, description="Lower bound of the solved weight")
     upper: FloatProperty(name="Max", default=1.0, description="Upper bound of the solved weight")
     region: StringProperty(name="Region", description="Region solving this shape (empty: the whole face)")
+    # everyday controls, applied to the solved weights before they are keyed (solvers/shape_controls.py)
+    gain: FloatProperty(name="Gain", default=1.0, description="Solved weight times this")
+    offset: FloatProperty(name="Offset", default=0.0, description="Added after the gain")
+    use_clamp: BoolProperty(name="Clamp", default=False, description="Clamp the keyed weight to [Clamp Min, Clamp Max]")
+    clamp_min: FloatProperty(name="Clamp Min", default=0.0)
+    clamp_max: FloatProperty(name="Clamp Max", default=1.0)
+    curve: EnumProperty(
+        name="Curve", default="linear",
+        items=[("linear", "Linear", "Unchanged"),
+               ("smoothstep", "Smoothstep", "Eases in and out (3x^2 - 2x^3 on [0, 1])"),
+               ("gamma", "Gamma", "sign(x)|x|^g: g < 1 boosts small values, g > 1 suppresses them")],
+    )
+    gamma: FloatProperty(name="Gamma", default=1.0, min=0.05, max=20.0, description="Exponent of the gamma curve")
+    smoothing: FloatProperty(name="Smoothing", default=0.0, min=0.0, unit="TIME_ABSOLUTE",
+                             description="Extra zero-phase smoothing of this shape (half-window, seconds)")
+    mute: BoolProperty(name="Mute", default=False, description="Key this shape at 0")
+
+
+class FACECAP_PG_tuning_frame(bpy.types.PropertyGroup):
+    """A frame the animator corrected; its final (solve + animator layer) weights teach the retune."""
+
+    frame: IntProperty(name="Frame")
+    change: FloatProperty(name="Change", default=0.0,
+                          description="RMS of the animator's change over the shapes at this frame (when added)")
+    error: FloatProperty(name="Error", default=-1.0,
+                         description="RMS of solve minus correction after the last retune (-1: not retuned yet)")
+
+
+class FACECAP_PG_library_version(bpy.types.PropertyGroup):
+    """A stored library version (its arrays are kept in the scene's ``facecap_libraries`` property)."""
+
+    parent: StringProperty(name="Parent", description="Version this one was tuned from (empty: the original)")
+    strategy: StringProperty(name="Strategy")
+    kind: StringProperty(name="Kind", description="actor_basis, character_basis or examples")
+    created: StringProperty(name="Created")
+    corrected_before: FloatProperty(name="Before", default=-1.0, description="RMS error on the corrected frames before")
+    corrected_after: FloatProperty(name="After", default=-1.0, description="RMS error on the corrected frames after")
+    others_moved: FloatProperty(name="Others Moved", default=-1.0,
+                                description="Relative RMS change of the weights on every other frame")
+    note: StringProperty(name="Note")
 
 
 class FACECAP_PG_region(bpy.types.PropertyGroup):
@@ -270,11 +310,24 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
                                  description="Character head object (or armature) keyed with the head motion")
     head_bone: StringProperty(name="Bone", description="Bone of the head target armature (empty: the object)")
     last_action: StringProperty(name="Last Action", description="Action created by the last solve")
+    # -- tuning: the animator feedback loop (issue 7) --------------------------------------------
+    tuning_frames: CollectionProperty(type=FACECAP_PG_tuning_frame)
+    tuning_index: IntProperty(name="Tuning Frame", default=0)
+    tune_auto_mu: BoolProperty(name="Automatic Prior", default=True,
+                               description="Choose the prior strength by leave-one-frame-out over the corrections")
+    tune_mu: FloatProperty(name="Prior (mu)", default=3.0, min=1e-3,
+                           description="Pull of the library towards the current one, in frames at full weight")
+    library_versions: CollectionProperty(type=FACECAP_PG_library_version)
+    library_index: IntProperty(name="Library Version", default=0)
+    library_active: StringProperty(name="Active Library",
+                                   description="Library version the solve uses (empty: the original)")
+    worst_spread: IntProperty(name="Spread", default=5, min=0,
+                              description="Jump to Worst skips frames this close to a worse one")
     last_report: StringProperty(name="Last Result", description="Summary of the last solve")
 
 
 CLASSES = (FACECAP_PG_marker, FACECAP_PG_shape, FACECAP_PG_region, FACECAP_PG_pose, FACECAP_PG_mapping,
-           FACECAP_PG_settings)
+           FACECAP_PG_tuning_frame, FACECAP_PG_library_version, FACECAP_PG_settings)
 
 
 def register_properties():

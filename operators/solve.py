@@ -1,4 +1,4 @@
-"""Solve the take onto the character and key the weights in a new action."""
+"""Solve the take onto the character and key the weights as a new solve layer."""
 
 import bpy
 
@@ -6,7 +6,7 @@ from ..solvers.errors import FacecapError
 
 
 class FACECAP_OT_solve(bpy.types.Operator):
-    """Solve shape-key weights for every frame and key them in a new action named after the take"""
+    """Solve shape-key weights for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept)"""
 
     bl_idname = "facecap.solve"
     bl_label = "Solve and Key"
@@ -20,38 +20,28 @@ class FACECAP_OT_solve(bpy.types.Operator):
     def execute(self, context):
         import numpy as np
 
-        from ..facecap_addon import anim, take
-        from ..facecap_addon.scene_data import basis_from_object
-        from ..solvers.pipeline import retarget
+        from ..facecap_addon import tuning_scene
 
         settings = context.scene.facecap
-        strategy = settings.strategy
         try:
-            markers = None if strategy == "parallel" else take.markers_from_collection(settings)
-            if strategy == "geometric":
-                character = basis_from_object(settings.target, markers.names)
-            else:
-                character = take.character_target(settings.target)
-            inputs = take.strategy_inputs(settings)
-            result = retarget(markers, character, take.retarget_settings(settings), inputs=inputs)
-            action = take.key_weights(settings.target, result, anim.unique_action_name(settings.take_name or "FaceCap"))
+            result = tuning_scene.solve_take(settings, context.scene)
+            action = tuning_scene.key_solve(settings, result)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        settings.last_action = action.name
         ok = np.isfinite(result.residual_rms)
-        source = f"{len(result.marker_names)} markers" if markers is not None else f"{len(result.source_names)} channels"
+        source = f"{len(result.marker_names)} markers" if result.stabilise is not None else f"{len(result.source_names)} channels"
         residual = f", RMS residual {float(np.mean(result.residual_rms[ok]) * 1e3):.2f} mm" if ok.any() else ""
+        library = f", library '{settings.library_active}'" if settings.library_active else ""
         summary = (
             f"Solved {len(result.shape_names)} shapes over {result.frames.size} frames from "
-            f"{source} ({strategy}){residual}, action '{action.name}'"
+            f"{source} ({settings.strategy}{library}){residual}, action '{action.name}'"
         )
         settings.last_report = summary
         for note in result.warnings:
             self.report({"WARNING"}, note)
         self.report({"INFO"}, summary)
         return {"FINISHED"}
-
 
 
 class FACECAP_OT_refresh_shapes(bpy.types.Operator):

@@ -1,0 +1,203 @@
+"""The scene side of solving and tuning: one path from the sidebar to a keyed solve layer.
+
+``solve_take`` is what *Solve and Key* and *Retune* share: the take and the character read from
+the scene, the active library version applied, the per-shape controls applied to the weights.
+Library versions live in the .blend: a row per version in ``settings.library_versions`` and the
+arrays (``LibraryVersion.to_arrays``) as one compressed ``.npz`` in a scene ID property (base64),
+so a version round-trips bit-exactly and nothing is ever overwritten.
+"""
+
+import base64
+import glob
+import io
+from dataclasses import replace
+
+import numpy as np
+
+from ..solvers.errors import FacecapError
+from ..solvers.shape_controls import ShapeControl, apply_controls
+from . import anim, layers, take
+
+#: scene ID property holding {version name: base64 npz}
+LIBRARY_PROP = "facecap_libraries"
+
+
+def shape_names(obj):
+    key = getattr(obj.data, "shape_keys", None)
+    if key is None:
+        raise FacecapError(f"object '{obj.name}' has no shape keys")
+    return [b.name for b in key.key_blocks if b != key.reference_key]
+
+
+# -- per-shape controls ----------------------------------------------------------------------------
+def shape_controls(settings):
+    """{escaped shape name: ShapeControl} for the shapes whose sidebar controls change anything."""
+    out = {}
+    for s in settings.shapes:
+        control = ShapeControl(
+            gain=s.gain, offset=s.offset, clamp=(s.clamp_min, s.clamp_max) if s.use_clamp else None,
+            curve=f"gamma:{s.gamma:g}" if s.curve == "gamma" else s.curve, smoothing=s.smoothing, mute=s.mute,
+        )
+        if control != ShapeControl():
+            out[glob.escape(s.name)] = control
+    return out
+
+
+def set_controls(settings, controls):
+    """Write {shape or glob: ShapeControl} into the shape list (shapes not listed are left alone)."""
+    from ..solvers.shape_controls import resolve_controls
+
+    names = [s.name for s in settings.shapes]
+    for item, c in zip(settings.shapes, resolve_controls(names, controls)):
+        if c is None:
+            continue
+        item.gain, item.offset, item.smoothing, item.mute = c.gain, c.offset, c.smoothing, c.mute
+        item.use_clamp = c.clamp is not None
+        if c.clamp is not None:
+            item.clamp_min, item.clamp_max = c.clamp
+        if c.curve.startswith("gamma:"):
+            item.curve, item.gamma = "gamma", float(c.curve[6:])
+        else:
+            item.curve = c.curve
+        if c.lock is not None:
+            item.lock, item.lock_value = True, c.lock
+
+
+# -- library versions in the .blend -------------------------------------------------------------------
+def store_version(scene, version):
+    """Keep ``version`` in the .blend (a new row; an existing name is never replaced)."""
+    settings = scene.facecap
+    if version.name in settings.library_versions:
+        return settings.library_versions[version.name]
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **version.to_arrays())
+    store = scene.get(LIBRARY_PROP)
+    if store is None:
+        scene[LIBRARY_PROP] = {}
+        store = scene[LIBRARY_PROP]
+    store[version.name] = base64.b64encode(buf.getvalue()).decode("ascii")
+    row = settings.library_versions.add()
+    row.name, row.parent, row.strategy, row.kind = version.name, version.parent, version.strategy, version.kind
+    row.created = version.created
+    summary = version.summary or {}
+    for field in ("corrected_before", "corrected_after", "others_moved"):
+        value = summary.get(field, summary.get(field.replace("corrected_", "corrected_rmse_")))
+        if value is not None:
+            setattr(row, field, float(value))
+    row.note = "; ".join(summary.get("notes", ()))[:500]
+    return row
+
+
+def load_version(scene, name):
+    """The LibraryVersion ``name`` stored in the .blend."""
+    from ..solvers.tuning_take import LibraryVersion
+
+    store = scene.get(LIBRARY_PROP)
+    if store is None or name not in store:
+        raise FacecapError(f"library version '{name}' is not stored in this .blend")
+    with np.load(io.BytesIO(base64.b64decode(store[name])), allow_pickle=False) as data:
+        return LibraryVersion.from_arrays({k: data[k] for k in data.files})
+
+
+# -- solving ----------------------------------------------------------------------------------------
+def solve_inputs(settings, scene):
+    """(markers, character, RetargetSettings, StrategyInputs) for the sidebar's take and strategy,
+    with the active library version applied."""
+    from .scene_data import basis_from_object
+
+    strategy = settings.strategy
+    markers = None if strategy == "parallel" else take.markers_from_collection(settings)
+    if strategy == "geometric":
+        character = basis_from_object(settings.target, markers.names)
+    else:
+        character = take.character_target(settings.target)
+    inputs = take.strategy_inputs(settings)
+    rsettings = take.retarget_settings(settings)
+    if settings.library_active:
+        from ..solvers.tuning_take import apply_version
+
+        version = load_version(scene, settings.library_active)
+        character, inputs, rsettings = apply_version(version, character, inputs, rsettings)
+    return markers, character, rsettings, inputs
+
+
+def with_controls(settings, result):
+    """``result`` with the sidebar's per-shape controls applied to its weights."""
+    controls = shape_controls(settings)
+    if not controls:
+        return result
+    return replace(result, weights=apply_controls(result.weights, result.shape_names, controls, settings.fps))
+
+
+def solve_take(settings, scene):
+    """Solve the sidebar's take (controls applied); returns RetargetResult."""
+    from ..solvers.pipeline import retarget
+
+    markers, character, rsettings, inputs = solve_inputs(settings, scene)
+    return with_controls(settings, retarget(markers, character, rsettings, inputs=inputs))
+
+
+def key_solve(settings, result):
+    """Key ``result`` as the target's new solve layer; returns the action."""
+    name = settings.take_name or "FaceCap"
+    action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
+    settings.last_action = action.name
+    return action
+
+
+# -- corrections ------------------------------------------------------------------------------------
+def corrections(settings):
+    """{frame: {shape: final weight}} at the tuning frames: what the animator says is right."""
+    key = settings.target.data.shape_keys
+    names = shape_names(settings.target)
+    frames = np.array(sorted({t.frame for t in settings.tuning_frames}), dtype=np.float64)
+    if not frames.size:
+        raise FacecapError("no tuning frames: add the frames you corrected first")
+    _, final = layers.layer_values(key, names, frames)
+    return {float(f): dict(zip(names, map(float, row))) for f, row in zip(frames, final)}
+
+
+def frame_change(settings, frames):
+    """RMS over the shapes of (final - solve) at ``frames``: how much the animator changed each."""
+    key = settings.target.data.shape_keys
+    solve, final = layers.layer_values(key, shape_names(settings.target), np.asarray(frames, dtype=np.float64))
+    return np.sqrt(np.mean((final - solve) ** 2, axis=1))
+
+
+TUNE_MARKER = "tune"
+
+
+def sync_markers(scene):
+    """Timeline markers named ``tune`` at the tuning frames (seen in the Dope Sheet and Graph Editor)."""
+    for m in [m for m in scene.timeline_markers if m.name == TUNE_MARKER]:
+        scene.timeline_markers.remove(m)
+    for frame in sorted({t.frame for t in scene.facecap.tuning_frames}):
+        scene.timeline_markers.new(TUNE_MARKER, frame=frame)
+
+
+def residual_curve(key):
+    """(frames, residual mm) from the solve layer's ``facecap_residual_mm`` curve."""
+    action = layers.solved_action(key)
+    if action is None:
+        raise FacecapError("solve the take first")
+    frames, values = anim.read_curves(key, [(f'["{take.DIAGNOSTIC_CURVES[0]}"]', 0)], action=action)
+    ok = np.isfinite(values[:, 0])
+    return frames[ok], values[ok, 0]
+
+
+def next_worst_frame(frames, residual, current, *, spread=5):
+    """The next frame after ``current`` in the order worst-first, among residual peaks.
+
+    Peaks: frames whose residual is the largest within +/- ``spread`` frames (neighbours of a bad
+    frame are usually bad for the same reason). From a frame that is not a peak, the worst peak.
+    """
+    order = np.argsort(-residual, kind="stable")
+    peaks = []
+    for i in order:
+        if all(abs(frames[i] - frames[j]) > spread for j in peaks):
+            peaks.append(i)
+    peak_frames = [float(frames[i]) for i in peaks]
+    if float(current) in peak_frames:
+        rank = peak_frames.index(float(current))
+        return peak_frames[(rank + 1) % len(peak_frames)]
+    return peak_frames[0]
