@@ -83,3 +83,43 @@ class ClipTracking:
         """``"Tracking 'clip': frame N (k/T)"`` for the status bar."""
         frame = "" if self.job.frame is None else f"frame {self.job.frame} "
         return f"Tracking '{self.clip_name}': {frame}({self.job.done}/{self.job.total}) - Esc to cancel"
+
+
+def camera_from_scene(scene, name=None, *, object_matrix=None, resolution=None):
+    """``solvers.camera.Camera`` of the scene camera (or the camera object ``name``).
+
+    ``object_matrix`` (a character's ``matrix_world``) makes the camera see that object's local
+    coordinates, where its bound points and shape deltas live. ``resolution`` (width, height) gives
+    pixels of footage whose size differs from the render resolution (same aspect expected).
+    """
+    from ..solvers.camera import Camera
+
+    if name:
+        obj = bpy.data.objects.get(name)
+        if obj is None or obj.type != "CAMERA":
+            raise FacecapError(f"'{name}' is not a camera object in this .blend")
+    else:
+        obj = scene.camera
+        if obj is None:
+            raise FacecapError(f"scene '{scene.name}' has no camera; set one or name it ([solve] camera)")
+    cam, render = obj.data, scene.render
+    pct = render.resolution_percentage / 100.0
+    size = (int(render.resolution_x * pct), int(render.resolution_y * pct))
+    if cam.type not in ("PERSP", "ORTHO"):
+        raise FacecapError(f"camera '{obj.name}': {cam.type} cameras are not supported (perspective or orthographic)")
+    model = Camera.from_blender(
+        lens=cam.lens, sensor_width=cam.sensor_width, sensor_height=cam.sensor_height, sensor_fit=cam.sensor_fit,
+        resolution=size, shift=(cam.shift_x, cam.shift_y), matrix_world=np.array(obj.matrix_world),
+        pixel_aspect=(render.pixel_aspect_x, render.pixel_aspect_y), orthographic=cam.type == "ORTHO",
+        ortho_scale=cam.ortho_scale,
+    )
+    if resolution is not None:
+        w, h = (int(v) for v in resolution)
+        if abs(w / h - size[0] / size[1]) > 1e-3:
+            raise FacecapError(f"camera '{obj.name}': footage {w}x{h} and render {size[0]}x{size[1]} differ in aspect")
+        s = w / size[0]
+        model = Camera(model.fx * s, model.fy * s, model.cx * s, model.cy * s, w, h, model.world_to_camera,
+                       model.orthographic)
+    if object_matrix is not None:
+        model = model.relative_to(np.array(object_matrix))
+    return model

@@ -85,6 +85,14 @@ class Basis:
             self.upper,
         )
 
+    def camera_view(self, camera, *, linearise="tangent"):
+        """The basis seen through a ``solvers.camera.Camera`` (perspective), in pixels (x right, y down).
+
+        Deltas are the projection linearised at the neutral, or with ``linearise="secant"`` each shape
+        projected exactly at weight 1 (see ``Camera.project_basis`` for why the tangent is the default).
+        """
+        return camera.project_basis(self, linearise=linearise)
+
     def matrix(self):
         """The solve matrix A, shape (M * D, K): column k is shape k's flattened deltas."""
         return self.deltas.reshape(self.n_shapes, -1).T

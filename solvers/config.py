@@ -71,6 +71,8 @@ SCHEMA = {
         "bounds": (dict, False),
         "locks": (dict, False),
         "regions": (dict, False),
+        "projection": (str, False),  # 2D takes: "front" (orthographic) or "camera" (the scene camera)
+        "camera": (str, False),  # 2D takes: camera object name for projection = "camera" (default: scene camera)
     },
     "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False),
                "actor_basis": (str, False),
@@ -145,6 +147,8 @@ class TakeConfig:
     examples_markers_path: Path | None = None  # [examples] markers (the take they belong to; default this one)
     training_path: Path | None = None  # [refine] training (default: the take itself)
     output_actor_basis: Path | None = None  # [output] actor_basis: the actor library used (refine: refined)
+    projection: str = "front"  # [solve] projection for 2D takes: "front" or "camera"
+    camera_name: str | None = None  # [solve] camera: camera object (None: the scene camera)
 
 
 def load_take_config(path):
@@ -205,6 +209,7 @@ def load_take_config(path):
     if len(smoothing) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 for v in smoothing):
         raise ConfigError(f"expected [first_difference, second_difference] weights >= 0; got {smoothing}", path=path, key="solve.smoothing")
     shape_options = _shape_options(path, data.get("solve", {}))
+    projection, camera_name = _projection(path, data.get("solve", {}))
     if not get("binding", "vertex_groups", True):
         raise ConfigError("only vertex-group binding is available (set vertex_groups = true)", path=path, key="binding.vertex_groups")
     markers_path = resolve(get("source", "markers"))
@@ -250,7 +255,22 @@ def load_take_config(path):
         examples_markers_path=resolve(get("examples", "markers")),
         training_path=resolve(get("refine", "training")),
         output_actor_basis=resolve(get("output", "actor_basis")),
+        projection=projection,
+        camera_name=camera_name,
     )
+
+
+def _projection(path, solve):
+    """[solve] projection / camera: how a 2D take sees the character (video takes)."""
+    projection = solve.get("projection", "front")
+    if projection not in ("front", "camera"):
+        raise ConfigError(f"expected \"front\" or \"camera\"; got '{projection}'", path=path, key="solve.projection")
+    camera = solve.get("camera")
+    if camera is not None and projection != "camera":
+        raise ConfigError("a camera is only used with projection = \"camera\"", path=path, key="solve.camera")
+    if camera is not None and not camera.strip():
+        raise ConfigError("expected a camera object name", path=path, key="solve.camera")
+    return projection, camera
 
 
 def _frame_pair(value):

@@ -1,10 +1,12 @@
-"""The geometric solve for 2D image tracks (video takes), against the character seen from the front."""
+"""The geometric solve for 2D image tracks (video takes), against the character seen from the front
+(orthographic) or through the scene camera (perspective, ``solvers.camera``)."""
 
 import time
 import warnings
 
 import numpy as np
 
+from .basis import Basis
 from .diagnostics import basis_warnings
 from .errors import FacecapError
 from .neutral import neutral_from_frames
@@ -15,12 +17,18 @@ from .strategies.geometric import GeometricOptions, solve_geometric
 from .transforms import fit_similarity_2d
 
 
-def retarget_geometric_2d(markers, basis, settings):
-    """Geometric solve from 2D image tracks against the character seen from the front (orthographic).
+def retarget_geometric_2d(markers, basis, settings, *, projection=None):
+    """Geometric solve from 2D image tracks against the character's projected bound points.
 
     Stabilised by a per-frame similarity on the stable points (in-plane head motion and distance to
     the camera; out-of-plane head turns are not removed), aligned to the projected bound points by a
     2D similarity on the neutral, solved with the same engine and priors as 3D takes.
+
+    ``projection`` (default ``settings.projection`` when the settings carry one): ``None`` or
+    ``"front"`` - the orthographic front view; a ``solvers.camera.Camera`` seeing the basis'
+    coordinates (``Camera.relative_to`` the character's world matrix) - each shape projected
+    through it at weight 1. Camera pixels are scaled by the units a pixel spans at the face so
+    residuals read in the character's units, as with the front view.
     """
     notes = []
     t0 = time.perf_counter()
@@ -40,7 +48,8 @@ def retarget_geometric_2d(markers, basis, settings):
     first, last = reference if reference else (markers.frames[0], markers.frames[-1])
     used_idx = markers.index(used)
     neutral = neutral_from_frames(stab.markers, first, last)[used_idx]
-    sub = basis.subset_markers(used).front_view()
+    sub, view = _projected(basis.subset_markers(used), getattr(settings, "projection", None)
+                           if projection is None else projection)
     align = fit_similarity_2d(neutral, sub.neutral)
     align_res = np.linalg.norm(align.apply(neutral) - sub.neutral, axis=1)
     deltas = align.apply_vectors(stab.markers.positions[:, used_idx] - neutral[None])
@@ -73,6 +82,22 @@ def retarget_geometric_2d(markers, basis, settings):
         stabilise=stab,
         alignment=align,
         alignment_residual=align_res,
-        warnings=tuple(notes) + ("2D take: solved against the character's front view (depth motion is not observed)",),
+        warnings=tuple(notes) + (view,),
         timings={k: round(v, 6) for k, v in timings.items()},
     )
+
+
+def _projected(basis, projection):
+    """(2D basis, note) for ``projection``: None / "front" or a Camera."""
+    from .camera import Camera
+
+    if projection is None or projection == "front":
+        return basis.front_view(), "2D take: solved against the character's front view (depth motion is not observed)"
+    if not isinstance(projection, Camera):
+        raise FacecapError(f"2D takes: projection must be 'front' or a camera; got {projection!r} "
+                           "(projection = \"camera\" needs the scene camera read from the .blend)")
+    seen = basis.camera_view(projection)
+    unit = projection.units_per_pixel(basis.neutral)
+    scaled = Basis(seen.shape_names, seen.marker_names, seen.neutral * unit, seen.deltas * unit, seen.lower, seen.upper)
+    return scaled, (f"2D take: solved against the character seen through the camera "
+                    f"({unit * 1e3:.3f} mm per pixel at the face; depth motion along the view is not observed)")
