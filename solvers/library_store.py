@@ -1,0 +1,203 @@
+"""Library versions on disk and the animator's corrections CSV (issue 7).
+
+Versions (``tuning_take.LibraryVersion``) are stored as .npz files of plain arrays (no pickles).
+A write is atomic (a temporary file beside the target, linked into place) and never replaces an
+existing file: when the name is taken, ``-2``, ``-3``... is appended, so every retune leaves every
+earlier version (and the original) on disk.
+
+Corrections are ``frame,<shape>,<shape>,...`` rows; a blank cell means the animator did not set
+that shape on that frame. Shape columns match the character's shapes by name, case, separators
+and alias (``solvers.aliases``), so ``JawOpen`` or ``jaw_open`` find ``jawOpen``.
+"""
+
+import csv
+import os
+import re
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .aliases import canonical_names, name_key
+from .errors import FacecapError, InputFileError
+
+SUFFIX = ".npz"
+
+
+def _safe(name):
+    """A file name for a version name (``+`` and letters kept, anything else -> ``_``)."""
+    return re.sub(r"[^A-Za-z0-9+._-]", "_", name).strip(".") or "version"
+
+
+def _write_new(path, write):
+    """Write through ``write(tmp_path)`` and link the result to ``path`` or the first free
+    ``<stem>-N<suffix>``; never replaces a file. Returns the path written."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        for n in range(1, 10000):
+            target = path if n == 1 else path.with_name(f"{path.stem}-{n}{path.suffix}")
+            try:
+                os.link(tmp, target)  # fails if the target exists: no overwrite, even under a race
+                return target
+            except FileExistsError:
+                continue
+            except OSError:  # a file system without hard links: exclusive create, then replace
+                try:
+                    os.close(os.open(target, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+                except FileExistsError:
+                    continue
+                os.replace(tmp, target)
+                return target
+        raise FacecapError(f"{path}: no free file name (tried 9,999 suffixes)")
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def save_version(version, destination):
+    """Store ``version`` as an .npz; returns the path written.
+
+    destination : a folder (the file is ``<version name>.npz`` in it) or an ``.npz`` path. An
+        existing file is never replaced: a ``-2``, ``-3``... suffix is added instead.
+    """
+    destination = Path(destination)
+    path = destination if destination.suffix == SUFFIX else destination / (_safe(version.name) + SUFFIX)
+    arrays = version.to_arrays()
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+    return _write_new(path, write)
+
+
+def load_version(path):
+    """The LibraryVersion stored in an .npz by ``save_version``; errors name the file."""
+    from .tuning_take import LibraryVersion
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "library version file not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputFileError(path, f"not a library version (.npz): {exc}") from None
+    try:
+        return LibraryVersion.from_arrays(arrays)
+    except FacecapError as exc:
+        raise InputFileError(path, str(exc)) from None
+
+
+def list_versions(folder):
+    """``[(path, LibraryVersion), ...]`` of the versions in ``folder``, oldest first (by creation
+    time, then name); .npz files that are not versions are skipped."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputFileError(folder, "library folder not found")
+    out = []
+    for path in sorted(folder.glob("*" + SUFFIX)):
+        try:
+            out.append((path, load_version(path)))
+        except InputFileError:
+            continue
+    return sorted(out, key=lambda pv: (pv[1].created, pv[1].name))
+
+
+def _shape_lookup(shape_names):
+    lookup = {}
+    for n in shape_names:
+        lookup.setdefault(name_key(n), n)
+        canon = canonical_names(n)
+        if len(canon) == 1:
+            lookup.setdefault(name_key(canon[0]), n)
+    return lookup
+
+
+def _match_shape(header, lookup):
+    hit = lookup.get(name_key(header))
+    if hit is None:
+        canon = canonical_names(header)
+        hit = lookup.get(name_key(canon[0])) if len(canon) == 1 else None
+    return hit
+
+
+def read_corrections_csv(path, shape_names=None):
+    """Read an animator's corrections: ``frame,<shape>,...`` rows, blank = not corrected.
+
+    Parameters
+    ----------
+    path : CSV file (comma separated, header first)
+    shape_names : the character's shapes; header names are matched to them (alias and case
+        insensitive) and the result uses the character's spelling. None keeps the header names.
+
+    Returns
+    -------
+    {frame number (float): {shape: value}} for the rows that set at least one shape
+
+    Raises
+    ------
+    InputFileError naming the file, line and column of the first problem.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputFileError(path, "corrections file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read: {exc}") from None
+    rows = [(i + 1, row) for i, row in enumerate(csv.reader(text.splitlines())) if any(c.strip() for c in row)]
+    if not rows:
+        raise InputFileError(path, "empty file; expected a header 'frame,<shape>,...'")
+    line, header = rows[0]
+    header = [h.strip() for h in header]
+    if header[0].lower() != "frame":
+        raise InputFileError(path, f"the first column must be 'frame'; got {header[0]!r}", line=line, field="column 1")
+    lookup = None if shape_names is None else _shape_lookup(shape_names)
+    shapes, seen = [], {}
+    for col, h in enumerate(header[1:], start=2):
+        shape = h if lookup is None else _match_shape(h, lookup)
+        if not h or shape is None:
+            raise InputFileError(path, f"shape {h!r} is not on the character" if h else "empty shape name",
+                                 line=line, field=f"column {col}")
+        if shape in seen:
+            raise InputFileError(path, f"{h!r} names the same shape as column {seen[shape]} ({shape})", line=line,
+                                 field=f"column {col}")
+        seen[shape] = col
+        shapes.append(shape)
+    out = {}
+    for line, row in rows[1:]:
+        if len(row) != len(header):
+            raise InputFileError(path, f"{len(row)} cells; the header has {len(header)}", line=line)
+        frame = _cell(path, line, 1, row[0], "frame number")
+        if frame is None:
+            raise InputFileError(path, "missing frame number", line=line, field="column 1")
+        if frame in out:
+            raise InputFileError(path, f"frame {frame:g} appears twice", line=line, field="column 1")
+        values = {}
+        for col, (shape, cell) in enumerate(zip(shapes, row[1:]), start=2):
+            value = _cell(path, line, col, cell, f"value of {shape}")
+            if value is not None:
+                values[shape] = value
+        if values:
+            out[frame] = values
+    if not out:
+        raise InputFileError(path, "no corrected value in any row")
+    return out
+
+
+def _cell(path, line, col, text, what):
+    text = text.strip()
+    if not text:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputFileError(path, f"{what} must be a number; got {text!r}", line=line, field=f"column {col}") from None
+    if not np.isfinite(value):
+        raise InputFileError(path, f"{what} must be finite; got {text!r}", line=line, field=f"column {col}")
+    return value
