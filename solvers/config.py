@@ -13,6 +13,8 @@ ranges ``[[1, 30], [571, 600]]`` (start and end T-poses), or ``file = "neutral.c
 ``landmarks`` (glob patterns; default eye and mouth corners); ``[align] regions = true`` (upper /
 lower face) or ``{name = [patterns]}`` with separate scales, ``flag_mm`` the residual that flags a
 binding; ``[output] head = "Object"`` or ``"Armature:bone"`` keys the removed head motion there.
+
+The animator feedback loop (issue 7): ``[tuning]`` and ``[controls]``, see ``solvers.tuning_config``.
 """
 
 import tomllib
@@ -24,6 +26,7 @@ from .markers import UNIT_SCALE
 from .pipeline import STRATEGIES, RetargetSettings
 from .shape_options import Region
 from .strategy_config import strategy_settings
+from .tuning_config import parse_controls, parse_tuning
 
 # section -> {key: (type(s), required)}
 SCHEMA = {
@@ -149,6 +152,8 @@ class TakeConfig:
     output_actor_basis: Path | None = None  # [output] actor_basis: the actor library used (refine: refined)
     projection: str = "front"  # [solve] projection for 2D takes: "front" or "camera"
     camera_name: str | None = None  # [solve] camera: camera object (None: the scene camera)
+    tuning: object = None  # [tuning]: TuningConfig (solvers.tuning_config)
+    controls: dict = None  # [controls]: {shape or glob: ShapeControl}
 
 
 def load_take_config(path):
@@ -167,6 +172,7 @@ def load_take_config(path):
         raise ConfigError(f"not valid TOML: {exc}", path=path) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read: {exc}", path=path) from None
+    free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by tuning_config
     _check_schema(path, data)
     base = path.parent
 
@@ -257,6 +263,8 @@ def load_take_config(path):
         output_actor_basis=resolve(get("output", "actor_basis")),
         projection=projection,
         camera_name=camera_name,
+        tuning=parse_tuning(path, free.get("tuning"), base),
+        controls=parse_controls(path, free.get("controls"), base),
     )
 
 
