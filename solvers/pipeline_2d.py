@@ -101,3 +101,89 @@ def _projected(basis, projection):
     scaled = Basis(seen.shape_names, seen.marker_names, seen.neutral * unit, seen.deltas * unit, seen.lower, seen.upper)
     return scaled, (f"2D take: solved against the character seen through the camera "
                     f"({unit * 1e3:.3f} mm per pixel at the face; depth motion along the view is not observed)")
+
+
+#: marker strategies that solve 2D image tracks natively (their fits are dimension-free)
+STRATEGIES_2D = ("calibrated", "linear", "rbf", "pca")
+
+
+def prepare_take_2d(markers, stable_markers, neutral_frames):
+    """2D counterpart of ``strategies.wiring.prepare_take``: image tracks (pixels) stabilised by a
+    per-frame similarity on ``stable_markers`` (reference = the neutral frames), minus the neutral."""
+    from .strategies.wiring import PreparedTake
+
+    stable = tuple(stable_markers)
+    if not stable:
+        raise FacecapError("2D takes need an explicit list of stable points ([stabilise] markers)")
+    first, last = neutral_frames
+    stab = stabilise_2d(markers, stable, reference_frames=(first, last), mode="similarity")
+    neutral = neutral_from_frames(stab.markers, first, last)
+    return PreparedTake(stab.markers.positions - neutral[None], neutral, markers.names, markers.frames, stab)
+
+
+def retarget_markers_2d(markers, character, settings, inputs):
+    """``calibrated``, ``linear``, ``rbf`` or ``pca`` from 2D image tracks, natively in pixels.
+
+    The take is stabilised in 2D (similarity on the stable points) and neutral-normalised; the
+    strategy is fitted on 2D data of the same kind: a filmed calibration take (poses = frame
+    ranges, basis in pixels; ``[calibration] align`` "similarity" absorbs a different zoom), or
+    posed example frames of a tracked take. Nothing of the character's geometry is used.
+    """
+    from .pipeline import _finish, _target
+    from .strategies.wiring import fit_strategy, require_inputs
+
+    if settings.strategy not in STRATEGIES_2D:
+        raise FacecapError(f"strategy '{settings.strategy}' does not solve 2D image tracks; "
+                           f"use one of geometric, {', '.join(STRATEGIES_2D)}")
+    require_inputs(settings.strategy, inputs, settings)
+    for what, take in (("[calibration] markers", inputs.calibration),
+                       ("[examples] markers", getattr(inputs.examples, "markers", None))):
+        if take is not None and take.dim != 2:
+            raise FacecapError(f"{what}: a 2D take needs 2D tracks here too; got {take.dim}D markers")
+    if isinstance(settings.stable_markers, str) or getattr(settings, "auto_stable", False):
+        raise FacecapError("2D takes need an explicit list of stable points ([stabilise] markers)")
+    notes = list(inputs.notes)
+    t0 = time.perf_counter()
+    neutral_frames = _reference_range(settings) or (markers.frames[0], markers.frames[-1])
+
+    def prepare(take_markers):
+        return prepare_take_2d(take_markers, settings.stable_markers, neutral_frames)
+
+    take = prepare(markers)
+    stab = take.stabilise
+    if stab.flagged.any():
+        notes.append(f"{int(stab.flagged.sum())} frame(s) could not be stabilised (too few stable points)")
+    target = _target(character, settings)
+    t1 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        strategy, fit_notes = fit_strategy(settings, target, inputs, take, prepare=prepare)
+        t2 = time.perf_counter()
+        res = strategy.solve(take.deltas, names=take.names, neutral=take.neutral)
+    t3 = time.perf_counter()
+    notes += fit_notes
+    notes.extend(res.warnings)
+    weights = _finish(target, res.weights, settings, notes)
+    fitted = getattr(getattr(strategy, "actor_basis", None), "marker_names", None) or take.names
+    used = tuple(n for n in fitted if n in set(take.names))
+    F = take.frames.size
+    marker_residual = np.full(len(used), np.nan)
+    if res.solve is not None and res.solve.residuals.shape[1] == 2 * len(fitted):
+        r2 = (res.solve.residuals.reshape(F, len(fitted), 2) ** 2).sum(axis=2)
+        seen = np.isfinite(r2) & (r2 > 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
+        marker_residual = per[[fitted.index(n) for n in used]]
+    at_bound = res.solve.at_bound if res.solve is not None else res.clamped
+    residual = np.full(F, np.nan) if res.residual_rms is None else np.asarray(res.residual_rms, dtype=np.float64)
+    timings = {"stabilise": t1 - t0, "fit": t2 - t1, "solve": t3 - t2, "total": time.perf_counter() - t0}
+    return RetargetResult(
+        frames=take.frames, shape_names=target.names, weights=weights, marker_names=used,
+        residual_rms=residual, marker_residual=marker_residual,
+        at_bound=np.zeros(F, dtype=int) if at_bound is None else np.asarray(at_bound),
+        stabilise=stab, alignment=None, alignment_residual=None,
+        warnings=tuple(dict.fromkeys(notes + ["2D take: residuals are in pixels of the footage"])),
+        timings={k: round(v, 6) for k, v in timings.items()}, strategy=settings.strategy,
+        residual_space="actor" if res.residual_rms is not None else None, source_weights=res.source_weights,
+        source_names=tuple(res.source_names), info=dict(res.info), fitted=strategy,
+    )

@@ -19,7 +19,8 @@ from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
 from ..markers import UNIT_SCALE
 from ..neutral import neutral_from_frames
-from ..stabilise import stabilise_rigid
+from ..transforms import Similarity, fit_similarity_2d
+from ..stabilise import stabilise_2d, stabilise_rigid
 from .base import StrategyResult, align_to, as_deltas, as_target, clamp_to, flat, reorder
 from .geometric import symmetric_pairs
 from .mapping import Mapping
@@ -55,7 +56,8 @@ def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, 
 
     Parameters
     ----------
-    calibration : MarkerSet (3D, any of m/cm/mm)
+    calibration : MarkerSet (3D, any of m/cm/mm), or 2D image tracks (px) of a filmed calibration:
+        then stabilised by a per-frame 2D similarity on ``stable_markers`` and the basis is in pixels
     poses : dict {pose name: [first, last] or [[first, last], ...]}, inclusive frame numbers
     neutral : (first, last), the relaxed neutral the poses are measured from
     stable_markers : sequence of str, optional
@@ -70,17 +72,22 @@ def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, 
 
     Returns
     -------
-    basis : Basis (metres), shapes in ``poses`` order (split poses in place), bounds [0, 1]
+    basis : Basis (metres, or pixels for 2D tracks), shapes in ``poses`` order (split poses in place), bounds [0, 1]
     notes : tuple of str
     """
     if not poses:
         raise FacecapError("calibration: `poses` is empty; name at least one pose and its frame range")
-    if calibration.units not in UNIT_SCALE:
-        raise FacecapError(f"calibration: markers must be in m, cm or mm; got '{calibration.units}'")
-    markers = calibration.to_units("m")
     first, last = neutral
-    if stable_markers:
-        markers = stabilise_rigid(markers, tuple(stable_markers), reference_frames=(first, last)).markers
+    if calibration.dim == 2:  # image tracks: pixels, head motion removed as a 2D similarity
+        markers = calibration
+        if stable_markers:
+            markers = stabilise_2d(markers, tuple(stable_markers), reference_frames=(first, last)).markers
+    else:
+        if calibration.units not in UNIT_SCALE:
+            raise FacecapError(f"calibration: markers must be in m, cm or mm; got '{calibration.units}'")
+        markers = calibration.to_units("m")
+        if stable_markers:
+            markers = stabilise_rigid(markers, tuple(stable_markers), reference_frames=(first, last)).markers
     rest = neutral_from_frames(markers, first, last)
     names, deltas, notes, thin_poses = [], [], [], {}
     unknown_split = set(split) - set(poses)
@@ -118,6 +125,16 @@ def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, 
     if len(set(names)) != len(names):
         raise FacecapError(f"calibration: duplicate pose names {sorted({n for n in names if names.count(n) > 1})}")
     return Basis(tuple(names), markers.names, rest, np.stack(deltas)), tuple(notes)
+
+
+def _align_2d(deltas, neutral, fitted_neutral, *, mode):
+    """``align_to`` for image tracks: a 2D rotation (+ scale for "similarity") of the deltas."""
+    if mode == "none" or neutral is None:
+        return deltas, None
+    sim = fit_similarity_2d(neutral, fitted_neutral)
+    if mode == "rigid":
+        sim = Similarity(1.0, sim.rotation, sim.translation)
+    return sim.apply_vectors(deltas), sim
 
 
 class CalibratedStrategy:
@@ -217,7 +234,8 @@ class CalibratedStrategy:
 
         Parameters
         ----------
-        source : ndarray (F, M, 3), metres, NaN for gaps
+        source : ndarray (F, M, 3), metres, NaN for gaps; or (F, M, 2) pixels against a basis
+            calibrated from 2D tracks
         names : marker names of ``source`` (matched to the calibration's markers); default: same order
         neutral : ndarray (M, 3), optional; the take's neutral positions (same order as ``source``),
             aligned onto the calibration neutral per ``align``
@@ -232,7 +250,13 @@ class CalibratedStrategy:
         if confidence is not None:
             confidence = reorder(np.asarray(confidence, dtype=np.float64)[:, :, None], names, basis.marker_names)[:, :, 0]
             confidence = np.nan_to_num(confidence)
-        deltas, sim = align_to(deltas, neutral, basis.neutral, mode=self.align)
+        if deltas.shape[2] != basis.neutral.shape[1]:
+            raise FacecapError(f"calibrated: the take has {deltas.shape[2]}D markers, the actor basis "
+                               f"{basis.neutral.shape[1]}D (calibrate from the same kind of capture)")
+        if deltas.shape[2] == 2:
+            deltas, sim = _align_2d(deltas, neutral, basis.neutral, mode=self.align)
+        else:
+            deltas, sim = align_to(deltas, neutral, basis.neutral, mode=self.align)
         return self._solve_aligned(deltas, confidence, info={"alignment_scale": None if sim is None else sim.scale})
 
     def _solve_aligned(self, deltas, confidence, info):
