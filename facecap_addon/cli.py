@@ -8,6 +8,8 @@ compare [options]             measure every strategy on the same synthetic takes
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
 inspect FILE [options]        describe a capture file; non-zero exit with a one-line reason if it is bad
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
+tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
+                              library version ([tuning] out) and write the re-solved take
 bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
@@ -28,8 +30,13 @@ def _progress(message):
     print(f"facecap: {message}", file=sys.stderr, flush=True)
 
 
-def run_retarget(config, *, quiet=False):
-    """Run a take config end to end; returns (RetargetResult, output paths dict)."""
+def run_retarget(config, *, quiet=False, solve=None):
+    """Run a take config end to end; returns (RetargetResult, output paths dict).
+
+    ``[tuning] library`` and ``[controls]`` are honoured (``tune_cli``). ``solve`` replaces the
+    plain ``retarget`` call: (markers, character, settings, inputs, library info) -> (result,
+    extra report entries); the ``tune`` command passes its retune there.
+    """
     import warnings
 
     from ..solvers.cleaning import clean
@@ -88,7 +95,14 @@ def run_retarget(config, *, quiet=False):
         f"{len(inputs.weights.frames)} frames of {len(inputs.weights.names)} solved channels")
     say(f"[3/5] solving {source} x {len(character.shape_names if strategy == 'geometric' else character.names)} "
         f"shapes (strategy: {strategy})")
-    result = retarget(markers, character, config.settings, inputs=inputs)
+    from .tune_cli import finish_solve, prepare_solve
+
+    character, inputs, settings, tuning_info = prepare_solve(config, character, inputs)
+    if solve is None:
+        result, extra = retarget(markers, character, settings, inputs=inputs), {}
+    else:
+        result, extra = solve(markers, character, settings, inputs, tuning_info)
+    result = finish_solve(config, result, markers.fps if markers is not None else inputs.weights.fps)
 
     t3 = time.perf_counter()
     say("[4/5] keying")
@@ -125,6 +139,8 @@ def run_retarget(config, *, quiet=False):
             report["source"] = {"format": track.format, "fps": track.fps, "timecode": track.timecode}
         report["cleaning"] = cleaning
         report["outputs"] = outputs
+        report.update(tuning_info)
+        report.update(extra)
         report["warnings"] = notes + report["warnings"]
         report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
         write_json_atomic(config.output_report, report)
@@ -226,6 +242,12 @@ def _cmd_track(args):
     return track_main(args.rest)
 
 
+def _cmd_tune(args):
+    from .tune_cli import cmd_tune
+
+    return cmd_tune(args)
+
+
 def _cmd_bench(args):
     from ..solvers.bench import run_benchmarks
 
@@ -264,6 +286,9 @@ def build_parser():
     p = sub.add_parser("track", help="track markers or dense flow in video footage and write 2D tracks", add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_track)
+    p = sub.add_parser("tune", help="retune the strategy from an animator's corrected frames and re-solve the take")
+    p.add_argument("--config", required=True, help="take config (.toml) with [tuning] corrections")
+    p.set_defaults(func=_cmd_tune)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.set_defaults(func=_cmd_bench)

@@ -193,9 +193,15 @@ def apply_controls(weights, names, controls, fps):
     return W
 
 
-def locks_from_controls(controls):
-    """``((pattern, value), ...)`` for ``RetargetSettings.locks`` from the controls that lock a shape."""
-    return tuple((key, c.lock) for key, c in (controls or {}).items() if c.lock is not None)
+def locks_from_controls(controls, names=None):
+    """``((pattern, value), ...)`` for ``RetargetSettings.locks`` from the controls that lock a shape.
+
+    With the character's shape ``names``, keys are resolved as ``apply_controls`` does (aliases,
+    exact before glob) and the result names shapes exactly; without, the keys are returned as given.
+    """
+    if names is None:
+        return tuple((key, c.lock) for key, c in (controls or {}).items() if c.lock is not None)
+    return tuple((n, c.lock) for n, c in zip(names, resolve_controls(names, controls)) if c is not None and c.lock is not None)
 
 
 def controls_from_gain_offset(names, gain, offset, *, tol=1e-9):

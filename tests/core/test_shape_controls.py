@@ -100,6 +100,9 @@ def test_lock_passes_through_and_becomes_a_solver_lock(weights):
     out = apply_controls(weights, NAMES, controls, fps=60)
     assert_array_equal(out[:, 0], weights[:, 0])  # the solve holds it; controls leave it alone
     assert locks_from_controls(controls) == (("jawOpen", 0.3),)
+    # resolved against the character: alias keys and globs name the shapes exactly
+    resolved = locks_from_controls({"Jaw_Open": ShapeControl(lock=0.3), "mouthSmile*": ShapeControl(lock=0.0)}, NAMES)
+    assert resolved == (("jawOpen", 0.3), ("mouthSmileLeft", 0.0), ("mouthSmileRight", 0.0))
 
 
 def test_bad_controls_name_the_field():
