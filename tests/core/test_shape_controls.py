@@ -171,3 +171,54 @@ def test_curve_function_is_shared_with_parallel():
     assert_allclose(parallel._curve("smoothstep")(x), curve_function("smoothstep")(x))
     with pytest.raises(FacecapError, match="parallel: unknown curve"):
         parallel._curve("nope")
+
+
+TAKE = """
+[target]
+object = "Face"
+[source]
+markers = "t1.csv"
+[stabilise]
+markers = ["a", "b", "c"]
+[neutral]
+frames = [1, 30]
+"""
+
+
+def _config(tmp_path, text):
+    from facecap.solvers import load_take_config
+
+    path = tmp_path / "take.toml"
+    path.write_text(TAKE + text)
+    return load_take_config(path)
+
+
+def test_tuning_and_controls_sections_of_a_take_config(tmp_path):
+    save_preset(tmp_path / "p.json", {"jawOpen": ShapeControl(gain=3.0), "brow*": ShapeControl(mute=True)})
+    cfg = _config(tmp_path, '[tuning]\ncorrections = "c.csv"\nmu = 3\nlibrary = "lib/v.npz"\nout = "lib"\n'
+                            '[controls]\npreset = "p.json"\njawOpen = { gain = 1.2, clamp = [0, 1], curve = "smoothstep", '
+                            'smoothing = 0.05, mute = false, lock = 0.3 }\n"mouth*" = { offset = -0.1 }\n')
+    t = cfg.tuning
+    assert (t.corrections, t.mu, t.library, t.out) == (tmp_path / "c.csv", 3.0, tmp_path / "lib" / "v.npz",
+                                                       tmp_path / "lib")
+    assert cfg.controls["jawOpen"] == ShapeControl(gain=1.2, clamp=(0.0, 1.0), curve="smoothstep", smoothing=0.05,
+                                                   lock=0.3)  # the table wins over the preset
+    assert cfg.controls["brow*"] == ShapeControl(mute=True) and cfg.controls["mouth*"] == ShapeControl(offset=-0.1)
+    plain = _config(tmp_path, "")
+    assert plain.tuning.corrections is None and plain.tuning.mu is None and plain.controls == {}
+
+
+@pytest.mark.parametrize("text, match", [
+    ("[tuning]\nmu = 0\n", r"\[tuning.mu\] must be > 0"),
+    ("[tuning]\nmu = \"auto\"\n", r"\[tuning.mu\] wrong type str"),
+    ("[tuning]\nlibary = \"v.npz\"\n", r"\[tuning.libary\] unknown key"),
+    ("[controls]\njawOpen = { gain = \"x\" }\n", r"\[controls.jawOpen\] `gain` must be a finite number"),
+    ("[controls]\njawOpen = 1.2\n", r"\[controls.jawOpen\] expected a table of controls"),
+    ("[controls]\npreset = \"missing.json\"\n", r"\[controls.preset\] file not found"),
+])
+def test_bad_tuning_and_controls_keys_are_named(tmp_path, text, match):
+    from facecap.solvers import ConfigError
+
+    with pytest.raises(ConfigError, match=match) as info:
+        _config(tmp_path, text)
+    assert "take.toml" in str(info.value)
