@@ -207,6 +207,20 @@ def action_fcurves(action, id_data=None):
     return result
 
 
+def remove_fcurve(action, fcurve):
+    """Remove ``fcurve`` from ``action`` (legacy or slotted)."""
+    if not LAYERED_ACTIONS:
+        action.fcurves.remove(fcurve)
+        return
+    for layer in action.layers:
+        for strip in layer.strips:
+            for channelbag in getattr(strip, "channelbags", ()):
+                if channelbag.fcurves.find(fcurve.data_path, index=fcurve.array_index) == fcurve:
+                    channelbag.fcurves.remove(fcurve)
+                    return
+    raise FacecapError(f"F-curve {fcurve.data_path}[{fcurve.array_index}] is not in action '{action.name}'")
+
+
 def read_curves(id_data, curves, action=None):
     """Read back the keys of ``curves`` on ``id_data``'s assigned action (or ``action``), in bulk.
 

@@ -321,6 +321,8 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     library_index: IntProperty(name="Library Version", default=0)
     library_active: StringProperty(name="Active Library",
                                    description="Library version the solve uses (empty: the original)")
+    worst_last: IntProperty(name="Last Worst Frame", default=-1_000_000,
+                            description="Frame the last Next Worst Frame jump landed on")
     worst_spread: IntProperty(name="Spread", default=5, min=0,
                               description="Jump to Worst skips frames this close to a worse one")
     last_report: StringProperty(name="Last Result", description="Summary of the last solve")

@@ -4,9 +4,9 @@ import bpy
 
 from ..operators import CLASSES as OPERATOR_CLASSES
 from ..operators import importers
-from . import panels, properties
+from . import panels, panels_tune, properties
 
-CLASSES = properties.CLASSES + OPERATOR_CLASSES + panels.CLASSES
+CLASSES = properties.CLASSES + OPERATOR_CLASSES + panels.CLASSES + panels_tune.CLASSES
 
 
 def register():

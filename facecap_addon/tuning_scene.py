@@ -30,13 +30,17 @@ def shape_names(obj):
 
 
 # -- per-shape controls ----------------------------------------------------------------------------
-def shape_controls(settings):
-    """{escaped shape name: ShapeControl} for the shapes whose sidebar controls change anything."""
+def shape_controls(settings, *, with_locks=False):
+    """{escaped shape name: ShapeControl} for the shapes whose sidebar controls change anything.
+
+    Locks are solve options (``take.shape_options``); ``with_locks`` adds them, for presets.
+    """
     out = {}
     for s in settings.shapes:
         control = ShapeControl(
             gain=s.gain, offset=s.offset, clamp=(s.clamp_min, s.clamp_max) if s.use_clamp else None,
             curve=f"gamma:{s.gamma:g}" if s.curve == "gamma" else s.curve, smoothing=s.smoothing, mute=s.mute,
+            lock=s.lock_value if with_locks and s.lock else None,
         )
         if control != ShapeControl():
             out[glob.escape(s.name)] = control
@@ -61,6 +65,23 @@ def set_controls(settings, controls):
             item.curve = c.curve
         if c.lock is not None:
             item.lock, item.lock_value = True, c.lock
+
+
+def compose_gain_offset(settings, names, gain, offset, *, tol=1e-6):
+    """Put a fitted ``corrected = gain * keyed + offset`` on top of each shape's current gain/offset.
+
+    ``keyed`` already carries the current controls (y = g1 curve(w) + o1), so the new ones are
+    g = gain g1, o = gain o1 + offset. Returns the names of the shapes that changed.
+    """
+    items = {s.name: s for s in settings.shapes}
+    changed = []
+    for n, g, o in zip(names, gain, offset):
+        if n not in items or (abs(g - 1.0) <= tol and abs(o) <= tol):
+            continue
+        item = items[n]
+        item.gain, item.offset = float(g * item.gain), float(g * item.offset + o)
+        changed.append(n)
+    return changed
 
 
 # -- library versions in the .blend -------------------------------------------------------------------
@@ -164,6 +185,41 @@ def frame_change(settings, frames):
     return np.sqrt(np.mean((final - solve) ** 2, axis=1))
 
 
+def take_in_corrections(settings, frames):
+    """Continue the layer above the solve as a copy without its shape keys at ``frames``.
+
+    After a retune (or a gain/offset fit) the solve itself hits the corrected frames; left in place,
+    the correction offsets would count twice. The animator's action is not modified: it keeps a fake
+    user and the copy (``<name> tuned``) becomes the active action. Curves left without keys are
+    removed (an empty curve would evaluate to 0). Returns the new action, or None when there is no layer.
+    """
+    key = settings.target.data.shape_keys
+    ad = key.animation_data
+    if ad is None or ad.action is None:
+        return None
+    old = ad.action
+    old.use_fake_user = True
+    slot_name = getattr(getattr(ad, "action_slot", None), "identifier", None)
+    new = old.copy()
+    new.name = anim.unique_action_name(f"{old.name} tuned")
+    paths = {layers.shape_path(n) for n in shape_names(settings.target)}
+    wanted = {round(float(f)) for f in frames}
+    ad.action = new
+    if anim.LAYERED_ACTIONS and slot_name is not None:
+        slot = next((s for s in new.slots if s.identifier == slot_name), None)
+        if slot is not None:
+            ad.action_slot = slot
+    for fc in anim.action_fcurves(new, key):
+        if fc.data_path not in paths:
+            continue
+        for point in [p for p in fc.keyframe_points if round(p.co[0]) in wanted][::-1]:
+            fc.keyframe_points.remove(point, fast=True)
+        fc.update()
+        if not len(fc.keyframe_points):
+            anim.remove_fcurve(new, fc)
+    return new
+
+
 TUNE_MARKER = "tune"
 
 
@@ -185,11 +241,11 @@ def residual_curve(key):
     return frames[ok], values[ok, 0]
 
 
-def next_worst_frame(frames, residual, current, *, spread=5):
-    """The next frame after ``current`` in the order worst-first, among residual peaks.
+def next_worst_frame(frames, residual, after=None, *, spread=5):
+    """The worst frame, or the next one after ``after`` in the order worst-first, among peaks.
 
     Peaks: frames whose residual is the largest within +/- ``spread`` frames (neighbours of a bad
-    frame are usually bad for the same reason). From a frame that is not a peak, the worst peak.
+    frame are usually bad for the same reason). ``after`` not a peak (or None): the worst peak.
     """
     order = np.argsort(-residual, kind="stable")
     peaks = []
@@ -197,7 +253,6 @@ def next_worst_frame(frames, residual, current, *, spread=5):
         if all(abs(frames[i] - frames[j]) > spread for j in peaks):
             peaks.append(i)
     peak_frames = [float(frames[i]) for i in peaks]
-    if float(current) in peak_frames:
-        rank = peak_frames.index(float(current))
-        return peak_frames[(rank + 1) % len(peak_frames)]
+    if after is not None and float(after) in peak_frames:
+        return peak_frames[(peak_frames.index(float(after)) + 1) % len(peak_frames)]
     return peak_frames[0]
