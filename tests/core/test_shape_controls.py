@@ -173,23 +173,12 @@ def test_curve_function_is_shared_with_parallel():
         parallel._curve("nope")
 
 
-TAKE = """
-[target]
-object = "Face"
-[source]
-markers = "t1.csv"
-[stabilise]
-markers = ["a", "b", "c"]
-[neutral]
-frames = [1, 30]
-"""
-
-
 def _config(tmp_path, text):
     from facecap.solvers import load_take_config
+    from test_config import BASE
 
     path = tmp_path / "take.toml"
-    path.write_text(TAKE + text)
+    path.write_text(BASE + text)
     return load_take_config(path)
 
 

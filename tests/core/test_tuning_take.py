@@ -20,23 +20,11 @@ from facecap.solvers.strategies.options import CalibrationSettings, ExamplePairs
 from facecap.solvers.strategies.pca import farthest_frames
 from facecap.solvers.synth import performance_weights, synthesize_take
 from facecap.solvers.tuning_take import LibraryVersion, apply_version, original_version, retune_take
-
-WEAK = ("jawOpen", "mouthSmileLeft", "browInnerUp", "eyeBlinkLeft")
+from test_tuning import WEAK, _worst_frames
 
 
 def _rmse(a):
     return float(np.sqrt(np.nanmean(np.asarray(a) ** 2)))
-
-
-def _worst_frames(W, Ws, n=8, sep=20):
-    err = np.abs(Ws - W).max(axis=1)
-    out = []
-    for t in np.argsort(-err, kind="stable"):
-        if all(abs(int(t) - s) >= sep for s in out):
-            out.append(int(t))
-        if len(out) == n:
-            break
-    return sorted(out)
 
 
 def _corrections(result, W, idx, names=None):
