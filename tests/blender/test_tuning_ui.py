@@ -216,3 +216,61 @@ def test_tune_panel_draws(solved):
     bpy.types.FACECAP_PT_tune.draw(type("PanelStub", (), {"layout": layout})(), bpy.context)
     assert layout.calls
 
+
+
+def test_the_cli_gives_the_same_retune_as_the_operator(solved, data, tmp_path):
+    """``python -m facecap tune`` on the same take, character and corrections (written as the
+    corrections CSV from the sidebar's tuning frames) stores the same library and the same weights."""
+    import subprocess
+    import sys
+
+    from facecap.solvers.io_csv import read_weights_csv, write_weights_csv
+    from facecap.solvers.library_store import load_version
+
+    ctx = solved
+    rows = _worst_rows(data, _solve_values(ctx))
+    _correct(ctx, data, rows)
+    assert bpy.ops.facecap.tuning_add_edited() == {"FINISHED"}
+    corrections = tuning_scene.corrections(ctx.s)
+    frames = sorted(corrections)
+    write_weights_csv(tmp_path / "corrections.csv", frames, ctx.names,
+                      np.array([[corrections[f][n] for n in ctx.names] for f in frames]))
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "character.blend"), copy=True)
+    first, last = ctx.s.neutral_first, ctx.s.neutral_last
+    (tmp_path / "take.toml").write_text(f"""
+[target]
+blend = "character.blend"
+object = "Face"
+[source]
+markers = "{(data.dir / 'take01.csv').as_posix()}"
+units = "mm"
+fps = 60
+[binding]
+vertex_groups = true
+[stabilise]
+markers = {list(STABLE)!r}
+[neutral]
+frames = [{first}, {last}]
+[solve]
+strategy = "geometric"
+[tuning]
+corrections = "corrections.csv"
+out = "library"
+[output]
+weights = "out/weights.csv"
+""".replace("'", '"'))
+    assert bpy.ops.facecap.retune() == {"FINISHED"}
+    proc = subprocess.run([sys.executable, "-m", "facecap", "tune", "--config", str(tmp_path / "take.toml")],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    op_version = tuning_scene.load_version(ctx.scene, ctx.s.library_active)
+    cli_version = load_version(tmp_path / "library" / f"{op_version.name}.npz") \
+        if (tmp_path / "library" / f"{op_version.name}.npz").exists() else \
+        next(load_version(p) for p in (tmp_path / "library").glob("*.npz") if "+tune" in p.name)
+    assert cli_version.parent == op_version.parent
+    np.testing.assert_allclose(cli_version.payload.deltas, op_version.payload.deltas, atol=1e-6)
+    _, names, cli_weights = read_weights_csv(tmp_path / "out" / "weights.csv")
+    assert tuple(names) == tuple(ctx.names)
+    np.testing.assert_allclose(cli_weights, _solve_values(ctx), atol=1e-3)
+    print(f"\noperator vs CLI: library max |diff| {np.abs(cli_version.payload.deltas - op_version.payload.deltas).max():.2e} m, "
+          f"weights max |diff| {np.abs(cli_weights - _solve_values(ctx)).max():.2e}")
