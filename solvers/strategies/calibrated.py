@@ -19,10 +19,10 @@ from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
 from ..markers import UNIT_SCALE
 from ..neutral import neutral_from_frames
-from ..transforms import Similarity, fit_similarity_2d
 from ..stabilise import stabilise_2d, stabilise_rigid
-from .base import StrategyResult, align_to, as_deltas, as_target, clamp_to, flat, reorder
+from .base import StrategyResult, as_deltas, as_target, clamp_to, flat, reorder
 from .geometric import symmetric_pairs
+from .linear import align_source
 from .mapping import Mapping
 
 
@@ -125,16 +125,6 @@ def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, 
     if len(set(names)) != len(names):
         raise FacecapError(f"calibration: duplicate pose names {sorted({n for n in names if names.count(n) > 1})}")
     return Basis(tuple(names), markers.names, rest, np.stack(deltas)), tuple(notes)
-
-
-def _align_2d(deltas, neutral, fitted_neutral, *, mode):
-    """``align_to`` for image tracks: a 2D rotation (+ scale for "similarity") of the deltas."""
-    if mode == "none" or neutral is None:
-        return deltas, None
-    sim = fit_similarity_2d(neutral, fitted_neutral)
-    if mode == "rigid":
-        sim = Similarity(1.0, sim.rotation, sim.translation)
-    return sim.apply_vectors(deltas), sim
 
 
 class CalibratedStrategy:
@@ -253,10 +243,7 @@ class CalibratedStrategy:
         if deltas.shape[2] != basis.neutral.shape[1]:
             raise FacecapError(f"calibrated: the take has {deltas.shape[2]}D markers, the actor basis "
                                f"{basis.neutral.shape[1]}D (calibrate from the same kind of capture)")
-        if deltas.shape[2] == 2:
-            deltas, sim = _align_2d(deltas, neutral, basis.neutral, mode=self.align)
-        else:
-            deltas, sim = align_to(deltas, neutral, basis.neutral, mode=self.align)
+        deltas, sim = align_source(deltas, neutral, basis.neutral, mode=self.align)
         return self._solve_aligned(deltas, confidence, info={"alignment_scale": None if sim is None else sim.scale})
 
     def _solve_aligned(self, deltas, confidence, info):

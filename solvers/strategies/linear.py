@@ -14,7 +14,34 @@ With noiseless examples and ``ridge=0`` the map reproduces every example exactly
 import numpy as np
 
 from ..errors import FacecapError
+from ..transforms import Similarity, fit_similarity_2d
 from .base import StrategyResult, align_to, as_deltas, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, reorder
+
+
+def as_source(source, *, what="source"):
+    """Marker deltas (F, M, D) as they are, or feature vectors (F, P) - e.g. flow-PCA coefficients
+    of footage (``solvers.video.features``) - as (F, P, 1) so the example strategies treat both alike."""
+    X = np.asarray(source, dtype=np.float64)
+    if X.ndim == 2 and X.shape[0] > 0 and X.shape[1] > 0:
+        if np.isinf(X).any():
+            raise FacecapError(f"`{what}` contains infinite values")
+        return X[:, :, None]
+    return as_deltas(X, what=what)
+
+
+def align_source(deltas, neutral, fitted_neutral, *, mode="rigid"):
+    """``align_to`` for 3D markers and for 2D image tracks (a 2D rotation, + scale for "similarity");
+    feature vectors (D = 1) are not aligned. Returns (deltas, Similarity or None)."""
+    if deltas.shape[2] == 3:
+        return align_to(deltas, neutral, fitted_neutral, mode=mode)
+    if deltas.shape[2] == 1 or mode == "none" or neutral is None or fitted_neutral is None:
+        return deltas, None
+    if mode not in ("rigid", "similarity"):
+        raise FacecapError(f"`align` must be 'none', 'rigid' or 'similarity'; got {mode!r}")
+    sim = fit_similarity_2d(neutral, fitted_neutral)
+    if mode == "rigid":
+        sim = Similarity(1.0, sim.rotation, sim.translation)
+    return sim.apply_vectors(deltas), sim
 
 
 class LinearStrategy:
@@ -48,7 +75,8 @@ class LinearStrategy:
         Parameters
         ----------
         character : Basis or shape names
-        examples : ndarray (N, M, 3), marker deltas at the example frames (no gaps)
+        examples : ndarray (N, M, 3), marker deltas at the example frames (no gaps), or (N, P)
+            feature vectors (flow-PCA coefficients of footage)
         weights : ndarray (N, K), the character weights posed for them
         names : marker names of ``examples`` (kept for ``solve(names=)``)
         neutral : ndarray (M, 3), optional, rest positions of the examples' space
@@ -56,9 +84,7 @@ class LinearStrategy:
             gap-free frames help fill gaps at solve time
         """
         self.target = as_target(character)
-        ex = np.asarray(examples, dtype=np.float64)
-        if ex.ndim != 3:
-            raise FacecapError(f"linear: `examples` must have shape (N, M, 3); got {ex.shape}")
+        ex = as_source(examples, what="examples")
         X, W = check_pairs(ex, weights, self.target)
         self.marker_shape = ex.shape[1:]
         self.names = None if names is None else tuple(names)
@@ -85,7 +111,7 @@ class LinearStrategy:
         self.bias = wm - E @ xm
         self._gap_rows = X
         if training is not None:
-            tr = flat(as_deltas(training, what="training"))
+            tr = flat(as_source(training, what="training"))
             if tr.shape[1] != P:
                 raise FacecapError(f"linear: `training` frames have {tr.shape[1]} coordinates; examples have {P}")
             self._gap_rows = np.concatenate([X, tr])
@@ -97,10 +123,10 @@ class LinearStrategy:
         """Character weights for marker deltas (F, M, 3); ``confidence`` is ignored (gaps are filled)."""
         if self.matrix is None:
             raise FacecapError("linear: call fit() before solve()")
-        deltas = reorder(as_deltas(source), names, self.names)
+        deltas = reorder(as_source(source), names, self.names)
         if neutral is not None and self.fit_neutral is not None:
             neutral = reorder(np.asarray(neutral, dtype=np.float64)[None], names, self.names)[0]
-            deltas, _ = align_to(deltas, neutral, self.fit_neutral, mode=self.align)
+            deltas, _ = align_source(deltas, neutral, self.fit_neutral, mode=self.align)
         if deltas.shape[1:] != self.marker_shape:
             raise FacecapError(f"linear: `source` frames have shape {deltas.shape[1:]}; fitted on {self.marker_shape}")
         X = flat(deltas)

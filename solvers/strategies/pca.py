@@ -19,7 +19,8 @@ import numpy as np
 
 from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
-from .base import StrategyResult, align_to, as_deltas, as_target, clamp_to, fill_gaps, flat, pca, reorder
+from .base import StrategyResult, as_deltas, as_target, clamp_to, fill_gaps, flat, pca, reorder
+from .linear import align_source, as_source
 
 MODES = ("related", "posed")
 
@@ -100,7 +101,7 @@ class PCAStrategy:
 
         Sets ``mean`` (P,), ``components`` (C, P) unit rows, ``basis_frames`` and returns self.
         """
-        tr = as_deltas(training, what="training")
+        tr = as_source(training, what="training")
         self.marker_shape = tr.shape[1:]
         self.names = None if names is None else tuple(names)
         self.fit_neutral = None if neutral is None else np.asarray(neutral, dtype=np.float64)
@@ -148,7 +149,7 @@ class PCAStrategy:
 
     def reconstruct(self, deltas):
         """Project deltas (F, M, 3) on the learned basis and rebuild them (gaps filled)."""
-        X, _ = fill_gaps(flat(as_deltas(deltas)), self.mean, self._ortho)
+        X, _ = fill_gaps(flat(as_source(deltas)), self.mean, self._ortho)
         return (self.mean + self.coefficients(X) @ self.components).reshape(np.shape(deltas))
 
     def frames_to_pose(self):
@@ -162,7 +163,8 @@ class PCAStrategy:
         Parameters
         ----------
         character : Basis or shape names
-        training : ndarray (F, M, 3), the performance (stabilised, neutral-normalised deltas)
+        training : ndarray (F, M, 3), the performance (stabilised, neutral-normalised deltas), or
+            (F, P) feature vectors (flow-PCA coefficients of footage)
         example_frames : indices into ``training`` whose character weights are known; default:
             ``frames_to_pose()`` in posed mode, every frame in related mode
         example_weights : ndarray (N, K), the character weights of those frames (required)
@@ -200,10 +202,10 @@ class PCAStrategy:
         """Character weights for marker deltas (F, M, 3)."""
         if self.target is None:
             raise FacecapError("pca: call fit() before solve()")
-        deltas = reorder(as_deltas(source), names, self.names)
+        deltas = reorder(as_source(source), names, self.names)
         if neutral is not None and self.fit_neutral is not None:
             neutral = reorder(np.asarray(neutral, dtype=np.float64)[None], names, self.names)[0]
-            deltas, _ = align_to(deltas, neutral, self.fit_neutral, mode=self.align)
+            deltas, _ = align_source(deltas, neutral, self.fit_neutral, mode=self.align)
         if deltas.shape[1:] != self.marker_shape:
             raise FacecapError(f"pca: `source` frames have shape {deltas.shape[1:]}; fitted on {self.marker_shape}")
         if self.mode == "posed":

@@ -13,7 +13,8 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from ..errors import FacecapError
-from .base import StrategyResult, align_to, as_deltas, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, pca, reorder
+from .base import StrategyResult, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, pca, reorder
+from .linear import align_source, as_source
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
            "inverse_multiquadric", "inverse_quadratic")
@@ -61,23 +62,22 @@ class RBFStrategy:
         Parameters
         ----------
         character : Basis or shape names
-        examples : ndarray (N, M, 3), marker deltas of the example frames (no gaps)
+        examples : ndarray (N, M, 3), marker deltas of the example frames (no gaps), or (N, P)
+            feature vectors (flow-PCA coefficients of footage)
         weights : ndarray (N, K), the character weights posed for them
         training : ndarray (F, M, 3), optional; frames whose principal directions define the
             features (default: the examples); gaps allowed (frames with gaps are skipped)
         names, neutral : as in ``LinearStrategy.fit``
         """
         self.target = as_target(character)
-        ex = np.asarray(examples, dtype=np.float64)
-        if ex.ndim != 3:
-            raise FacecapError(f"rbf: `examples` must have shape (N, M, 3); got {ex.shape}")
+        ex = as_source(examples, what="examples")
         X, W = check_pairs(ex, weights, self.target)
         self.marker_shape = ex.shape[1:]
         self.names = None if names is None else tuple(names)
         self.fit_neutral = None if neutral is None else np.asarray(neutral, dtype=np.float64)
         T = X
         if training is not None:
-            tr = flat(as_deltas(training, what="training"))
+            tr = flat(as_source(training, what="training"))
             if tr.shape[1] != X.shape[1]:
                 raise FacecapError(f"rbf: `training` frames have {tr.shape[1]} coordinates; examples have {X.shape[1]}")
             T = tr[np.isfinite(tr).all(axis=1)]
@@ -127,10 +127,10 @@ class RBFStrategy:
         the gap-free frames (training, examples and the take itself)."""
         if self.interpolator is None:
             raise FacecapError("rbf: call fit() before solve()")
-        deltas = reorder(as_deltas(source), names, self.names)
+        deltas = reorder(as_source(source), names, self.names)
         if neutral is not None and self.fit_neutral is not None:
             neutral = reorder(np.asarray(neutral, dtype=np.float64)[None], names, self.names)[0]
-            deltas, _ = align_to(deltas, neutral, self.fit_neutral, mode=self.align)
+            deltas, _ = align_source(deltas, neutral, self.fit_neutral, mode=self.align)
         if deltas.shape[1:] != self.marker_shape:
             raise FacecapError(f"rbf: `source` frames have shape {deltas.shape[1:]}; fitted on {self.marker_shape}")
         X = flat(deltas)

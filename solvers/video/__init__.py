@@ -4,16 +4,18 @@ Needs OpenCV (``cv2``, contrib for TV-L1); never imports Blender modules. Import
 is cheap; cv2 is imported by the modules that use it.
 """
 
-from .flow import (DenseFlowResult, FlowEstimator, ReferenceFlow, compose, dense_flow, endpoint_error, reverse,
-                   sample_flow, track_with_flow, warp)
+from .features import FlowFeatures, flow_features, remove_similarity, solve_from_flow
+from .flow import (DenseFlowResult, FlowEstimator, ReferenceFlow, compose, dense_flow, dense_flow_job, endpoint_error,
+                   reverse, sample_flow, track_with_flow, track_with_flow_job, warp)
 from .pca import FlowPCA, flow_pca
-from .reading import Cancelled, Footage, FootageInfo, open_footage, write_video
+from .reading import Cancelled, Footage, FootageInfo, Job, open_footage, write_video
 from .stabilise2d import Stabilise2DResult, stabilise_2d
-from .tracking import LKTracker, TrackResult, auto_seeds, read_seed_points, track_points
+from .tracking import LKTracker, TrackResult, auto_seeds, read_seed_points, track_points, track_points_job
 
 __all__ = [
-    "Cancelled", "DenseFlowResult", "FlowEstimator", "FlowPCA", "Footage", "FootageInfo", "LKTracker",
-    "ReferenceFlow", "Stabilise2DResult", "TrackResult", "auto_seeds", "compose", "dense_flow", "endpoint_error",
-    "flow_pca", "open_footage", "read_seed_points", "reverse", "sample_flow", "stabilise_2d", "track_points",
-    "track_with_flow", "warp", "write_video",
+    "Cancelled", "DenseFlowResult", "FlowEstimator", "FlowFeatures", "FlowPCA", "Footage", "FootageInfo", "Job",
+    "LKTracker", "ReferenceFlow", "Stabilise2DResult", "TrackResult", "auto_seeds", "compose", "dense_flow",
+    "dense_flow_job", "endpoint_error", "flow_features", "flow_pca", "open_footage", "read_seed_points",
+    "remove_similarity", "reverse", "sample_flow", "solve_from_flow", "stabilise_2d", "track_points",
+    "track_points_job", "track_with_flow", "track_with_flow_job", "warp", "write_video",
 ]

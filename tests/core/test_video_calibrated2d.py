@@ -91,3 +91,18 @@ def test_2d_takes_need_2d_calibrations_and_fitted_strategies(sample):
         retarget_markers_2d(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="refine",
                                                                       calibration=cal),
                             StrategyInputs(calibration=take))
+
+
+def test_linear_from_2d_tracks_and_posed_frames(sample):
+    from facecap.solvers.strategies.options import ExamplePairs
+
+    basis, stable = sample
+    W = performance_weights(basis.shape_names, 600, seed=5)
+    take = filmed(basis.front_view(), W, px_per_m=2500, seed=3)
+    posed = np.arange(1, 601, 5)  # an animator posed every 5th frame
+    inputs = StrategyInputs(examples=ExamplePairs(posed.astype(float), W[posed - 1], basis.shape_names))
+    r = retarget_markers_2d(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="linear"), inputs)
+    rest = np.setdiff1d(np.arange(600), posed - 1)
+    rmse = float(np.sqrt(np.mean((r.weights[rest] - W[rest]) ** 2)))
+    print(f"linear from 2D tracks: weights RMSE {rmse:.4f} on unposed frames")
+    assert rmse <= 0.06
