@@ -368,6 +368,25 @@ def retune(library, deltas, solved, corrections, *, mu=None, mu_grid=MU_GRID, mi
     )
 
 
+def spread_frames(scores, n=8, *, min_gap=20):
+    """Indices of the ``n`` highest-scoring frames at least ``min_gap`` frames apart, sorted.
+
+    The frames worth correcting first (score = per-frame residual, or error against a reference);
+    spreading them out makes the corrections tell more about the library than a run of neighbours.
+    NaN scores are never picked.
+    """
+    scores = np.asarray(scores, dtype=np.float64)
+    out = []
+    for t in np.argsort(-np.where(np.isfinite(scores), scores, -np.inf), kind="stable"):
+        if not np.isfinite(scores[t]):
+            break
+        if all(abs(int(t) - s) >= min_gap for s in out):
+            out.append(int(t))
+        if len(out) == n:
+            break
+    return sorted(out)
+
+
 def fit_gain_offset(solved, corrections, *, min_frames=2):
     """Per-shape least squares corrected = gain * solved + offset over the corrected frames.
 

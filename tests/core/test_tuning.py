@@ -15,7 +15,7 @@ from facecap.solvers.compare import SAMPLE_BASIS, make_actor
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.synth import performance_weights
 from facecap.solvers.tuning import (apply_gain_offset, closed_form_update, default_solver, fit_gain_offset,
-                                    retune)
+                                    retune, spread_frames)
 
 WEAK = ("jawOpen", "mouthSmileLeft", "browInnerUp", "eyeBlinkLeft")
 
@@ -38,14 +38,7 @@ def _scenario(seed=0, frames=600, strength=0.4, noise=0.0003, gaps=0.05):
 
 
 def _worst_frames(W, Ws, n=8, sep=20):
-    err = np.abs(Ws - W).max(axis=1)
-    out = []
-    for t in np.argsort(-err, kind="stable"):
-        if all(abs(int(t) - s) >= sep for s in out):
-            out.append(int(t))
-        if len(out) == n:
-            break
-    return sorted(out)
+    return spread_frames(np.abs(Ws - W).max(axis=1), n, min_gap=sep)
 
 
 @pytest.fixture(scope="module")
@@ -259,3 +252,9 @@ def test_through_the_calibrated_strategy():
     assert r.corrected_rmse_after <= 0.05 and h1 <= 0.85 * h0
     assert np.allclose(again.source_weights, r.weights, equal_nan=True)
     assert r.version.startswith("calib+tune8f-") and r.candidate == "gain (all active poses)"
+
+
+def test_spread_frames_picks_the_worst_apart():
+    scores = np.array([0.1, 0.9, 0.8, np.nan, 0.5, 0.05, 0.7])
+    assert spread_frames(scores, 3, min_gap=2) == [1, 4, 6]
+    assert spread_frames(scores, 10, min_gap=1) == [0, 1, 2, 4, 5, 6]  # NaN never picked

@@ -18,24 +18,13 @@ from facecap.solvers.compare import SAMPLE_BASIS, STABLE, actor_take, calibratio
 from facecap.solvers.io_csv import read_weights_csv, write_markers_csv, write_weights_csv
 from facecap.solvers.library_store import load_version
 from facecap.solvers.synth import performance_weights, synthesize_take
+from facecap.solvers.tuning import spread_frames
 
 ROOT = Path(__file__).resolve().parents[2]
 BLEND = ROOT / "sample_blends" / "character.blend"
 WEAK = ("jawOpen", "mouthSmileLeft", "browInnerUp", "eyeBlinkLeft")
 
 pytestmark = pytest.mark.slow
-
-
-def _busy_frames(W, cols, n=8, sep=20):
-    """The frames where the weak poses are most active, >= ``sep`` apart (what an animator would fix)."""
-    score = W[:, cols].sum(axis=1)
-    out = []
-    for t in np.argsort(-score, kind="stable"):
-        if all(abs(int(t) - s) >= sep for s in out):
-            out.append(int(t))
-        if len(out) == n:
-            break
-    return sorted(out)
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +41,8 @@ def take(tmp_path_factory):
     truth = performance_weights(character.shape_names, 300, seed=0)
     t = actor_take(actor, truth, gaps=0.05, seed=2)
     write_markers_csv(out / "take.csv", t.markers)
-    idx = _busy_frames(truth, [character.shape_names.index(n) for n in WEAK])
+    # the frames where the weak poses are most active (what an animator would fix)
+    idx = spread_frames(truth[:, [character.shape_names.index(n) for n in WEAK]].sum(axis=1), 8)
     write_weights_csv(out / "corrections.csv", t.markers.frames[idx], character.shape_names, truth[idx])
     return {"dir": out, "poses": poses, "neutral": neutral, "truth": truth, "idx": idx,
             "names": character.shape_names}
