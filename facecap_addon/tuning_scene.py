@@ -134,12 +134,36 @@ def solve_inputs(settings, scene):
         character = take.character_target(settings.target)
     inputs = take.strategy_inputs(settings)
     rsettings = take.retarget_settings(settings)
+    if markers is not None:
+        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames))
     if settings.library_active:
         from ..solvers.tuning_take import apply_version
 
         version = load_version(scene, settings.library_active)
         character, inputs, rsettings = apply_version(version, character, inputs, rsettings)
     return markers, character, rsettings, inputs
+
+
+def _layered_locks(settings, frames):
+    """{shape: (F,) value the animator sees} for locked shapes that have a solve layer or keys."""
+    key = settings.target.data.shape_keys
+    if key is None or key.animation_data is None:
+        return {}
+    locked = [s.name for s in settings.shapes if s.lock and s.name in key.key_blocks]
+    has_solve = layers.solved_action(key) is not None
+    keyed = {n for n in locked if layers.edit_key_frames(key, [n]).size}
+    names = [n for n in locked if has_solve or n in keyed]
+    if not names:
+        return {}
+    _, final = layers.layer_values(key, names, frames)
+    return dict(zip(names, final.T))
+
+
+def animator_locks(settings, frames):
+    """Solve locks: a locked shape is held at what the animator sees on every frame (the solve
+    layer plus their keys) when there is such a layer, else at its lock value."""
+    layered = _layered_locks(settings, np.asarray(frames, dtype=np.float64))
+    return tuple((glob.escape(s.name), layered.get(s.name, s.lock_value)) for s in settings.shapes if s.lock)
 
 
 def with_controls(settings, result):
@@ -159,7 +183,20 @@ def solve_take(settings, scene):
 
 
 def key_solve(settings, result):
-    """Key ``result`` as the target's new solve layer; returns the action."""
+    """Key ``result`` as the target's new solve layer; returns the action.
+
+    A locked shape keeps its previous solve-layer curve: the solve held it at what the animator saw
+    (solve layer + their keys), so re-keying that value under their keys would count them twice.
+    """
+    key = settings.target.data.shape_keys
+    locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
+    if locked and key is not None and layers.solved_action(key) is not None:
+        previous, _ = layers.layer_values(key, locked, result.frames)
+        weights = result.weights.copy()
+        for j, n in enumerate(locked):
+            if not np.isnan(previous[:, j]).all():
+                weights[:, result.shape_names.index(n)] = previous[:, j]
+        result = replace(result, weights=weights)
     name = settings.take_name or "FaceCap"
     action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
     settings.last_action = action.name

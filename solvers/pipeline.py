@@ -52,7 +52,7 @@ class RetargetSettings:
     fine_weight: float = 1.0  # trust of deforming markers in the refit, relative to stable ones
     head_smoothing: float = 0.1  # half-window (s) of the zero-phase head-pose smoothing; 0 = off
     bounds: tuple = ()  # ((shape pattern, lower, upper), ...) overriding the slider ranges
-    locks: tuple = ()  # ((shape pattern, value), ...) shapes held fixed (animator-owned)
+    locks: tuple = ()  # ((shape pattern, value or (F,) values per frame), ...) shapes held fixed (animator-owned)
     regions: tuple = ()  # (Region, ...) shapes solved from their own marker subsets (geometric only)
     calibration: CalibrationSettings = CalibrationSettings()  # calibrated, refine
     mapping: MappingSettings = MappingSettings()  # calibrated, refine, parallel
@@ -242,7 +242,7 @@ def _retarget_geometric(markers, basis, settings):
 
     sub = basis.subset_markers(used)
     lower, upper = resolve_bounds(basis.shape_names, basis.lower, basis.upper, settings.bounds)
-    locks = resolve_locks(basis.shape_names, settings.locks)
+    locks = resolve_locks(basis.shape_names, settings.locks, n_frames=markers.frames.size)
     regions, held = resolve_regions(basis.shape_names, used, settings.regions, dims=3)
     if held:
         notes.append(f"{len(held)} shape(s) are in no region and are held: {list(held)}")
@@ -323,12 +323,11 @@ def _target(character, settings):
 
 def _finish(target, weights, settings, notes):
     """Hold locked shapes at their values; note the options that do not apply."""
-    locks = resolve_locks(target.names, settings.locks)
-    held = ~np.isnan(locks)
+    locks = resolve_locks(target.names, settings.locks, n_frames=weights.shape[0])
+    held = ~np.isnan(locks)  # (K,) or per frame (F, K)
     if held.any():
-        weights = weights.copy()
         rows = ~np.isnan(weights).all(axis=1)
-        weights[np.ix_(rows, held)] = locks[held]
+        weights = np.where(held & rows[:, None], locks, weights)
     if settings.regions:
         notes.append(f"[solve] regions apply to the geometric strategy only; ignored by '{settings.strategy}'")
     return weights

@@ -43,13 +43,27 @@ def resolve_bounds(shape_names, lower, upper, bounds):
     return lo, hi
 
 
-def resolve_locks(shape_names, locks):
-    """(K,) lock values, NaN for free shapes, from ((pattern, value), ...)."""
+def resolve_locks(shape_names, locks, *, n_frames=None):
+    """Lock values, NaN for free shapes, from ((pattern, value), ...).
+
+    A value is a number, or an array of one value per frame (NaN = free on that frame; needs
+    ``n_frames``): then the result is (F, K), else (K,).
+    """
     _check_patterns("locks", [p for p, _ in locks], shape_names)
-    values = np.full(len(shape_names), np.nan)
+    per_frame = any(np.ndim(v) > 0 for _, v in locks)
+    if per_frame and n_frames is None:
+        raise FacecapError("locks: per-frame lock values need the number of frames")
+    values = np.full((n_frames, len(shape_names)) if per_frame else len(shape_names), np.nan)
     for k, name in enumerate(shape_names):
         match = _first_match(name, locks)
-        if match is not None:
+        if match is None:
+            continue
+        if per_frame:
+            column = np.asarray(match, dtype=np.float64)
+            if column.ndim > 0 and column.shape != (n_frames,):
+                raise FacecapError(f"locks: '{name}' has {column.size} per-frame values for {n_frames} frames")
+            values[:, k] = column
+        else:
             values[k] = match
     return values
 

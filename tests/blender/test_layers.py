@@ -105,3 +105,21 @@ def test_a_solve_assigned_by_an_older_version_moves_off_the_animator_layer(solve
     key.animation_data.action = old  # as facecap 0.1 left files: the solve was the active action
     assert bpy.ops.facecap.solve() == {"FINISHED"}
     assert key.animation_data.action is None and old.use_fake_user
+
+
+def test_a_locked_shape_keeps_the_animators_keys_through_resolves(solved):
+    obj, names = solved
+    key = obj.data.shape_keys
+    shape = names[4]
+    _key_edit(obj, shape, 60, 0.8)
+    _key_edit(obj, shape, 120, 0.1)
+    frames = np.arange(1, N_FRAMES + 1, dtype=float)
+    seen = layers.layer_values(key, [shape], frames)[1][:, 0]
+    s = bpy.context.scene.facecap
+    assert bpy.ops.facecap.refresh_shapes() == {"FINISHED"}
+    next(item for item in s.shapes if item.name == shape).lock = True
+    for reg in (0.002, 0.004):
+        s.regularisation = reg
+        assert bpy.ops.facecap.solve() == {"FINISHED"}
+        np.testing.assert_allclose(layers.layer_values(key, [shape], frames)[1][:, 0], seen, atol=1e-6)
+        np.testing.assert_allclose(_evaluated(obj, [shape], [60, 120])[:, 0], [0.8, 0.1], atol=1e-5)

@@ -54,3 +54,22 @@ def test_shapes_outside_every_region_never_move(take):
     assert "shape0" in held and any("held" in w for w in r.warnings)
     for name in held:
         assert np.all(r.weights[:, basis.shape_names.index(name)] == 0.0)
+
+
+def test_per_frame_locks_hold_the_animators_values(take):
+    """A shape locked to per-frame values (an animator's keys) is held there on every frame; NaN
+    frames are free; the other shapes are solved knowing its contribution."""
+    basis, stable, W, synth = take
+    name = basis.shape_names[3]
+    held = W[:, 3].copy()
+    held[150:] = np.nan  # free from frame 150 on
+    settings = RetargetSettings(stable_markers=tuple(stable), neutral_frames=(1, 50), locks=((name, held),), **EXACT)
+    r = retarget(synth.markers, basis, settings)
+    np.testing.assert_allclose(r.weights[:150, 3], W[:150, 3], atol=1e-12)
+    np.testing.assert_allclose(r.weights, W, atol=1e-5)
+    wrong = W[:, 3] + 0.3  # held off the truth: the free frames still recover, the rest compensate
+    settings = RetargetSettings(stable_markers=tuple(stable), neutral_frames=(1, 50), locks=((name, wrong),), **EXACT)
+    r = retarget(synth.markers, basis, settings)
+    np.testing.assert_allclose(r.weights[:, 3], wrong, atol=1e-12)
+    with pytest.raises(FacecapError, match="per-frame values for 200 frames"):
+        resolve_locks(basis.shape_names, ((name, held[:10]),), n_frames=200)
