@@ -371,7 +371,8 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     )
 
 
-def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", min_points=None):
+def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", min_points=None, robust=True,
+                 iterations=5):
     """Stabilise 2D tracks on stable points: per-frame similarity (or rigid) or affine map onto a reference.
 
     Parameters
@@ -381,12 +382,18 @@ def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", m
     reference_frames : (first, last) or None; the median of that range (default: the first frame
         with every stable point) is the reference
     mode : "similarity", "rigid" or "affine"
+    robust : bool
+        Tukey-reweight the stable points per frame (``iterations`` refits), so a "stable" point that
+        does move (a cheek in a smile, a slipping dot) loses its say; needs more points than the
+        model's minimum.
 
     Returns
     -------
     StabiliseResult with ``rotations`` (F, 2, 2) holding the linear part (rotation x scale, or the
-    affine matrix), ``translations`` (F, 2); frames with too few points are flagged.
+    affine matrix), ``translations`` (F, 2) (see ``transforms_2d``); frames with too few points are flagged.
     """
+    if markers.dim != 2:
+        raise FacecapError(f"stabilise 2D needs 2D markers; got D = {markers.dim}")
     if mode not in ("rigid", "similarity", "affine"):
         raise FacecapError(f"stabilise 2D: mode must be 'rigid', 'similarity' or 'affine'; got '{mode}'")
     stable = tuple(stable)
@@ -412,30 +419,27 @@ def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", m
             reference = np.nanmedian(pts[sel], axis=0)
         if np.isnan(reference).any():
             raise FacecapError("stabilise 2D: a stable point is never visible in the reference frames")
+    # Tukey scale floor, unit-free: a small fraction of the stable points' spread.
+    floor = 1e-4 * float(np.sqrt(np.mean(np.sum((reference - reference.mean(axis=0)) ** 2, axis=1)))) or 1e-12
     A = np.tile(np.eye(2), (F, 1, 1))
     t = np.zeros((F, 2))
     flagged = vis.sum(axis=1) < min_points
     for f in np.flatnonzero(~flagged):
         x, y = pts[f, vis[f]], reference[vis[f]]
-        cx, cy = x.mean(axis=0), y.mean(axis=0)
-        x0, y0 = x - cx, y - cy
-        if mode == "affine":
-            sol, _, rank, _ = np.linalg.lstsq(x0, y0, rcond=None)
-            if rank < 2:
-                flagged[f] = True
-                continue
-            M = sol.T
-        else:
-            U, sv, Vt = np.linalg.svd(x0.T @ y0)
-            d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-            Rf = Vt.T @ np.diag([1.0, d]) @ U.T
-            var = (x0**2).sum()
-            if var <= 1e-24:
-                flagged[f] = True
-                continue
-            scale = 1.0 if mode == "rigid" else float((y0 * (x0 @ Rf.T)).sum() / var)
-            M = scale * Rf
-        A[f], t[f] = M, cy - M @ cx
+        w = np.ones(len(x))
+        fit = _fit_2d(x, y, w, mode)
+        for _ in range(iterations if robust and len(x) > need else 0):
+            M, c = fit
+            res = np.linalg.norm(x @ M.T + c - y, axis=1)
+            u = res / (4.685 * max(1.4826 * np.median(res), floor))
+            w = np.where(u < 1, (1 - u**2) ** 2, 0.0)
+            if (w > 0).sum() < need:
+                break
+            fit = _fit_2d(x, y, w, mode) or fit
+        if fit is None:
+            flagged[f] = True
+            continue
+        A[f], t[f] = fit
     moved = (markers.positions @ A.transpose(0, 2, 1)) + t[:, None, :]
     moved[flagged] = np.nan
     err = np.linalg.norm(moved[:, idx] - reference[None], axis=2)
@@ -450,3 +454,30 @@ def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", m
         translations=t, rms=rms, flagged=flagged, flag_reasons=reasons, unreliable=np.zeros(F, dtype=bool),
         marker_trust={n: 1.0 for n in stable}, scales=None, mode=mode,
     )
+
+
+def _fit_2d(x, y, w, mode):
+    """Weighted fit ``y ~ M x + c`` (Umeyama for rigid/similarity, least squares for affine); None if degenerate."""
+    wn = w / w.sum()
+    cx, cy = wn @ x, wn @ y
+    x0, y0 = x - cx, y - cy
+    if mode == "affine":
+        sw = np.sqrt(wn)[:, None]
+        sol, _, rank, _ = np.linalg.lstsq(x0 * sw, y0 * sw, rcond=None)
+        if rank < 2:
+            return None
+        M = sol.T
+    else:
+        U, _, Vt = np.linalg.svd((x0 * wn[:, None]).T @ y0)
+        d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+        R = Vt.T @ np.diag([1.0, d]) @ U.T
+        var = float(wn @ np.sum(x0**2, axis=1))
+        if var <= 1e-24:
+            return None
+        M = R if mode == "rigid" else float(wn @ np.sum(y0 * (x0 @ R.T), axis=1)) / var * R
+    return M, cy - M @ cx
+
+
+def transforms_2d(result):
+    """(F, 2, 3) matrices ``[A | t]`` mapping raw image points onto the reference, from a 2D StabiliseResult."""
+    return np.concatenate([result.rotations, result.translations[:, :, None]], axis=2)

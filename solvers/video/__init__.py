@@ -1,4 +1,6 @@
-"""Video input: reading footage, sparse LK tracking, dense optical flow, flow PCA, 2D stabilisation.
+"""Video input: reading footage, sparse LK tracking, dense optical flow, flow PCA and its features.
+
+2D stabilisation of image tracks is ``solvers.stabilise.stabilise_2d`` (re-exported).
 
 Needs OpenCV (``cv2``, contrib for TV-L1); never imports Blender modules. Importing this package
 is cheap; cv2 is imported by the modules that use it.
@@ -9,12 +11,12 @@ from .flow import (DenseFlowResult, FlowEstimator, ReferenceFlow, compose, dense
                    reverse, sample_flow, track_with_flow, track_with_flow_job, warp)
 from .pca import FlowPCA, flow_pca
 from .reading import Cancelled, Footage, FootageInfo, Job, open_footage, write_video
-from .stabilise2d import Stabilise2DResult, stabilise_2d
+from ..stabilise import stabilise_2d  # the one 2D stabilisation (image tracks), re-exported here
 from .tracking import LKTracker, TrackResult, auto_seeds, read_seed_points, track_points, track_points_job
 
 __all__ = [
     "Cancelled", "DenseFlowResult", "FlowEstimator", "FlowFeatures", "FlowPCA", "Footage", "FootageInfo", "Job",
-    "LKTracker", "ReferenceFlow", "Stabilise2DResult", "TrackResult", "auto_seeds", "compose", "dense_flow",
+    "LKTracker", "ReferenceFlow", "TrackResult", "auto_seeds", "compose", "dense_flow",
     "dense_flow_job", "endpoint_error", "flow_features", "flow_pca", "open_footage", "read_seed_points",
     "remove_similarity", "reverse", "sample_flow", "solve_from_flow", "stabilise_2d", "track_points",
     "track_points_job", "track_with_flow", "track_with_flow_job", "warp", "write_video",

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("cv2")
 
 from facecap.solvers import solve_bounded  # noqa: E402
-from facecap.solvers.video.stabilise2d import stabilise_2d  # noqa: E402
+from facecap.solvers.stabilise import stabilise_2d  # noqa: E402
 from facecap.solvers.video.synthetic import write_synthetic_clip  # noqa: E402
 from facecap.solvers.video.tracking import track_points  # noqa: E402
 
@@ -31,7 +31,7 @@ def test_weights_from_video_through_tracks_and_a_2d_solve(tmp_path):
     stable = np.array([[20, 20], [300, 20], [20, 220], [300, 220], [160, 12]], float)  # far from every bump
     names = [f"s{i}" for i in range(len(stable))] + [f"f{i:02d}" for i in range(len(face))]
     res = track_points(clip.path, points=np.vstack([stable, face]), names=names)
-    stab = stabilise_2d(res.markers, names[: len(stable)], model="similarity")
+    stab = stabilise_2d(res.markers, names[: len(stable)], mode="similarity")
     assert np.nanmax(stab.rms) < 0.5
     pos = stab.markers.positions[:, len(stable):]
     deltas = (pos - pos[0]).reshape(len(pos), -1)

@@ -1,4 +1,5 @@
-"""2D stabilisation of image tracks, and the video package's import hygiene."""
+"""2D stabilisation of image tracks (the one implementation, solvers.stabilise.stabilise_2d), and the
+video package's import hygiene."""
 
 import subprocess
 import sys
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers import FacecapError, MarkerSet
-from facecap.solvers.video.stabilise2d import stabilise_2d
+from facecap.solvers.stabilise import stabilise_2d, transforms_2d
 
 
 def moving_tracks(F=20, seed=0, model="similarity"):
@@ -27,9 +28,9 @@ def moving_tracks(F=20, seed=0, model="similarity"):
 @pytest.mark.parametrize("model", ["similarity", "affine"])
 def test_head_motion_is_removed_exactly(model):
     mk, ref = moving_tracks(model=model)
-    res = stabilise_2d(mk, ["m0", "m1", "m2", "m3", "m4"], model=model)
+    res = stabilise_2d(mk, ["m0", "m1", "m2", "m3", "m4"], mode=model)
     np.testing.assert_allclose(res.markers.positions, np.broadcast_to(ref, mk.positions.shape), atol=1e-9)
-    assert res.transforms.shape == (20, 2, 3) and np.nanmax(res.rms) < 1e-9 and not res.flagged.any()
+    assert transforms_2d(res).shape == (20, 2, 3) and np.nanmax(res.rms) < 1e-9 and not res.flagged.any()
 
 
 def test_a_moving_stable_point_is_outvoted_and_gaps_are_flagged():
@@ -38,6 +39,8 @@ def test_a_moving_stable_point_is_outvoted_and_gaps_are_flagged():
     pos[:, 0] += [15.0, -10.0]  # "stable" m0 actually moves
     pos[5, 1:] = np.nan  # frame 6: only m0 left
     res = stabilise_2d(mk.with_positions(pos), ["m0", "m1", "m2", "m3", "m4", "m5"])
+    plain = stabilise_2d(mk.with_positions(pos), ["m0", "m1", "m2", "m3", "m4", "m5"], robust=False)
+    assert np.nanmax(np.abs(plain.markers.positions[:, 1:] - ref[1:])) > 0.3  # least squares alone is pulled off
     good = ~res.flagged
     assert res.flagged.tolist() == [i == 5 for i in range(20)]
     assert np.isnan(res.markers.positions[5]).all()
@@ -45,7 +48,9 @@ def test_a_moving_stable_point_is_outvoted_and_gaps_are_flagged():
     with pytest.raises(FacecapError, match="needs 2D markers"):
         stabilise_2d(MarkerSet(["a"], [1], np.zeros((1, 1, 3))), ["a"])
     with pytest.raises(FacecapError, match="unknown stable marker"):
-        stabilise_2d(mk, ["nose"])
+        stabilise_2d(mk, ["nose", "m1"])
+    with pytest.raises(FacecapError, match="need at least 3 stable points"):
+        stabilise_2d(mk, ["m0", "m1"], mode="affine")
 
 
 def test_importing_the_video_package_loads_neither_blender_nor_opencv():
