@@ -232,3 +232,32 @@ def test_original_version_names_by_content(weak, character):
     markers, settings, inputs, W, base, idx, r, _ = weak
     v0 = original_version(base, settings, inputs)
     assert v0.parent == "" and v0.name == r.version.parent and v0.payload is base.fitted.actor_basis
+
+
+def test_refine_retunes_the_refined_library_and_does_not_refine_it_again(character):
+    markers, settings, inputs, W = _calibrated_take(character, 0.4, frames=360)
+    settings = replace(settings, strategy="refine", refine=replace(settings.refine, max_iterations=1))
+    base = retarget(markers, character, settings, inputs=inputs)
+    idx = _worst_frames(W, base.weights)
+    r = retune_take(markers, character, settings, inputs, _corrections(base, W, idx), base=base)
+    print(f"\nrefine: corrected {r.corrected_rmse_before:.4f} -> {r.corrected_rmse_after:.4f}")
+    assert r.changed and r.version.strategy == "refine" and r.version.kind == "actor_basis"
+    # smaller gain than calibrated: the refinement already spread part of the weak poses' misfit
+    assert r.corrected_rmse_after < 0.8 * r.corrected_rmse_before
+    # the stored (refined, then tuned) library is used as it is: the same as calibrated with it
+    assert_array_equal(r.result.fitted.actor_basis.deltas, r.version.payload.deltas)
+    c, i, s = apply_version(r.version, character, inputs, replace(settings, strategy="calibrated"))
+    assert_allclose(retarget(markers, c, s, inputs=i).weights, r.result.weights, atol=1e-12)
+
+
+def test_pca_examples_and_examples_from_another_take(character, example_take):
+    markers, inputs, W, ex = example_take
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), strategy="pca")
+    base = retarget(markers, character, settings, inputs=inputs)
+    idx = _worst_frames(W, base.weights)
+    r = retune_take(markers, character, settings, inputs, _corrections(base, W, idx), base=base)
+    print(f"\npca: corrected {r.corrected_rmse_before:.4f} -> {r.corrected_rmse_after:.4f}")
+    assert r.version.kind == "examples" and r.corrected_rmse_after < 0.5 * r.corrected_rmse_before
+    other = replace(inputs, examples=replace(inputs.examples, markers=markers))
+    with pytest.raises(FacecapError, match=r"the examples belong to another take \(\[examples\] markers\)"):
+        retune_take(markers, character, settings, other, _corrections(base, W, idx), base=base)
