@@ -96,6 +96,9 @@ class RetargetResult:
     normalise: dict = field(default_factory=dict)  # neutral source, detected frames, master offsets (JSON-ready)
     stable_suggestion: object = None  # StableSuggestion when [stabilise] markers = "auto"
     head_target: str = ""
+    # (F, M) per-frame distance of each marker from its fit (metres, same space as residual_rms), NaN where
+    # the marker is missing or the frame unsolved; None where the strategy has no marker fit (parallel, 2D)
+    frame_marker_residual: np.ndarray = None
 
     def report(self):
         """A JSON-ready summary (lengths in millimetres)."""
@@ -292,8 +295,9 @@ def _retarget_geometric(markers, basis, settings):
     notes.extend(solved.warnings)
 
     measured = ~np.isnan(deltas[:, :, 0])
-    residual_rms, marker_residual = _residuals(solved.weights, sub.deltas, deltas, measured)
+    residual_rms, marker_residual, frame_marker = _residuals(solved.weights, sub.deltas, deltas, measured)
     residual_rms[~solved.solved] = np.nan
+    frame_marker[~solved.solved] = np.nan
     timings["total"] = time.perf_counter() - t0
     return RetargetResult(
         frames=markers.frames,
@@ -306,6 +310,7 @@ def _retarget_geometric(markers, basis, settings):
         stabilise=stab,
         alignment=align,
         alignment_residual=align_res,
+        frame_marker_residual=frame_marker,
         warnings=tuple(dict.fromkeys(notes)),
         timings={k: round(v, 6) for k, v in timings.items()},
         normalise=norm_info,
@@ -371,12 +376,18 @@ def _retarget_markers(markers, character, settings, inputs):
     F = take.frames.size
     residual_rms = np.full(F, np.nan) if res.residual_rms is None else np.asarray(res.residual_rms, dtype=np.float64)
     marker_residual = np.full(len(used), np.nan)
+    frame_marker = None
     if res.solve is not None and res.solve.residuals.shape[1] == 3 * len(fitted_names):
         r2 = (res.solve.residuals.reshape(F, len(fitted_names), 3) ** 2).sum(axis=2)
         seen = np.isfinite(r2) & (r2 > 0)
         with np.errstate(invalid="ignore", divide="ignore"):
             per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
-        marker_residual = per[[fitted_names.index(n) for n in used]]
+        cols = [fitted_names.index(n) for n in used]
+        marker_residual = per[cols]
+        # observed = a finite delta (the residuals are 0, not NaN, at gaps), as in the strategies' rms
+        observed = np.isfinite(take.deltas[:, [take.names.index(n) for n in used], 0])
+        frame_marker = np.where(observed, np.sqrt(r2[:, cols]), np.nan)
+        frame_marker[~np.asarray(res.solve.solved, dtype=bool)] = np.nan
     at_bound = res.solve.at_bound if res.solve is not None else res.clamped
     info = dict(res.info)
     for attr in ("version", "history", "basis_frames", "n_examples"):
@@ -392,6 +403,7 @@ def _retarget_markers(markers, character, settings, inputs):
         strategy=settings.strategy, residual_space="actor" if res.residual_rms is not None else None,
         source_weights=res.source_weights, source_names=tuple(res.source_names), info=info, fitted=strategy,
         normalise=norm_info, stable_suggestion=suggestion, head_target=settings.head_target,
+        frame_marker_residual=frame_marker,
     )
 
 
@@ -524,8 +536,10 @@ def _predict(weights, deltas):
 
 
 def _residuals(weights, basis_deltas, deltas, measured):
-    """RMS residual per frame (F,) and per marker (M,) over the measured samples only."""
+    """RMS residual per frame (F,) and per marker (M,) over the measured samples only, and the
+    distance per frame and marker (F, M), NaN where not measured."""
     res = _predict(weights, basis_deltas) - deltas
     sq = np.where(measured, (res**2).sum(axis=2), 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(sq.sum(axis=1) / measured.sum(axis=1)), np.sqrt(sq.sum(axis=0) / measured.sum(axis=0))
+        return (np.sqrt(sq.sum(axis=1) / measured.sum(axis=1)), np.sqrt(sq.sum(axis=0) / measured.sum(axis=0)),
+                np.where(measured, np.sqrt(sq), np.nan))

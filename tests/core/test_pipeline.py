@@ -64,3 +64,48 @@ def test_too_few_bound_markers_is_an_error(setup):
     renamed = take.markers.with_positions(take.markers.positions, names=tuple(f"x{i}" for i in range(basis.n_markers)))
     with pytest.raises(FacecapError, match="bound on the character"):
         retarget(renamed, basis, RetargetSettings(stable, (1, 50)))
+
+
+def _frame_rms(frame_marker):
+    """RMS over the measured markers of each frame (NaN where none)."""
+    seen = np.isfinite(frame_marker)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt((np.where(seen, frame_marker, 0.0) ** 2).sum(axis=1) / seen.sum(axis=1))
+
+
+def test_frame_marker_residual_is_the_per_marker_split_of_residual_rms(setup):
+    basis, stable, W = setup
+    take = synthesize_take(basis, W, stable=stable, noise_sigma=0.0005, gap_fraction=0.1)
+    r = retarget(take.markers, basis, RetargetSettings(stable, (1, 50)))
+    fm = r.frame_marker_residual
+    assert fm.shape == (W.shape[0], len(r.marker_names))
+    gaps = np.isnan(take.markers.positions[:, take.markers.index(r.marker_names), 0])
+    assert gaps.any()
+    np.testing.assert_array_equal(np.isnan(fm), gaps | ~np.isfinite(r.residual_rms)[:, None])
+    ok = np.isfinite(r.residual_rms)
+    np.testing.assert_allclose(_frame_rms(fm)[ok], r.residual_rms[ok], rtol=1e-9, atol=0)
+    assert np.nanmin(fm) >= 0.0 and np.nanmax(fm) < 0.01  # metres: 0.5 mm noise, not centimetres
+
+
+def test_frame_marker_residual_of_a_marker_strategy_and_none_for_parallel():
+    from dataclasses import replace
+
+    from facecap.solvers.compare import STABLE, build_scenario
+    from facecap.solvers.io_weights import WeightTrack
+    from facecap.solvers.strategies.options import CalibrationSettings, StrategyInputs
+
+    sc = build_scenario(frames=240, n_examples=20)
+    poses = tuple((k, (tuple(v),)) for k, v in sc.poses.items())
+    cal = CalibrationSettings(poses=poses, neutral_frames=tuple(sc.calibration_neutral))
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), calibration=cal)
+    r = retarget(sc.test.markers, sc.character, replace(settings, strategy="calibrated"),
+                 inputs=StrategyInputs(calibration=sc.calibration))
+    fm = r.frame_marker_residual
+    assert r.residual_space == "actor" and fm.shape == (240, len(r.marker_names))
+    ok = np.isfinite(r.residual_rms)
+    assert ok.sum() > 200
+    np.testing.assert_allclose(_frame_rms(fm)[ok], r.residual_rms[ok], rtol=1e-9, atol=0)
+
+    track = WeightTrack(frames=np.arange(1.0, 4.0), fps=60.0, names=("jawOpen",), values=np.full((3, 1), 0.5))
+    p = retarget(None, ("jawOpen",), replace(settings, strategy="parallel"), inputs=StrategyInputs(weights=track))
+    assert p.frame_marker_residual is None
