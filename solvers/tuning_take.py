@@ -467,14 +467,15 @@ def _tune_character(markers, character, base, settings, idx, Wc, mu, parent, not
     sub = character.subset_markers(used)
     lower, upper = resolve_bounds(sub.shape_names, sub.lower, sub.upper, settings.bounds)
     lib = Basis(sub.shape_names, used, sub.neutral, sub.deltas, lower, upper)
-    locks = resolve_locks(sub.shape_names, settings.locks)
+    locks = resolve_locks(sub.shape_names, settings.locks, n_frames=deltas.shape[0])  # (K,) or per frame (F, K)
     regions, _ = resolve_regions(sub.shape_names, used, settings.regions, dims=3)
     options = GeometricOptions(regularisation=settings.regularisation, sparsity=settings.sparsity,
                                symmetry=settings.symmetry, smoothing=tuple(settings.smoothing))
 
     def solver(b, D, per_frame=False):
+        held = locks if locks.ndim == 1 or not per_frame else locks[0] * np.nan  # single frames: no per-frame locks
         res = solve_geometric(b, D, options=replace(options, smoothing=(0.0, 0.0)) if per_frame else options,
-                              locks=None if np.isnan(locks).all() else locks, regions=regions)
+                              locks=None if np.isnan(held).all() else held, regions=regions)
         w = np.array(res.weights, dtype=np.float64)
         w[~res.solved] = np.nan
         return w

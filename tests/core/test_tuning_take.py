@@ -261,3 +261,18 @@ def test_pca_examples_and_examples_from_another_take(character, example_take):
     other = replace(inputs, examples=replace(inputs.examples, markers=markers))
     with pytest.raises(FacecapError, match=r"the examples belong to another take \(\[examples\] markers\)"):
         retune_take(markers, character, settings, other, _corrections(base, W, idx), base=base)
+
+
+def test_geometric_with_locks_keeps_them(character):
+    W = performance_weights(character.shape_names, 240, seed=0)
+    take = synthesize_take(character, W, stable=STABLE, seed=2)
+    per_frame = np.full(240, np.nan)
+    per_frame[100:140] = 0.2
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), fine_iterations=0,
+                                locks=(("tongueOut", 0.0), ("cheekPuff", per_frame)))
+    base = retarget(take.markers, character, settings)
+    idx = _worst_frames(W, base.weights, n=4)
+    r = retune_take(take.markers, character, settings, None, _corrections(base, W + 0.05, idx, names=("jawOpen",)),
+                    base=base)
+    assert_array_equal(r.result.weights[:, character.shape_names.index("tongueOut")], 0.0)
+    assert_allclose(r.result.weights[100:140, character.shape_names.index("cheekPuff")], 0.2, atol=1e-12)
