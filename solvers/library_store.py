@@ -1,7 +1,9 @@
-"""Library versions on disk and the animator's corrections CSV (issue 7).
+"""Library versions, on disk, and the animator's corrections CSV (issue 7).
 
-Versions (``tuning_take.LibraryVersion``) are stored as .npz files of plain arrays (no pickles).
-A write is atomic (a temporary file beside the target, linked into place) and never replaces an
+A ``LibraryVersion`` (made by ``tuning_take.retune_take``) is what a strategy learned, named by its
+content, with its parent's name; ``to_arrays`` / ``from_arrays`` turn it into plain numpy arrays
+(names as unicode arrays), stored here as .npz files (no pickles) or by the Blender layer as ID
+properties. A write is atomic (a temporary file beside the target, linked into place) and never replaces an
 existing file: when the name is taken, ``-2``, ``-3``... is appended, so every retune leaves every
 earlier version (and the original) on disk.
 
@@ -11,17 +13,116 @@ and alias (``solvers.aliases``), so ``JawOpen`` or ``jaw_open`` find ``jawOpen``
 """
 
 import csv
+import hashlib
+import json
 import os
 import re
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .aliases import canonical_names, name_key
+from .basis import Basis
 from .errors import FacecapError, InputFileError
+from .pipeline import jsonable
+from .strategies.options import ExamplePairs
 
 SUFFIX = ".npz"
+FORMAT = "facecap-library-version"
+_BASIS_KEYS = ("shape_names", "marker_names", "neutral", "deltas", "lower", "upper")
+
+
+@dataclass(frozen=True, eq=False)
+class LibraryVersion:
+    """One stored version of what a strategy learned.
+
+    name : content-hashed (``calibrated-1a2b3c4d`` for an original, ``<root>+tune8f-<hash>`` for a retune)
+    parent : name of the version it was tuned from ("" for an original)
+    strategy : the strategy it was made for
+    kind : "actor_basis" (calibrated/refine), "character_basis" (geometric) or "examples" (linear/rbf/pca)
+    payload : Basis (actor or character library) or ExamplePairs (frames of the take, markers=None)
+    created : ISO 8601 UTC time
+    summary : JSON-ready figures (corrected_rmse_before/after, others_moved, mu, candidate, notes, ...)
+    shapes : the character's shape names it was made for
+    """
+
+    name: str
+    parent: str
+    strategy: str
+    kind: str
+    payload: object
+    created: str
+    summary: dict = field(default_factory=dict)
+    shapes: tuple = ()
+
+    def to_arrays(self):
+        """``{key: ndarray}`` (numbers, and unicode arrays for names) holding everything ``from_arrays`` needs."""
+        out = {"format": np.array(FORMAT), "format_version": np.array(1, dtype=np.int64),
+               "name": np.array(self.name), "parent": np.array(self.parent), "strategy": np.array(self.strategy),
+               "kind": np.array(self.kind), "created": np.array(self.created),
+               "summary": np.array(json.dumps(jsonable(self.summary), sort_keys=True)),
+               "shapes": np.array(self.shapes, dtype=str).reshape(-1)}
+        out.update(_payload_arrays(self.kind, self.payload))
+        return out
+
+    @classmethod
+    def from_arrays(cls, d):
+        """The version stored by ``to_arrays`` (a dict, an ``np.load`` result or lists from ID properties)."""
+        def get(key):
+            if key not in d:
+                raise FacecapError(f"library version: missing array '{key}' (not a facecap library version?)")
+            return np.asarray(d[key])
+
+        if _text(get("format")) != FORMAT:
+            raise FacecapError(f"library version: 'format' must be '{FORMAT}'; got '{_text(get('format'))}'")
+        if int(get("format_version")) != 1:
+            raise FacecapError(f"library version: unsupported format_version {int(get('format_version'))} (expected 1)")
+        kind = _text(get("kind"))
+        if kind == "examples":
+            payload = ExamplePairs(get("example_frames").astype(np.float64), get("example_weights").astype(np.float64),
+                                   _names(get("example_names")), None)
+        elif kind in ("actor_basis", "character_basis"):
+            a = {k: get(k) for k in _BASIS_KEYS}
+            payload = Basis(_names(a["shape_names"]), _names(a["marker_names"]), a["neutral"], a["deltas"],
+                            a["lower"], a["upper"])
+        else:
+            raise FacecapError(f"library version: unknown kind '{kind}'")
+        try:
+            summary = json.loads(_text(get("summary")))
+        except json.JSONDecodeError as exc:
+            raise FacecapError(f"library version: 'summary' is not valid JSON ({exc.msg})") from None
+        return cls(name=_text(get("name")), parent=_text(get("parent")), strategy=_text(get("strategy")), kind=kind,
+                   payload=payload, created=_text(get("created")), summary=summary, shapes=_names(get("shapes")))
+
+
+def _text(a):
+    a = np.asarray(a)
+    return str(a.item() if a.ndim == 0 else a.reshape(-1)[0]) if a.size else ""
+
+
+def _names(a):
+    return tuple(str(s) for s in np.asarray(a).reshape(-1))
+
+
+def _payload_arrays(kind, payload):
+    if kind == "examples":
+        return {"example_frames": np.asarray(payload.frames, dtype=np.float64),
+                "example_weights": np.asarray(payload.weights, dtype=np.float64),
+                "example_names": np.array(payload.names, dtype=str).reshape(-1)}
+    b = payload
+    return {"shape_names": np.array(b.shape_names, dtype=str), "marker_names": np.array(b.marker_names, dtype=str),
+            "neutral": b.neutral, "deltas": b.deltas, "lower": b.lower, "upper": b.upper}
+
+
+def payload_digest(kind, payload):
+    """Short content hash of a payload (version names: equal content, equal name)."""
+    h = hashlib.sha1()
+    for key, a in sorted(_payload_arrays(kind, payload).items()):
+        h.update(key.encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:8]
 
 
 def _safe(name):
@@ -77,8 +178,6 @@ def save_version(version, destination):
 
 def load_version(path):
     """The LibraryVersion stored in an .npz by ``save_version``; errors name the file."""
-    from .tuning_take import LibraryVersion
-
     path = Path(path)
     if not path.is_file():
         raise InputFileError(path, "library version file not found")

@@ -20,9 +20,7 @@ content-hashed name and its parent's name (``LibraryVersion``), and ``to_arrays`
 store it as plain numpy arrays (an .npz, or ID-property arrays in a .blend).
 """
 
-import hashlib
-import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 
 import numpy as np
@@ -30,106 +28,13 @@ import numpy as np
 from .aliases import canonical_names, name_key
 from .basis import Basis
 from .errors import FacecapError
+from .library_store import LibraryVersion, payload_digest  # noqa: F401 (LibraryVersion: part of this API)
 from .pipeline import jsonable, retarget
 from .strategies.options import ExamplePairs, StrategyInputs
 
 #: strategy -> what a version of it stores
 KINDS = {"calibrated": "actor_basis", "refine": "actor_basis", "geometric": "character_basis",
          "linear": "examples", "rbf": "examples", "pca": "examples"}
-FORMAT = "facecap-library-version"
-_BASIS_KEYS = ("shape_names", "marker_names", "neutral", "deltas", "lower", "upper")
-
-
-@dataclass(frozen=True, eq=False)
-class LibraryVersion:
-    """One stored version of what a strategy learned.
-
-    name : content-hashed (``calibrated-1a2b3c4d`` for an original, ``<root>+tune8f-<hash>`` for a retune)
-    parent : name of the version it was tuned from ("" for an original)
-    strategy : the strategy it was made for
-    kind : "actor_basis" (calibrated/refine), "character_basis" (geometric) or "examples" (linear/rbf/pca)
-    payload : Basis (actor or character library) or ExamplePairs (frames of the take, markers=None)
-    created : ISO 8601 UTC time
-    summary : JSON-ready figures (corrected_rmse_before/after, others_moved, mu, candidate, notes, ...)
-    shapes : the character's shape names it was made for
-    """
-
-    name: str
-    parent: str
-    strategy: str
-    kind: str
-    payload: object
-    created: str
-    summary: dict = field(default_factory=dict)
-    shapes: tuple = ()
-
-    def to_arrays(self):
-        """``{key: ndarray}`` (numbers, and unicode arrays for names) holding everything ``from_arrays`` needs."""
-        out = {"format": np.array(FORMAT), "format_version": np.array(1, dtype=np.int64),
-               "name": np.array(self.name), "parent": np.array(self.parent), "strategy": np.array(self.strategy),
-               "kind": np.array(self.kind), "created": np.array(self.created),
-               "summary": np.array(json.dumps(jsonable(self.summary), sort_keys=True)),
-               "shapes": np.array(self.shapes, dtype=str).reshape(-1)}
-        out.update(_payload_arrays(self.kind, self.payload))
-        return out
-
-    @classmethod
-    def from_arrays(cls, d):
-        """The version stored by ``to_arrays`` (a dict, an ``np.load`` result or lists from ID properties)."""
-        def get(key):
-            if key not in d:
-                raise FacecapError(f"library version: missing array '{key}' (not a facecap library version?)")
-            return np.asarray(d[key])
-
-        if _text(get("format")) != FORMAT:
-            raise FacecapError(f"library version: 'format' must be '{FORMAT}'; got '{_text(get('format'))}'")
-        if int(get("format_version")) != 1:
-            raise FacecapError(f"library version: unsupported format_version {int(get('format_version'))} (expected 1)")
-        kind = _text(get("kind"))
-        if kind == "examples":
-            payload = ExamplePairs(get("example_frames").astype(np.float64), get("example_weights").astype(np.float64),
-                                   _names(get("example_names")), None)
-        elif kind in ("actor_basis", "character_basis"):
-            a = {k: get(k) for k in _BASIS_KEYS}
-            payload = Basis(_names(a["shape_names"]), _names(a["marker_names"]), a["neutral"], a["deltas"],
-                            a["lower"], a["upper"])
-        else:
-            raise FacecapError(f"library version: unknown kind '{kind}'")
-        try:
-            summary = json.loads(_text(get("summary")))
-        except json.JSONDecodeError as exc:
-            raise FacecapError(f"library version: 'summary' is not valid JSON ({exc.msg})") from None
-        return cls(name=_text(get("name")), parent=_text(get("parent")), strategy=_text(get("strategy")), kind=kind,
-                   payload=payload, created=_text(get("created")), summary=summary, shapes=_names(get("shapes")))
-
-
-def _text(a):
-    a = np.asarray(a)
-    return str(a.item() if a.ndim == 0 else a.reshape(-1)[0]) if a.size else ""
-
-
-def _names(a):
-    return tuple(str(s) for s in np.asarray(a).reshape(-1))
-
-
-def _payload_arrays(kind, payload):
-    if kind == "examples":
-        return {"example_frames": np.asarray(payload.frames, dtype=np.float64),
-                "example_weights": np.asarray(payload.weights, dtype=np.float64),
-                "example_names": np.array(payload.names, dtype=str).reshape(-1)}
-    b = payload
-    return {"shape_names": np.array(b.shape_names, dtype=str), "marker_names": np.array(b.marker_names, dtype=str),
-            "neutral": b.neutral, "deltas": b.deltas, "lower": b.lower, "upper": b.upper}
-
-
-def _digest(kind, payload):
-    h = hashlib.sha1()
-    for key, a in sorted(_payload_arrays(kind, payload).items()):
-        h.update(key.encode())
-        h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()[:8]
-
-
 def _now():
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -155,7 +60,7 @@ def original_version(result, settings, inputs=None, *, character=None):
         payload = character.subset_markers(result.marker_names)
     else:
         payload = _current_examples(inputs, settings, result.shape_names)
-    name = f"{strategy}-{_digest(kind, payload)}"
+    name = f"{strategy}-{payload_digest(kind, payload)}"
     return LibraryVersion(name, "", strategy, kind, payload, _now(), {"original": True}, tuple(result.shape_names))
 
 
@@ -342,9 +247,9 @@ def retune_take(markers, character, settings, inputs, corrections, *, mu=None, b
         if mu is not None:
             notes.append(f"tuning: mu applies to library retunes; '{settings.strategy}' refits its examples")
         payload, tune = _tune_examples(source.payload, base, idx, Wc), None
-    changed = _digest(kind, payload) != _digest(kind, source.payload)
+    changed = payload_digest(kind, payload) != payload_digest(kind, source.payload)
     root = source.name.split("+")[0]
-    name = f"{root}+tune{len(idx)}f-{_digest(kind, payload)}" if changed else source.name
+    name = f"{root}+tune{len(idx)}f-{payload_digest(kind, payload)}" if changed else source.name
     version = LibraryVersion(name, source.name if changed else source.parent, settings.strategy, kind, payload,
                              _now(), {}, tuple(base.shape_names))
     if changed:
