@@ -4,7 +4,8 @@
   frames, with and without re-registration, and end to end from an FFV1 video file (decode included).
 * DIS dense flow at 640x480 (goal >= 30 frames/s): one DIS call per frame, and the drift-controlled
   reference flow (two DIS calls plus the fusion) per frame.
-Figures depend on the machine (the reference machine has 2 shared cores); they are printed, not asserted.
+Every row is the median frames/s over ``repeats`` interleaved runs (the reference machine has 2
+shared cores, so single runs are noisy); figures are printed, not asserted.
 """
 
 import argparse
@@ -31,62 +32,75 @@ def _rate(n, seconds):
     return n / max(seconds, 1e-9)
 
 
-def bench_tracking(n_frames=120, width=1280, height=720, n_points=100):
-    """Frames/s of 100-point LK tracking at 1280x720; returns a list of (name, frames/s)."""
+def _medians(runs, repeats):
+    """``runs``: [(name, callable() -> frames done)]; median frames/s of each over interleaved repeats."""
+    rates = {name: [] for name, _ in runs}
+    for _ in range(max(int(repeats), 1)):
+        for name, run in runs:
+            t0 = time.perf_counter()
+            n = run()
+            rates[name].append(_rate(n, time.perf_counter() - t0))
+    return [(name, float(np.median(rates[name]))) for name, _ in runs]
+
+
+def bench_tracking(n_frames=120, width=1280, height=720, n_points=100, repeats=3):
+    """Frames/s (medians) of 100-point LK tracking at 1280x720; returns a list of (name, frames/s)."""
     imgs = _frames(n_frames, width, height)
     names, pts = auto_seeds(imgs[0], [width * 0.2, height * 0.1, width * 0.6, height * 0.8], max_points=n_points)
-    rows = []
-    for label, rereg in (("LK 1280x720, %d pts, re-registration (4 LK calls/frame)" % len(pts), True),
-                         ("LK 1280x720, %d pts, continuous only (2 LK calls/frame)" % len(pts), False)):
-        tr = LKTracker(imgs[0], pts, reregister=rereg)
-        t0 = time.perf_counter()
-        for img in imgs[1:]:
-            tr.step(img)
-        rows.append((label, _rate(n_frames - 1, time.perf_counter() - t0)))
+
+    def tracker(rereg):
+        def run():
+            tr = LKTracker(imgs[0], pts, reregister=rereg)
+            for img in imgs[1:]:
+                tr.step(img)
+            return n_frames - 1
+        return run
+
+    runs = [("LK 1280x720, %d pts, re-registration (4 LK calls/frame)" % len(pts), tracker(True)),
+            ("LK 1280x720, %d pts, continuous only (2 LK calls/frame)" % len(pts), tracker(False))]
     with tempfile.TemporaryDirectory() as d:
         for ext, codec in (("avi", "FFV1 (lossless)"), ("mp4", "mp4v (MPEG-4 part 2)")):
             path = os.path.join(d, "bench." + ext)
             write_video(path, imgs)
-            t0 = time.perf_counter()
-            n = sum(1 for _ in Footage(path))
-            rows.append((f"decode + gray only, {codec} 1280x720", _rate(n, time.perf_counter() - t0)))
-            t0 = time.perf_counter()
-            track_points(Footage(path), points=pts, names=names)
-            rows.append((f"LK 1280x720 end to end from {codec} (decode + gray + track)",
-                         _rate(n_frames, time.perf_counter() - t0)))
-    return rows
+            runs.append((f"decode + gray only, {codec} 1280x720", lambda p=path: sum(1 for _ in Footage(p))))
+            runs.append((f"LK 1280x720 end to end from {codec} (decode + gray + track)",
+                         lambda p=path: track_points(Footage(p), points=pts, names=names).markers.n_frames))
+        return _medians(runs, repeats)
 
 
-def bench_flow(n_frames=60, width=640, height=480):
-    """Frames/s of DIS flow at 640x480; returns a list of (name, frames/s)."""
+def bench_flow(n_frames=60, width=640, height=480, repeats=3):
+    """Frames/s (medians) of DIS flow at 640x480; returns a list of (name, frames/s)."""
     imgs = _frames(n_frames, width, height, seed=1)
-    rows = []
+    runs = []
     for preset in ("balanced", "medium", "fast"):
         est = FlowEstimator("dis", preset=preset)
-        t0 = time.perf_counter()
-        for img in imgs[1:]:
-            est.calc(imgs[0], img)
-        rows.append((f"DIS ({preset}) 640x480, one flow per frame", _rate(n_frames - 1, time.perf_counter() - t0)))
+
+        def one(est=est):
+            for img in imgs[1:]:
+                est.calc(imgs[0], img)
+            return n_frames - 1
+        runs.append((f"DIS ({preset}) 640x480, one flow per frame", one))
     for preset in ("balanced", "fast"):
-        rf = ReferenceFlow(imgs[0], drift="fuse", preset=preset)
-        t0 = time.perf_counter()
-        for img in imgs[1:]:
-            rf.step(img)
-        rows.append((f"DIS ({preset}) 640x480, reference flow with drift fusion", _rate(n_frames - 1,
-                                                                                     time.perf_counter() - t0)))
-    return rows
+        def fused(preset=preset):
+            rf = ReferenceFlow(imgs[0], drift="fuse", preset=preset)
+            for img in imgs[1:]:
+                rf.step(img)
+            return n_frames - 1
+        runs.append((f"DIS ({preset}) 640x480, reference flow with drift fusion (2 flows/frame)", fused))
+    return _medians(runs, repeats)
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.solvers.video.bench")
     parser.add_argument("--frames", type=int, default=120, help="frames per tracking run (default 120)")
+    parser.add_argument("--repeats", type=int, default=3, help="interleaved runs per row; medians (default 3)")
     args = parser.parse_args(argv)
     cv2 = _cv2()
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {os.cpu_count()} CPUs", flush=True)
-    for name, fps in bench_tracking(args.frames):
-        print(f"{name}: {fps:.0f} frames/s (goal >= 60)", flush=True)
-    for name, fps in bench_flow(max(args.frames // 2, 10)):
-        print(f"{name}: {fps:.0f} frames/s (goal >= 30)", flush=True)
+    for name, fps in bench_tracking(args.frames, repeats=args.repeats):
+        print(f"{name}: {fps:.0f} frames/s median (goal >= 60)", flush=True)
+    for name, fps in bench_flow(max(args.frames // 2, 10), repeats=args.repeats):
+        print(f"{name}: {fps:.0f} frames/s median (goal >= 30)", flush=True)
     return 0
 
 
