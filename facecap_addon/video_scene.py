@@ -123,3 +123,16 @@ def camera_from_scene(scene, name=None, *, object_matrix=None, resolution=None):
     if object_matrix is not None:
         model = model.relative_to(np.array(object_matrix))
     return model
+
+
+def projection_for(scene, character, projection="front", camera_name=None, *, resolution=None):
+    """What ``solvers.pipeline_2d`` projects a 2D take's character through: ``"front"`` or the
+    camera (``camera_name`` or the scene camera) seeing ``character``'s local coordinates.
+
+    For the take config (``[solve] projection`` / ``camera``) and the sidebar (Scene.facecap.video).
+    """
+    if projection == "front":
+        return "front"
+    if projection != "camera":
+        raise FacecapError(f"projection must be 'front' or 'camera'; got {projection!r}")
+    return camera_from_scene(scene, camera_name or None, object_matrix=character.matrix_world, resolution=resolution)

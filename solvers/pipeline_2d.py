@@ -69,7 +69,7 @@ def retarget_geometric_2d(markers, basis, settings, *, projection=None):
     timings["solve"] = time.perf_counter() - t1
     notes.extend(solved.warnings)
     measured = ~np.isnan(deltas[:, :, 0])
-    residual_rms, marker_residual = _residuals(solved.weights, sub.deltas, deltas, measured)
+    residual_rms, marker_residual, frame_marker = _residuals(solved.weights, sub.deltas, deltas, measured)
     timings["total"] = time.perf_counter() - t0
     return RetargetResult(
         frames=markers.frames,
@@ -82,6 +82,7 @@ def retarget_geometric_2d(markers, basis, settings, *, projection=None):
         stabilise=stab,
         alignment=align,
         alignment_residual=align_res,
+        frame_marker_residual=frame_marker,
         warnings=tuple(notes) + (view,),
         timings={k: round(v, 6) for k, v in timings.items()},
     )
@@ -168,12 +169,17 @@ def retarget_markers_2d(markers, character, settings, inputs):
     used = tuple(n for n in fitted if n in set(take.names))
     F = take.frames.size
     marker_residual = np.full(len(used), np.nan)
+    frame_marker = None
     if res.solve is not None and res.solve.residuals.shape[1] == 2 * len(fitted):
         r2 = (res.solve.residuals.reshape(F, len(fitted), 2) ** 2).sum(axis=2)
         seen = np.isfinite(r2) & (r2 > 0)
         with np.errstate(invalid="ignore", divide="ignore"):
             per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
-        marker_residual = per[[fitted.index(n) for n in used]]
+        cols = [fitted.index(n) for n in used]
+        marker_residual = per[cols]
+        observed = np.isfinite(take.deltas[:, [take.names.index(n) for n in used], 0])  # as pipeline's 3D path
+        frame_marker = np.where(observed, np.sqrt(r2[:, cols]), np.nan)
+        frame_marker[~np.asarray(res.solve.solved, dtype=bool)] = np.nan
     at_bound = res.solve.at_bound if res.solve is not None else res.clamped
     residual = np.full(F, np.nan) if res.residual_rms is None else np.asarray(res.residual_rms, dtype=np.float64)
     timings = {"stabilise": t1 - t0, "fit": t2 - t1, "solve": t3 - t2, "total": time.perf_counter() - t0}
@@ -186,4 +192,5 @@ def retarget_markers_2d(markers, character, settings, inputs):
         timings={k: round(v, 6) for k, v in timings.items()}, strategy=settings.strategy,
         residual_space="actor" if res.residual_rms is not None else None, source_weights=res.source_weights,
         source_names=tuple(res.source_names), info=dict(res.info), fitted=strategy,
+        frame_marker_residual=frame_marker,
     )
