@@ -136,3 +136,10 @@ def projection_for(scene, character, projection="front", camera_name=None, *, re
     if projection != "camera":
         raise FacecapError(f"projection must be 'front' or 'camera'; got {projection!r}")
     return camera_from_scene(scene, camera_name or None, object_matrix=character.matrix_world, resolution=resolution)
+
+
+def projection_from_sidebar(scene, character, *, resolution=None):
+    """``projection_for`` with the sidebar's Scene.facecap.video settings."""
+    video = scene.facecap.video
+    camera = video.camera.name if video.camera is not None else None
+    return projection_for(scene, character, video.projection, camera, resolution=resolution)
