@@ -41,8 +41,13 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
         try:
             session = self._start(context)
             wm.progress_begin(0, 100)
+
+            def progress(done, total):
+                wm.progress_update(int(100 * done / max(total, 1)))
+                return True
+
             try:
-                session.run(lambda done, total: wm.progress_update(int(100 * done / max(total, 1))) or True)
+                session.run(progress)
             finally:
                 wm.progress_end()
         except FacecapError as exc:

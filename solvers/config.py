@@ -222,8 +222,9 @@ def load_take_config(path):
     weights_path = resolve(get("source", "weights"))
     strategy_options = strategy_settings(path, data, strategy)
     cal_units = get("calibration", "units")
-    if cal_units is not None and cal_units not in UNIT_SCALE:
-        raise ConfigError(f"units must be one of {sorted(UNIT_SCALE)}; got '{cal_units}'", path=path, key="calibration.units")
+    if cal_units is not None and cal_units not in (*UNIT_SCALE, "px"):  # px: a filmed calibration (2D tracks)
+        raise ConfigError(f"units must be one of {sorted((*UNIT_SCALE, 'px'))}; got '{cal_units}'", path=path,
+                          key="calibration.units")
     cal_fps = get("calibration", "fps")
     if cal_fps is not None and cal_fps <= 0:
         raise ConfigError(f"fps must be positive; got {cal_fps}", path=path, key="calibration.fps")

@@ -11,6 +11,7 @@ import os
 import queue
 import re
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -98,8 +99,6 @@ class Job:
             raise Cancelled(f"cancelled at frame {self.frame}")
         if self.result is not None:
             return True
-        import time
-
         end = None if seconds is None else time.perf_counter() + float(seconds)
         count = 0
         while count < max_frames or (end is not None and time.perf_counter() < end):

@@ -106,3 +106,33 @@ def test_linear_from_2d_tracks_and_posed_frames(sample):
     rmse = float(np.sqrt(np.mean((r.weights[rest] - W[rest]) ** 2)))
     print(f"linear from 2D tracks: weights RMSE {rmse:.4f} on unposed frames")
     assert rmse <= 0.06
+
+
+def test_take_config_accepts_a_filmed_calibration_in_pixels(tmp_path):
+    from facecap.solvers import ConfigError, load_take_config
+
+    text = """
+[target]
+object = "Face"
+[source]
+markers = "tracks.csv"
+units = "px"
+[stabilise]
+markers = ["a", "b", "c"]
+[neutral]
+frames = [1, 30]
+[solve]
+strategy = "calibrated"
+[calibration]
+markers = "calibration_tracks.csv"
+units = "px"
+align = "similarity"
+poses = { jawOpen = [40, 48] }
+"""
+    path = tmp_path / "take.toml"
+    path.write_text(text)
+    cfg = load_take_config(path)
+    assert cfg.calibration_units == "px" and cfg.settings.calibration.align == "similarity"
+    path.write_text(text.replace('units = "px"\nalign', 'units = "pixels"\nalign'))
+    with pytest.raises(ConfigError, match=r"\[calibration.units\] units must be one of .*'px'"):
+        load_take_config(path)
