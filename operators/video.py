@@ -119,6 +119,7 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
         name = f"{session.clip_name} tracks"
         coll = import_scene.create_take(scene, markers, name, set_scene_range=False)
         _remember_take(scene, markers, Path(name), coll)
+        scene.facecap.take_name = name  # not Path(name).stem: clip names keep their extension ("face.avi")
         self.report({"INFO"}, f"Tracked {markers.n_markers} points over {markers.n_frames} frames into '{coll.name}'; "
                               + result.summary().splitlines()[0])
 

@@ -1,5 +1,7 @@
 """Tracking a movie clip's footage from its own track markers, as an artist would in the sidebar."""
 
+from types import SimpleNamespace
+
 import bpy
 import numpy as np
 import pytest
@@ -78,3 +80,55 @@ def test_stepping_to_the_end_gives_the_same_tracks_as_one_run(clip):
     np.testing.assert_array_equal(stepped.result.markers.positions, whole.markers.positions)
     # Background mode: INVOKE falls back to running to completion.
     assert bpy.ops.facecap.track_clip("INVOKE_DEFAULT", region=(80, 60, 160, 120), max_points=20) == {"FINISHED"}
+
+
+class ModalDriver:
+    """The operator's own modal methods on a plain object (Blender builds operator instances itself)."""
+
+    from facecap.operators.video import FACECAP_OT_track_clip as _op
+
+    modal, cancel, _stop, _write = _op.modal, _op.cancel, _op._stop, _op._write
+
+    def __init__(self, session):
+        self._session, self._timer, self.reports = session, None, []
+
+    def report(self, kind, message):
+        self.reports.append((kind.pop(), message))
+
+
+def scene_state(scene):
+    return (set(bpy.data.collections.keys()), set(bpy.data.objects.keys()), set(bpy.data.actions.keys()),
+            scene.facecap.take_name, len(scene.facecap.markers))
+
+
+def test_modal_timer_ticks_then_esc_cancels_with_nothing_written(clip, monkeypatch):
+    from facecap.facecap_addon.video_scene import ClipTracking
+    from facecap.operators import video as video_ops
+
+    monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)  # one frame per tick
+    clip, _ = clip
+    context, scene = bpy.context, bpy.context.scene
+    before = scene_state(scene)
+    driver = ModalDriver(ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20))
+    tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+    assert [driver.modal(context, tick) for _ in range(3)] == [{"RUNNING_MODAL"}] * 3
+    assert driver.modal(context, SimpleNamespace(type="MOUSEMOVE", value="NOTHING")) == {"PASS_THROUGH"}
+    assert driver._session.job.done == 3
+    assert driver.modal(context, esc) == {"CANCELLED"}
+    assert driver.reports == [("WARNING", "Tracking cancelled at frame 3; nothing was added to the scene")]
+    assert scene_state(scene) == before
+
+
+def test_modal_timer_ticks_to_the_end_and_adds_the_take(clip, monkeypatch):
+    from facecap.facecap_addon.video_scene import ClipTracking
+    from facecap.operators import video as video_ops
+
+    monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)
+    clip, _ = clip
+    context, scene = bpy.context, bpy.context.scene
+    driver = ModalDriver(ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20))
+    tick = SimpleNamespace(type="TIMER", value="NOTHING")
+    results = [driver.modal(context, tick) for _ in range(25)]
+    assert results[:24] == [{"RUNNING_MODAL"}] * 24 and results[24] == {"FINISHED"}
+    assert scene.facecap.take_name == f"{clip.name} tracks" and len(scene.facecap.markers) >= 5
+    assert driver.reports[-1][0] == "INFO" and "over 24 frames" in driver.reports[-1][1]
