@@ -20,7 +20,8 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
 
     region: bpy.props.IntVectorProperty(
         name="Region", size=4, default=(0, 0, 0, 0), min=0,
-        description="x, y, width, height in pixels for automatic features when the clip has no track markers at this frame",
+        description="x, y, width, height in pixels for automatic features when the clip has no track markers "
+                    "at this frame",
     )
     max_points: bpy.props.IntProperty(name="Max Points", default=100, min=1)
 
