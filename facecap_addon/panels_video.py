@@ -19,8 +19,9 @@ class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(v, "region")
         col.prop(v, "max_points")
+        col.prop(v, "method")
         op = layout.operator("facecap.track_clip", icon="TRACKING")
-        op.region, op.max_points = tuple(v.region), v.max_points
+        op.region, op.max_points, op.method = tuple(v.region), v.max_points, v.method
         layout.label(text="2D takes are solved against")
         layout.prop(v, "projection", expand=True)
         if v.projection == "camera":

@@ -10,6 +10,14 @@ PROJECTION_ITEMS = [
 ]
 
 
+METHOD_ITEMS = [
+    ("lk", "Lucas-Kanade", "Sparse pyramidal LK with re-registration to the reference frame"),
+    ("dis", "DIS Flow", "Dense DIS optical flow relative to the reference frame, sampled at the points"),
+    ("farneback", "Farneback Flow", "Dense Farneback optical flow, sampled at the points"),
+    ("tvl1", "TV-L1 Flow", "Dense TV-L1 optical flow (slow, accurate), sampled at the points"),
+]
+
+
 def _is_camera(_self, obj):
     return obj.type == "CAMERA"
 
@@ -25,6 +33,7 @@ class FACECAP_PG_video(bpy.types.PropertyGroup):
                               description="x, y, width, height in pixels for automatic features when the clip "
                                           "has no track markers at the current frame")
     max_points: IntProperty(name="Max Points", default=100, min=1, description="Automatic features to track")
+    method: EnumProperty(name="Method", items=METHOD_ITEMS, default="lk", description="How the points are followed")
 
 
 CLASSES = (FACECAP_PG_video,)

@@ -44,11 +44,13 @@ class ClipTracking:
     writes :attr:`result` (so a cancelled run leaves the scene as it was).
 
     Seeds are the clip's enabled track markers at ``frame`` or, when it has none there, up to
-    ``max_points`` automatic features in ``region`` = (x, y, w, h) pixels.
+    ``max_points`` automatic features in ``region`` = (x, y, w, h) pixels. ``method``: "lk"
+    (Lucas-Kanade) or a dense flow ("dis", "farneback", "tvl1") sampled at the seeds.
     """
 
-    def __init__(self, scene, clip, frame, *, region=(0, 0, 0, 0), max_points=100):
+    def __init__(self, scene, clip, frame, *, region=(0, 0, 0, 0), max_points=100, method="lk"):
         from ..solvers.video import Footage
+        from ..solvers.video.flow import track_with_flow_job
         from ..solvers.video.tracking import track_points_job
 
         source, offset = clip_footage(clip)
@@ -62,7 +64,11 @@ class ClipTracking:
                                "add markers or give a Region")
         fps = clip.fps or scene.render.fps / scene.render.fps_base
         self.clip_name = clip.name
-        self.job = track_points_job(Footage(source, frame_offset=offset, fps=fps), reference=frame, **seeds)
+        footage = Footage(source, frame_offset=offset, fps=fps)
+        if method == "lk":
+            self.job = track_points_job(footage, reference=frame, **seeds)
+        else:  # dense flow (DIS, Farneback, TV-L1) sampled at the seeds
+            self.job = track_with_flow_job(footage, reference=frame, method=method, **seeds)
 
     @property
     def result(self):

@@ -4,6 +4,7 @@ from pathlib import Path
 
 import bpy
 
+from ..facecap_addon.properties_video import METHOD_ITEMS
 from ..solvers.errors import FacecapError
 
 TICK_SECONDS = 0.02  # timer interval
@@ -11,7 +12,7 @@ STEP_SECONDS = 0.1  # tracking per timer tick: long enough to make progress, sho
 
 
 class FACECAP_OT_track_clip(bpy.types.Operator):
-    """Track the scene's movie clip with Lucas-Kanade from its own track markers at the current frame
+    """Track the scene's movie clip (Lucas-Kanade or dense flow) from its own track markers at the current frame
     (or features in a region) and add the 2D tracks as a take; progress shows in the status bar, Esc cancels"""
 
     bl_idname = "facecap.track_clip"
@@ -24,6 +25,7 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
                     "at this frame",
     )
     max_points: bpy.props.IntProperty(name="Max Points", default=100, min=1)
+    method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="lk")
 
     @classmethod
     def poll(cls, context):
@@ -34,7 +36,7 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
 
         scene = context.scene
         return ClipTracking(scene, scene.active_clip, scene.frame_current, region=tuple(self.region),
-                            max_points=self.max_points)
+                            max_points=self.max_points, method=self.method)
 
     def execute(self, context):
         """Run to completion (bpy.ops from scripts and background mode)."""

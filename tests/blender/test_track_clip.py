@@ -132,3 +132,18 @@ def test_modal_timer_ticks_to_the_end_and_adds_the_take(clip, monkeypatch):
     assert results[:24] == [{"RUNNING_MODAL"}] * 24 and results[24] == {"FINISHED"}
     assert scene.facecap.take_name == f"{clip.name} tracks" and len(scene.facecap.markers) >= 5
     assert driver.reports[-1][0] == "INFO" and "over 24 frames" in driver.reports[-1][1]
+
+
+def test_dense_flow_tracking_of_the_clip(clip):
+    clip, synth = clip
+    width, height = clip.size
+    seeds = np.array([[120.0, 100.0], [200.0, 110.0], [160.0, 170.0]])
+    for i, (x, y) in enumerate(seeds):
+        track = clip.tracking.tracks.new(name=f"p{i}", frame=1)
+        track.markers.insert_frame(1, co=(x / width, 1.0 - y / height))
+    assert bpy.ops.facecap.track_clip(method="dis") == {"FINISHED"}
+    markers = take.markers_from_collection(bpy.context.scene.facecap)
+    order = [markers.names.index(f"p{i}") for i in range(3)]
+    px = np.stack([markers.positions[:, order, 0], -markers.positions[:, order, 2]], axis=2) * 1000.0
+    truth = np.stack([synth.motion.forward(t, seeds) for t in range(24)])
+    assert np.nanmedian(np.linalg.norm(px - truth, axis=2)) <= 0.5
