@@ -87,13 +87,35 @@ def _batches(wins, limit):
     return out
 
 
-def _settle(ctx, qmul, G, w, free, lin, tol, pad, max_rounds=8):
+def _qdelta(qmul_rows, T, delta, rows):
+    """Q @ delta for delta non-zero only on the frames ``rows`` (bool (F,)): the within-frame part on
+    those rows, the temporal part (cheap, diagonal blocks) on the whole take."""
+    y = _tmul(T, delta)
+    if rows.mean() > 0.5:
+        return y + qmul_rows(delta, None)
+    idx = np.flatnonzero(rows)
+    y[idx] += qmul_rows(delta[idx], idx)
+    return y
+
+
+def _near(rows, F):
+    """Frames within 2 of a frame in ``rows``: where Q couples them."""
+    out = rows.copy()
+    for s in (1, 2):
+        out[s:] |= rows[:-s]
+        out[:-s] |= rows[s:]
+    return out
+
+
+def _settle(ctx, qmul_rows, T, G, w, grad, free, lin, tol, pad, max_rounds=8):
     """Make w exact on the free set: solve ``Q_FF w_F = G_F - lin_F - Q_FB w_B`` by banded windows
     around the frames whose residual exceeds ``tol`` (all of them at first; afterwards only the
     edges of earlier windows and frames whose state changed); the last round, if reached, solves
-    the whole take at once. Returns (w, grad = Q w - G)."""
+    the whole take at once. ``grad`` (= Q w - G on entry) is updated from each round's change only,
+    so rounds and iterations that touch a few windows cost only those windows.
+    Returns (w, grad, touched): touched = frames whose w or grad changed."""
     F = w.shape[0]
-    grad = qmul(w) - G
+    touched = np.zeros(F, dtype=bool)
     for rnd in range(max_rounds):
         res = np.where(free, -(grad + lin), 0.0)
         bad = (np.abs(res) > tol).any(axis=1)
@@ -102,6 +124,7 @@ def _settle(ctx, qmul, G, w, free, lin, tol, pad, max_rounds=8):
         r_free = res[free]
         delta = np.zeros_like(w)
         wins = _windows(bad, pad, F) if rnd < max_rounds - 1 else [(0, F)]
+        moved = np.zeros(F, dtype=bool)
         for batch in _batches(wins, BAND_FRAMES):
             band = None
             if len(batch) > 1:  # many small windows: build their within-frame bands at once
@@ -112,48 +135,95 @@ def _settle(ctx, qmul, G, w, free, lin, tol, pad, max_rounds=8):
                 band = (B, row)
             for a, b in batch:
                 delta[a:b][free[a:b]] = solve_window(ctx, r_free, a, b, band=band)
+                moved[a:b] = True
         w = w + delta
-        grad = qmul(w) - G
-    return w, grad
+        grad = grad + _qdelta(qmul_rows, T, delta, moved)
+        touched |= _near(moved, F)
+    return w, grad, touched
 
 
-def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=32):
+#: Takes at least this long are cut in two halves solved at the same time (``engine_split``); the
+#: whole-take iteration then starts from their joined solution and only settles the seam.
+SPLIT_FRAMES = 6000
+#: Frames each half runs past the middle, so that its free end is far from the seam.
+OVERLAP = 200
+
+
+def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=32, split=True):
     """Solve the whole take. Shapes as in ``engine_frames.solve_frames``; mu = (mu1, mu2) absolute.
 
     Returns (W (F, K), iterations, converged).
     """
+    from .engine_split import fork_available, run_pair
+
     F, K = G.shape
     pats, inv = patterns(C)
     Hp = pattern_hessians(A, pats, R)
+
+    def guess(a, b, workers):
+        """Per-frame start for frames [a, b) (frames without data: their rest value)."""
+        w = np.clip(0.0, lo[a:b], hi[a:b]).astype(float)
+        idx = np.flatnonzero(C[a:b].sum(axis=1) > 0)
+        if idx.size:
+            idx_t = idx + a
+            w[idx] = solve_frames(A, C[idx_t], G[idx_t], R, lo[idx_t], hi[idx_t], lam, max_iter=INIT_ITER,
+                                  chunk=chunk, exact=False, workers=workers)[0]
+        return w
+
+    def half(a, b):
+        w0 = guess(a, b, 1)
+        return _active_set(Hp, inv[a:b], G[a:b], lo[a:b], hi[a:b], lam, mu, w0, max_iter, pad)
+
+    iters = 0
+    if split and F >= SPLIT_FRAMES and fork_available():
+        m = F // 2
+        b0 = max(0, m - OVERLAP)
+        (wa, ia, _), (wb, ib, _) = run_pair(half, (0, min(F, m + OVERLAP)), (b0, F))
+        w = np.concatenate([wa[:m], wb[m - b0 :]])
+        iters = max(ia, ib)
+    else:
+        w = guess(0, F, None)
+    w, it, ok = _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad)
+    return w, iters + it, ok
+
+
+def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
+    """The primal-dual active-set iteration over frames with pattern Hessians ``Hp[inv]``, from ``w``."""
+    F, K = G.shape
     T = temporal_operator(F, *mu)
+    w = np.array(w, dtype=float)
 
-    # start from the per-frame optimum (frames without data: their rest value)
-    w = np.clip(0.0, lo, hi).astype(float)
-    has = C.sum(axis=1) > 0
-    if has.any():
-        idx = np.flatnonzero(has)
-        w[idx] = solve_frames(A, C[idx], G[idx], R, lo[idx], hi[idx], lam, max_iter=INIT_ITER, chunk=chunk, exact=False)[0]
-
-    def qmul(X):
-        return hmul(Hp, inv, X) + _tmul(T, X)
+    def qmul_rows(X, rows):
+        return hmul(Hp, inv if rows is None else inv[rows], X)
 
     diag = np.einsum("nkk->n", Hp)
     step = 1.0 / np.maximum(diag[inv] / K + T[0], 1e-300)
     scale = float(np.abs(Hp).max() + np.abs(T[0]).max(initial=0.0))
     has_l1 = bool(np.any(lam > 0))
-    grad = qmul(w) - G
-    prev = prev_sg = None
     with single_blas_thread():
+        grad = qmul_rows(w, None) + _tmul(T, w) - G
+        st, sg = classify(w - step[:, None] * grad, step, lo, hi, lam)
+        redo = np.ones(F, dtype=bool)  # frames whose state changed: their fixed variables move to the bound
         for it in range(1, max_iter + 1):
-            st, sg = classify(w - step[:, None] * grad, step, lo, hi, lam)
-            if prev is not None:
-                changed = (st != prev) | ((st == _FREE) & (sg != prev_sg) & (lam > 0))
-                if not changed.any():
-                    return w, it, True
             free = st == _FREE
-            w = np.where(free, w, fixed_values(st, lo, hi))
+            if redo.any():
+                idx = np.flatnonzero(redo)
+                target = np.where(free[idx], w[idx], fixed_values(st[idx], lo[idx], hi[idx]))
+                delta = np.zeros_like(w)
+                delta[idx] = target - w[idx]
+                w[idx] = target
+                grad += _qdelta(qmul_rows, T, delta, redo)
             lin = lam * np.where(free, sg, 0.0) if has_l1 else 0.0
             tol = 1e-12 * scale * max(1.0, float(np.abs(w).max(initial=0.0)))
-            w, grad = _settle(context(Hp, inv, T, free), qmul, G, w, free, lin, tol, pad)
-            prev, prev_sg = st, sg
+            w, grad, touched = _settle(context(Hp, inv, T, free), qmul_rows, T, G, w, grad, free, lin, tol, pad)
+            # only frames whose w or grad moved can change state
+            idx = np.flatnonzero(touched | _near(redo, F))
+            st_t, sg_t = classify(w[idx] - step[idx, None] * grad[idx], step[idx], lo[idx], hi[idx], lam)
+            changed = (st_t != st[idx]) | ((st_t == _FREE) & (sg_t != sg[idx]) & (lam > 0))
+            rows = changed.any(axis=1)
+            if not rows.any():
+                return w, it + 1, True  # counted as before: the final check is an iteration
+            redo = np.zeros(F, dtype=bool)
+            redo[idx[rows]] = True
+            st[idx], sg[idx] = st_t, sg_t
     return np.clip(w, lo, hi), max_iter, False  # active-set iterates can leave the box

@@ -110,3 +110,57 @@ def test_default_smoothing_trade_off():
           f"second-difference jitter is {jitter:.1%} of per-frame (drop {1 - jitter:.1%})")
     assert kept >= 0.90
     assert jitter <= 0.50
+
+
+@pytest.mark.parametrize("fork", [True, False])
+def test_split_take_matches_the_stacked_reference(monkeypatch, fork):
+    """A take cut in two halves (one in a forked child where possible) and joined: still the optimum."""
+    from facecap.solvers import engine_split, engine_temporal
+
+    monkeypatch.setattr(engine_temporal, "SPLIT_FRAMES", 30)
+    monkeypatch.setattr(engine_temporal, "OVERLAP", 6)
+    if not fork:
+        monkeypatch.setattr(engine_split, "fork_available", lambda: False)
+    A = localised_basis(K=10)
+    K = A.shape[1]
+    W, D = take(A, F=60, seed=23)
+    D[28:31] = np.nan  # frames with no data right at the seam
+    s = basis_scale(A)
+    res = solve_bounded(A, D, regularisation=1e-4, sparsity=0.02, smoothing=(0.01, 0.05), relative=True)
+    assert res.converged
+    ref = stacked_reference(A, D, np.isfinite(D).astype(float), 1e-4 * s * np.eye(K) + floor(A),
+                            np.full(K, 0.02 * s), np.zeros(K), np.ones(K), 0.01 * s, 0.05 * s)
+    np.testing.assert_allclose(res.weights, ref, atol=TOL, rtol=0)
+
+
+def test_long_take_split_and_windows_agree_with_one_piece(monkeypatch):
+    """1,500 frames: the windowed iteration (incremental gradient) with and without the split agree,
+    and the result meets the optimality conditions."""
+    from facecap.solvers import engine_temporal
+
+    A = localised_basis(K=10)
+    W, D = take(A, F=1500, seed=24)
+    kw = dict(regularisation=1e-4, sparsity=0.01, smoothing=(0.0, 0.3), relative=True)
+    monkeypatch.setattr(engine_temporal, "SPLIT_FRAMES", 10**9)
+    one = solve_bounded(A, D, **kw)
+    monkeypatch.setattr(engine_temporal, "SPLIT_FRAMES", 500)
+    two = solve_bounded(A, D, **kw)
+    assert one.converged and two.converged
+    np.testing.assert_allclose(two.weights, one.weights, atol=1e-9, rtol=0)
+    # KKT (half the objective's gradient): 0 on free weights, >= 0 at the lower bound, <= 0 at the upper
+    s = basis_scale(A)
+    C = np.isfinite(D)
+    Dz = np.where(C, D, 0.0)
+    w = one.weights
+    g = ((w @ A.T) * C - Dz) @ A + w @ (1e-4 * s * np.eye(A.shape[1]) + floor(A))
+    d2 = np.diff(w, n=2, axis=0)
+    g[:-2] += 0.3 * s * d2
+    g[1:-1] -= 2 * 0.3 * s * d2
+    g[2:] += 0.3 * s * d2
+    g += 0.5 * 0.01 * s  # the L1 term on w >= 0 (the kernel minimises half the objective)
+    scale = np.abs(A.T @ A).max()
+    free = (w > 1e-12) & (w < 1 - 1e-12)
+    assert np.abs(g[free]).max() <= 1e-9 * scale
+    at_lo, at_hi = w <= 1e-12, w >= 1 - 1e-12
+    assert at_lo.sum() > 500  # the bounds are active: a test of the active set, not of a linear solve
+    assert g[at_lo].min() >= -1e-9 * scale and g[at_hi].max(initial=0.0) <= 1e-9 * scale

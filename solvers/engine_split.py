@@ -1,0 +1,63 @@
+"""Two halves of a long take solved at the same time: one in a forked child process, one here.
+
+The temporal kernel's banded LAPACK calls go through scipy's wrappers, which hold the GIL, so
+threads cannot overlap them; a forked child can, and it inherits the inputs without a copy (only
+its result comes back through a pipe). Fork is used only where it is the platform's safe default
+(Linux) and not inside an interactive Blender session (a GUI process should not be forked); else,
+or if the child fails, both halves run here one after the other. Same results either way.
+"""
+
+import os
+import sys
+
+
+def fork_available():
+    """True where ``run_pair`` can put the second half in a child process."""
+    if not sys.platform.startswith("linux") or not hasattr(os, "fork") or (os.cpu_count() or 1) < 2:
+        return False
+    bpy = sys.modules.get("bpy")  # read only: solvers never import bpy
+    return bpy is None or bool(getattr(getattr(bpy, "app", None), "background", True))
+
+
+def run_pair(fn, first, second):
+    """``(fn(*first), fn(*second))``, the second computed in a forked child when possible."""
+    import multiprocessing as mp
+
+    if not fork_available():
+        return fn(*first), fn(*second)
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+
+    def child():
+        try:
+            out = ("ok", fn(*second))
+        except BaseException as e:  # the parent then solves this half itself
+            out = ("error", repr(e))
+        send.send(out)
+
+    try:
+        proc = ctx.Process(target=child, daemon=True)
+        proc.start()
+    except OSError:
+        recv.close()
+        send.close()
+        return fn(*first), fn(*second)
+    send.close()  # so that recv() ends with EOFError if the child dies without an answer
+    done = False
+    try:
+        a = fn(*first)
+        try:
+            status, b = recv.recv()
+        except EOFError:
+            status, b = "error", None
+        done = True
+    finally:
+        recv.close()
+        if done:
+            proc.join(timeout=10.0)  # it exits right after sending
+        if proc.is_alive():
+            proc.kill()
+        proc.join()
+    if status != "ok":
+        b = fn(*second)
+    return a, b

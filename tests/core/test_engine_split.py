@@ -1,0 +1,49 @@
+"""engine_split.run_pair: the second half in a forked child, the same answers, and a safe fallback."""
+
+import os
+
+import numpy as np
+import pytest
+
+from facecap.solvers import engine_split
+
+
+def _work(seed, n):
+    return np.random.default_rng(seed).normal(size=(n, 3)).sum(axis=0)
+
+
+def test_pair_matches_serial():
+    a, b = engine_split.run_pair(_work, (1, 1000), (2, 200000))
+    np.testing.assert_array_equal(a, _work(1, 1000))
+    np.testing.assert_array_equal(b, _work(2, 200000))
+
+
+@pytest.mark.skipif(not engine_split.fork_available(), reason="no fork on this platform")
+def test_second_half_runs_in_a_child_and_a_failing_child_is_redone_here():
+    parent = os.getpid()
+    where = engine_split.run_pair(lambda _: os.getpid(), (0,), (1,))
+    assert where[0] == parent and where[1] != parent
+
+    def fails_in_child(x):
+        if os.getpid() != parent:
+            raise RuntimeError("child failure")
+        return x * 2
+
+    assert engine_split.run_pair(fails_in_child, (3,), (4,)) == (6, 8)
+
+    def dies_in_child(x):
+        if os.getpid() != parent:
+            os._exit(3)
+        return x + 1
+
+    assert engine_split.run_pair(dies_in_child, (3,), (4,)) == (4, 5)
+
+
+def test_an_error_in_the_parent_half_is_raised():
+    def boom(x):
+        if x == 0:
+            raise ValueError("first half")
+        return x
+
+    with pytest.raises(ValueError, match="first half"):
+        engine_split.run_pair(boom, (0,), (1,))
