@@ -28,7 +28,7 @@ def retarget_geometric_2d(markers, basis, settings, *, projection=None):
     ``"front"`` - the orthographic front view; a ``solvers.camera.Camera`` seeing the basis'
     coordinates (``Camera.relative_to`` the character's world matrix) - each shape projected
     through it at weight 1. Camera pixels are scaled by the units a pixel spans at the face so
-    residuals read in the character's units, as with the front view.
+    residuals read in scene units (metres for a metre-scale rig), as with the front view.
     """
     notes = []
     t0 = time.perf_counter()
@@ -101,7 +101,8 @@ def _projected(basis, projection):
     unit = projection.units_per_pixel(basis.neutral)
     scaled = Basis(seen.shape_names, seen.marker_names, seen.neutral * unit, seen.deltas * unit, seen.lower, seen.upper)
     return scaled, (f"2D take: solved against the character seen through the camera "
-                    f"({unit * 1e3:.3f} mm per pixel at the face; depth motion along the view is not observed)")
+                    f"({unit * 1e3:.3f} mm (scene units x 1000) per pixel at the face; depth motion along the view is "
+                    "not observed)")
 
 
 #: marker strategies that solve 2D image tracks natively (their fits are dimension-free)
