@@ -26,8 +26,8 @@ def retarget_geometric_2d(markers, basis, settings, *, projection=None):
 
     ``projection`` (default ``settings.projection`` when the settings carry one): ``None`` or
     ``"front"`` - the orthographic front view; a ``solvers.camera.Camera`` seeing the basis'
-    coordinates (``Camera.relative_to`` the character's world matrix) - each shape projected
-    through it at weight 1. Camera pixels are scaled by the units a pixel spans at the face so
+    coordinates (``Camera.relative_to`` the character's world matrix) - shape deltas projected
+    through it linearised at the neutral (``Camera.project_basis``). Camera pixels are scaled by the units a pixel spans at the face so
     residuals read in scene units (metres for a metre-scale rig), as with the front view.
     """
     notes = []
