@@ -65,15 +65,20 @@ def hmul(Hp, inv, x):
     n_pat = Hp.shape[0]
     if n_pat == 1:
         return x @ Hp[0]
-    if n_pat * 2 > x.shape[0]:
+    n = x.shape[0]
+    if n <= 256:  # few rows: gathering their matrices is cheap
         return np.einsum("nkl,nl->nk", Hp[inv], x)
-    y = np.empty_like(x)
+    # rows sorted by pattern, one product per pattern present (slices, no per-pattern fancy indexing)
     order = np.argsort(inv, kind="stable")
-    bounds = np.searchsorted(inv[order], np.arange(n_pat + 1))
-    for p in range(n_pat):
-        sel = order[bounds[p] : bounds[p + 1]]
-        if sel.size:
-            y[sel] = x[sel] @ Hp[p]
+    si = inv[order]
+    starts = np.flatnonzero(np.concatenate([[True], si[1:] != si[:-1]]))
+    ends = np.append(starts[1:], n)
+    xs = x[order]
+    ys = np.empty_like(xs)
+    for a, b, p in zip(starts.tolist(), ends.tolist(), si[starts].tolist()):
+        ys[a:b] = xs[a:b] @ Hp[p]
+    y = np.empty_like(x)
+    y[order] = ys
     return y
 
 
@@ -118,18 +123,33 @@ def solve_free(Hp, inv, free, rhs):
     return x
 
 
-def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None, exact=True):
+#: Takes at least this long are cut in two halves solved at the same time (``engine_split``):
+#: the kernel's many small numpy calls hold the GIL, so threads alone overlap little.
+SPLIT_FRAMES = 8000
+
+
+def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None, exact=True, split=True):
     """Solve every frame. C (F, P) confidences, G (F, K) = A' (c * d), lo/hi (F, K), lam (K,).
 
     Chunks of frames run on ``workers`` threads (default: CPU count, at most 4); BLAS is pinned to
-    one thread meanwhile, since the work is many tiny solves.
+    one thread meanwhile, since the work is many tiny solves. With ``split``, a long take is first
+    cut in two halves, the second solved in a forked child process where possible.
 
     Returns (W (F, K), iterations, number of frames handed to the exact fallback).
     """
     import os
     from concurrent.futures import ThreadPoolExecutor
 
+    from .engine_split import fork_available, run_pair
+
     F, K = G.shape
+    if split and F >= SPLIT_FRAMES and fork_available():
+        def half(a, b):
+            return solve_frames(A, C[a:b], G[a:b], R, lo[a:b], hi[a:b], lam, max_iter=max_iter, chunk=chunk,
+                                workers=1, exact=exact, split=False)
+
+        (Wa, ia, fa), (Wb, ib, fb) = run_pair(half, (0, F // 2), (F // 2, F))
+        return np.concatenate([Wa, Wb]), max(ia, ib), fa + fb
     W = np.empty((F, K))
     H_full = A.T @ A + R
     n_chunks = -(-F // chunk)

@@ -21,6 +21,7 @@ class Problem:
     regions: tuple  # ((shapes, coords), ...)
     held: np.ndarray  # shape indices in no region
     mu: tuple  # (mu1, mu2), absolute
+    binary: bool = False  # C is 0/1 (no mask given): A' (c * d) is A' d, d being 0 at gaps
 
 
 def _array(x, name):
@@ -186,7 +187,7 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
             if owner[a] != owner[b]:
                 raise FacecapError(f"`symmetry` pair ({a}, {b}) spans two regions")
     Dz = np.where(C > 0, D, 0.0)  # C == 0 wherever D is NaN
-    return Problem(A, Dz, C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu)
+    return Problem(A, Dz, C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu, binary=mask is None)
 
 
 def run(prob, *, max_iter, chunk):
@@ -220,7 +221,8 @@ def run(prob, *, max_iter, chunk):
         lo[:, nr:] = hold[:, prob.held]
         hi[:, nr:] = hold[:, prob.held]
         l1 = np.concatenate([prob.l1[shapes], np.zeros(prob.held.size)]) * 0.5
-        G = (Cr * (Dz if every else Dz[:, coords])) @ Ar
+        Dr = Dz if every else Dz[:, coords]
+        G = (Dr if prob.binary else Cr * Dr) @ Ar
         has = Cr.sum(axis=1) > 0
         if temporal:
             if not has.any():
