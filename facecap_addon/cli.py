@@ -98,6 +98,12 @@ def run_retarget(config, *, quiet=False, solve=None):
     from .tune_cli import finish_solve, prepare_solve
 
     character, inputs, settings, tuning_info = prepare_solve(config, character, inputs)
+    if markers is not None and markers.dim == 2 and getattr(config, "projection", None) == "camera":
+        from dataclasses import replace
+
+        from .video_scene import projection_for
+
+        settings = replace(settings, projection=projection_for(bpy.context.scene, obj, "camera", config.camera_name))
     if solve is None:
         result, extra = retarget(markers, character, settings, inputs=inputs), {}
     else:

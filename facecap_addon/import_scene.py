@@ -27,6 +27,11 @@ def scene_positions(markers):
     return pos
 
 
+def pixels_from_scene(pos):
+    """Inverse of ``scene_positions`` for a 2D take: (F, M, 3) metres in the XZ plane -> (F, M, 2) px."""
+    return np.stack([pos[..., 0], -pos[..., 2]], axis=-1) / PIXEL_SIZE
+
+
 def create_take(scene, markers, take_name, *, empty_size=0.002, set_scene_range=True):
     """Create ``FaceCap <take_name>`` with one keyed empty per marker; returns the collection.
 
@@ -45,6 +50,7 @@ def create_take(scene, markers, take_name, *, empty_size=0.002, set_scene_range=
     scene.collection.children.link(coll)
     coll["facecap_take"] = take_name
     coll["facecap_source"] = markers.source
+    coll["facecap_dim"] = markers.dim  # 2: pixel tracks drawn in the XZ plane, read back as pixels
     for m, name in enumerate(markers.names):
         empty = bpy.data.objects.new(name, None)
         empty.empty_display_type = "SPHERE"

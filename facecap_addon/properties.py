@@ -11,6 +11,8 @@ from bpy.props import (
     StringProperty,
 )
 
+from . import properties_video
+
 STRATEGY_ITEMS = [
     ("geometric", "Geometric", "Solve marker deltas against the character's shape keys at the bound vertices"),
     ("calibrated", "Calibrated", "Solve the actor's calibration poses, then map them to the character's shapes "
@@ -310,6 +312,7 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
                                  description="Character head object (or armature) keyed with the head motion")
     head_bone: StringProperty(name="Bone", description="Bone of the head target armature (empty: the object)")
     last_action: StringProperty(name="Last Action", description="Action created by the last solve")
+    video: PointerProperty(type=properties_video.FACECAP_PG_video)  # 2D takes: projection, Track Clip options
     # -- tuning: the animator feedback loop (issue 7) --------------------------------------------
     tuning_frames: CollectionProperty(type=FACECAP_PG_tuning_frame)
     tuning_index: IntProperty(name="Tuning Frame", default=0)

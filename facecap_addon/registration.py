@@ -4,9 +4,11 @@ import bpy
 
 from ..operators import CLASSES as OPERATOR_CLASSES
 from ..operators import importers
-from . import panels, panels_tune, properties
+from . import panels, panels_tune, panels_video, properties, properties_video
 
-CLASSES = properties.CLASSES + OPERATOR_CLASSES + panels.CLASSES + panels_tune.CLASSES
+# PropertyGroups first (the video group before the settings that point to it); panels in sidebar order
+CLASSES = (properties_video.CLASSES + properties.CLASSES + OPERATOR_CLASSES + panels.CLASSES + panels_video.CLASSES
+           + panels_tune.CLASSES)
 
 
 def register():

@@ -170,6 +170,11 @@ def markers_from_empties(coll, names, fps):
     pos = np.full((frames.size, len(names), 3), np.nan)
     for m, (f, v) in enumerate(tracks):
         pos[np.searchsorted(frames, f), m] = v
+    if coll.get("facecap_dim", 3) == 2:  # tracked footage: pixels, drawn in the XZ plane
+        from .import_scene import pixels_from_scene
+
+        return MarkerSet(tuple(names), frames, pixels_from_scene(pos), fps=fps, units="px",
+                         source=f"collection '{coll.name}'")
     return MarkerSet(tuple(names), frames, pos, fps=fps, units="m", source=f"collection '{coll.name}'")
 
 

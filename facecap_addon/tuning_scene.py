@@ -136,6 +136,10 @@ def solve_inputs(settings, scene):
     rsettings = take.retarget_settings(settings)
     if markers is not None:
         rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames))
+        if markers.dim == 2:
+            from .video_scene import projection_from_sidebar
+
+            rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
     if settings.library_active:
         from ..solvers.tuning_take import apply_version
 

@@ -69,6 +69,7 @@ class RetargetSettings:
     align_regions: tuple = ()  # ((region name, (patterns...)), ...) actor->character with separate scales
     align_flag_mm: float = None  # alignment residual (mm) above which a binding is flagged (None: robust)
     head_target: str = ""  # "Object" or "Armature:bone": key the removed head motion there
+    projection: object = None  # 2D takes: None / "front" (orthographic front view) or a solvers.camera.Camera
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,6 +200,10 @@ def retarget(markers, basis, settings, *, inputs=None):
         return _retarget_parallel(basis, settings, inputs)
     if markers is None:
         raise FacecapError(f"strategy '{settings.strategy}' needs a marker take ([source] markers)")
+    if markers.dim == 2:
+        from .pipeline_2d import retarget_markers_2d
+
+        return retarget_markers_2d(markers, basis, settings, inputs)
     return _retarget_markers(markers, basis, settings, inputs)
 
 

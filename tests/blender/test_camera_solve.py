@@ -54,3 +54,67 @@ def test_geometric_2d_through_the_scene_camera(empty_scene):
     e_front = float(np.sqrt(np.mean((front.weights - W) ** 2)))
     print(f"Blender witness camera at 25 deg: weights RMSE camera {e_cam:.4f}, front view {e_front:.4f}")
     assert e_cam <= 0.06 and e_cam < 0.6 * e_front
+
+
+def test_solve_and_key_a_tracked_2d_take_through_the_sidebar_camera(empty_scene, tmp_path):
+    """The artist's path: a 2D take in the scene (as Track Clip Footage leaves it), the Video panel's
+    projection set to the camera, Solve and Key; then the same take headless through the CLI."""
+    from facecap.facecap_addon import anim, import_scene, layers, take
+
+    scene = empty_scene
+    basis = Basis.load_npz(SAMPLES / "character_basis.npz")
+    stable = [m["name"] for m in json.loads((SAMPLES / "marker_layout.json").read_text())["markers"] if m["stable"]]
+    obj = build_character(basis)
+    cam = bpy.data.objects.new("Witness", bpy.data.cameras.new("Witness"))
+    scene.collection.objects.link(cam)
+    a = np.radians(20.0)
+    eye = np.array([0.55 * np.sin(a), -0.06 - 0.55 * np.cos(a), 0.0])
+    cam.matrix_world = Matrix(look_at(tuple(eye), (0.0, -0.06, 0.0)).tolist())
+    scene.camera = cam
+    scene.render.resolution_x, scene.render.resolution_y = 1280, 720
+    bpy.context.view_layer.update()
+    W = performance_weights(basis.shape_names, 200, seed=2)
+    world = basis.neutral[None] + np.einsum("fk,kmd->fmd", W, basis.deltas)
+    ndc = np.array([[tuple(world_to_camera_view(scene, cam, Vector(p)))[:2] for p in frame] for frame in world])
+    px = np.stack([ndc[..., 0] * 1280, (1 - ndc[..., 1]) * 720], axis=-1)
+    markers = MarkerSet(basis.marker_names, np.arange(1, 201), px, fps=60, units="px", source="witness cam")
+    coll = import_scene.create_take(scene, markers, "witness")
+    s = scene.facecap
+    s.marker_collection, s.take_name, s.fps, s.target = coll, "witness", 60.0, obj
+    for name in markers.names:
+        item = s.markers.add()
+        item.name, item.stable = name, name in stable
+    s.neutral_first, s.neutral_last = 1, 40
+    back = take.markers_from_collection(s)
+    assert back.dim == 2 and back.units == "px"
+    np.testing.assert_allclose(back.positions, px, atol=2e-3)  # float32 keys at 1 px = 1 mm
+
+    errors = {}
+    for projection in ("front", "camera"):
+        s.video.projection = projection
+        assert bpy.ops.facecap.solve() == {"FINISHED"}
+        key = obj.data.shape_keys
+        curves = [(layers.shape_path(n), 0) for n in basis.shape_names]
+        keyed = anim.read_curves(key, curves, action=layers.solved_action(key))[1]
+        errors[projection] = float(np.sqrt(np.mean((keyed - W) ** 2)))
+    print(f"sidebar 2D solve at 20 deg: weights RMSE camera {errors['camera']:.4f}, front {errors['front']:.4f}")
+    assert errors["camera"] <= 0.06 and errors["camera"] < errors["front"]
+    # The same take headless: `[solve] projection = "camera"` reads the .blend's scene camera.
+    import subprocess
+    import sys
+
+    from facecap.solvers.io_csv import read_weights_csv, write_markers_csv
+
+    out = tmp_path
+    write_markers_csv(out / "tracks.csv", markers)
+    bpy.ops.wm.save_as_mainfile(filepath=str(out / "scene.blend"), copy=True)
+    (out / "take.toml").write_text(
+        '[target]\nblend = "scene.blend"\nobject = "Face"\n[source]\nmarkers = "tracks.csv"\nunits = "px"\nfps = 60\n'
+        f'[binding]\nvertex_groups = true\n[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = [1, 40]\n'
+        '[solve]\nprojection = "camera"\n[output]\nweights = "weights.csv"\n')
+    proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(out / "take.toml")],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    _, names, headless = read_weights_csv(out / "weights.csv")
+    assert tuple(names) == basis.shape_names
+    np.testing.assert_allclose(headless, keyed, atol=2e-3)  # float32 keys in the scene vs the CSV's pixels

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings
+from facecap.solvers.pipeline import retarget
 from facecap.solvers.pipeline_2d import retarget_markers_2d
 from facecap.solvers.strategies.options import CalibrationSettings, StrategyInputs
 from facecap.solvers.synth import performance_weights
@@ -63,7 +64,7 @@ def test_calibrated_2d_from_a_filmed_calibration(sample):
     settings = RetargetSettings(stable, (1, 50), strategy="calibrated",
                                 calibration=CalibrationSettings(poses=poses, neutral_frames=(1, NEUTRAL),
                                                                 align="similarity"))
-    r = retarget_markers_2d(take, basis.shape_names, settings, StrategyInputs(calibration=calibration))
+    r = retarget(take, basis.shape_names, settings, inputs=StrategyInputs(calibration=calibration))  # dispatches 2D
     rmse = float(np.sqrt(np.mean((r.weights - W) ** 2)))
     print(f"calibrated 2D: weights RMSE {rmse:.4f}, median residual {np.nanmedian(r.residual_rms):.2f} px")
     assert rmse <= 0.06
@@ -101,7 +102,7 @@ def test_linear_from_2d_tracks_and_posed_frames(sample):
     take = filmed(basis.front_view(), W, px_per_m=2500, seed=3)
     posed = np.arange(1, 601, 5)  # an animator posed every 5th frame
     inputs = StrategyInputs(examples=ExamplePairs(posed.astype(float), W[posed - 1], basis.shape_names))
-    r = retarget_markers_2d(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="linear"), inputs)
+    r = retarget(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="linear"), inputs=inputs)
     rest = np.setdiff1d(np.arange(600), posed - 1)
     rmse = float(np.sqrt(np.mean((r.weights[rest] - W[rest]) ** 2)))
     print(f"linear from 2D tracks: weights RMSE {rmse:.4f} on unposed frames")
