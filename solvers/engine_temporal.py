@@ -13,7 +13,13 @@ frame-major order, by the segment-wise banded Cholesky of ``engine_banded``. Onl
 residual is off are re-solved: the first passes touch the whole take, later ones (a few frames
 changing state) solve windows of ``pad`` frames around the changes, then around the windows' edges
 until the residual is at rounding level everywhere (the solution of a local change decays within
-a few frames). It is exact: the result is the optimum once the active set has settled.
+a few frames). The gradient is updated from each window's change and only frames near a change
+are reclassified, so late iterations cost their windows, not the take. It is exact: the result
+is the optimum once the active set has settled.
+
+Long takes are first solved as two overlapping halves at the same time (``engine_split``: the
+second in a forked child); the whole-take iteration then starts from the joined halves and only
+has to settle the seam (measured: 2 iterations, 0.3 s on 36,000 frames).
 """
 
 import numpy as np
