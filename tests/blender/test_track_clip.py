@@ -32,7 +32,8 @@ def test_tracks_follow_the_footage(clip):
     assert markers.n_markers == 3 and markers.n_frames == 24
     # Empties show pixels in the XZ plane at 1 px = 1 mm (image y down).
     order = [markers.names.index(f"p{i}") for i in range(3)]
-    px = np.stack([markers.positions[:, order, 0], -markers.positions[:, order, 2]], axis=2) * 1000.0
+    assert markers.dim == 2 and markers.units == "px"  # drawn in the XZ plane, read back as pixels
+    px = markers.positions[:, order]
     truth = np.stack([synth.motion.forward(t, seeds) for t in range(24)])
     err = np.linalg.norm(px - truth, axis=2)
     assert np.nanmedian(err) <= 0.5
@@ -144,6 +145,7 @@ def test_dense_flow_tracking_of_the_clip(clip):
     assert bpy.ops.facecap.track_clip(method="dis") == {"FINISHED"}
     markers = take.markers_from_collection(bpy.context.scene.facecap)
     order = [markers.names.index(f"p{i}") for i in range(3)]
-    px = np.stack([markers.positions[:, order, 0], -markers.positions[:, order, 2]], axis=2) * 1000.0
+    assert markers.dim == 2 and markers.units == "px"  # drawn in the XZ plane, read back as pixels
+    px = markers.positions[:, order]
     truth = np.stack([synth.motion.forward(t, seeds) for t in range(24)])
     assert np.nanmedian(np.linalg.norm(px - truth, axis=2)) <= 0.5
