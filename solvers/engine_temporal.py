@@ -173,7 +173,7 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=
         if idx.size:
             idx_t = idx + a
             w[idx] = solve_frames(A, C[idx_t], G[idx_t], R, lo[idx_t], hi[idx_t], lam, max_iter=INIT_ITER,
-                                  chunk=chunk, exact=False, workers=workers, split=workers is None)[0]
+                                  chunk=chunk, exact=False, workers=workers)[0]
         return w
 
     def half(a, b):
