@@ -55,7 +55,7 @@ def retarget_geometric_2d(markers, basis, settings, *, projection=None):
     deltas = align.apply_vectors(stab.markers.positions[:, used_idx] - neutral[None])
     timings = {"stabilise": time.perf_counter() - t0}
     lower, upper = resolve_bounds(basis.shape_names, basis.lower, basis.upper, settings.bounds)
-    locks = resolve_locks(basis.shape_names, settings.locks)
+    locks = resolve_locks(basis.shape_names, settings.locks, n_frames=markers.frames.size)
     notes.extend(dict.fromkeys(basis_warnings(sub.matrix(), sub.shape_names)))
     options = GeometricOptions(
         regularisation=settings.regularisation, sparsity=settings.sparsity,

@@ -67,3 +67,14 @@ def test_2d_takes_need_explicit_stable_points(sample):
     markers = tracks_2d(basis, W[:80], stable)
     with pytest.raises(FacecapError, match="explicit list of stable points"):
         retarget(markers, basis, RetargetSettings("auto", (1, 50)))
+
+
+def test_per_frame_locks_on_a_2d_take(sample):
+    """An animator's keys held per frame (a locked shape with a solve layer) work on 2D takes too."""
+    basis, stable, W = sample
+    W = W[:240]
+    markers = tracks_2d(basis, W, stable)
+    k = basis.shape_names.index("jawOpen")
+    held = W[:, k] + 0.1
+    r = retarget(markers, basis, RetargetSettings(stable, (1, 50), locks=(("jawOpen", held),)))
+    np.testing.assert_allclose(r.weights[:, k], held, atol=1e-12)
