@@ -47,19 +47,20 @@ def fit_rigid_batch(source, target, weights):
     """
     source = np.asarray(source, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
-    target = np.broadcast_to(np.asarray(target, dtype=np.float64), source.shape)
-    w = np.where(np.isnan(source).any(axis=2) | np.isnan(target).any(axis=2), 0.0, w)
+    target = np.asarray(target, dtype=np.float64)
+    # A shared (N, 3) target stays (N, 3): no (F, N, 3) copies of it.
+    w = np.where(np.isnan(source).any(axis=2) | np.isnan(target).any(axis=-1), 0.0, w)
     src = np.nan_to_num(source)
     tgt = np.nan_to_num(target)
     wsum = w.sum(axis=1)
     safe = np.where(wsum > 0, wsum, 1.0)
     # Batched matmuls, not einsum: three-operand einsum is ~10x slower on long takes.
     cs = (w[:, None, :] @ src)[:, 0] / safe[:, None]
-    ct = (w[:, None, :] @ tgt)[:, 0] / safe[:, None]
+    ct = (w @ tgt if tgt.ndim == 2 else (w[:, None, :] @ tgt)[:, 0]) / safe[:, None]
     s0 = src - cs[:, None]
-    t0 = tgt - ct[:, None]
     ws0 = s0 * w[:, :, None]
-    H = ws0.transpose(0, 2, 1) @ t0
+    # sum w s0 (t - ct)' = sum w s0 t' since sum w s0 = 0: the target needs no centring
+    H = ws0.transpose(0, 2, 1) @ tgt
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.transpose(0, 2, 1) @ U.transpose(0, 2, 1)))
     d = np.where(d == 0, 1.0, d)
