@@ -138,7 +138,10 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
     F, K = G.shape
     W = np.empty((F, K))
     H_full = A.T @ A + R
+    workers = workers or min(4, os.cpu_count() or 1)
     n_chunks = -(-F // chunk)
+    if workers > 1 and n_chunks > 1:
+        n_chunks = -(-n_chunks // workers) * workers  # every thread gets as many chunks (no straggler)
     chunk = -(-F // n_chunks) if n_chunks else chunk  # even chunks
 
     def one(start):
@@ -155,7 +158,6 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
         W[sl] = w
         return it, bad.size
 
-    workers = workers or min(4, os.cpu_count() or 1)
     with single_blas_thread():
         if workers > 1 and n_chunks > 1:
             with ThreadPoolExecutor(workers) as pool:
