@@ -176,6 +176,16 @@ def test_diagnostic_curves_are_keyed_with_the_weights(take):
     assert frames.size == N_FRAMES
     assert np.all(values[:, 0] >= 0) and values[:, 0].max() > 0  # residual in mm, priors leave some
     assert np.all(values[:, 1] == np.round(values[:, 1]))
+    # Per-marker error curves, grouped; per frame their RMS over the seen markers is the residual curve.
+    names = take["basis"].marker_names
+    curves = [(f'["facecap_error_mm_{n}"]', 0) for n in names]
+    _, per_marker = anim.read_curves(key, curves, action=layers.solved_action(key))
+    assert per_marker.shape == (N_FRAMES, len(names))
+    seen = np.isfinite(per_marker)
+    rms = np.sqrt(np.nansum(per_marker**2, axis=1) / seen.sum(axis=1))
+    np.testing.assert_allclose(rms, values[:, 0], rtol=1e-4, atol=1e-5)
+    groups = {fc.group.name for fc in anim.action_fcurves(layers.solved_action(key), key) if fc.group}
+    assert {"FaceCap Weights", "FaceCap Diagnostics", "FaceCap Marker Error"} <= groups
 
 
 @pytest.mark.parametrize(
