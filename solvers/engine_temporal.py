@@ -215,9 +215,12 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
             if redo.any():
                 idx = np.flatnonzero(redo)
                 target = np.where(free[idx], w[idx], fixed_values(st[idx], lo[idx], hi[idx]))
+                moved = (target != w[idx]).any(axis=1)  # from a good start (joined halves): a few
+                redo[idx[~moved]] = False
+                idx = idx[moved]
                 delta = np.zeros_like(w)
-                delta[idx] = target - w[idx]
-                w[idx] = target
+                delta[idx] = target[moved] - w[idx]
+                w[idx] = target[moved]
                 grad += _qdelta(qmul_rows, T, delta, redo)
             lin = lam * np.where(free, sg, 0.0) if has_l1 else 0.0
             tol = 1e-12 * scale * max(1.0, float(np.abs(w).max(initial=0.0)))
