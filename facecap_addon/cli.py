@@ -47,6 +47,14 @@ def run_retarget(config, *, quiet=False, solve=None):
     from ..solvers.readers import import_markers
     from ..solvers.strategy_config import load_strategy_inputs
 
+    if getattr(config, "video", None) is not None:  # [source] video: flow-PCA features, no markers
+        if solve is not None:
+            from ..solvers.errors import ConfigError
+
+            raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
+        from .video_scene import run_flow_retarget
+
+        return run_flow_retarget(config, quiet=quiet)
     say = (lambda _m: None) if quiet else _progress
     strategy = config.settings.strategy
     timings = {}
@@ -314,6 +322,11 @@ def main(argv=None):
     try:
         return args.func(args)
     except FacecapError as exc:
+        from ..solvers.video.reading import Cancelled
+
+        if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written
+            print(f"facecap: {exc}; nothing written", file=sys.stderr)
+            return 130
         print(f"facecap: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -149,3 +149,111 @@ def projection_from_sidebar(scene, character, *, resolution=None):
     video = scene.facecap.video
     camera = video.camera.name if video.camera is not None else None
     return projection_for(scene, character, video.projection, camera, resolution=resolution)
+
+
+# -- flow-PCA features: solving footage without markers -------------------------------------------
+def run_flow_retarget(config, *, quiet=False):
+    """``run_retarget`` for a ``[source] video`` take: flow-PCA features of the footage, the
+    ``[solve] strategy`` (linear / rbf / pca) learned from ``[examples] weights`` posed at footage
+    frames; keys the solve layer and writes the same outputs. Returns (RetargetResult, outputs).
+
+    The flow shows progress on stderr; Ctrl-C stops it between two frames with
+    :class:`~facecap.solvers.video.Cancelled` and nothing written (the CLI exits 130).
+    """
+    import sys
+    import time
+
+    from ..solvers.errors import ConfigError, InputFileError
+    from ..solvers.fileio import write_json_atomic
+    from ..solvers.io_csv import write_weights_csv
+    from ..solvers.strategy_config import load_strategy_inputs
+    from ..solvers.video.cli import _Progress, sigint_cancels
+    from ..solvers.video.flow_config import check_against_footage
+    from ..solvers.video.flow_solve import retarget_flow_job
+    from ..solvers.video.reading import Footage
+    from . import anim
+    from .take import character_target, key_weights
+    from .tune_cli import finish_solve, prepare_solve
+
+    def say(message):
+        if not quiet:
+            print(f"facecap: {message}", file=sys.stderr, flush=True)
+
+    video, timings, t0 = config.video, {}, time.perf_counter()
+    say(f"[1/5] reading footage {video.path}")
+    footage = Footage(video.path, **video.footage)
+    info = footage.info
+    check_against_footage(config.path, video, info)
+    inputs = load_strategy_inputs(config)
+    timings["read"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    if config.target_blend is not None:
+        if not config.target_blend.is_file():
+            raise InputFileError(config.target_blend, "file not found (config [target] blend)")
+        say(f"[2/5] opening {config.target_blend}")
+        bpy.ops.wm.open_mainfile(filepath=str(config.target_blend), load_ui=False)
+    source_blend = Path(bpy.data.filepath).resolve() if bpy.data.filepath else None
+    if config.output_blend is not None and source_blend is not None and config.output_blend == source_blend:
+        raise ConfigError("must differ from the input .blend (inputs are never overwritten)", path=config.path,
+                          key="output.blend")
+    obj = bpy.data.objects.get(config.target_object)
+    if obj is None:
+        raise ConfigError(f"no object named '{config.target_object}' in the .blend", path=config.path,
+                          key="target.object")
+    character, inputs, settings, tuning_info = prepare_solve(config, character_target(obj), inputs)
+    timings["load_character"] = time.perf_counter() - t1
+
+    job = retarget_flow_job(footage, character, inputs.examples, settings=settings, flow=video.flow)
+    say(f"[3/5] {video.flow.method} flow over {info.n_frames} frames ({info.work_width}x{info.work_height}), "
+        f"solving {len(character.names)} shapes (strategy: {settings.strategy}, "
+        f"{len(inputs.examples.frames)} posed frames)")
+    shown = None if quiet else _Progress(sys.stderr, f"flow ({video.flow.method})")
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            result = job.run(progress)
+        finally:
+            if shown is not None:
+                shown.close_line()
+    result = finish_solve(config, result, info.fps)
+
+    t3 = time.perf_counter()
+    say("[4/5] keying")
+    action = key_weights(obj, result, anim.unique_action_name(config.action_name))
+    timings["key"] = time.perf_counter() - t3
+
+    say("[5/5] writing outputs")
+    outputs = {"action": action.name}
+    if config.output_weights is not None:
+        write_weights_csv(config.output_weights, result.frames, result.shape_names, result.weights)
+        outputs["weights"] = str(config.output_weights)
+    if config.output_blend is not None:
+        from .cli import _save_blend_atomic
+
+        _save_blend_atomic(config.output_blend)
+        outputs["blend"] = str(config.output_blend)
+    timings["total"] = time.perf_counter() - t0
+    if config.output_report is not None:
+        report = result.report()
+        report["config"] = str(config.path)
+        report["video_file"] = video.path
+        report["source"] = {"format": "video", "kind": info.kind, "fps": info.fps, "width": info.width,
+                            "height": info.height, "scale": info.scale, "frames": [info.frames[0], info.frames[-1]],
+                            "count": info.n_frames}
+        report["flow"] = result.info["flow"]
+        report["examples_file"] = str(config.examples_weights_path)
+        report["cleaning"] = []
+        report["outputs"] = outputs
+        report.update(tuning_info)
+        report["warnings"] = list(inputs.notes) + report["warnings"]
+        report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
+        write_json_atomic(config.output_report, report)
+        outputs["report"] = str(config.output_report)
+    for note in result.warnings:
+        say(f"warning: {note}")
+    return result, outputs

@@ -154,6 +154,7 @@ class TakeConfig:
     camera_name: str | None = None  # [solve] camera: camera object (None: the scene camera)
     tuning: object = None  # [tuning]: TuningConfig (solvers.tuning_config)
     controls: dict = None  # [controls]: {shape or glob: ShapeControl}
+    video: object = None  # [source] video + [tracking] / [flow]: VideoTake (solvers.video.flow_config)
 
 
 def load_take_config(path):
@@ -173,6 +174,9 @@ def load_take_config(path):
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read: {exc}", path=path) from None
     free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by tuning_config
+    from .video.flow_config import split_video_sections, video_take
+
+    video_raw = split_video_sections(data)  # [source] video, [tracking], [flow]: a markerless video take
     _check_schema(path, data)
     base = path.parent
 
@@ -193,13 +197,15 @@ def load_take_config(path):
     if units == "bu" and "unit_scale" not in read_options:
         raise ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale")
     clean = _clean_settings(path, data.get("clean", {}))
-    strategy = get("solve", "strategy", "geometric")
+    strategy = get("solve", "strategy", "geometric" if video_raw is None else "linear")
     if strategy not in STRATEGIES:
         raise ConfigError(f"unknown strategy '{strategy}'; available: {', '.join(STRATEGIES)}", path=path, key="solve.strategy")
-    _check_source(path, data, strategy)
+    video = None if video_raw is None else video_take(path, video_raw, data, strategy)
+    if video is None:
+        _check_source(path, data, strategy)
     stable, frames = (), [1, 1]
     normalise = {}
-    if strategy != "parallel" or "markers" in data.get("stabilise", {}) or data.get("neutral"):
+    if video is None and (strategy != "parallel" or "markers" in data.get("stabilise", {}) or data.get("neutral")):
         stable, frames, normalise = _stabilise_neutral(path, data, resolve)
     defaults = RetargetSettings(stable_markers=(), neutral_frames=(1, 1))
     numbers = {}
@@ -252,7 +258,7 @@ def load_take_config(path):
         output_blend=resolve(get("output", "blend")),
         output_weights=resolve(get("output", "weights")),
         output_report=resolve(get("output", "report")),
-        action_name=get("output", "action", (markers_path or weights_path).stem),
+        action_name=get("output", "action", (markers_path or weights_path or Path(getattr(video, "path", ""))).stem),
         weights_path=weights_path,
         calibration_path=resolve(get("calibration", "markers")),
         calibration_units=cal_units,
@@ -266,6 +272,7 @@ def load_take_config(path):
         camera_name=camera_name,
         tuning=parse_tuning(path, free.get("tuning"), base),
         controls=parse_controls(path, free.get("controls"), base),
+        video=video,
     )
 
 

@@ -30,6 +30,7 @@ Config (paths relative to the config file)::
 """
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -181,21 +182,11 @@ def run_track(settings, *, progress=None):
     return result
 
 
-def main(argv=None):
-    """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 cancelled).
-
-    Ctrl-C (SIGINT) stops tracking between two frames: one line ``cancelled at frame N``, exit
-    status 130, no output written. A second Ctrl-C interrupts at once.
-    """
-    from .reading import Cancelled
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["track"]:
-        argv = argv[1:]
-    parser = argparse.ArgumentParser(prog="facecap track", description="Track 2D markers in footage.")
-    parser.add_argument("--config", required=True, help="take config (.toml) with [source], [tracking], [output]")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    args = parser.parse_args(argv)
+@contextlib.contextmanager
+def sigint_cancels():
+    """Within the block Ctrl-C (SIGINT) only sets the yielded Event, so long work stops between two
+    frames (its progress callback returns False); a second Ctrl-C interrupts at once. Off the main
+    thread signals cannot be caught: the Event is never set."""
     stop = threading.Event()
     restore = None
     if threading.current_thread() is threading.main_thread():
@@ -204,6 +195,33 @@ def main(argv=None):
             signal.signal(signal.SIGINT, signal.default_int_handler)  # a second Ctrl-C interrupts at once
 
         restore = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield stop
+    finally:
+        if restore is not None:
+            signal.signal(signal.SIGINT, restore)
+
+
+def main(argv=None):
+    """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 cancelled).
+
+    Ctrl-C (SIGINT) stops tracking between two frames: one line ``cancelled at frame N``, exit
+    status 130, no output written. A second Ctrl-C interrupts at once.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["track"]:
+        argv = argv[1:]
+    parser = argparse.ArgumentParser(prog="facecap track", description="Track 2D markers in footage.")
+    parser.add_argument("--config", required=True, help="take config (.toml) with [source], [tracking], [output]")
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    args = parser.parse_args(argv)
+    with sigint_cancels() as stop:
+        return _main(args, stop)
+
+
+def _main(args, stop):
+    from .reading import Cancelled
+
     shown = None
     try:
         settings = load_track_config(args.config)
@@ -230,9 +248,6 @@ def main(argv=None):
             shown.close_line()
         print("facecap: interrupted", file=sys.stderr)
         return 130
-    finally:
-        if restore is not None:
-            signal.signal(signal.SIGINT, restore)
     print(f"{result.summary()}; wrote {settings['markers']}", file=sys.stderr)
     return 0
 

@@ -96,6 +96,12 @@ def solve_from_flow(features, character, *, strategy="linear", example_frames, e
     -------
     StrategyResult (one row per footage frame)
     """
+    return fit_from_flow(features, character, strategy=strategy, example_frames=example_frames,
+                         example_weights=example_weights, **options).solve(features.coefficients)
+
+
+def fit_from_flow(features, character, *, strategy="linear", example_frames, example_weights, **options):
+    """The strategy of :func:`solve_from_flow`, fitted (its ``solve(features.coefficients)`` gives the weights)."""
     from ..strategies import make_strategy
     from ..strategies.base import as_target
 
@@ -112,4 +118,4 @@ def solve_from_flow(features, character, *, strategy="linear", example_frames, e
         s.fit(target, training=X, example_frames=idx, example_weights=W)
     else:
         s.fit(target, examples=X[idx], weights=W, training=X)
-    return s.solve(X)
+    return s

@@ -1,0 +1,183 @@
+"""Video takes in a take config: ``[source] video`` with ``[tracking]`` and ``[flow]`` (no markers).
+
+::
+
+    [source]
+    video = "clip.mp4"              # video file, image folder, glob or printf pattern
+    first = 0                       # optional: frame range / step / downscale / rate / numbering
+    last = 149
+    step = 1
+    scale = 1.0
+    fps = 30.0
+    frame_offset = 0                # added to frame numbers (the [examples] weights use these)
+
+    [tracking]
+    method = "dis"                  # dense flow: "dis" (default) | "farneback" | "tvl1"
+    region = [x, y, w, h]           # the face, source pixels (default: the whole frame)
+    reference = 0                   # the neutral frame (default: the first frame read)
+    stable_region = [x, y, w, h]    # or [[x, y, w, h], ...]: moves with the head only (optional)
+    grid_step = 4                   # flow sample spacing, working pixels (default: ~4,000 samples)
+    drift = "fuse"                  # "fuse" | "direct" | "none"
+    preset = "balanced"             # DIS: "ultrafast" | "fast" | "balanced" | "medium"
+
+    [flow]
+    components = 12                 # PCA components per frame ...
+    variance = 0.99                 # ... or the fewest explaining this fraction
+
+    [solve]
+    strategy = "linear"             # "linear" (default for video) | "rbf" | "pca"
+
+    [examples]
+    weights = "posed.csv"           # frame,<shape>,... character weights posed at footage frames
+
+``split_video_sections`` takes these keys out of the parsed TOML before the marker-take schema
+check; ``video_take`` validates them (errors name ``[section.key]``); ``check_against_footage``
+checks what needs the footage's size and frames.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigError, FacecapError
+from .features import EXAMPLE_STRATEGIES
+from .flow_solve import FlowSolveSettings, _box
+
+SOURCE_KEYS = ("video", "first", "last", "step", "scale", "frame_offset")  # fps is shared with marker takes
+TRACKING_KEYS = ("method", "region", "reference", "stable_region", "grid_step", "drift", "preset")
+FLOW_KEYS = ("components", "variance")
+METHODS = ("dis", "farneback", "tvl1")
+NOT_FOR_VIDEO = ("clean", "stabilise", "neutral", "align", "calibration", "mapping", "refine", "binding")
+
+
+@dataclass(frozen=True)
+class VideoTake:
+    """``[source] video`` and how it is read (``footage``: Footage keyword options) and solved (``flow``)."""
+
+    path: str
+    footage: dict
+    flow: FlowSolveSettings
+
+
+def split_video_sections(data):
+    """Remove ``[tracking]``, ``[flow]`` and the video keys of ``[source]`` from ``data``; returns them
+    as ``{"source": {...}, "tracking": {...}, "flow": {...}}``, or None when the take has no video."""
+    source = data.get("source", {}) if isinstance(data.get("source"), dict) else {}
+    raw = {"source": {k: source.pop(k) for k in SOURCE_KEYS if k in source},
+           "tracking": data.pop("tracking", None), "flow": data.pop("flow", None)}
+    if not raw["source"] and raw["tracking"] is None and raw["flow"] is None:
+        return None
+    if "video" in raw["source"]:
+        raw["source"]["fps"] = source.get("fps")
+    return raw
+
+
+def _number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _int(value):
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_box(value):
+    return isinstance(value, list) and len(value) == 4 and all(_number(v) for v in value) \
+        and value[2] > 0 and value[3] > 0 and value[0] >= 0 and value[1] >= 0
+
+
+def video_take(path, raw, data, strategy):
+    """A :class:`VideoTake` from ``split_video_sections`` output; ConfigError naming the key otherwise."""
+    def fail(key, message):
+        raise ConfigError(message, path=path, key=key)
+
+    src, trk, flw = raw["source"], raw["tracking"], raw["flow"]
+    for section, table, keys in (("tracking", trk, TRACKING_KEYS), ("flow", flw, FLOW_KEYS)):
+        if table is None:
+            continue
+        if not isinstance(table, dict):
+            raise ConfigError(f"[{section}] must be a table", path=path)
+        unknown = sorted(set(table) - set(keys))
+        if unknown:
+            fail(f"{section}.{unknown[0]}", f"unknown key; known keys: {', '.join(keys)}")
+    trk, flw = trk or {}, flw or {}
+    if "video" not in src:
+        given = [f"source.{k}" for k in src if k != "fps"] or [s for s in ("tracking", "flow") if raw[s] is not None]
+        fail("source.video", f"missing (needed by [{given[0]}]: a video file or image sequence)")
+    video = src["video"]
+    if not isinstance(video, str) or not video:
+        fail("source.video", f"expected a path string; got {video!r}")
+    for other in ("markers", "weights"):
+        if other in data.get("source", {}):
+            fail(f"source.{other}", "give [source] video or markers / weights, not both")
+    for section in NOT_FOR_VIDEO:
+        if section in data:
+            raise ConfigError(f"[{section}] does not apply to a [source] video take (flow features: [tracking], "
+                              "[flow])", path=path)
+    if "markers" in data.get("examples", {}):
+        fail("examples.markers", "a video take's examples are frames of the footage itself")
+    if strategy not in EXAMPLE_STRATEGIES:
+        fail("solve.strategy", f"a [source] video take solves with {', '.join(EXAMPLE_STRATEGIES)} from flow features; "
+                               f"got '{strategy}'")
+    footage = {}
+    for key in ("first", "last", "step", "frame_offset"):
+        if key in src:
+            if not _int(src[key]) or (key == "step" and src[key] < 1):
+                fail(f"source.{key}", f"expected {'a positive' if key == 'step' else 'an'} integer; got {src[key]!r}")
+            footage[key] = src[key]
+    if "scale" in src:
+        if not _number(src["scale"]) or not 0 < src["scale"] <= 1:
+            fail("source.scale", f"must be in (0, 1]; got {src['scale']!r}")
+        footage["scale"] = float(src["scale"])
+    if src.get("fps") is not None:
+        footage["fps"] = float(src["fps"])
+    method = trk.get("method", "dis")
+    if method not in METHODS:
+        fail("tracking.method", f"a video take follows dense flow: one of {', '.join(METHODS)}; got {method!r}")
+    region = trk.get("region")
+    if region is not None and not _is_box(region):
+        fail("tracking.region", f"expected [x, y, w, h] in pixels (w, h > 0); got {region!r}")
+    stable = trk.get("stable_region", [])
+    boxes = [stable] if stable and _number(stable[0]) else stable
+    if not isinstance(boxes, list) or not all(_is_box(b) for b in boxes):
+        fail("tracking.stable_region", f"expected [x, y, w, h] or [[x, y, w, h], ...] in pixels; got {stable!r}")
+    for key, check, expect in (("reference", _int, "a frame number"),
+                               ("grid_step", lambda v: _int(v) and v >= 1, "a positive integer")):
+        if key in trk and not check(trk[key]):
+            fail(f"tracking.{key}", f"expected {expect}; got {trk[key]!r}")
+    drift = trk.get("drift", "fuse")
+    if drift not in ("fuse", "direct", "none"):
+        fail("tracking.drift", f"expected \"fuse\", \"direct\" or \"none\"; got {drift!r}")
+    preset = trk.get("preset", "balanced")
+    if preset not in ("ultrafast", "fast", "balanced", "medium"):
+        fail("tracking.preset", f"expected one of ultrafast, fast, balanced, medium; got {preset!r}")
+    if "components" in flw and "variance" in flw:
+        fail("flow.variance", "give components or variance, not both")
+    components = flw.get("components", 12)
+    if not _int(components) or components < 1:
+        fail("flow.components", f"expected an integer >= 1; got {components!r}")
+    variance = flw.get("variance")
+    if variance is not None and (not _number(variance) or not 0 < variance <= 1):
+        fail("flow.variance", f"must be in (0, 1]; got {variance!r}")
+    base = Path(path).parent
+    video_path = Path(video)
+    flow = FlowSolveSettings(method=method, reference=trk.get("reference"),
+                             region=None if region is None else tuple(float(v) for v in region),
+                             stable_region=tuple(tuple(float(v) for v in b) for b in boxes),
+                             grid_step=trk.get("grid_step"), drift=drift, preset=preset, n_components=components,
+                             variance=None if variance is None else float(variance))
+    return VideoTake(str(video_path if video_path.is_absolute() else (base / video_path).resolve()), footage, flow)
+
+
+def check_against_footage(path, take, info):
+    """Region, stable boxes and reference frame against the footage (``FootageInfo``); ConfigError naming the key."""
+    size = (info.width, info.height)
+    flow = take.flow
+    for key, boxes in (("tracking.region", [] if flow.region is None else [flow.region]),
+                       ("tracking.stable_region", list(flow.stable_region))):
+        for box in boxes:
+            try:
+                _box(box, key.split(".")[1], size)
+            except FacecapError as exc:
+                raise ConfigError(str(exc), path=path, key=key) from None
+    if flow.reference is not None and flow.reference not in info.frames:
+        raise ConfigError(f"frame {flow.reference} is not in the footage ({info.frames[0]}-{info.frames[-1]})",
+                          path=path, key="tracking.reference")
