@@ -1,4 +1,5 @@
-"""The "Video" panel of the FaceCap sidebar: track the active clip, and how 2D takes see the character."""
+"""The "Video" panel of the FaceCap sidebar: track the active clip, solve the character from its flow (no
+markers), and how 2D takes see the character."""
 
 import bpy
 
@@ -6,7 +7,8 @@ from .panels import FacecapPanel
 
 
 class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
-    """Track movie-clip footage (Esc cancels) and choose the projection 2D takes are solved through."""
+    """Track movie-clip footage or solve from its dense flow (Esc cancels), and choose the projection 2D takes
+    are solved through."""
 
     bl_label = "Video"
     bl_idname = "FACECAP_PT_video"
@@ -22,6 +24,17 @@ class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
         col.prop(v, "method")
         op = layout.operator("facecap.track_clip", icon="TRACKING")
         op.region, op.max_points, op.method = tuple(v.region), v.max_points, v.method
+        box = layout.box()
+        box.label(text="Without markers: flow over the Region")
+        col = box.column(align=True)
+        col.prop(v, "stable_region")
+        col.prop(v, "flow_method")
+        col.prop(v, "flow_components")
+        col.prop(v, "flow_grid_step")
+        col.prop(v, "flow_strategy")
+        if getattr(scene.facecap, "examples_action", None) is None:
+            box.label(text="Pose frames in an Examples action (Solve panel)", icon="INFO")
+        box.operator("facecap.solve_clip_flow", icon="FORCE_TURBULENCE")
         layout.label(text="2D takes are solved against")
         layout.prop(v, "projection", expand=True)
         if v.projection == "camera":

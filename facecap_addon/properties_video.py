@@ -1,5 +1,5 @@
 """Sidebar settings of video takes, as ``Scene.facecap.video``: how a 2D take sees the character,
-and the options of Track Clip Footage."""
+the options of Track Clip Footage, and of Solve from Clip Flow (flow-PCA features, no markers)."""
 
 import bpy
 from bpy.props import EnumProperty, IntProperty, IntVectorProperty, PointerProperty
@@ -18,6 +18,15 @@ METHOD_ITEMS = [
 ]
 
 
+FLOW_METHOD_ITEMS = [item for item in METHOD_ITEMS if item[0] != "lk"]
+
+FLOW_STRATEGY_ITEMS = [
+    ("linear", "Linear", "Ridge regression from the flow features to the posed weights"),
+    ("rbf", "RBF", "Radial-basis interpolation between the posed frames"),
+    ("pca", "PCA", "Related-mode PCA regression on the flow features"),
+]
+
+
 def _is_camera(_self, obj):
     return obj.type == "CAMERA"
 
@@ -30,10 +39,25 @@ class FACECAP_PG_video(bpy.types.PropertyGroup):
     camera: PointerProperty(name="Camera", type=bpy.types.Object, poll=_is_camera,
                             description="Camera that filmed the take (empty: the scene camera)")
     region: IntVectorProperty(name="Region", size=4, default=(0, 0, 0, 0), min=0,
-                              description="x, y, width, height in pixels for automatic features when the clip "
-                                          "has no track markers at the current frame")
+                              description="The face: x, y, width, height in pixels (origin top-left). Track Clip "
+                                          "Footage seeds automatic features there when the clip has no track "
+                                          "markers at the current frame; Solve from Clip Flow follows the flow "
+                                          "there (all zero: the whole frame)")
     max_points: IntProperty(name="Max Points", default=100, min=1, description="Automatic features to track")
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="lk", description="How the points are followed")
+    flow_method: EnumProperty(name="Flow", items=FLOW_METHOD_ITEMS, default="dis",
+                              description="Dense optical flow of Solve from Clip Flow")
+    stable_region: IntVectorProperty(name="Stable Region", size=4, default=(0, 0, 0, 0), min=0,
+                                     description="x, y, width, height in pixels of an area that moves with the head "
+                                                 "only (forehead, temples, a head-cam rig): its motion is removed "
+                                                 "from the features (all zero: head motion stays in)")
+    flow_components: IntProperty(name="Components", default=12, min=1, max=200,
+                                 description="PCA components of the face's flow per frame")
+    flow_grid_step: IntProperty(name="Grid Step", default=0, min=0, max=64,
+                                description="Flow sample spacing in pixels (0: about 4,000 samples over the region)")
+    flow_strategy: EnumProperty(name="Strategy", items=FLOW_STRATEGY_ITEMS, default="linear",
+                                description="How the flow features map to the weights posed in the Examples action "
+                                            "(options from the Solve panel)")
 
 
 CLASSES = (FACECAP_PG_video,)

@@ -48,6 +48,8 @@ class ClipTracking:
     (Lucas-Kanade) or a dense flow ("dis", "farneback", "tvl1") sampled at the seeds.
     """
 
+    what = "Tracking"
+
     def __init__(self, scene, clip, frame, *, region=(0, 0, 0, 0), max_points=100, method="lk"):
         from ..solvers.video import Footage
         from ..solvers.video.flow import track_with_flow_job
@@ -89,6 +91,68 @@ class ClipTracking:
         """``"Tracking 'clip': frame N (k/T)"`` for the status bar."""
         frame = "" if self.job.frame is None else f"frame {self.job.frame} "
         return f"Tracking '{self.clip_name}': {frame}({self.job.done}/{self.job.total}) - Esc to cancel"
+
+
+class ClipFlowSolving:
+    """Solve from Clip Flow in steps: dense flow of the movie clip over the face region (Scene.facecap.video)
+    relative to the neutral ``frame``, flow-PCA features, the strategy learned from the Solve panel's
+    Examples action (its keyed frames on the character), weights for every clip frame. Nothing in the
+    scene changes until :meth:`write` keys the solve layer (a cancelled run leaves the scene as it was).
+    """
+
+    what = "Solve from clip flow"
+
+    def __init__(self, scene, clip, frame):
+        from dataclasses import replace
+
+        from ..solvers.video import Footage
+        from ..solvers.video.flow_solve import FlowSolveSettings, retarget_flow_job
+        from . import take
+
+        settings, video = scene.facecap, scene.facecap.video
+        if settings.target is None:
+            raise FacecapError("choose the character (Target) first")
+        if settings.examples_action is None:
+            raise FacecapError("choose the Examples action in the Solve panel: the character keyed at the clip "
+                               "frames you posed")
+        examples = take.examples_from_action(settings.examples_action, settings.target)
+        character = take.character_target(settings.target)
+        rsettings = replace(take.retarget_settings(settings), strategy=video.flow_strategy)
+        source, offset = clip_footage(clip)
+        footage = Footage(source, frame_offset=offset, fps=clip.fps or scene.render.fps / scene.render.fps_base)
+        region, stable = tuple(video.region), tuple(video.stable_region)
+        flow = FlowSolveSettings(method=video.flow_method, reference=int(frame),
+                                 region=region if region[2] * region[3] > 0 else None,
+                                 stable_region=(stable,) if stable[2] * stable[3] > 0 else (),
+                                 grid_step=video.flow_grid_step or None, n_components=video.flow_components)
+        self.clip_name, self.settings = clip.name, settings
+        self.job = retarget_flow_job(footage, character, examples, settings=rsettings, flow=flow)
+
+    @property
+    def result(self):
+        """The RetargetResult once finished, else None."""
+        return self.job.result
+
+    def step(self, max_frames=1, *, seconds=None):
+        return self.job.step(max_frames, seconds=seconds)
+
+    def run(self, progress=None):
+        return self.job.run(progress)
+
+    def cancel(self):
+        self.job.cancel()
+
+    def status(self):
+        frame = "" if self.job.frame is None else f"frame {self.job.frame} "
+        return f"Flow of '{self.clip_name}': {frame}({self.job.done}/{self.job.total}) - Esc to cancel"
+
+    def write(self):
+        """Key the finished solve (per-shape controls applied) as the character's solve layer; returns
+        (action, the keyed RetargetResult)."""
+        from .tuning_scene import key_solve, with_controls
+
+        result = with_controls(self.settings, self.result)
+        return key_solve(self.settings, result), result
 
 
 def camera_from_scene(scene, name=None, *, object_matrix=None, resolution=None):

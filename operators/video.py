@@ -1,4 +1,5 @@
-"""Video operators: tracking a movie clip's footage (modal: progress, Esc cancels)."""
+"""Video operators on the scene's movie clip: tracking its footage, and solving the character from its dense
+flow (modal: a few frames per timer tick, progress in the status bar, Esc cancels with the scene untouched)."""
 
 from pathlib import Path
 
@@ -8,35 +9,16 @@ from ..facecap_addon.properties_video import METHOD_ITEMS
 from ..solvers.errors import FacecapError
 
 TICK_SECONDS = 0.02  # timer interval
-STEP_SECONDS = 0.1  # tracking per timer tick: long enough to make progress, short enough to keep the UI live
+STEP_SECONDS = 0.1  # work per timer tick: long enough to make progress, short enough to keep the UI live
 
 
-class FACECAP_OT_track_clip(bpy.types.Operator):
-    """Track the scene's movie clip (Lucas-Kanade or dense flow) from its own track markers at the current frame
-    (or features in a region) and add the 2D tracks as a take; progress shows in the status bar, Esc cancels"""
-
-    bl_idname = "facecap.track_clip"
-    bl_label = "Track Clip Footage"
-    bl_options = {"REGISTER", "UNDO"}
-
-    region: bpy.props.IntVectorProperty(
-        name="Region", size=4, default=(0, 0, 0, 0), min=0,
-        description="x, y, width, height in pixels for automatic features when the clip has no track markers "
-                    "at this frame",
-    )
-    max_points: bpy.props.IntProperty(name="Max Points", default=100, min=1)
-    method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="lk")
+class ClipJobOperator:
+    """Shared modal machinery: ``_start(context)`` builds a stepping session (``step``, ``run``, ``cancel``,
+    ``status``, ``job``, ``what``), ``_write(context, session)`` puts its finished result in the scene."""
 
     @classmethod
     def poll(cls, context):
         return context.scene.active_clip is not None
-
-    def _start(self, context):
-        from ..facecap_addon.video_scene import ClipTracking
-
-        scene = context.scene
-        return ClipTracking(scene, scene.active_clip, scene.frame_current, region=tuple(self.region),
-                            max_points=self.max_points, method=self.method)
 
     def execute(self, context):
         """Run to completion (bpy.ops from scripts and background mode)."""
@@ -53,10 +35,10 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
                 session.run(progress)
             finally:
                 wm.progress_end()
+            self._write(context, session)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self._write(context, session)
         return {"FINISHED"}
 
     def invoke(self, context, event):
@@ -76,9 +58,10 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
 
     def modal(self, context, event):
         if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
-            frame = self._session.job.frame
+            session = self._session
             self._stop(context)
-            self.report({"WARNING"}, f"Tracking cancelled at frame {frame}; nothing was added to the scene")
+            self.report({"WARNING"}, f"{session.what} cancelled at frame {session.job.frame}; "
+                                     "nothing was added to the scene")
             return {"CANCELLED"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
@@ -94,7 +77,11 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
             return {"RUNNING_MODAL"}
         session = self._session
         self._stop(context)
-        self._write(context, session)
+        try:
+            self._write(context, session)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
         return {"FINISHED"}
 
     def cancel(self, context):
@@ -113,6 +100,30 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
             if context.workspace is not None:
                 context.workspace.status_text_set(None)
 
+
+class FACECAP_OT_track_clip(ClipJobOperator, bpy.types.Operator):
+    """Track the scene's movie clip (Lucas-Kanade or dense flow) from its own track markers at the current frame
+    (or features in a region) and add the 2D tracks as a take; progress shows in the status bar, Esc cancels"""
+
+    bl_idname = "facecap.track_clip"
+    bl_label = "Track Clip Footage"
+    bl_options = {"REGISTER", "UNDO"}
+
+    region: bpy.props.IntVectorProperty(
+        name="Region", size=4, default=(0, 0, 0, 0), min=0,
+        description="x, y, width, height in pixels for automatic features when the clip has no track markers "
+                    "at this frame",
+    )
+    max_points: bpy.props.IntProperty(name="Max Points", default=100, min=1)
+    method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="lk")
+
+    def _start(self, context):
+        from ..facecap_addon.video_scene import ClipTracking
+
+        scene = context.scene
+        return ClipTracking(scene, scene.active_clip, scene.frame_current, region=tuple(self.region),
+                            max_points=self.max_points, method=self.method)
+
     def _write(self, context, session):
         from ..facecap_addon import import_scene
         from .importers import _remember_take
@@ -127,4 +138,29 @@ class FACECAP_OT_track_clip(bpy.types.Operator):
                               + result.summary().splitlines()[0])
 
 
-CLASSES = (FACECAP_OT_track_clip,)
+class FACECAP_OT_solve_clip_flow(ClipJobOperator, bpy.types.Operator):
+    """Solve the character from the scene's movie clip without markers: dense flow over the face region
+    (Video panel) relative to the current frame (neutral), reduced to a few PCA features per frame and mapped
+    to the weights posed in the Solve panel's Examples action; keys a new solve layer. Esc cancels"""
+
+    bl_idname = "facecap.solve_clip_flow"
+    bl_label = "Solve from Clip Flow"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def _start(self, context):
+        from ..facecap_addon.video_scene import ClipFlowSolving
+
+        scene = context.scene
+        return ClipFlowSolving(scene, scene.active_clip, scene.frame_current)
+
+    def _write(self, context, session):
+        action, result = session.write()
+        flow = result.info["flow"]
+        self.report({"INFO"}, f"Solved {len(result.shape_names)} shapes over {result.frames.size} frames of "
+                              f"'{session.clip_name}' from {flow['components']} flow components "
+                              f"({flow['explained_variance']:.1%} of the face's motion, {flow['example_frames']} "
+                              f"posed frames, {result.strategy}, flow {flow['flow_frames_per_s']:.0f} frames/s); "
+                              f"keyed '{action.name}'")
+
+
+CLASSES = (FACECAP_OT_track_clip, FACECAP_OT_solve_clip_flow)
