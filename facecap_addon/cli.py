@@ -3,7 +3,8 @@
 Commands
 --------
 retarget --config take.toml   solve a take onto its character with its [solve] strategy and write
-                              .blend / weights CSV / report (/ the actor basis, [output] actor_basis)
+                              .blend / weights CSV / report (/ the actor basis, [output] actor_basis);
+                              a [source] video take solves from flow-PCA features (Ctrl-C cancels)
 compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
 inspect FILE [options]        describe a capture file; non-zero exit with a one-line reason if it is bad

@@ -4,7 +4,8 @@ Sections: [target] [source] [clean] [binding] [stabilise] [neutral] [solve] [out
 strategy sections [calibration] [mapping] [examples] [pca] [refine] (see
 ``solvers/strategies/README.md`` for every key and its default). ``[stabilise] markers`` and
 ``[neutral] frames`` are required for marker strategies; ``parallel`` reads ``[source] weights``
-instead of ``[source] markers``.
+instead of ``[source] markers``; a video take reads ``[source] video`` with ``[tracking]`` and ``[flow]``
+(flow-PCA features for linear / rbf / pca; ``solvers.video.flow_config``).
 
 Stabilisation and normalisation (issue 4): ``[stabilise] markers = "auto"`` suggests the stable set
 from the take, ``mode = "rigid" | "similarity"``; ``[neutral] frames = [first, last]`` or several

@@ -7,6 +7,7 @@ is cheap; cv2 is imported by the modules that use it.
 """
 
 from .features import FlowFeatures, flow_features, remove_similarity, solve_from_flow
+from .flow_solve import FlowSolveSettings, retarget_flow, retarget_flow_job
 from .flow import (DenseFlowResult, FlowEstimator, ReferenceFlow, compose, dense_flow, dense_flow_job, endpoint_error,
                    reverse, sample_flow, track_with_flow, track_with_flow_job, warp)
 from .pca import FlowPCA, flow_pca
@@ -15,9 +16,9 @@ from ..stabilise import stabilise_2d  # the one 2D stabilisation (image tracks),
 from .tracking import LKTracker, TrackResult, auto_seeds, read_seed_points, track_points, track_points_job
 
 __all__ = [
-    "Cancelled", "DenseFlowResult", "FlowEstimator", "FlowFeatures", "FlowPCA", "Footage", "FootageInfo", "Job",
-    "LKTracker", "ReferenceFlow", "TrackResult", "auto_seeds", "compose", "dense_flow",
+    "Cancelled", "DenseFlowResult", "FlowEstimator", "FlowFeatures", "FlowPCA", "FlowSolveSettings", "Footage",
+    "FootageInfo", "Job", "LKTracker", "ReferenceFlow", "TrackResult", "auto_seeds", "compose", "dense_flow",
     "dense_flow_job", "endpoint_error", "flow_features", "flow_pca", "open_footage", "read_seed_points",
-    "remove_similarity", "reverse", "sample_flow", "solve_from_flow", "stabilise_2d", "track_points",
-    "track_points_job", "track_with_flow", "track_with_flow_job", "warp", "write_video",
+    "remove_similarity", "retarget_flow", "retarget_flow_job", "reverse", "sample_flow", "solve_from_flow",
+    "stabilise_2d", "track_points", "track_points_job", "track_with_flow", "track_with_flow_job", "warp", "write_video",
 ]
