@@ -50,8 +50,6 @@ def run_retarget(config, *, quiet=False, solve=None):
 
     if getattr(config, "video", None) is not None:  # [source] video: flow-PCA features, no markers
         if solve is not None:
-            from ..solvers.errors import ConfigError
-
             raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
         from .video_scene import run_flow_retarget
 

@@ -204,7 +204,8 @@ def retarget_flow_job(footage, character, examples, *, settings=None, flow=None)
         face_flows = flows[:, rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1]
         pca = flow_pca(face_flows, n_components=flow.n_components, variance=flow.variance, center="reference",
                        frames=dense.frames)
-        features = FlowFeatures(np.asarray(dense.frames, dtype=np.float64), pca.coefficients, pca, stable_mask is not None)
+        features = FlowFeatures(np.asarray(dense.frames, dtype=np.float64), pca.coefficients, pca,
+                                stable_mask is not None)
         recon = face_flows.reshape(len(face_flows), -1) - pca.coefficients @ pca.components
         recon_px = np.sqrt(np.mean(recon.reshape(len(recon), -1, 2) ** 2, axis=1).sum(axis=1))
         t_solve = time.perf_counter()
@@ -243,7 +244,8 @@ def retarget_flow_job(footage, character, examples, *, settings=None, flow=None)
             residual_rms=np.full(F, np.nan), marker_residual=np.zeros(0), at_bound=res.clamped, stabilise=None,
             alignment=None, alignment_residual=None, warnings=tuple(dict.fromkeys([*notes, *res.warnings])),
             timings={k: round(v, 6) for k, v in timings.items()}, strategy=settings.strategy, residual_space=None,
-            source_weights=features.coefficients, source_names=tuple(f"flow_pc{i + 1}" for i in range(pca.n_components)),
+            source_weights=features.coefficients,
+            source_names=tuple(f"flow_pc{i + 1}" for i in range(pca.n_components)),
             info={**dict(res.info), "flow": figures}, fitted=fitted,
         )
 

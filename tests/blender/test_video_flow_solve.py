@@ -39,7 +39,8 @@ def scene(empty_scene, footage):
     v = s.video
     v.region, v.stable_region, v.flow_components = (24, 18, 192, 144), (48, 9, 144, 18), 10
     empty_scene.active_clip, empty_scene.frame_current = clip, 1  # the neutral reference
-    return SimpleNamespace(scene=empty_scene, obj=obj, key=key, clip=clip, posed=posed, truth=footage.motion.amplitudes / AMP)
+    return SimpleNamespace(scene=empty_scene, obj=obj, key=key, clip=clip, posed=posed,
+                           truth=footage.motion.amplitudes / AMP)
 
 
 def solved(scene):

@@ -81,7 +81,8 @@ def test_cancelling_between_frames_produces_nothing(clip):
 
 
 @pytest.mark.parametrize("flow,examples,message", [
-    (dict(region=(200, 10, 100, 50)), None, r"`region` \[200, 10, 100, 50\] must be a non-empty box inside the 240x180"),
+    (dict(region=(200, 10, 100, 50)), None,
+     r"`region` \[200, 10, 100, 50\] must be a non-empty box inside the 240x180"),
     (dict(stable_region=((-5, 0, 10, 10),)), None, "`stable_region`"),
     (dict(reference=500), None, "`reference` frame 500 is not in the footage"),
     ({}, ExamplePairs(np.array([3.0, 900.0]), np.zeros((2, 6)), SHAPES),

@@ -125,6 +125,7 @@ def test_ctrl_c_cancels_the_flow_with_nothing_written(footage):
     rest = proc.communicate(timeout=60)[1]
     lines = [line for line in re.split(r"[\r\n]", (seen + rest).decode()) if line]
     assert proc.returncode == 130, lines
-    assert re.fullmatch(r"facecap: cancelled at frame \d+ \(\d+ of 100 frames done\); nothing written", lines[-1]), lines
+    assert re.fullmatch(r"facecap: cancelled at frame \d+ \(\d+ of 100 frames done\); nothing written",
+                        lines[-1]), lines
     assert "Traceback" not in "\n".join(lines)
     assert not (d / "interrupted").exists()
