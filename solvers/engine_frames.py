@@ -65,10 +65,18 @@ def hmul(Hp, inv, x):
     n_pat = Hp.shape[0]
     if n_pat == 1:
         return x @ Hp[0]
+    if n_pat * 2 > x.shape[0]:  # few rows per pattern: one gathered einsum (GIL-free in threads)
+        return np.einsum("nkl,nl->nk", Hp[inv], x)
+    return hmul_by_pattern(Hp, inv, x)
+
+
+def hmul_by_pattern(Hp, inv, x):
+    """``hmul`` as one product per pattern present: rows sorted by pattern, slices, no gather of
+    the matrices. Faster single-threaded for many rows (the temporal kernel); its Python loop makes
+    it slower than the einsum in the threaded per-frame kernel (measured)."""
     n = x.shape[0]
     if n <= 256:  # few rows: gathering their matrices is cheap
         return np.einsum("nkl,nl->nk", Hp[inv], x)
-    # rows sorted by pattern, one product per pattern present (slices, no per-pattern fancy indexing)
     order = np.argsort(inv, kind="stable")
     si = inv[order]
     starts = np.flatnonzero(np.concatenate([[True], si[1:] != si[:-1]]))

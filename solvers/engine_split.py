@@ -13,7 +13,9 @@ import sys
 
 def fork_available():
     """True where ``run_pair`` can put the second half in a child process."""
-    if not sys.platform.startswith("linux") or not hasattr(os, "fork") or (os.cpu_count() or 1) < 2:
+    if not sys.platform.startswith("linux") or not hasattr(os, "fork"):
+        return False
+    if len(os.sched_getaffinity(0)) < 2:  # the cores this process may run on, not the machine's
         return False
     bpy = sys.modules.get("bpy")  # read only: solvers never import bpy
     return bpy is None or bool(getattr(getattr(bpy, "app", None), "background", True))

@@ -25,7 +25,7 @@ has to settle the seam (measured: 2 iterations, 0.3 s on 36,000 frames).
 import numpy as np
 
 from .engine_banded import context, frame_band, solve_window
-from .engine_frames import _FREE, classify, fixed_values, hmul, pattern_hessians, patterns, solve_frames
+from .engine_frames import _FREE, classify, fixed_values, hmul_by_pattern, pattern_hessians, patterns, solve_frames
 from .engine_threads import single_blas_thread
 
 
@@ -200,7 +200,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
     w = np.array(w, dtype=float)
 
     def qmul_rows(X, rows):
-        return hmul(Hp, inv if rows is None else inv[rows], X)
+        return hmul_by_pattern(Hp, inv if rows is None else inv[rows], X)
 
     diag = np.einsum("nkk->n", Hp)
     step = 1.0 / np.maximum(diag[inv] / K + T[0], 1e-300)
