@@ -82,8 +82,9 @@ def check_flow_settings(flow, info):
     return region, stable
 
 
-def example_matrix(examples, target, frames):
-    """(example frames (N,), weights (N, K) in ``target``'s shape order, notes) from ExamplePairs."""
+def example_matrix(examples, target, frames, *, only=()):
+    """(example frames (N,), weights (N, K) in ``target``'s shape order, notes) from ExamplePairs;
+    ``only`` (``[examples] frames``) keeps just those posed frames."""
     from ..aliases import name_key
 
     ex_frames = np.asarray(examples.frames, dtype=np.float64).reshape(-1)
@@ -91,6 +92,13 @@ def example_matrix(examples, target, frames):
     if ex_frames.size == 0 or values.shape != (ex_frames.size, len(examples.names)):
         raise FacecapError(f"examples: weights must have shape (N, {len(examples.names)}) for N > 0 posed frames; "
                            f"got {values.shape}")
+    if len(only):
+        want = np.asarray(only, dtype=np.float64)
+        missing = [f for f in want.tolist() if not np.any(np.abs(ex_frames - f) < 1e-6)]
+        if missing:
+            raise FacecapError(f"examples: frame(s) {missing[:8]} have no posed weights")
+        rows = [int(np.flatnonzero(np.abs(ex_frames - f) < 1e-6)[0]) for f in want]
+        ex_frames, values = ex_frames[rows], values[rows]
     lookup = {n: j for j, n in enumerate(examples.names)}
     keyed = {name_key(n): j for j, n in enumerate(examples.names)}
     cols = [lookup.get(n, keyed.get(name_key(n))) for n in target.names]
@@ -184,7 +192,7 @@ def retarget_flow_job(footage, character, examples, *, settings=None, flow=None)
     footage = footage if isinstance(footage, Footage) else Footage(footage)
     info = footage.info
     region, stable = check_flow_settings(flow, info)
-    ex_frames, W, notes = example_matrix(examples, target, info.frames)
+    ex_frames, W, notes = example_matrix(examples, target, info.frames, only=settings.examples.frames)
     options = _strategy_options(settings)
     crop, area = _crop(region, stable, info.scale)
     step = int(flow.grid_step) if flow.grid_step is not None else max(1, int(np.ceil(np.sqrt(area / TARGET_SAMPLES))))

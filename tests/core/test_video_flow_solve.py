@@ -69,6 +69,19 @@ def test_bounds_locks_and_unposed_shapes(clip):
     assert r.info["flow"]["components"] < 10  # the fewest components explaining 99 %
 
 
+def test_examples_frames_choose_the_posed_frames_used(clip):
+    from facecap.solvers.strategies.options import ExampleSettings
+
+    flow = FlowSolveSettings(region=REGION, stable_region=STABLE, n_components=6, grid_step=8)
+    some = RetargetSettings((), (1, 1), strategy="linear", examples=ExampleSettings(frames=(0.0, 20.0, 40.0, 59.0,
+                                                                                             79.0, 99.0, 13.0, 33.0)))
+    r = retarget_flow(clip.path, SHAPES, posed(clip), settings=some, flow=flow)
+    assert r.info["flow"]["example_frames"] == 8
+    with pytest.raises(FacecapError, match=r"frame\(s\) \[5.0\] have no posed weights"):
+        retarget_flow_job(clip.path, SHAPES, posed(clip), flow=flow,
+                          settings=RetargetSettings((), (1, 1), strategy="rbf", examples=ExampleSettings(frames=(5.0,))))
+
+
 def test_cancelling_between_frames_produces_nothing(clip):
     job = retarget_flow_job(clip.path, SHAPES, posed(clip), flow=FlowSolveSettings(region=REGION, grid_step=8))
     assert job.step(5) is False and job.done == 5 and job.result is None
