@@ -78,8 +78,8 @@ def test_examples_frames_choose_the_posed_frames_used(clip):
     r = retarget_flow(clip.path, SHAPES, posed(clip), settings=some, flow=flow)
     assert r.info["flow"]["example_frames"] == 8
     with pytest.raises(FacecapError, match=r"frame\(s\) \[5.0\] have no posed weights"):
-        retarget_flow_job(clip.path, SHAPES, posed(clip), flow=flow,
-                          settings=RetargetSettings((), (1, 1), strategy="rbf", examples=ExampleSettings(frames=(5.0,))))
+        retarget_flow_job(clip.path, SHAPES, posed(clip), flow=flow, settings=RetargetSettings(
+            (), (1, 1), strategy="rbf", examples=ExampleSettings(frames=(5.0,))))
 
 
 def test_cancelling_between_frames_produces_nothing(clip):
