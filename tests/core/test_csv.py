@@ -107,3 +107,13 @@ def test_existing_output_is_replaced_atomically_only_on_success(tmp_path):
         write_weights_csv(target, [1, 2], ["a"], bad)
     assert target.read_text() == "precious"
     assert list(tmp_path.iterdir()) == [target]
+
+
+def test_row_of_empty_cells_is_skipped_by_every_reader(tmp_path):
+    # numpy's parser (taken for files with a text column) once read ",,,," as a row of gaps and
+    # reported a missing frame number on the wrong line; the cell-by-cell reader skips it.
+    path = write(tmp_path, "frame,a_x,a_y,a_z,label\n1,0,0,0,x\n,,,,\n2,0,1,0,y\n")
+    with pytest.warns(UserWarning, match="label"):
+        m = read_markers_csv(path)
+    np.testing.assert_array_equal(m.frames, [1, 2])
+    assert m.positions[1, 0, 1] == 1.0
