@@ -8,7 +8,7 @@ bit for bit (``view(np.uint64)``: -0.0, NaN and the last ulp all count).
 import numpy as np
 import pytest
 
-from facecap.solvers import io_csv
+from facecap.solvers import io_csv, io_csv_vector
 from facecap.solvers.errors import InputFileError
 from facecap.solvers.io_csv import read_numeric_columns, read_weights_csv, sniff, write_weights_csv
 
@@ -33,7 +33,7 @@ def careful(path):
 
 
 def vector(path):
-    return outcome(io_csv._vector_numeric, path)
+    return outcome(io_csv_vector.vector_numeric, path)
 
 
 def write(tmp_path, data, name="t.csv"):
@@ -88,8 +88,8 @@ def test_vectorised_reader_is_bit_identical_to_the_careful_one(tmp_path, text):
 @pytest.mark.parametrize("text", FALLBACK.values(), ids=FALLBACK.keys())
 def test_unusual_files_fall_back_with_the_same_result_or_error(tmp_path, text):
     path = write(tmp_path, text)
-    with pytest.raises(io_csv._SlowPath):
-        io_csv._vector_numeric(sniff(path), [0, 1])
+    with pytest.raises(io_csv_vector.SlowPath):
+        io_csv_vector.vector_numeric(sniff(path), [0, 1])
     assert outcome(read_numeric_columns, path) == careful(path)
 
 
@@ -127,13 +127,13 @@ def test_random_numeric_files_match_bit_for_bit(tmp_path, monkeypatch, seed):
         eol = "\r\n" if case % 3 == 0 else "\n"
         path = write(tmp_path, eol.join(lines) + (eol if case % 4 else ""))
         # Tiny blocks put block boundaries everywhere (lines longer than a block, CRLF across reads).
-        monkeypatch.setattr(io_csv, "FAST_BLOCK_BYTES", int(rng.integers(1, 64)) if case % 2 else 1 << 20)
+        monkeypatch.setattr(io_csv_vector, "FAST_BLOCK_BYTES", int(rng.integers(1, 64)) if case % 2 else 1 << 20)
         expected = careful(path)
         assert expected[0] == "ok", (case, expected)
         assert outcome(read_numeric_columns, path) == expected, case
         try:
             got = vector(path)
-        except io_csv._SlowPath:  # mostly numbers of more than 16 digits: numpy's parser reads them
+        except io_csv_vector.SlowPath:  # mostly numbers of more than 16 digits: numpy's parser reads them
             continue
         assert got == expected, case
         fast += 1
@@ -166,7 +166,7 @@ def test_mutated_numeric_files_give_the_careful_result_or_error(tmp_path, monkey
     agreed = fast = 0
     for case in range(1500):
         path = write(tmp_path, mutate(seeds[case % len(seeds)].encode(), rng))
-        monkeypatch.setattr(io_csv, "FAST_BLOCK_BYTES", 48 if case % 2 else 1 << 20)
+        monkeypatch.setattr(io_csv_vector, "FAST_BLOCK_BYTES", 48 if case % 2 else 1 << 20)
         try:
             expected = careful(path)
         except InputFileError:
@@ -174,7 +174,7 @@ def test_mutated_numeric_files_give_the_careful_result_or_error(tmp_path, monkey
         assert outcome(read_numeric_columns, path) == expected, (case, path.read_bytes())
         try:
             got = vector(path)
-        except io_csv._SlowPath:
+        except io_csv_vector.SlowPath:
             got = None
         if got is not None:
             assert got == expected, (case, path.read_bytes())
@@ -187,7 +187,7 @@ def test_only_the_requested_columns_in_their_order(tmp_path):
     path = write(tmp_path, "frame,a,b,c\n1,2,3,4\n2,5,,7\n")
     sn = sniff(path)
     expected = io_csv._slow_numeric(sn, [3, 0])[1]
-    assert np.array_equal(bits(io_csv._vector_numeric(sn, [3, 0])), bits(expected))
+    assert np.array_equal(bits(io_csv_vector.vector_numeric(sn, [3, 0])), bits(expected))
 
 
 def legacy_lines(frames, values, delimiter, labels=None):
