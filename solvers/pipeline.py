@@ -260,7 +260,7 @@ def _retarget_geometric(markers, basis, settings):
     t_solve = t_align = 0.0
     for iteration in range(settings.fine_iterations + 1):
         t1 = time.perf_counter()
-        neutral_all, offsets, norm_info = _normalise(stab, settings, notes if iteration == 0 else [])
+        neutral_all, offsets, norm_info = normalise_stabilised(stab, settings, notes if iteration == 0 else [])
         neutral = neutral_all[used_idx]
         align = align_actor(neutral, sub.neutral, used, regions=settings.align_regions, flag_mm=settings.align_flag_mm)
         positions = stab.markers.positions if offsets is None else stab.markers.positions + offsets
@@ -451,7 +451,7 @@ def _load(source, what):
     return import_markers(source).markers.to_units("m")
 
 
-def _normalise(stab, settings, notes):
+def normalise_stabilised(stab, settings, notes):
     """The neutral (M, 3) in the stabilised head frame, per-frame master offsets (F, M, 3) or None, and info."""
     from .normalise import DEFAULT_LANDMARKS, detect_neutral_frames, master_offsets, neutral_from_file, neutral_from_ranges
 
@@ -507,7 +507,7 @@ def _prepare_main(markers, settings, notes):
 
     markers = markers.to_units("m")
     stab, suggestion = stabilise_take(markers, settings, notes)
-    neutral, offsets, info = _normalise(stab, settings, notes)
+    neutral, offsets, info = normalise_stabilised(stab, settings, notes)
     pos = stab.markers.positions if offsets is None else stab.markers.positions + offsets
     return PreparedTake(pos - neutral[None], neutral, markers.names, markers.frames, stab), suggestion, info
 

@@ -301,11 +301,11 @@ def _tune_actor(markers, base, settings, idx, Wc, mu, parent, notes):
 
 def _take_deltas(base, settings):
     """The stabilised, neutral-normalised actor deltas (F, M, 3), neutral (M, 3) and marker names the
-    pipeline solved: its final stabilisation and the same normalisation (``pipeline._normalise``)."""
-    from .pipeline import _normalise
+    pipeline solved: its final stabilisation and the same normalisation (``pipeline.normalise_stabilised``)."""
+    from .pipeline import normalise_stabilised
 
     stab = base.stabilise
-    neutral, offsets, _ = _normalise(stab, settings, [])
+    neutral, offsets, _ = normalise_stabilised(stab, settings, [])
     positions = stab.markers.positions if offsets is None else stab.markers.positions + offsets
     return positions - neutral[None], neutral, tuple(stab.markers.names)
 
