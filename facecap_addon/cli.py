@@ -41,9 +41,7 @@ def run_retarget(config, *, quiet=False, solve=None):
     import warnings
 
     from ..solvers.cleaning import clean
-    from ..solvers.errors import ConfigError, InputFileError
-    from ..solvers.fileio import write_json_atomic
-    from ..solvers.io_csv import write_weights_csv
+    from ..solvers.errors import ConfigError
     from ..solvers.pipeline import retarget
     from ..solvers.readers import import_markers
     from ..solvers.strategy_config import load_strategy_inputs
@@ -75,25 +73,14 @@ def run_retarget(config, *, quiet=False, solve=None):
 
     import bpy
 
-    from . import anim
     from .scene_data import basis_from_object
-    from .take import character_target, key_weights
+    from .take import character_target
 
     t1 = time.perf_counter()
-    if config.target_blend is not None:
-        if not config.target_blend.is_file():
-            raise InputFileError(config.target_blend, "file not found (config [target] blend)")
-        say(f"[2/5] opening {config.target_blend}")
-        bpy.ops.wm.open_mainfile(filepath=str(config.target_blend), load_ui=False)
-    source_blend = Path(bpy.data.filepath).resolve() if bpy.data.filepath else None
-    if config.output_blend is not None and source_blend is not None and config.output_blend == source_blend:
-        raise ConfigError("must differ from the input .blend (inputs are never overwritten)", path=config.path, key="output.blend")
     if config.output_actor_basis is not None and config.output_actor_basis == config.actor_basis_path:
         raise ConfigError("must differ from [calibration] basis (a stored library is never overwritten)",
                           path=config.path, key="output.actor_basis")
-    obj = bpy.data.objects.get(config.target_object)
-    if obj is None:
-        raise ConfigError(f"no object named '{config.target_object}' in the .blend", path=config.path, key="target.object")
+    obj = open_target(config, say)
     # Only geometric samples the character at bound vertices; the others need its shape names and ranges.
     character = basis_from_object(obj, markers.names) if strategy == "geometric" else character_target(obj)
     timings["load_character"] = time.perf_counter() - t1
@@ -117,16 +104,7 @@ def run_retarget(config, *, quiet=False, solve=None):
         result, extra = solve(markers, character, settings, inputs, tuning_info)
     result = finish_solve(config, result, markers.fps if markers is not None else inputs.weights.fps)
 
-    t3 = time.perf_counter()
-    say("[4/5] keying")
-    action = key_weights(obj, result, anim.unique_action_name(config.action_name))
-    timings["key"] = time.perf_counter() - t3
-
-    say("[5/5] writing outputs")
-    outputs = {"action": action.name}
-    if config.output_weights is not None:
-        write_weights_csv(config.output_weights, result.frames, result.shape_names, result.weights)
-        outputs["weights"] = str(config.output_weights)
+    outputs = {}
     if config.output_actor_basis is not None:
         actor_basis = getattr(result.fitted, "actor_basis", None)
         if actor_basis is None:
@@ -135,6 +113,64 @@ def run_retarget(config, *, quiet=False, solve=None):
         config.output_actor_basis.parent.mkdir(parents=True, exist_ok=True)
         actor_basis.save_npz(config.output_actor_basis)
         outputs["actor_basis"] = str(config.output_actor_basis)
+    if markers is not None:
+        source = {"markers_file": str(config.markers_path),
+                  "source": {"format": imported.format, "units": imported.markers.units, "fps": markers.fps,
+                             "segments": {k: v for k, v in markers.segments.items()}}}
+    else:
+        track = inputs.weights
+        source = {"weights_file": str(config.weights_path),
+                  "source": {"format": track.format, "fps": track.fps, "timecode": track.timecode}}
+    outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=notes, say=say,
+                            report_fields={**source, "cleaning": cleaning, **tuning_info, **extra})
+    return result, outputs
+
+
+def open_target(config, say):
+    """Open ``[target] blend`` (if given) and return ``[target] object``; the output .blend must not
+    be the input one."""
+    import bpy
+
+    from ..solvers.errors import ConfigError, InputFileError
+
+    if config.target_blend is not None:
+        if not config.target_blend.is_file():
+            raise InputFileError(config.target_blend, "file not found (config [target] blend)")
+        say(f"[2/5] opening {config.target_blend}")
+        bpy.ops.wm.open_mainfile(filepath=str(config.target_blend), load_ui=False)
+    source_blend = Path(bpy.data.filepath).resolve() if bpy.data.filepath else None
+    if config.output_blend is not None and source_blend is not None and config.output_blend == source_blend:
+        raise ConfigError("must differ from the input .blend (inputs are never overwritten)", path=config.path,
+                          key="output.blend")
+    obj = bpy.data.objects.get(config.target_object)
+    if obj is None:
+        raise ConfigError(f"no object named '{config.target_object}' in the .blend", path=config.path,
+                          key="target.object")
+    return obj
+
+
+def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields):
+    """Key ``result`` as ``obj``'s solve layer and write ``[output]`` weights / .blend / report.
+
+    ``outputs`` holds what was already written; ``report_fields`` are added to the JSON report
+    (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings.
+    Returns ``outputs`` with the action and the written paths.
+    """
+    from ..solvers.fileio import write_json_atomic
+    from ..solvers.io_csv import write_weights_csv
+    from . import anim
+    from .take import key_weights
+
+    t3 = time.perf_counter()
+    say("[4/5] keying")
+    action = key_weights(obj, result, anim.unique_action_name(config.action_name))
+    timings["key"] = time.perf_counter() - t3
+
+    say("[5/5] writing outputs")
+    outputs = {"action": action.name, **outputs}
+    if config.output_weights is not None:
+        write_weights_csv(config.output_weights, result.frames, result.shape_names, result.weights)
+        outputs["weights"] = str(config.output_weights)
     if config.output_blend is not None:
         _save_blend_atomic(config.output_blend)
         outputs["blend"] = str(config.output_blend)
@@ -142,25 +178,15 @@ def run_retarget(config, *, quiet=False, solve=None):
     if config.output_report is not None:
         report = result.report()
         report["config"] = str(config.path)
-        if markers is not None:
-            report["markers_file"] = str(config.markers_path)
-            report["source"] = {"format": imported.format, "units": imported.markers.units, "fps": markers.fps,
-                                "segments": {k: v for k, v in markers.segments.items()}}
-        else:
-            track = inputs.weights
-            report["weights_file"] = str(config.weights_path)
-            report["source"] = {"format": track.format, "fps": track.fps, "timecode": track.timecode}
-        report["cleaning"] = cleaning
+        report.update(report_fields)
         report["outputs"] = outputs
-        report.update(tuning_info)
-        report.update(extra)
-        report["warnings"] = notes + report["warnings"]
+        report["warnings"] = list(notes) + report["warnings"]
         report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
         write_json_atomic(config.output_report, report)
         outputs["report"] = str(config.output_report)
-    for note in notes + list(result.warnings):
+    for note in list(notes) + list(result.warnings):
         say(f"warning: {note}")
-    return result, outputs
+    return outputs
 
 
 def _save_blend_atomic(path):

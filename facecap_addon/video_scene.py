@@ -227,16 +227,13 @@ def run_flow_retarget(config, *, quiet=False):
     import sys
     import time
 
-    from ..solvers.errors import ConfigError, InputFileError
-    from ..solvers.fileio import write_json_atomic
-    from ..solvers.io_csv import write_weights_csv
     from ..solvers.strategy_config import load_strategy_inputs
     from ..solvers.video.cli import _Progress, sigint_cancels
     from ..solvers.video.flow_config import check_against_footage
     from ..solvers.video.flow_solve import retarget_flow_job
     from ..solvers.video.reading import Footage
-    from . import anim
-    from .take import character_target, key_weights
+    from .cli import key_and_write, open_target
+    from .take import character_target
     from .tune_cli import finish_solve, prepare_solve
 
     def say(message):
@@ -252,19 +249,7 @@ def run_flow_retarget(config, *, quiet=False):
     timings["read"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    if config.target_blend is not None:
-        if not config.target_blend.is_file():
-            raise InputFileError(config.target_blend, "file not found (config [target] blend)")
-        say(f"[2/5] opening {config.target_blend}")
-        bpy.ops.wm.open_mainfile(filepath=str(config.target_blend), load_ui=False)
-    source_blend = Path(bpy.data.filepath).resolve() if bpy.data.filepath else None
-    if config.output_blend is not None and source_blend is not None and config.output_blend == source_blend:
-        raise ConfigError("must differ from the input .blend (inputs are never overwritten)", path=config.path,
-                          key="output.blend")
-    obj = bpy.data.objects.get(config.target_object)
-    if obj is None:
-        raise ConfigError(f"no object named '{config.target_object}' in the .blend", path=config.path,
-                          key="target.object")
+    obj = open_target(config, say)
     character, inputs, settings, tuning_info = prepare_solve(config, character_target(obj), inputs)
     timings["load_character"] = time.perf_counter() - t1
 
@@ -286,38 +271,11 @@ def run_flow_retarget(config, *, quiet=False):
                 shown.close_line()
     result = finish_solve(config, result, info.fps)
 
-    t3 = time.perf_counter()
-    say("[4/5] keying")
-    action = key_weights(obj, result, anim.unique_action_name(config.action_name))
-    timings["key"] = time.perf_counter() - t3
-
-    say("[5/5] writing outputs")
-    outputs = {"action": action.name}
-    if config.output_weights is not None:
-        write_weights_csv(config.output_weights, result.frames, result.shape_names, result.weights)
-        outputs["weights"] = str(config.output_weights)
-    if config.output_blend is not None:
-        from .cli import _save_blend_atomic
-
-        _save_blend_atomic(config.output_blend)
-        outputs["blend"] = str(config.output_blend)
-    timings["total"] = time.perf_counter() - t0
-    if config.output_report is not None:
-        report = result.report()
-        report["config"] = str(config.path)
-        report["video_file"] = video.path
-        report["source"] = {"format": "video", "kind": info.kind, "fps": info.fps, "width": info.width,
-                            "height": info.height, "scale": info.scale, "frames": [info.frames[0], info.frames[-1]],
-                            "count": info.n_frames}
-        report["flow"] = result.info["flow"]
-        report["examples_file"] = str(config.examples_weights_path)
-        report["cleaning"] = []
-        report["outputs"] = outputs
-        report.update(tuning_info)
-        report["warnings"] = list(inputs.notes) + report["warnings"]
-        report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
-        write_json_atomic(config.output_report, report)
-        outputs["report"] = str(config.output_report)
-    for note in result.warnings:
-        say(f"warning: {note}")
+    source = {"video_file": video.path,
+              "source": {"format": "video", "kind": info.kind, "fps": info.fps, "width": info.width,
+                         "height": info.height, "scale": info.scale, "frames": [info.frames[0], info.frames[-1]],
+                         "count": info.n_frames},
+              "flow": result.info["flow"], "examples_file": str(config.examples_weights_path), "cleaning": []}
+    outputs = key_and_write(config, obj, result, outputs={}, timings=timings, t0=t0, notes=list(inputs.notes),
+                            say=say, report_fields={**source, **tuning_info})
     return result, outputs
