@@ -376,23 +376,9 @@ def _retarget_markers(markers, character, settings, inputs):
     notes.extend(res.warnings)
     weights = _finish(target, res.weights, settings, notes)
 
-    fitted_names = getattr(getattr(strategy, "actor_basis", None), "marker_names", None) or take.names
-    used = tuple(n for n in fitted_names if n in set(take.names))
+    used, marker_residual, frame_marker = strategy_marker_residuals(strategy, res, take)
     F = take.frames.size
     residual_rms = np.full(F, np.nan) if res.residual_rms is None else np.asarray(res.residual_rms, dtype=np.float64)
-    marker_residual = np.full(len(used), np.nan)
-    frame_marker = None
-    if res.solve is not None and res.solve.residuals.shape[1] == 3 * len(fitted_names):
-        r2 = (res.solve.residuals.reshape(F, len(fitted_names), 3) ** 2).sum(axis=2)
-        seen = np.isfinite(r2) & (r2 > 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
-        cols = [fitted_names.index(n) for n in used]
-        marker_residual = per[cols]
-        # observed = a finite delta (the residuals are 0, not NaN, at gaps), as in the strategies' rms
-        observed = np.isfinite(take.deltas[:, [take.names.index(n) for n in used], 0])
-        frame_marker = np.where(observed, np.sqrt(r2[:, cols]), np.nan)
-        frame_marker[~np.asarray(res.solve.solved, dtype=bool)] = np.nan
     at_bound = res.solve.at_bound if res.solve is not None else res.clamped
     info = dict(res.info)
     for attr in ("version", "history", "basis_frames", "n_examples"):
@@ -410,6 +396,26 @@ def _retarget_markers(markers, character, settings, inputs):
         normalise=norm_info, stable_suggestion=suggestion, head_target=settings.head_target,
         frame_marker_residual=frame_marker,
     )
+
+
+def strategy_marker_residuals(strategy, res, take):
+    """(markers used, (M,) RMS residual per marker, (F, M) per frame or None) of a fitted marker
+    strategy's solve, in its own space (metres or pixels); a marker is observed where its delta is
+    finite (the engine's residuals are 0, not NaN, at gaps)."""
+    fitted = getattr(getattr(strategy, "actor_basis", None), "marker_names", None) or take.names
+    used = tuple(n for n in fitted if n in set(take.names))
+    F, dims = take.frames.size, take.deltas.shape[2]
+    if res.solve is None or res.solve.residuals.shape[1] != dims * len(fitted):
+        return used, np.full(len(used), np.nan), None
+    r2 = (res.solve.residuals.reshape(F, len(fitted), dims) ** 2).sum(axis=2)
+    seen = np.isfinite(r2) & (r2 > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
+    cols = [fitted.index(n) for n in used]
+    observed = np.isfinite(take.deltas[:, [take.names.index(n) for n in used], 0])
+    frame_marker = np.where(observed, np.sqrt(r2[:, cols]), np.nan)
+    frame_marker[~np.asarray(res.solve.solved, dtype=bool)] = np.nan
+    return used, per[cols], frame_marker
 
 
 def _reference_range(settings):

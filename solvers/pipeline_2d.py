@@ -131,7 +131,7 @@ def retarget_markers_2d(markers, character, settings, inputs):
     ranges, basis in pixels; ``[calibration] align`` "similarity" absorbs a different zoom), or
     posed example frames of a tracked take. Nothing of the character's geometry is used.
     """
-    from .pipeline import _finish, _target
+    from .pipeline import _finish, _target, strategy_marker_residuals
     from .strategies.wiring import fit_strategy, require_inputs
 
     if settings.strategy not in STRATEGIES_2D:
@@ -166,21 +166,8 @@ def retarget_markers_2d(markers, character, settings, inputs):
     notes += fit_notes
     notes.extend(res.warnings)
     weights = _finish(target, res.weights, settings, notes)
-    fitted = getattr(getattr(strategy, "actor_basis", None), "marker_names", None) or take.names
-    used = tuple(n for n in fitted if n in set(take.names))
+    used, marker_residual, frame_marker = strategy_marker_residuals(strategy, res, take)
     F = take.frames.size
-    marker_residual = np.full(len(used), np.nan)
-    frame_marker = None
-    if res.solve is not None and res.solve.residuals.shape[1] == 2 * len(fitted):
-        r2 = (res.solve.residuals.reshape(F, len(fitted), 2) ** 2).sum(axis=2)
-        seen = np.isfinite(r2) & (r2 > 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
-        cols = [fitted.index(n) for n in used]
-        marker_residual = per[cols]
-        observed = np.isfinite(take.deltas[:, [take.names.index(n) for n in used], 0])  # as pipeline's 3D path
-        frame_marker = np.where(observed, np.sqrt(r2[:, cols]), np.nan)
-        frame_marker[~np.asarray(res.solve.solved, dtype=bool)] = np.nan
     at_bound = res.solve.at_bound if res.solve is not None else res.clamped
     residual = np.full(F, np.nan) if res.residual_rms is None else np.asarray(res.residual_rms, dtype=np.float64)
     timings = {"stabilise": t1 - t0, "fit": t2 - t1, "solve": t3 - t2, "total": time.perf_counter() - t0}
