@@ -38,12 +38,30 @@ class Alignment:
         return self.scales[:, None] * np.einsum("mij,mj->mi", self.rotations, points) + self.translations
 
     def apply_vectors(self, vectors):
-        v = np.asarray(vectors)
-        return self.scales[:, None] * (v[..., None, :] @ self.rotations.transpose(0, 2, 1))[..., 0, :]
+        """s_m R_m v for displacements ``vectors`` (..., M, 3) (no translation)."""
+        return self._map_vectors(vectors, inverse=False)
 
     def inverse_vectors(self, vectors):
-        v = np.asarray(vectors)
-        return (v[..., None, :] @ self.rotations)[..., 0, :] / self.scales[:, None]
+        """Map displacements back (the inverse of :meth:`apply_vectors`)."""
+        return self._map_vectors(vectors, inverse=True)
+
+    def _map_vectors(self, vectors, *, inverse):
+        # Markers share a similarity (the global fit, or their region's): one (K, 3) @ (3, 3)
+        # product per distinct similarity rather than a 3x3 product per sample.
+        v = np.asarray(vectors, dtype=np.float64)
+        sims = np.concatenate([self.scales[:, None], self.rotations.reshape(-1, 9)], axis=1)
+        _, first, group = np.unique(sims, axis=0, return_index=True, return_inverse=True)
+        out = None if first.size == 1 else np.empty(np.broadcast_shapes(v.shape, self.translations.shape))
+        for g, m in enumerate(first):
+            idx = np.flatnonzero(group.reshape(-1) == g)
+            part = v if out is None else np.take(v, idx, axis=-2)
+            flat = part.reshape(-1, 3)
+            scale, rot = self.scales[m], self.rotations[m]
+            mapped = ((flat @ rot) / scale if inverse else (flat @ rot.T) * scale).reshape(part.shape)
+            if out is None:
+                return mapped
+            out[..., idx, :] = mapped
+        return out
 
     def report(self, names):
         return {

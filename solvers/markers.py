@@ -62,14 +62,24 @@ class MarkerSet:
             raise FacecapError(f"{where}: frame numbers must increase strictly")
         if not np.isfinite(self.fps) or self.fps <= 0:
             raise FacecapError(f"{where}: fps must be positive; got {self.fps}")
-        if np.isinf(pos).any():
-            raise FacecapError(f"{where}: positions contain infinite values")
-        # A sample is a gap as a whole: never keep half-missing coordinates.
-        gap = np.isnan(pos).any(axis=2)
-        if gap.any():
-            pos = pos.copy()
-            pos[gap] = np.nan
-            object.__setattr__(self, "positions", pos)
+        # One pass over the coordinates finds every sample with a NaN or inf (it poisons the
+        # sum; so does an overflowing sum of finite values, which the checks below leave alone);
+        # only those few samples are looked at again.
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = pos[..., 0] + pos[..., 1]
+            for d in range(2, pos.shape[2]):
+                total += pos[..., d]
+        odd = ~np.isfinite(total)
+        if odd.any():
+            samples = pos[odd]
+            if np.isinf(samples).any():
+                raise FacecapError(f"{where}: positions contain infinite values")
+            # A sample is a gap as a whole: never keep half-missing coordinates.
+            nan = np.isnan(samples)
+            if (nan.any(axis=1) & ~nan.all(axis=1)).any():
+                pos = pos.copy()
+                pos[np.isnan(pos).any(axis=2)] = np.nan
+                object.__setattr__(self, "positions", pos)
 
     @property
     def n_frames(self):

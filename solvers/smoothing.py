@@ -34,24 +34,32 @@ def local_polynomial(values, *, half_window, order=3, weights=None):
     y = np.nan_to_num(flat)
     offsets = np.arange(-half_window, half_window + 1)
     powers = np.arange(2 * order + 1)
-    # Moments sum_j w_{f+j} j^p and sum_j w_{f+j} j^p y_{f+j}, for every frame, via shifted sums.
+    # Moments sum_j w_{f+j} j^p for every frame, via shifted sums.
     pad_w = np.concatenate([np.zeros(half_window), w, np.zeros(half_window)])
-    pad_y = np.concatenate([np.zeros((half_window, y.shape[1])), y, np.zeros((half_window, y.shape[1]))])
     S = np.zeros((F, powers.size))
-    T = np.zeros((F, order + 1, y.shape[1]))
-    for j in offsets:
-        wj = pad_w[half_window + j : half_window + j + F]
-        yj = pad_y[half_window + j : half_window + j + F]
-        jp = float(j) ** powers
-        S += wj[:, None] * jp[None]
-        T += (wj[:, None] * jp[None, : order + 1])[:, :, None] * yj[:, None, :]
-    M = S[:, np.add.outer(np.arange(order + 1), np.arange(order + 1))]  # (F, p+1, p+1) Hankel
     count = np.zeros(F)
     for j in offsets:
-        count += pad_w[half_window + j : half_window + j + F] > 0
+        wj = pad_w[half_window + j : half_window + j + F]
+        S += wj[:, None] * (float(j) ** powers)[None]
+        count += wj > 0
+    M = S[:, np.add.outer(np.arange(order + 1), np.arange(order + 1))]  # (F, p+1, p+1) Hankel
     ok = count >= order + 1
-    out = np.full_like(y, np.nan)
+    # The fit's value at offset 0 is e0' M^-1 T with T_p = sum_j w_{f+j} j^p y_{f+j}, i.e. a
+    # per-frame kernel k_f(j) = w_{f+j} sum_p (M^-1 e0)_p j^p applied to the window: one
+    # right-hand side per frame instead of one per column (M is symmetric).
+    e0 = np.zeros((int(ok.sum()), order + 1, 1))
+    e0[:, 0] = 1.0
+    x = np.zeros((F, order + 1))
     if ok.any():
-        coef = np.linalg.solve(M[ok] + 1e-12 * np.eye(order + 1), T[ok])  # (n, p+1, C)
-        out[ok] = coef[:, 0, :]  # the polynomial's value at offset 0
+        x[ok] = np.linalg.solve(M[ok] + 1e-12 * np.eye(order + 1), e0)[:, :, 0]
+    pad_y = np.concatenate([np.zeros((half_window, y.shape[1])), y, np.zeros((half_window, y.shape[1]))])
+    out = np.zeros_like(y)
+    for j in offsets:
+        kj = x[:, order].copy()
+        for p in range(order - 1, -1, -1):  # Horner: sum_p x_p j^p
+            kj *= j
+            kj += x[:, p]
+        kj *= pad_w[half_window + j : half_window + j + F]
+        out += kj[:, None] * pad_y[half_window + j : half_window + j + F]
+    out[~ok] = np.nan
     return out.reshape(values.shape)

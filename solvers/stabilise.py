@@ -7,7 +7,7 @@ import numpy as np
 
 from .errors import FacecapError
 from .markers import MarkerSet
-from .transforms import fit_rigid_batch
+from .transforms import best_rotation, fit_rigid_batch
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,10 +47,17 @@ MODES = ("rigid", "similarity")
 
 def _apply(R, t, scales, X):
     """s_f * R_f @ x + t_f for every point of every frame."""
-    out = (X @ R.transpose(0, 2, 1))
+    out = X @ R.transpose(0, 2, 1)
     if scales is not None:
-        out = out * scales[:, None, None]
-    return out + t[:, None, :]
+        out *= scales[:, None, None]
+    out += t[:, None, :]
+    return out
+
+
+def _columns(positions, idx):
+    """``positions[:, idx]`` laid out frame-major: fancy indexing there returns a marker-major
+    array, which makes every later pass over it ~2x slower."""
+    return np.take(positions, idx, axis=1)
 
 
 def _frame_scales(R, pts, reference, weights):
@@ -108,7 +115,7 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
     if len(stable) < 3:
         raise FacecapError(f"stabilise: need at least 3 stable markers; got {len(stable)} {list(stable)}")
     idx = markers.index(stable, what="stable marker")
-    pts = markers.positions[:, idx]  # (F, S, 3)
+    pts = _columns(markers.positions, idx)  # (F, S, 3)
     vis = ~np.isnan(pts[:, :, 0])
 
     reference = _reference_pose(markers, pts, vis, stable, reference_frames)
@@ -119,12 +126,15 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
         # that up to ~40% moving markers cannot drag the starting pose.
         R, t = _least_median_start(pts, reference, vis, R, t)
     keep = np.ones(len(stable), dtype=bool)
+    filled = np.nan_to_num(pts)
+    dist = _distances(R, t, filled, reference)
     for _ in range(iterations if robust else 0):
-        weights = vis * keep * _tukey_weights(R, t, pts, reference, vis)
+        weights = vis * keep * _tukey_weights(dist, vis)
         R, t, rank_ok = fit_rigid_batch(pts, reference, weights)
+        dist = _distances(R, t, filled, reference)
         # A marker that moves in many frames is not rigid at all: drop it for the whole take
         # (a per-frame M-estimator only catches it once it has moved far).
-        keep = _rigid_markers(R, t, pts, reference, vis, keep)
+        keep = _rigid_markers(dist, vis, keep)
     count = vis.sum(axis=1)
     flagged = (count < min_points) | ~rank_ok
     reasons = {}
@@ -207,10 +217,15 @@ def _least_median_start(pts, reference, vis, R0, t0, n_triples=40, seed=0):
     return R, t
 
 
-def _rigid_markers(R, t, pts, reference, vis, keep, factor=3.0):
+def _distances(R, t, filled, reference):
+    """(F, S) distance of each (gap-filled) stable marker from the reference after the fit."""
+    fitted = (filled @ R.transpose(0, 2, 1)) + t[:, None, :]
+    return np.linalg.norm(fitted - reference[None], axis=2)
+
+
+def _rigid_markers(dist, vis, keep, factor=3.0):
     """Stable markers whose 90th-percentile residual stays within ``factor`` x the typical one."""
-    fitted = (np.nan_to_num(pts) @ R.transpose(0, 2, 1)) + t[:, None, :]
-    r = np.where(vis, np.linalg.norm(fitted - reference[None], axis=2), np.nan)
+    r = np.where(vis, dist, np.nan)
     with np.errstate(invalid="ignore"):
         p90 = np.nanpercentile(r, 90, axis=0)
     typical = np.nanmedian(p90[keep])
@@ -221,10 +236,8 @@ def _rigid_markers(R, t, pts, reference, vis, keep, factor=3.0):
     return ok
 
 
-def _tukey_weights(R, t, pts, reference, vis, c=4.685):
-    """Tukey biweight of each stable marker's distance from the reference after the current fit."""
-    fitted = (np.nan_to_num(pts) @ R.transpose(0, 2, 1)) + t[:, None, :]
-    r = np.linalg.norm(fitted - reference[None], axis=2)
+def _tukey_weights(r, vis, c=4.685):
+    """Tukey biweight of each stable marker's distance ``r`` (F, S) from the reference after the current fit."""
     sigma = 1.4826 * np.median(r[vis]) if vis.any() else 0.0
     sigma = max(sigma, 1e-12)
     u = r / (c * sigma)
@@ -291,7 +304,7 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     StabiliseResult
     """
     idx = markers.index(names)
-    raw = markers.positions[:, idx]
+    raw = _columns(markers.positions, idx)
     w = np.where(np.isnan(raw[:, :, 0]) | np.isnan(predicted[:, :, 0]), 0.0, np.asarray(weights, dtype=np.float64)[None])
     R, t, rank_ok = fit_rigid_batch(raw, predicted, w)
     flagged = stab.flagged | ~rank_ok
@@ -304,8 +317,7 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
         t = np.where(flagged[:, None], stab.translations, t)
     moved = _apply(R, t, stab.scales, markers.positions)
     moved[flagged] = np.nan
-    sidx = markers.index(stab.stable_names)
-    fitted = moved[:, sidx]
+    fitted = _columns(moved, markers.index(stab.stable_names))
     err = np.linalg.norm(fitted - stab.reference[None], axis=2)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(err**2, axis=1))
@@ -344,15 +356,12 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     smooth = local_polynomial(pose, half_window=half_window, order=order, weights=ok)
     lost = np.isnan(smooth).any(axis=1) & ~stab.flagged
     smooth[stab.flagged | lost] = pose[stab.flagged | lost]
-    U, _, Vt = np.linalg.svd(smooth[:, :9].reshape(-1, 3, 3))
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= d[:, None]
-    R = U @ Vt
+    R = best_rotation(smooth[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1))  # the rotation nearest each average
     t = smooth[:, 9:12]
     scales = None if stab.scales is None else smooth[:, 12]
     moved = _apply(R, t, scales, markers.positions)
     moved[stab.flagged] = np.nan
-    fitted = moved[:, markers.index(stab.stable_names)]
+    fitted = _columns(moved, markers.index(stab.stable_names))
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(np.linalg.norm(fitted - stab.reference[None], axis=2) ** 2, axis=1))
     return StabiliseResult(

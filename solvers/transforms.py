@@ -48,10 +48,12 @@ def fit_rigid_batch(source, target, weights):
     source = np.asarray(source, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64)
+    # A point with a non-finite coordinate in either set does not take part: weight 0, coordinates 0.
     # A shared (N, 3) target stays (N, 3): no (F, N, 3) copies of it.
-    w = np.where(np.isnan(source).any(axis=2) | np.isnan(target).any(axis=-1), 0.0, w)
-    src = np.nan_to_num(source)
-    tgt = np.nan_to_num(target)
+    gap_src, gap_tgt = _gaps(source), _gaps(target)
+    w = np.where(gap_src | gap_tgt, 0.0, w)
+    src = _zero_rows(source, gap_src)
+    tgt = _zero_rows(target, gap_tgt)
     wsum = w.sum(axis=1)
     safe = np.where(wsum > 0, wsum, 1.0)
     # Batched matmuls, not einsum: three-operand einsum is ~10x slower on long takes.
@@ -61,20 +63,152 @@ def fit_rigid_batch(source, target, weights):
     ws0 = s0 * w[:, :, None]
     # sum w s0 (t - ct)' = sum w s0 t' since sum w s0 = 0: the target needs no centring
     H = ws0.transpose(0, 2, 1) @ tgt
+    R = best_rotation(H)
+    t = ct - (R @ cs[:, :, None])[:, :, 0]
+
+    # Spread of the source points: rotation is determined only with >= 3 non-collinear points.
+    cov = (ws0.transpose(0, 2, 1) @ s0) / safe[:, None, None]
+    count = (w > 0).sum(axis=1)
+    rank_ok = (count >= 3) & _spread_ok(cov)
+    return R, t, rank_ok
+
+
+def _gaps(points):
+    """(..., N) bool: points with a NaN or infinite coordinate (one pass: a NaN or inf poisons the sum)."""
+    total = points[..., 0] + points[..., 1]
+    total += points[..., 2]
+    return ~np.isfinite(total)
+
+
+def _zero_rows(points, gap):
+    """``points`` with the ``gap`` rows set to 0 (a copy only when there is a gap)."""
+    if not gap.any():
+        return points
+    out = points.copy()
+    out[gap] = 0.0
+    return out
+
+
+def _spread_ok(cov, ratio=1e-3):
+    """(F,) bool: the middle singular value of the spread exceeds ``ratio`` x the largest (not collinear).
+
+    ``cov`` (F, 3, 3) is symmetric positive semi-definite with eigenvalues a <= b <= c; the test is
+    b > ratio^2 c. Cheap invariants bound b / c (bc <= e2 <= 3bc for e2 = ab + ac + bc, and
+    e1 / 3 <= c <= e1 for the trace e1) so ~every frame is decided without an eigen-solve; only
+    frames within a factor ~30 of the threshold take ``eigvalsh``, as every frame used to.
+    """
+    c = cov.reshape(-1, 9).T
+    e1 = c[0] + c[4] + c[8]
+    e2 = c[0] * c[4] - c[3] * c[3] + c[0] * c[8] - c[6] * c[6] + c[4] * c[8] - c[7] * c[7]
+    limit = ratio**2 * e1 * e1
+    ok = e2 > 6.0 * limit  # b / c >= e2 / (3 e1^2) > ratio^2, with a factor 2 to spare for rounding
+    unsure = ~ok & ~(18.0 * e2 < limit)  # b / c <= 9 e2 / e1^2 < ratio^2 (same margin)
+    if unsure.any():
+        sv = np.sqrt(np.clip(np.linalg.eigvalsh(cov[unsure]), 0.0, None))  # ascending
+        ok[unsure] = sv[:, 1] > ratio * np.maximum(sv[:, 2], 1e-300)
+    return ok
+
+
+#: Frames whose quaternion eigenvalue gap is below this (relative) bound take the SVD path.
+_MIN_GAP = 1e-2
+
+
+def best_rotation(H):
+    """Proper rotations R_f maximising trace(R_f @ H_f), for H of shape (F, 3, 3).
+
+    With H = sum_i w_i s_i y_i^T this is the Kabsch rotation taking the points s onto y; with
+    H = X^T it is the rotation nearest to X. Same answer as the SVD solution
+    V diag(1, 1, det(V U^T)) U^T of H = U S V^T, ~6x faster than the batched SVD: the rotation's
+    quaternion is the top eigenvector of Horn's symmetric 4x4 matrix, whose eigenvalue is found
+    by Newton's method on the characteristic polynomial (Theobald's QCP) and whose eigenvector
+    is a column of the adjugate. Where the top eigenvalue is (nearly) double the rotation is not
+    well determined (collinear points, or a reflection with sigma_2 ~ sigma_3) and the
+    closed form loses precision, so those frames take the SVD.
+    """
+    H = np.asarray(H, dtype=np.float64)
+    F = H.shape[0]
+    sxx, sxy, sxz, syx, syy, syz, szx, szy, szz = np.ascontiguousarray(H.reshape(F, 9).T)
+    N = np.array([
+        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+        [szx - sxz, sxy + syx, syy - sxx - szz, syz + szy],
+        [sxy - syx, szx + sxz, syz + szy, szz - sxx - syy],
+    ])  # (4, 4, F)
+    # Characteristic polynomial lam^4 + c2 lam^2 + c1 lam + c0 (N is traceless).
+    norm2 = sxx * sxx + sxy * sxy + sxz * sxz + syx * syx + syy * syy + syz * syz + szx * szx + szy * szy + szz * szz
+    c2 = -2.0 * norm2
+    c1 = -8.0 * _det3(((sxx, sxy, sxz), (syx, syy, syz), (szx, szy, szz)))
+    c0 = _det4(N)
+    # Newton from above the top root (sigma_1 + sigma_2 + sigma_3 <= sqrt(3) |H|) descends
+    # monotonically onto it: every root is real, so the polynomial is convex beyond the top one.
+    scale = np.sqrt(norm2)
+    lam = np.sqrt(3.0) * scale
+    for _ in range(60):
+        lam2 = lam * lam
+        p = ((lam2 + c2) * lam + c1) * lam + c0
+        dp = (4.0 * lam2 + 2.0 * c2) * lam + c1
+        step = np.divide(p, dp, out=np.zeros(F), where=dp > 0)
+        lam -= step
+        # The slope only shrinks on the way down: a frame whose slope is already below the gap
+        # bound will take the SVD and need not converge here.
+        closed = dp > _MIN_GAP * scale**3
+        if not (np.abs(step[closed]) > 1e-13 * scale[closed]).any():
+            break
+    # P'(lam_1) = product of the gaps to the other three eigenvalues, each <= 2 sqrt(3) |H|.
+    dp = (4.0 * lam * lam + 2.0 * c2) * lam + c1
+    closed = dp > _MIN_GAP * scale**3
+    for k in range(4):
+        N[k, k] -= lam
+    adj = _adjugate4(N)  # ~ P'(lam_1) q q^T: its largest diagonal entry marks the best column
+    k = np.argmax(np.abs(adj[np.arange(4), np.arange(4)]), axis=0)
+    w, x, y, z = adj[k, :, np.arange(F)].T
+    n = w * w + x * x + y * y + z * z
+    n[~closed] = 1.0  # may be 0 there (no points at all); those frames are replaced below
+    R = np.stack([
+        w * w + x * x - y * y - z * z, 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+        2.0 * (x * y + w * z), w * w - x * x + y * y - z * z, 2.0 * (y * z - w * x),
+        2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z,
+    ], axis=1).reshape(F, 3, 3) / n[:, None, None]
+    if not closed.all():
+        R[~closed] = _rotation_svd(H[~closed])
+    return R
+
+
+def _rotation_svd(H):
+    """:func:`best_rotation` by SVD (Kabsch with the reflection corrected)."""
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(Vt.transpose(0, 2, 1) @ U.transpose(0, 2, 1)))
     d = np.where(d == 0, 1.0, d)
     D = np.broadcast_to(np.eye(3), H.shape).copy()
     D[:, 2, 2] = d
-    R = Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1)
-    t = ct - (R @ cs[:, :, None])[:, :, 0]
+    return Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1)
 
-    # Spread of the source points: rotation is determined only with >= 3 non-collinear points.
-    cov = (ws0.transpose(0, 2, 1) @ s0) / safe[:, None, None]
-    sv = np.sqrt(np.clip(np.linalg.eigvalsh(cov), 0.0, None))  # ascending
-    count = (w > 0).sum(axis=1)
-    rank_ok = (count >= 3) & (sv[:, 1] > 1e-3 * np.maximum(sv[:, 2], 1e-300))
-    return R, t, rank_ok
+
+def _det3(m):
+    """Determinant of 3x3 matrices given as nested rows of equal-shape arrays."""
+    return (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
+
+
+def _det4(a):
+    """Determinant of (4, 4, F) matrices, expanded along the first row."""
+    return sum((-1) ** j * a[0, j] * _det3(_minor(a, 0, j)) for j in range(4))
+
+
+def _adjugate4(a):
+    """Adjugate of symmetric (4, 4, F) matrices (symmetric too: ten cofactors)."""
+    out = np.empty_like(a)
+    for i in range(4):
+        for j in range(i, 4):
+            out[i, j] = out[j, i] = (-1) ** (i + j) * _det3(_minor(a, i, j))
+    return out
+
+
+def _minor(a, i, j):
+    rows = [r for r in range(4) if r != i]
+    cols = [c for c in range(4) if c != j]
+    return [[a[r, c] for c in cols] for r in rows]
 
 
 def fit_similarity(source, target, weights=None, *, allow_scale=True):
