@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .engine_frames import exact_frame, solve_frames  # noqa: F401  (exact_frame re-exported for tests)
+from .errors import FacecapError
 
 #: Default smoothing (mu1, mu2) for ``relative=True``, in units of the basis scale (see ``basis_scale``).
 #: Chosen by ``tests/core/test_engine_temporal.py``: a 3-frame lip closure at 60 fps keeps >= 90 % of
@@ -85,6 +86,7 @@ def solve_bounded(
     dims=None,
     max_iter=40,
     chunk=4096,
+    start=None,
 ):
     """Solve the bounded, regularised least-squares problem of the module docstring.
 
@@ -136,6 +138,10 @@ def solve_bounded(
         (temporal: ``converged=False`` and a warning).
     chunk : int
         Frames per batch in per-frame mode (memory ~ chunk * K * K floats).
+    start : ndarray (F, K), optional
+        Weights of an earlier solve of similar data (e.g. the same take before a head refit; NaN =
+        none): the active-set iterations start from them. Only the work changes, not the result
+        (the optimum is unique up to the tolerances above).
 
     Returns
     -------
@@ -153,4 +159,8 @@ def solve_bounded(
         locks=locks, regions=regions, symmetry=symmetry, symmetry_weight=symmetry_weight,
         smoothing=smoothing, relative=relative, dims=dims, max_iter=max_iter, chunk=chunk,
     )
-    return engine_setup.run(prob, max_iter=max_iter, chunk=chunk)
+    if start is not None:
+        start = np.asarray(start, dtype=np.float64)
+        if start.shape != (prob.Dz.shape[0], prob.A.shape[1]):
+            raise FacecapError(f"`start` must have shape (F, K) = {(prob.Dz.shape[0], prob.A.shape[1])}; got {start.shape}")
+    return engine_setup.run(prob, max_iter=max_iter, chunk=chunk, start=start)

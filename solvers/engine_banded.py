@@ -57,66 +57,79 @@ def frame_band(ctx, frames):
             continue
         sel = np.flatnonzero(cnt == s)
         idx = order[sel, :s].astype(itype)
-        jd, j, keep = _band_index(s)
-        # B rows of a frame: B[j, d] = H[idx[j + d], idx[j]] for j + d < s, else 0
-        rows = (inv[frames[sel]].astype(itype) * K)[:, None] + idx
-        vals = np.take(Hflat, (rows[:, jd] * K) + idx[:, j])
-        vals *= keep
-        B[(base[sel][:, None] + np.arange(s)).ravel(), :s] = vals.reshape(-1, s)
+        rows = (inv[frames[sel]].astype(itype) * K)[:, None] + idx  # rows of the frames' H, flattened
+        m = sel.size * s * s
+        H_ff = np.zeros(m + s * s)  # the free blocks, one after the other, and a zero block as padding
+        np.take(Hflat, ((rows * K)[:, :, None] + idx[:, None, :]).ravel(), out=H_ff[:m])
+        # band rows of a frame: [j, d] = H_FF[j + d, j], a strided view (j + d >= s reads the next block
+        # or the padding; masked out)
+        skew = np.lib.stride_tricks.as_strided(H_ff, shape=(sel.size, s, s), strides=(8 * s * s, 8 * (s + 1), 8 * s),
+                                               writeable=False)
+        B[(base[sel][:, None] + np.arange(s)).ravel(), :s] = (skew * _band_mask(s)).reshape(-1, s)
     B[:, 0] += np.repeat(dT[frames], cnt)
     return B, base
 
 
-_INDEX = {}
+_MASK = {}
 
 
-def _band_index(s):
-    """(jd, j, keep) of shape (s, s): row index min(j + d, s - 1), column j, and j + d < s."""
-    out = _INDEX.get(s)
+def _band_mask(s):
+    """(s, s) float mask of the band entries [j, d] with j + d < s."""
+    out = _MASK.get(s)
     if out is None:
         j, d = np.indices((s, s))
-        out = _INDEX[s] = (np.minimum(j + d, s - 1), j, (j + d < s).astype(np.float64))
+        out = _MASK[s] = (j + d < s).astype(np.float64)
     return out
 
 
-def _band(ctx, B, r0, s0, s1, kd_min):
-    """Lower band storage (kd + 1, n) of Q restricted to the free variables of frames [s0, s1);
-    their within-frame band is ``B[r0 : r0 + n]`` (see ``frame_band``)."""
+def _segment_couplings(ctx, a, b, edges):
+    """The temporal couplings among the free variables of frames [a, b), grouped by segment.
+
+    Variables are numbered from the window's first; ``edges`` are the segment edges (frames).
+    Returns (band, cross, reach): entries (p, q, value) with p < q sorted by p; ``band`` = the
+    index ranges of each segment's entries with both ends inside it, ``cross`` = of those reaching
+    into the next segment (from its last two frames into the next one's first two), and
+    ``reach[i]`` = the largest q - p inside segment i (0 if none)."""
     _, _, (_, o1, o2), lay, _ = ctx
-    fr = lay.free[s0:s1]
-    pl = lay.pos[s0:s1] - lay.offs[s0]
-    n = int(lay.offs[s1] - lay.offs[s0])
-    kd = max(int(lay.cnt[s0:s1].max()) - 1, kd_min)
-    couple = []
+    fr = lay.free[a:b]
+    pos = lay.pos[a:b] - lay.offs[a]
+    ps, qs, vs = [], [], []
     for lag, off in ((1, o1), (2, o2)):
-        if s1 - s0 > lag and off.size:
-            f, k = np.nonzero(fr[:-lag] & fr[lag:])
-            p, q = pl[f, k], pl[f + lag, k]
-            couple.append((q - p, p, off[s0 + f]))
-            kd = max(kd, int((q - p).max(initial=0)))
-    ab = np.zeros((kd + 1, n), order="F")
-    w = min(B.shape[1], kd + 1)
-    ab[:w] = B[r0 : r0 + n, :w].T
-    for dd, p, v in couple:
-        ab[dd, p] += v
-    return ab, kd
+        if b - a > lag and off.size:
+            f, k = np.nonzero(fr[:-lag] & fr[lag:] & (off[a : b - lag] != 0)[:, None])
+            ps.append(pos[f, k])
+            qs.append(pos[f + lag, k])
+            vs.append(off[a + f])
+    if not ps:
+        z = np.zeros(0, np.int64)
+        n_seg = edges.size - 1
+        return (z, z, np.zeros(0)), np.zeros(n_seg + 1, np.int64), np.zeros(n_seg + 1, np.int64), np.zeros(n_seg, np.int64)
+    p, q, v = np.concatenate(ps), np.concatenate(qs), np.concatenate(vs)
+    var = lay.offs[edges] - lay.offs[a]  # first variable of each segment, and the end
+    inside = q < var[np.searchsorted(var, p, side="right")]
+    # inside entries first, each group sorted by p: segment ranges by searchsorted
+    order = np.lexsort((p, ~inside))
+    p, q, v = p[order], q[order], v[order]
+    n_in = int(inside.sum())
+    band = np.searchsorted(p[:n_in], var[:-1]).tolist() + [n_in]
+    cross = (n_in + np.searchsorted(p[n_in:], var[:-1])).tolist() + [p.size]
+    d = q[:n_in] - p[:n_in]
+    reach = np.zeros(edges.size - 1, np.int64)
+    for i in range(edges.size - 1):
+        if band[i + 1] > band[i]:
+            reach[i] = d[band[i] : band[i + 1]].max()
+    return (p, q, v), band, cross, reach
 
 
-def _tail_coupling(ctx, s0, s1, s2):
-    """Dense Q[tail of [s0, s1), head of [s1, s2)]: tail = last two frames, head = first two."""
-    _, _, (_, o1, o2), lay, _ = ctx
-    free, pos, offs = lay.free, lay.pos, lay.offs
-    t0 = max(s0, s1 - 2)
-    h1 = min(s2, s1 + 2)
-    m = int(offs[s1] - offs[t0])
-    mh = int(offs[h1] - offs[s1])
-    C = np.zeros((m, mh))
-    for f, g, off in ((s1 - 2, s1, o2), (s1 - 1, s1, o1), (s1 - 1, s1 + 1, o2)):
-        if f < t0 or g >= h1 or f >= off.size or not off[f]:
-            continue
-        both = free[f] & free[g]
-        C[pos[f, both] - offs[t0], pos[g, both] - offs[s1]] += off[f]
-    return C, m, mh
+_TRIL = {}
+
+
+def _tril(m):
+    """Row and column indices of the lower triangle of an m x m matrix (cached)."""
+    out = _TRIL.get(m)
+    if out is None:
+        out = _TRIL[m] = np.tril_indices(m)
+    return out
 
 
 def solve_window(ctx, rhs_free, a, b, seg=64, group=48, band=None):
@@ -127,6 +140,10 @@ def solve_window(ctx, rhs_free, a, b, seg=64, group=48, band=None):
     """
     lay = ctx[3]
     edges = _cuts(a, b, seg)
+    var = lay.offs[edges] - lay.offs[a]
+    (p, q, v), band_rng, cross_rng, reach = _segment_couplings(ctx, a, b, edges)
+    cnt_max = np.maximum.reduceat(lay.cnt[a:b], edges[:-1] - a) if b > a else np.zeros(0, np.int64)
+    rhs = rhs_free[lay.offs[a] : lay.offs[b]]
     parts = []
     S = None
     B, row = band if band is not None else (None, None)
@@ -138,33 +155,43 @@ def solve_window(ctx, rhs_free, a, b, seg=64, group=48, band=None):
             B, start = frame_band(ctx, np.arange(s0, b1))
             row = np.empty(lay.free.shape[0], dtype=np.int64)
             row[s0:b1] = start
-        n = int(lay.offs[s1] - lay.offs[s0])
-        r = rhs_free[lay.offs[s0] : lay.offs[s1]].copy()
+        v0, v1 = int(var[i]), int(var[i + 1])
+        n = v1 - v0
         if n == 0:
-            parts.append((n, None, None, None, 0))
+            parts.append((0, None, None, None, 0))
             S = None
             continue
         mh_prev = 0 if S is None else S.shape[0]
-        ab, kd = _band(ctx, B, int(row[s0]), s0, s1, max(mh_prev - 1, 0))
+        kd = max(int(cnt_max[i]) - 1, int(reach[i]), mh_prev - 1, 0)
+        ab = np.zeros((kd + 1, n), order="F")
+        w = min(B.shape[1], kd + 1)
+        r0 = int(row[s0])
+        ab[:w] = B[r0 : r0 + n, :w].T
+        e0, e1 = band_rng[i], band_rng[i + 1]
+        if e1 > e0:
+            ab[q[e0:e1] - p[e0:e1], p[e0:e1] - v0] += v[e0:e1]
+        r = rhs[v0:v1].copy()
         if S is not None:
-            ii, jj = np.tril_indices(mh_prev)
+            ii, jj = _tril(mh_prev)
             ab[ii - jj, jj] -= S[ii, jj]
-            r[:mh_prev] -= parts[-1][2].T @ parts[-1][3][-parts[-1][4]:]
+            n_p, _, Z_p, y_p, m_p = parts[-1]
+            r[:mh_prev] -= Z_p.T @ y_p[n_p - m_p :]
         cb, info = lapack.dpbtrf(ab, lower=1, overwrite_ab=1)
         if info:
             raise np.linalg.LinAlgError(f"temporal system not positive definite (dpbtrf info {info})")
         y, _ = lapack.dtbtrs(cb, r[:, None], uplo="L", trans="N")
-        Z, m = None, 0
-        S = None
-        if i + 2 < edges.size:
-            C, m, mh = _tail_coupling(ctx, s0, s1, int(edges[i + 2]))
-            if m and mh and C.any():
-                ii, jj = np.tril_indices(m)
-                ok = ii - jj <= kd
-                Lt = np.zeros((m, m))
-                Lt[ii[ok], jj[ok]] = cb[(ii - jj)[ok], n - m + jj[ok]]
-                Z, _ = lapack.dtrtrs(Lt, C, lower=1)
-                S = Z.T @ Z
+        Z, m, S = None, 0, None
+        c0, c1 = cross_rng[i], cross_rng[i + 1]
+        if c1 > c0:
+            # Q[tail of this segment, head of the next]: Z = L_tail^-1 C, the trailing m x m block of
+            # the band factor being itself a band matrix (its last m columns)
+            t0 = int(p[c0:c1].min())
+            m = n - (t0 - v0)
+            mh = int(q[c0:c1].max()) - v1 + 1
+            C = np.zeros((m, mh))
+            C[p[c0:c1] - t0, q[c0:c1] - v1] = v[c0:c1]
+            Z, _ = lapack.dtbtrs(cb[:, n - m :], C, uplo="L", trans="N")
+            S = Z.T @ Z
         parts.append((n, cb, Z, y[:, 0], m))
     out = []
     x_next = None
@@ -175,7 +202,7 @@ def solve_window(ctx, rhs_free, a, b, seg=64, group=48, band=None):
             continue
         if Z is not None and x_next is not None:
             y = y.copy()
-            y[-m:] -= Z @ x_next[: Z.shape[1]]
+            y[n - m :] -= Z @ x_next[: Z.shape[1]]
         x, _ = lapack.dtbtrs(cb, y[:, None], uplo="L", trans="T")
         x_next = x[:, 0]
         out.append(x_next)

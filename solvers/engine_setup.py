@@ -190,7 +190,7 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
     return Problem(A, Dz, C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu, binary=mask is None)
 
 
-def run(prob, *, max_iter, chunk):
+def run(prob, *, max_iter, chunk, start=None):
     from . import engine
     from .engine_frames import solve_frames
 
@@ -224,12 +224,16 @@ def run(prob, *, max_iter, chunk):
         Dr = Dz if every else Dz[:, coords]
         G = (Dr if prob.binary else Cr * Dr) @ Ar
         has = Cr.sum(axis=1) > 0
+        w0 = None
+        if start is not None:  # frames or shapes it leaves NaN start from their rest value
+            w0 = start[:, var]
+            w0 = np.where(np.isnan(w0), np.clip(0.0, lo, hi), w0)
         if temporal:
             if not has.any():
                 continue
             from .engine_temporal import solve_temporal
 
-            w, it, ok = solve_temporal(Ar, Cr, G, Rr, lo, hi, l1, prob.mu, max_iter=max_iter, chunk=chunk)
+            w, it, ok = solve_temporal(Ar, Cr, G, Rr, lo, hi, l1, prob.mu, max_iter=max_iter, chunk=chunk, start=w0)
             W[:, shapes] = w[:, :nr]
             solved_any[:] = True
             converged &= ok
@@ -237,7 +241,8 @@ def run(prob, *, max_iter, chunk):
             idx = np.flatnonzero(has)
             if idx.size == 0:
                 continue
-            w, it, fb = solve_frames(Ar, Cr[idx], G[idx], Rr, lo[idx], hi[idx], l1, max_iter=max_iter, chunk=chunk)
+            w, it, fb = solve_frames(Ar, Cr[idx], G[idx], Rr, lo[idx], hi[idx], l1, max_iter=max_iter, chunk=chunk,
+                                     start=None if w0 is None else w0[idx])
             W[idx[:, None], shapes[None, :]] = w[:, :nr]
             solved_any[idx] = True
             fallback += fb

@@ -155,8 +155,10 @@ SPLIT_FRAMES = 6000
 OVERLAP = 200
 
 
-def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=32, split=True):
+def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=32, split=True, start=None):
     """Solve the whole take. Shapes as in ``engine_frames.solve_frames``; mu = (mu1, mu2) absolute.
+    ``start`` (F, K): weights to start from instead of the per-frame guess (e.g. a per-frame solve
+    the caller already has); only the work changes, not the optimum.
 
     Returns (W (F, K), iterations, converged).
     """
@@ -168,6 +170,8 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=
 
     def guess(a, b, workers):
         """Per-frame start for frames [a, b) (frames without data: their rest value)."""
+        if start is not None:
+            return np.clip(start[a:b], lo[a:b], hi[a:b])
         w = np.clip(0.0, lo[a:b], hi[a:b]).astype(float)
         idx = np.flatnonzero(C[a:b].sum(axis=1) > 0)
         if idx.size:

@@ -41,7 +41,7 @@ def symmetric_pairs(shape_names):
 
 
 def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=None, lower=None, upper=None,
-                    locks=None, regions=None):
+                    locks=None, regions=None, start=None):
     """Solve weights for character-space marker deltas.
 
     Parameters
@@ -57,6 +57,8 @@ def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=Non
         Values held fixed, NaN = free.
     regions : list of (shape indices, coordinate indices), optional
         See :func:`solvers.engine.solve_bounded`.
+    start : ndarray (F, K), optional
+        Weights of an earlier solve of similar deltas: the solve starts from them (faster, same result).
 
     Returns
     -------
@@ -79,4 +81,5 @@ def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=Non
         symmetry_weight=options.symmetry,
         smoothing=tuple(options.smoothing),
         relative=True,
+        start=start,
     )

@@ -1,0 +1,67 @@
+"""Starting a solve from an earlier one's weights (the pipeline's head refits): same optimum as a
+cold start, per frame and over the whole take, whatever the start holds."""
+
+import numpy as np
+import pytest
+
+from facecap.solvers import FacecapError
+from facecap.solvers.engine import solve_bounded
+from test_engine_refs import localised_basis, take
+
+
+def refit_pair(seed, F=300, lo=0.0):
+    """Deltas of a take and of the same take after a small head refit (a smooth drift per coordinate)."""
+    A = localised_basis(K=12, seed=seed)
+    W, D = take(A, F=F, seed=seed + 1, lo=lo)
+    drift = 3e-4 * np.sin(np.linspace(0, 3, F))[:, None] * np.random.default_rng(seed).normal(size=A.shape[0])
+    return A, D, D + drift
+
+
+@pytest.mark.parametrize("lo", [0.0, -1.0])  # -1: L1 on a range around 0 (the "kink" state)
+def test_per_frame_start_reaches_the_cold_optimum(lo):
+    A, D, D2 = refit_pair(3, lo=lo)
+    kw = dict(lower=lo, regularisation=1e-4, sparsity=0.01, relative=True)
+    before = solve_bounded(A, D, **kw)
+    cold = solve_bounded(A, D2, **kw)
+    warm = solve_bounded(A, D2, start=before.weights, **kw)
+    np.testing.assert_allclose(warm.weights, cold.weights, atol=1e-10, rtol=0)
+    assert warm.iterations <= cold.iterations
+
+
+def test_temporal_start_reaches_the_cold_optimum(monkeypatch):
+    from facecap.solvers import engine_temporal
+
+    A, D, D2 = refit_pair(4, F=900)
+    kw = dict(regularisation=1e-4, sparsity=0.01, relative=True)
+    per_frame = solve_bounded(A, D2, **kw)
+    cold = solve_bounded(A, D2, smoothing=(0.0, 0.3), **kw)
+    warm = solve_bounded(A, D2, smoothing=(0.0, 0.3), start=per_frame.weights, **kw)
+    monkeypatch.setattr(engine_temporal, "SPLIT_FRAMES", 300)  # the halves start from it too
+    split = solve_bounded(A, D2, smoothing=(0.0, 0.3), start=per_frame.weights, **kw)
+    assert cold.converged and warm.converged and split.converged
+    np.testing.assert_allclose(warm.weights, cold.weights, atol=1e-9, rtol=0)
+    np.testing.assert_allclose(split.weights, cold.weights, atol=1e-9, rtol=0)
+
+
+def test_start_with_gaps_out_of_range_values_and_locks():
+    """NaN (no earlier value), values outside the bounds and locked shapes in the start are all fine."""
+    A, D, D2 = refit_pair(5)
+    F, K = D.shape[0], A.shape[1]
+    locks = np.full((F, K), np.nan)
+    locks[:, 2] = 0.4
+    kw = dict(regularisation=1e-4, sparsity=0.01, relative=True, locks=locks)
+    start = solve_bounded(A, D, **kw).weights.copy()
+    start[::7] = np.nan
+    start[1::5, 0] = 3.0
+    start[2::5, 1] = -2.0
+    for smoothing in ((0.0, 0.0), (0.0, 0.3)):
+        cold = solve_bounded(A, D2, smoothing=smoothing, **kw)
+        warm = solve_bounded(A, D2, smoothing=smoothing, start=start, **kw)
+        np.testing.assert_allclose(warm.weights, cold.weights, atol=1e-9, rtol=0)
+        assert np.all(warm.weights[:, 2] == 0.4)
+
+
+def test_start_of_the_wrong_shape_is_named():
+    A, D, _ = refit_pair(6, F=20)
+    with pytest.raises(FacecapError, match=r"`start` must have shape \(F, K\) = \(20, 12\)"):
+        solve_bounded(A, D, start=np.zeros((20, 11)))
