@@ -55,9 +55,8 @@ class Alignment:
         for g, m in enumerate(first):
             idx = np.flatnonzero(group.reshape(-1) == g)
             part = v if out is None else np.take(v, idx, axis=-2)
-            flat = part.reshape(-1, 3)
             scale, rot = self.scales[m], self.rotations[m]
-            mapped = ((flat @ rot) / scale if inverse else (flat @ rot.T) * scale).reshape(part.shape)
+            mapped = part @ (rot / scale if inverse else rot.T * scale)
             if out is None:
                 return mapped
             out[..., idx, :] = mapped

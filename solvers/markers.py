@@ -1,5 +1,6 @@
 """MarkerSet: named marker trajectories, the common currency of every reader and solver step."""
 
+import copy
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -120,6 +121,16 @@ class MarkerSet:
 
     def with_positions(self, positions, **changes):
         return replace(self, positions=positions, **changes)
+
+    def _with_mapped_positions(self, positions):
+        """``with_positions`` for float64 positions of the same shape computed from these by a
+        per-frame affine map (stabilisation): a gap stays a whole gap (NaN spreads to every output
+        coordinate) and finite stays finite, so the O(F M) checks are skipped."""
+        if positions.shape != self.positions.shape or positions.dtype != np.float64:
+            return self.with_positions(positions)
+        out = copy.copy(self)
+        object.__setattr__(out, "positions", positions)
+        return out
 
     def to_units(self, units):
         """The same data expressed in ``units`` (m, cm or mm)."""

@@ -164,7 +164,7 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
         rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
     rms[flagged] = np.nan
     return StabiliseResult(
-        markers=markers.with_positions(moved),
+        markers=markers._with_mapped_positions(moved),
         stable_names=stable,
         reference=reference,
         rotations=R,
@@ -325,7 +325,7 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     for f in np.flatnonzero(flagged & ~stab.flagged):
         reasons[_frame_label(markers.frames[f])] = "fine refit: markers not determined"
     return StabiliseResult(
-        markers=markers.with_positions(moved),
+        markers=markers._with_mapped_positions(moved),
         stable_names=stab.stable_names,
         reference=stab.reference,
         rotations=R,
@@ -365,7 +365,7 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(np.linalg.norm(fitted - stab.reference[None], axis=2) ** 2, axis=1))
     return StabiliseResult(
-        markers=markers.with_positions(moved),
+        markers=markers._with_mapped_positions(moved),
         stable_names=stab.stable_names,
         reference=stab.reference,
         rotations=R,
@@ -459,7 +459,7 @@ def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", m
     reasons = {_frame_label(markers.frames[f]): f"only {int(vis[f].sum())} of {len(stable)} stable points visible "
                f"(need {min_points}) or they are degenerate" for f in np.flatnonzero(flagged)}
     return StabiliseResult(
-        markers=markers.with_positions(moved), stable_names=stable, reference=reference, rotations=A,
+        markers=markers._with_mapped_positions(moved), stable_names=stable, reference=reference, rotations=A,
         translations=t, rms=rms, flagged=flagged, flag_reasons=reasons, unreliable=np.zeros(F, dtype=bool),
         marker_trust={n: 1.0 for n in stable}, scales=None, mode=mode,
     )
