@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from facecap.solvers.engine_banded import context, solve_window
+from facecap.solvers.engine_banded import context, frame_band, solve_window
 from facecap.solvers.engine_frames import box_qp
 from facecap.solvers.engine_temporal import temporal_operator
 
@@ -53,20 +53,40 @@ def _dense(Hp, inv, T, F, K):
     return Q
 
 
-@pytest.mark.parametrize("a, b, seg", [(0, 50, 4), (0, 50, 7), (5, 40, 3), (0, 50, 100), (3, 20, 5)])
-def test_banded_window_solve_matches_dense(a, b, seg):
+def _window_problem(mu=(0.3, 0.7)):
     rng = np.random.default_rng(0)
     F, K = 50, 6
     Hp = np.stack([(lambda M: M @ M.T + 0.1 * np.eye(K))(rng.normal(size=(K, K))) for _ in range(3)])
     inv = rng.integers(0, 3, F)
-    T = temporal_operator(F, 0.3, 0.7)
+    T = temporal_operator(F, *mu)
     free = rng.random((F, K)) < 0.6
     free[10:14] = False  # frames with nothing free cut the coupling
     ctx = context(Hp, inv, T, free)
-    lay = ctx[3]
     r = rng.normal(size=free.sum())
-    sub = np.zeros((F, K), dtype=bool)
-    sub[a:b] = free[a:b]
-    idx = np.flatnonzero(sub.ravel())
-    ref = np.linalg.solve(_dense(Hp, inv, T, F, K)[np.ix_(idx, idx)], r[lay.offs[a] : lay.offs[b]])
-    np.testing.assert_allclose(solve_window(ctx, r, a, b, seg=seg), ref, atol=1e-12, rtol=0)
+
+    def dense_solve(a, b):
+        sub = np.zeros((F, K), dtype=bool)
+        sub[a:b] = free[a:b]
+        idx = np.flatnonzero(sub.ravel())
+        return np.linalg.solve(_dense(Hp, inv, T, F, K)[np.ix_(idx, idx)], r[ctx[3].offs[a] : ctx[3].offs[b]])
+
+    return ctx, r, dense_solve
+
+
+@pytest.mark.parametrize("a, b, seg", [(0, 50, 4), (0, 50, 7), (5, 40, 3), (0, 50, 100), (3, 20, 5)])
+@pytest.mark.parametrize("mu", [(0.3, 0.7), (0.0, 0.5), (0.4, 0.0)])  # both lags, lag 2 dominant, lag 1 only
+def test_banded_window_solve_matches_dense(a, b, seg, mu):
+    ctx, r, dense_solve = _window_problem(mu)
+    np.testing.assert_allclose(solve_window(ctx, r, a, b, seg=seg), dense_solve(a, b), atol=1e-12, rtol=0)
+
+
+def test_windows_with_their_bands_built_together_match_dense():
+    """The temporal kernel builds the within-frame bands of many small windows at once."""
+    ctx, r, dense_solve = _window_problem()
+    wins = [(0, 9), (15, 31), (33, 50)]
+    frames = np.concatenate([np.arange(a, b) for a, b in wins])
+    B, start = frame_band(ctx, frames)
+    row = np.empty(50, dtype=np.int64)
+    row[frames] = start
+    for a, b in wins:
+        np.testing.assert_allclose(solve_window(ctx, r, a, b, seg=4, band=(B, row)), dense_solve(a, b), atol=1e-12, rtol=0)
