@@ -40,6 +40,7 @@ class SolveResult:
 
     weights : (F, K), NaN for frames with no data (per-frame mode; locked/held shapes keep their value)
     residuals : (F, P), ``A w - d`` where the coordinate was observed (confidence > 0), 0 elsewhere
+        (computed on first access)
     at_bound : (F,) number of solved (not locked/held) weights at a bound
     solved : (F,) bool, False where a frame had no data (temporal mode solves every frame
         as long as the take has data: gaps are bridged by the smoothing)
@@ -52,7 +53,7 @@ class SolveResult:
     """
 
     weights: np.ndarray
-    residuals: np.ndarray
+    _residuals: object  # the (F, P) array, or a function computing it on first use
     at_bound: np.ndarray
     solved: np.ndarray
     iterations: int = 0
@@ -60,6 +61,14 @@ class SolveResult:
     warnings: tuple = field(default_factory=tuple)
     converged: bool = True
     mode: str = "per-frame"
+
+    @property
+    def residuals(self):
+        r = self._residuals
+        if callable(r):
+            r = r()
+            object.__setattr__(self, "_residuals", r)
+        return r
 
 
 def basis_scale(A):

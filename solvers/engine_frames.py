@@ -33,7 +33,7 @@ def patterns(C):
     C = np.ascontiguousarray(C)
     if C.shape[0] == 0:
         return C[:0], np.zeros(0, dtype=np.intp)
-    binary = bool(np.all((C == 0) | (C == 1)))
+    binary = C.dtype == bool or bool(np.all((C == 0) | (C == 1)))
     key = np.packbits(C > 0, axis=1) if binary else C
     key = np.ascontiguousarray(key)
     view = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).ravel()
@@ -253,7 +253,10 @@ def _equality_solve(Hp, Hinv, ia, free, xf, g, u0, lin, dual_ok):
     if P.size:
         q = g[P] if lin is None else g[P] - lin[P]
         fx = np.where(free[P], 0.0, xf[P])
-        wp = fx + solve_free(Hp, ia[P], free[P], q - hmul(Hp, ia[P], fx))
+        away = np.flatnonzero(fx.any(axis=1))  # frames with a shape held away from 0 (most hold at 0)
+        if away.size:
+            q[away] -= hmul(Hp, ia[P][away], fx[away])
+        wp = fx + solve_free(Hp, ia[P], free[P], q)
         w[P] = wp
         grad[P] = hmul(Hp, ia[P], wp) - g[P]
     Dn = np.flatnonzero(dual)

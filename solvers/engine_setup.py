@@ -12,7 +12,7 @@ from .errors import FacecapError
 class Problem:
     A: np.ndarray  # (P, K)
     Dz: np.ndarray  # (F, P), 0 where unobserved
-    C: np.ndarray  # (F, P) confidence
+    C: np.ndarray  # (F, P) confidence, or bool visibility when no mask was given
     lo: np.ndarray  # (F, K)
     hi: np.ndarray  # (F, K)
     R: np.ndarray  # (K, K) incl. ridge floor and symmetry
@@ -44,7 +44,7 @@ def _mask(mask, D, dims):
     F, P = D.shape
     finite = np.isfinite(D)
     if mask is None:
-        return finite.astype(np.float64)
+        return finite  # visibility as bool: the kernels read it as confidence 0/1 (an eighth of the memory)
     m = _array(mask, "mask")
     shapes = [(F, P), (P,)]
     if dims:
@@ -199,12 +199,15 @@ def run(prob, *, max_iter, chunk, start=None):
     K = A.shape[1]
     temporal = prob.mu[0] > 0 or prob.mu[1] > 0
     locked = np.isfinite(prob.lock)
+    any_lock = bool(locked.any())
     # held values: lock value, else clip(0, lo, hi)
-    rest = np.clip(0.0, prob.lo, prob.hi)
-    hold = np.where(locked, prob.lock, rest)
+    hold = None
+    if prob.held.size:
+        held_lo, held_hi = prob.lo[:, prob.held], prob.hi[:, prob.held]
+        hold = np.where(locked[:, prob.held], prob.lock[:, prob.held], np.clip(0.0, held_lo, held_hi))
     W = np.full((F, K), np.nan)
     if prob.held.size:
-        W[:, prob.held] = hold[:, prob.held]
+        W[:, prob.held] = hold
     solved_any = np.zeros(F, dtype=bool)
     iters = fallback = 0
     converged = True
@@ -216,10 +219,14 @@ def run(prob, *, max_iter, chunk, start=None):
         Ar = A[:, var] if every else A[np.ix_(coords, var)]
         Cr = C if every else C[:, coords]
         Rr = prob.R[np.ix_(var, var)]
-        lo = np.where(locked[:, var], prob.lock[:, var], prob.lo[:, var])
-        hi = np.where(locked[:, var], prob.lock[:, var], prob.hi[:, var])
-        lo[:, nr:] = hold[:, prob.held]
-        hi[:, nr:] = hold[:, prob.held]
+        whole = nr == K and np.array_equal(shapes, np.arange(K))  # one region of every shape, in order
+        if whole and not any_lock:
+            lo, hi = prob.lo, prob.hi  # the whole problem (read-only views): no (F, K) copies
+        else:
+            lo = np.where(locked[:, var], prob.lock[:, var], prob.lo[:, var])
+            hi = np.where(locked[:, var], prob.lock[:, var], prob.hi[:, var])
+            lo[:, nr:] = hold
+            hi[:, nr:] = hold
         l1 = np.concatenate([prob.l1[shapes], np.zeros(prob.held.size)]) * 0.5
         Dr = Dz if every else Dz[:, coords]
         G = (Dr if prob.binary else Cr * Dr) @ Ar
@@ -241,21 +248,30 @@ def run(prob, *, max_iter, chunk, start=None):
             idx = np.flatnonzero(has)
             if idx.size == 0:
                 continue
-            w, it, fb = solve_frames(Ar, Cr[idx], G[idx], Rr, lo[idx], hi[idx], l1, max_iter=max_iter, chunk=chunk,
-                                     start=None if w0 is None else w0[idx])
-            W[idx[:, None], shapes[None, :]] = w[:, :nr]
+            rows = slice(None) if idx.size == F else idx  # every frame has data: no (F, P) copies
+            w, it, fb = solve_frames(Ar, Cr[rows], G[rows], Rr, lo[rows], hi[rows], l1, max_iter=max_iter,
+                                     chunk=chunk, start=None if w0 is None else w0[rows])
+            if whole:
+                W[rows] = w
+            else:
+                W[idx[:, None], shapes[None, :]] = w[:, :nr]
             solved_any[idx] = True
             fallback += fb
         iters = max(iters, it)
         # locked shapes of frames with no data in this region still show their lock value
-        miss = ~np.isfinite(W[:, shapes]) & locked[:, shapes]
-        if miss.any():
-            W[:, shapes] = np.where(miss, prob.lock[:, shapes], W[:, shapes])
+        if any_lock:
+            miss = ~np.isfinite(W[:, shapes]) & locked[:, shapes]
+            if miss.any():
+                W[:, shapes] = np.where(miss, prob.lock[:, shapes], W[:, shapes])
 
     Wz = np.where(np.isnan(W), 0.0, W)
-    residuals = Wz @ A.T
-    residuals -= Dz
-    residuals[C == 0] = 0.0
+
+    def residuals():  # (F, P): computed when first asked for (most callers never do)
+        r = Wz @ A.T
+        r -= Dz
+        r[C == 0] = 0.0
+        return r
+
     tol = 1e-9 * np.maximum(1.0, np.abs(prob.hi - prob.lo))
     free_shape = ~locked
     if prob.held.size:

@@ -123,11 +123,12 @@ def _settle(ctx, qmul_rows, T, G, w, grad, free, lin, tol, pad, max_rounds=8):
     F = w.shape[0]
     touched = np.zeros(F, dtype=bool)
     for rnd in range(max_rounds):
-        res = np.where(free, -(grad + lin), 0.0)
+        res = grad + lin
+        res[~free] = 0.0
         bad = (np.abs(res) > tol).any(axis=1)
         if not bad.any():
             break
-        r_free = res[free]
+        r_free = -res[free]
         delta = np.zeros_like(w)
         wins = _windows(bad, pad, F) if rnd < max_rounds - 1 else [(0, F)]
         moved = np.zeros(F, dtype=bool)
@@ -229,14 +230,17 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
             lin = lam * np.where(free, sg, 0.0) if has_l1 else 0.0
             tol = 1e-12 * scale * max(1.0, float(np.abs(w).max(initial=0.0)))
             w, grad, touched = _settle(context(Hp, inv, T, free), qmul_rows, T, G, w, grad, free, lin, tol, pad)
-            # only frames whose w or grad moved can change state
-            idx = np.flatnonzero(touched | _near(redo, F))
+            # only frames whose w or grad moved can change state (early on: all of them, no gathers)
+            near = touched | _near(redo, F)
+            idx = slice(None) if near.mean() > 0.9 else np.flatnonzero(near)
             st_t, sg_t = classify(w[idx] - step[idx, None] * grad[idx], step[idx], lo[idx], hi[idx], lam)
-            changed = (st_t != st[idx]) | ((st_t == _FREE) & (sg_t != sg[idx]) & (lam > 0))
+            changed = st_t != st[idx]
+            if has_l1:
+                changed |= (st_t == _FREE) & (sg_t != sg[idx]) & (lam > 0)
             rows = changed.any(axis=1)
             if not rows.any():
                 return w, it + 1, True  # counted as before: the final check is an iteration
             redo = np.zeros(F, dtype=bool)
-            redo[idx[rows]] = True
+            redo[np.arange(F)[idx][rows]] = True
             st[idx], sg[idx] = st_t, sg_t
     return np.clip(w, lo, hi), max_iter, False  # active-set iterates can leave the box

@@ -264,7 +264,7 @@ def _retarget_geometric(markers, basis, settings):
         neutral = neutral_all[used_idx]
         align = align_actor(neutral, sub.neutral, used, regions=settings.align_regions, flag_mm=settings.align_flag_mm)
         positions = stab.markers.positions if offsets is None else stab.markers.positions + offsets
-        deltas = align.apply_vectors(positions[:, used_idx] - neutral[None])
+        deltas = align.apply_vectors(np.take(positions, used_idx, axis=1) - neutral[None])  # frame-major (a fancy index is marker-major)
         t2 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -288,7 +288,7 @@ def _retarget_geometric(markers, basis, settings):
         char_pred = _predict(solved.weights, sub.deltas)
         predicted = neutral[None] + align.inverse_vectors(char_pred)
         if offsets is not None:  # back to where the (un-normalised) markers are
-            predicted = predicted - offsets[:, used_idx]
+            predicted = predicted - np.take(offsets, used_idx, axis=1)
         predicted[~solved.solved] = np.nan
         stab = refine_rigid(markers, stab, used, predicted, weights=trust)
         stab = smooth_head_motion(markers, stab, half_window=half_window)

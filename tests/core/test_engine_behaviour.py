@@ -50,6 +50,13 @@ def test_locked_and_out_of_region_shapes_never_move():
         assert np.all(r.weights[:, 0] == 0.9)
         assert np.all(r.weights[20:30, 4] == 0.1)
         assert np.all(r.weights[:, 8:] == 0.2)  # outside the region: held at clip(0, lower, upper)
+    # without locks: the region's shapes followed by the held ones are every shape in order, and
+    # the held ones still do not move
+    for smoothing in [(0.0, 0.0), (0.0, 0.5)]:
+        r = solve_bounded(A, D, regions=[(np.arange(0, 8), np.arange(P))], lower=np.r_[np.full(8, 0.0), np.full(K - 8, 0.2)],
+                          smoothing=smoothing, relative=True)
+        assert np.all(r.weights[:, 8:] == 0.2)
+        assert r.weights[:, :8].max() > 0.5
 
 
 def test_non_convergence_is_a_status_not_an_exception():
