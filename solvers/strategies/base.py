@@ -204,12 +204,55 @@ def pca(X, *, center=True, n_components=None, variance=None):
     return mean, Vt * signs[:, None], s[:C], energy[:C]
 
 
+def pca_gappy(X, *, center=True, n_components=None, variance=None, tol=1e-4, max_iterations=100,
+              start_components=60):
+    """``pca`` of X (N, P) with NaN gaps, every row with a visible entry contributing.
+
+    With markers occluded independently, most frames of a take have some gap and the gap-free ones
+    may be little more than the neutral holds: a PCA of those spans noise, not the performance.
+    Here the missing entries are imputed by soft-thresholded SVD (soft-impute, Mazumder et al.
+    2010) with the threshold at the noise level of Gavish & Donoho's optimal hard threshold, so no
+    rank has to be chosen and weak (noise) directions do not absorb the gaps. Without gaps this is
+    ``pca(X)`` exactly. The imputation starts from the span of the gap-free rows (at most
+    ``start_components``), which it keeps when they explain the others exactly (noiseless data).
+    Returns ``pca``'s four outputs for the filled rows.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    gaps = np.isnan(X)
+    if gaps.any():
+        X = X[~gaps.all(axis=1)]
+        gaps = np.isnan(X)
+        if len(X) == 0:
+            raise FacecapError("no frame with a visible coordinate to learn a subspace from")
+        mean = np.nanmean(X, axis=0) if center else np.zeros(X.shape[1])
+        Xf = X - mean
+        full = ~gaps.any(axis=1)
+        if full.any():  # start from the gap-free rows' span: exact when they span the rest, else only faster
+            Xf = fill_gaps(Xf, np.zeros(X.shape[1]), pca(Xf[full], center=False, n_components=start_components)[1])[0]
+        Xf[np.isnan(Xf)] = 0.0
+        s = np.linalg.svd(Xf, compute_uv=False)
+        beta = min(Xf.shape) / max(Xf.shape)
+        threshold = (0.56 * beta**3 - 0.95 * beta**2 + 1.82 * beta + 1.43) * float(np.median(s))
+        scale = max(float(np.sqrt(np.mean(Xf**2))), 1e-300)
+        for _ in range(max_iterations):
+            U, s, Vt = np.linalg.svd(Xf, full_matrices=False)
+            fit = (U * np.maximum(s - threshold, 0.0)) @ Vt
+            step = float(np.sqrt(np.mean((fit[gaps] - Xf[gaps]) ** 2)))
+            Xf[gaps] = fit[gaps]
+            if step < tol * scale:
+                break
+        X = Xf + mean
+    return pca(X, center=center, n_components=n_components, variance=variance)
+
+
 def gap_subspace(*frames, variance=0.99999, max_components=60):
-    """(mean, components) for ``fill_gaps`` from the gap-free rows of several (F, P) arrays
-    (the fitted examples/training frames and the take being solved), uncentred."""
+    """(mean, components) for ``fill_gaps`` from the rows of several (F, P) arrays (the fitted
+    examples/training frames and the take being solved), uncentred; rows with gaps count too
+    (``pca_gappy``), as the gap-free ones alone may be little more than the neutral."""
     rows = [np.asarray(X, dtype=np.float64) for X in frames if X is not None]
-    rows = np.concatenate([X[np.isfinite(X).all(axis=1)] for X in rows])
+    rows = np.concatenate(rows)
+    rows = rows[np.isfinite(rows).any(axis=1)]
     if len(rows) == 0:
-        raise FacecapError("no gap-free frame to learn the gap-filling subspace from")
-    _, comps, _, _ = pca(rows, center=False, n_components=max_components, variance=variance)
+        raise FacecapError("no frame with a visible marker to learn the gap-filling subspace from")
+    _, comps, _, _ = pca_gappy(rows, center=False, n_components=max_components, variance=variance)
     return np.zeros(rows.shape[1]), comps

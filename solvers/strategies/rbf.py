@@ -13,7 +13,7 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from ..errors import FacecapError
-from .base import StrategyResult, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, pca, reorder
+from .base import StrategyResult, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, pca_gappy, reorder
 from .linear import align_source, as_source
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
@@ -66,7 +66,7 @@ class RBFStrategy:
             feature vectors (flow-PCA coefficients of footage)
         weights : ndarray (N, K), the character weights posed for them
         training : ndarray (F, M, 3), optional; frames whose principal directions define the
-            features (default: the examples); gaps allowed (frames with gaps are skipped)
+            features (default: the examples); gaps allowed (imputed for the PCA, ``pca_gappy``)
         names, neutral : as in ``LinearStrategy.fit``
         """
         self.target = as_target(character)
@@ -80,10 +80,11 @@ class RBFStrategy:
             tr = flat(as_source(training, what="training"))
             if tr.shape[1] != X.shape[1]:
                 raise FacecapError(f"rbf: `training` frames have {tr.shape[1]} coordinates; examples have {X.shape[1]}")
-            T = tr[np.isfinite(tr).all(axis=1)]
+            T = tr[np.isfinite(tr).any(axis=1)]
             if len(T) == 0:
-                raise FacecapError("rbf: every `training` frame has a gap")
-        _, comps, _, _ = pca(T, center=False, n_components=self.n_components, variance=self.variance)
+                raise FacecapError("rbf: no `training` frame has a visible marker")
+        # frames with gaps count: the gap-free ones alone may be only the neutral holds
+        _, comps, _, _ = pca_gappy(T, center=False, n_components=self.n_components, variance=self.variance)
         notes = []
         N = len(X)
         degree = self.degree

@@ -92,3 +92,70 @@ def test_rbf_options_are_validated():
         RBFStrategy(kernel="bessel")
     with pytest.raises(FacecapError, match="smoothing"):
         RBFStrategy(smoothing=-1)
+
+
+@pytest.fixture(scope="module")
+def gappy_takes():
+    """The sample character's actor, 600 frames, solved with and without 5% gaps (same noise and
+    head motion); 30 posed examples. With 60 occludable markers ~80% of frames have a gap and the
+    gap-free ones are mostly the neutral holds."""
+    from facecap.solvers.basis import Basis
+    from facecap.solvers.compare import SAMPLE_BASIS, STABLE, actor_take, make_actor
+    from facecap.solvers.pipeline import RetargetSettings, retarget
+    from facecap.solvers.strategies.options import ExamplePairs, StrategyInputs
+    from facecap.solvers.strategies.pca import farthest_frames
+    from facecap.solvers.synth import performance_weights
+
+    character = Basis.load_npz(SAMPLE_BASIS)
+    actor = make_actor(character, seed=0)
+    W = performance_weights(character.shape_names, 600, seed=0)
+    clean, gappy = actor_take(actor, W, gaps=0.0, seed=2), actor_take(actor, W, gaps=0.05, seed=2)
+    ex = farthest_frames(clean.deltas, 30)
+    inputs = StrategyInputs(examples=ExamplePairs(clean.markers.frames[ex], W[ex], character.shape_names))
+    gap = np.isnan(gappy.markers.positions).any(axis=(1, 2))
+    errors = {}
+    for strategy in ("linear", "rbf"):
+        settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), strategy=strategy)
+        for label, take in (("clean", clean), ("gappy", gappy)):
+            errors[strategy, label] = np.nan_to_num(retarget(take.markers, character, settings, inputs=inputs).weights - W, nan=1.0)
+    return errors, gap
+
+
+def _rmse(e):
+    return float(np.sqrt(np.mean(e**2)))
+
+
+def test_rbf_gaps_do_not_damage_the_feature_space(gappy_takes):
+    # the PCA features used to come from the gap-free frames only (the neutral holds): all frames
+    # degraded, 0.040 -> 0.115, gap-free ones 0.036 -> 0.164
+    errors, gap = gappy_takes
+    clean, gappy = errors["rbf", "clean"], errors["rbf", "gappy"]
+    assert gap.mean() > 0.5 and (~gap).sum() > 60
+    assert _rmse(gappy[~gap]) <= _rmse(clean[~gap]) + 0.01  # 0.034 vs 0.036
+    assert _rmse(gappy[gap]) <= _rmse(clean[gap]) + 0.01  # 0.042 vs 0.041
+    assert _rmse(gappy) <= 1.15 * _rmse(clean)
+
+
+def test_linear_gaps_cost_little(gappy_takes):
+    # the examples with gaps used to be filled through the gap-free frames' span: 0.038 -> 0.0425 on gap frames
+    errors, gap = gappy_takes
+    clean, gappy = errors["linear", "clean"], errors["linear", "gappy"]
+    assert _rmse(gappy[gap]) <= _rmse(clean[gap]) + 0.003  # 0.039 vs 0.038
+    assert _rmse(gappy[~gap]) <= _rmse(clean[~gap]) + 0.003
+
+
+def test_pca_gappy_recovers_the_span_the_gap_free_rows_miss():
+    from facecap.solvers.strategies.base import pca, pca_gappy
+
+    rng = np.random.default_rng(1)
+    basis = np.linalg.qr(rng.normal(size=(40, 4)))[0].T  # (4, 40) orthonormal
+    X = rng.normal(size=(300, 4)) @ basis + 0.01 * rng.normal(size=(300, 40))
+    X[:50] = 0.01 * rng.normal(size=(50, 40))  # the only gap-free rows: neutral, noise
+    gappy = X.copy()
+    gappy[50:][rng.uniform(size=(250, 40)) < 0.05] = np.nan
+    gappy[np.arange(50, 300), rng.integers(40, size=250)] = np.nan  # every expressive row has a gap
+    cos = np.linalg.svd(pca_gappy(gappy, center=False, n_components=4)[1] @ basis.T, compute_uv=False)
+    assert cos.min() > 0.99
+    assert np.linalg.svd(pca(X[:50], center=False, n_components=4)[1] @ basis.T, compute_uv=False).min() < 0.5
+    for a, b in zip(pca_gappy(X, n_components=3), pca(X, n_components=3)):  # no gaps: plain pca
+        assert_allclose(a, b)
