@@ -159,3 +159,7 @@ def test_pca_gappy_recovers_the_span_the_gap_free_rows_miss():
     assert np.linalg.svd(pca(X[:50], center=False, n_components=4)[1] @ basis.T, compute_uv=False).min() < 0.5
     for a, b in zip(pca_gappy(X, n_components=3), pca(X, n_components=3)):  # no gaps: plain pca
         assert_allclose(a, b)
+    # a long take learns from evenly spaced rows (speed): the same span
+    long = np.concatenate([gappy] * 10)
+    cos = np.linalg.svd(pca_gappy(long, center=False, n_components=4, max_rows=400)[1] @ basis.T, compute_uv=False)
+    assert cos.min() > 0.99
