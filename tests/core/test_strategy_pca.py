@@ -86,3 +86,113 @@ def test_farthest_frames_cover_the_take(take):
     assert np.argmin(np.linalg.norm(X, axis=(1, 2))) in picks  # the frame nearest the neutral
     spread = lambda idx: np.min(np.linalg.norm(X[:, None] - X[None, idx], axis=(2, 3)), axis=1).max()
     assert spread(picks) < spread(np.arange(10))  # covers the take better than the first 10 frames
+
+
+def _farthest_reference(X, n, n_components=18):
+    """farthest_frames as it was before frames with gaps counted (gap-free takes only)."""
+    from facecap.solvers.strategies.base import pca
+
+    F = X.reshape(len(X), -1)
+    _, comps, _, _ = pca(F, center=False, n_components=n_components)
+    P = F @ comps.T
+    picks = [int(np.argmin(np.linalg.norm(P, axis=1)))]
+    dist = np.linalg.norm(P - P[picks[0]], axis=1)
+    while len(picks) < min(n, len(F)) and dist.max() > 0:
+        picks.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(P - P[picks[-1]], axis=1))
+    return np.sort(picks)
+
+
+def test_gap_free_takes_are_unchanged(take):
+    from facecap.solvers.strategies.base import pca
+
+    basis, W, X = take
+    X = X + 1e-4 * np.random.default_rng(1).normal(size=X.shape)  # noise: every component kept at variance=1
+    for kw in (dict(), dict(variance=1.0, n_basis=20)):
+        s = PCAStrategy(**kw).learn_basis(X)
+        mean, comps, _, energy = pca(X.reshape(len(X), -1), variance=kw.get("variance", 0.99))
+        assert_allclose(s.mean, mean, atol=1e-15)
+        assert_allclose(s.components, comps, atol=1e-15)
+        assert_allclose(s.explained_variance, energy, atol=1e-15)
+    # the picks of the code that learnt from gap-free frames only (same take)
+    assert PCAStrategy().learn_basis(X).frames_to_pose() == [96, 8, 42, 50, 13, 69, 26, 15, 39, 36, 58, 59]
+    assert PCAStrategy(ica=True).learn_basis(X).frames_to_pose() == [58, 29, 46, 12, 15, 26, 39, 55, 4, 32, 69]
+    assert farthest_frames(X, 10).tolist() == _farthest_reference(X, 10).tolist()
+    assert farthest_frames(X, 40, n_components=3).tolist() == _farthest_reference(X, 40, 3).tolist()
+
+
+def test_fill_gaps_without_a_solve_per_frame_matches_fill_gaps():
+    from facecap.solvers.strategies.base import fill_gaps, pca
+    from facecap.solvers.strategies.pca import _fill_gaps
+
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(200, 12)) @ rng.normal(size=(12, 60)) + 0.01 * rng.normal(size=(200, 60))
+    mean, comps, _, _ = pca(X, n_components=20)
+    G = X.copy()
+    G[rng.uniform(size=G.shape) < 0.1] = np.nan
+    G[:5, :45] = np.nan  # 15 visible coordinates for 20 components: least squares (min norm)
+    G[5] = np.nan  # nothing visible: stays NaN
+    ours, rows = _fill_gaps(G, mean, comps)
+    ref, ref_rows = fill_gaps(G, mean, comps)
+    assert_allclose(ours, ref, atol=1e-12)
+    assert rows.tolist() == ref_rows.tolist() and np.isnan(ours[5]).all() and np.isfinite(ours[6:]).all()
+
+
+@pytest.fixture(scope="module")
+def gappy_takes():
+    """The sample character's actor, 600 frames with and without 5% gaps (same noise and head
+    motion), 30 posed examples (farthest frames of the gap-free take). ~80% of the frames have a
+    gap; the gap-free ones are mostly the neutral holds."""
+    from facecap.solvers.basis import Basis
+    from facecap.solvers.compare import SAMPLE_BASIS, STABLE, actor_take, make_actor
+    from facecap.solvers.pipeline import RetargetSettings, retarget
+    from facecap.solvers.strategies.options import ExamplePairs, PCASettings, StrategyInputs
+    from facecap.solvers.synth import performance_weights
+
+    character = Basis.load_npz(SAMPLE_BASIS)
+    actor = make_actor(character, seed=0)
+    W = performance_weights(character.shape_names, 600, seed=0)
+    clean, gappy = actor_take(actor, W, gaps=0.0, seed=2), actor_take(actor, W, gaps=0.05, seed=2)
+    ex = farthest_frames(clean.deltas, 30)
+    inputs = StrategyInputs(examples=ExamplePairs(clean.markers.frames[ex], W[ex], character.shape_names))
+    gap = np.isnan(gappy.markers.positions).any(axis=(1, 2))
+    errors = {}
+    for mode in ("related", "posed"):
+        settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), strategy="pca", pca=PCASettings(mode=mode))
+        for label, t in (("clean", clean), ("gappy", gappy)):
+            errors[mode, label] = np.nan_to_num(retarget(t.markers, character, settings, inputs=inputs).weights - W, nan=1.0)
+    return errors, gap, clean, gappy, W
+
+
+def _rmse(e):
+    return float(np.sqrt(np.mean(e**2)))
+
+
+def test_pca_gaps_do_not_damage_the_basis(gappy_takes):
+    # the PCA used to come from the gap-free frames only (the neutral holds). related, weights RMSE
+    # clean / gappy before / gappy now: all 0.0383 / 0.0511 / 0.0408, gap-free frames
+    # 0.0343 / 0.0482 / 0.0353, gap frames 0.0393 / 0.0518 / 0.0420; posed: all 0.0401 / 0.0435 / 0.0406
+    errors, gap, *_ = gappy_takes
+    assert gap.mean() > 0.5 and (~gap).sum() > 60
+    clean, gappy = errors["related", "clean"], errors["related", "gappy"]
+    assert _rmse(gappy[~gap]) <= _rmse(clean[~gap]) + 0.005
+    assert _rmse(gappy[gap]) <= _rmse(clean[gap]) + 0.006
+    assert _rmse(gappy) <= 1.12 * _rmse(clean)
+    assert _rmse(errors["posed", "gappy"]) <= 1.04 * _rmse(errors["posed", "clean"])
+
+
+def test_picked_frames_come_from_the_whole_take(gappy_takes):
+    # before: subspace cosine 0.04, basis frames and farthest frames all at the neutral (sum |w| 0.0 / 0.02),
+    # farthest frames' cover radius 0.047 (gap-free take's picks: 0.0107). Now 0.99, 2.97 / 2.80, 0.0105.
+    _, gap, clean, gappy, W = gappy_takes
+    ref = PCAStrategy(n_components=8).learn_basis(clean.deltas)
+    s = PCAStrategy(n_components=8).learn_basis(gappy.deltas)
+    assert np.linalg.svd(s.components @ ref.components.T, compute_uv=False).min() > 0.95
+    posed = s.frames_to_pose()
+    assert np.abs(W[posed]).sum(axis=1).mean() > 2.0  # expressions, not the neutral
+    assert gap[posed].any()  # frames with gaps may be posed
+    picks = farthest_frames(gappy.deltas, 30)
+    C = clean.deltas.reshape(len(W), -1)
+    cover = lambda idx: np.min(np.linalg.norm(C[:, None] - C[None, idx], axis=2), axis=1).max()
+    assert cover(picks) <= 1.3 * cover(farthest_frames(clean.deltas, 30))
+    assert np.abs(W[picks]).sum(axis=1).mean() > 2.0 and gap[picks].any()
