@@ -30,38 +30,6 @@ MODES = ("related", "posed")
 MAX_PICK_GAP_SHARE = 0.25
 
 
-def _fill_gaps(X, mean, components):
-    """``fill_gaps`` for orthonormal ``components`` (C, P), without a least-squares solve per frame.
-
-    With k coordinates of a frame missing (columns A = components[:, missing], (C, k)), the normal
-    equations of the visible coordinates are (I - A A^T) c = components[:, visible] @ x_visible,
-    solved by Woodbury through the k x k matrix I - A^T A. Frames where that matrix is
-    ill-conditioned (the visible coordinates hardly determine the coefficients) take
-    ``fill_gaps``' least squares. Same values as ``fill_gaps`` up to rounding; a 2,000-frame take
-    with 5% gaps and ~160 components fills in ~0.15 s instead of ~3.4 s.
-    """
-    X = np.array(X, dtype=np.float64)
-    gaps = np.isnan(X)
-    rows = np.flatnonzero(gaps.any(axis=1))
-    slow = []
-    for f in rows:
-        miss = gaps[f]
-        if miss.all():
-            continue
-        A = components[:, miss]
-        S = np.eye(A.shape[1]) - A.T @ A
-        if np.linalg.eigvalsh(S)[0] < 1e-6:
-            slow.append(f)
-            continue
-        vis = ~miss
-        b = components[:, vis] @ (X[f, vis] - mean[vis])
-        coef = b + A @ np.linalg.solve(S, A.T @ b)
-        X[f, miss] = mean[miss] + coef @ A
-    if slow:
-        X[slow] = fill_gaps(X[slow], mean, components)[0]
-    return X, rows
-
-
 def _filled_training(X, *, n_components=None, variance=None, center=True):
     """Learn a subspace of X (F, P) with gaps from every frame with a visible coordinate
     (``pca_gappy``) and fill the gaps through it.
@@ -74,7 +42,7 @@ def _filled_training(X, *, n_components=None, variance=None, center=True):
     gaps = np.isnan(X)
     seen = ~gaps.all(axis=1)
     mean, comps, s, energy = pca_gappy(X[seen], center=center, n_components=n_components, variance=variance)
-    filled = _fill_gaps(X, mean, comps)[0] if gaps.any() else X
+    filled = fill_gaps(X, mean, comps)[0] if gaps.any() else X
     pickable = seen & (gaps.mean(axis=1) <= MAX_PICK_GAP_SHARE)
     if not pickable.any():
         pickable = seen
@@ -217,7 +185,7 @@ class PCAStrategy:
 
     def reconstruct(self, deltas):
         """Project deltas (F, M, 3) on the learned basis and rebuild them (gaps filled)."""
-        X, _ = _fill_gaps(flat(as_source(deltas)), self.mean, self._ortho)
+        X, _ = fill_gaps(flat(as_source(deltas)), self.mean, self._ortho)
         return (self.mean + self.coefficients(X) @ self.components).reshape(np.shape(deltas))
 
     def frames_to_pose(self):
@@ -251,7 +219,7 @@ class PCAStrategy:
             raise FacecapError(f"pca: `example_weights` must have shape ({len(idx)}, {self.target.n_shapes}); got {Wx.shape}")
         X = self._training[idx]
         if not np.isfinite(X).all():
-            X, _ = _fill_gaps(X, self.mean, self._ortho)
+            X, _ = fill_gaps(X, self.mean, self._ortho)
         self.example_frames = idx
         if self.mode == "posed":
             self._posed = X  # (N, P) marker deltas of the posed basis frames
@@ -278,7 +246,7 @@ class PCAStrategy:
             raise FacecapError(f"pca: `source` frames have shape {deltas.shape[1:]}; fitted on {self.marker_shape}")
         if self.mode == "posed":
             return self._solve_posed(deltas, confidence)
-        X, filled = _fill_gaps(flat(deltas), self.mean, self._ortho)
+        X, filled = fill_gaps(flat(deltas), self.mean, self._ortho)
         solved = np.isfinite(X).all(axis=1)
         C = self.coefficients(np.where(solved[:, None], X, 0.0))
         weights, clamped = clamp_to(self.target, C @ self.related.T + self.related_offset)

@@ -121,9 +121,9 @@ def test_gap_free_takes_are_unchanged(take):
     assert farthest_frames(X, 40, n_components=3).tolist() == _farthest_reference(X, 40, 3).tolist()
 
 
-def test_fill_gaps_without_a_solve_per_frame_matches_fill_gaps():
+def test_fill_gaps_matches_least_squares_per_frame():
+    """The Woodbury fill equals a least-squares fit on each frame's visible coordinates."""
     from facecap.solvers.strategies.base import fill_gaps, pca
-    from facecap.solvers.strategies.pca import _fill_gaps
 
     rng = np.random.default_rng(2)
     X = rng.normal(size=(200, 12)) @ rng.normal(size=(12, 60)) + 0.01 * rng.normal(size=(200, 60))
@@ -132,10 +132,15 @@ def test_fill_gaps_without_a_solve_per_frame_matches_fill_gaps():
     G[rng.uniform(size=G.shape) < 0.1] = np.nan
     G[:5, :45] = np.nan  # 15 visible coordinates for 20 components: least squares (min norm)
     G[5] = np.nan  # nothing visible: stays NaN
-    ours, rows = _fill_gaps(G, mean, comps)
-    ref, ref_rows = fill_gaps(G, mean, comps)
+    ours, rows = fill_gaps(G, mean, comps)
+    ref = G.copy()
+    for f in [f for f in range(200) if f != 5]:
+        vis = np.isfinite(G[f])
+        coef = np.linalg.lstsq(comps[:, vis].T, G[f, vis] - mean[vis], rcond=None)[0]
+        ref[f, ~vis] = mean[~vis] + coef @ comps[:, ~vis]
     assert_allclose(ours, ref, atol=1e-12)
-    assert rows.tolist() == ref_rows.tolist() and np.isnan(ours[5]).all() and np.isfinite(ours[6:]).all()
+    assert rows.tolist() == np.flatnonzero(np.isnan(G).any(axis=1)).tolist()
+    assert np.isnan(ours[5]).all() and np.isfinite(ours[6:]).all()
 
 
 @pytest.fixture(scope="module")
