@@ -113,8 +113,9 @@ class Scenario:
 
 def build_scenario(*, frames=720, noise=0.0003, gaps=0.05, n_examples=60, seed=0, character=None):
     """Actor (``make_actor``) calibration session, a training take and a test take (different
-    performances, head motion, noise, gaps), and ``n_examples`` evenly spaced gap-free training
-    frames whose true weights play the animator's posed examples."""
+    performances, head motion, noise, gaps), and ``n_examples`` training frames covering its
+    expressions (``farthest_frames``; they may have gaps) whose true weights play the animator's
+    posed examples."""
     character = Basis.load_npz(SAMPLE_BASIS) if character is None else character
     actor = make_actor(character, seed=seed)
     Wc, poses, neutral = calibration_weights(actor.shape_names, hold=30)
