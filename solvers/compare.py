@@ -140,10 +140,13 @@ def _phone_weights(truth, names, *, noise=0.02, seed=0):
 def run_comparison(scenario=None, *, strategies=None):
     """Fit and solve every strategy on ``scenario``; returns a list of row dicts."""
     from .strategies import make_strategy
+    from .strategies.wiring import filled_frames
 
     sc = build_scenario() if scenario is None else scenario
     char, tr, te = sc.character, sc.training, sc.test
     ex = sc.example_frames
+    # the posed frames may have gaps: filled through the training take's subspace, as the pipeline does
+    ex_deltas = filled_frames(tr.deltas, ex)[0].reshape(len(ex), *tr.deltas.shape[1:])
     cb = dict(calibration=sc.calibration, poses=sc.poses, stable_markers=STABLE)
     phone, phone_names = _phone_weights(te.weights, char.shape_names)
     cases = {
@@ -151,8 +154,8 @@ def run_comparison(scenario=None, *, strategies=None):
         "calibrated": (dict(), lambda s: s.fit(char, neutral=sc.calibration_neutral, **cb), te.deltas),
         "refine": (dict(), lambda s: s.fit(char, training=tr.deltas, names=tr.names, neutral=tr.neutral,
                                            calibration_neutral=sc.calibration_neutral, **cb), te.deltas),
-        "linear": (dict(ridge=1e-3), lambda s: s.fit(char, examples=tr.deltas[ex], weights=tr.weights[ex]), te.deltas),
-        "rbf": (dict(), lambda s: s.fit(char, examples=tr.deltas[ex], weights=tr.weights[ex], training=tr.deltas), te.deltas),
+        "linear": (dict(ridge=1e-3), lambda s: s.fit(char, examples=ex_deltas, weights=tr.weights[ex]), te.deltas),
+        "rbf": (dict(), lambda s: s.fit(char, examples=ex_deltas, weights=tr.weights[ex], training=tr.deltas), te.deltas),
         "pca (related)": (dict(mode="related"), lambda s: s.fit(char, training=tr.deltas, example_frames=ex,
                                                                  example_weights=tr.weights[ex]), te.deltas),
         "pca (posed)": (dict(mode="posed", n_basis=12), None, te.deltas),

@@ -122,16 +122,24 @@ def example_pairs(examples, target, take):
             f"examples: frame(s) {absent[:8].tolist()} are not in the example take "
             f"({take.frames[0]:g}-{take.frames[-1]:g})"
         )
-    X = flat(take.deltas)
-    ex = X[idx]
-    gappy = ~np.isfinite(ex).all(axis=1)
+    ex, gappy = filled_frames(take.deltas, idx)
     if gappy.any():
-        ex, _ = fill_gaps(ex, *gap_subspace(X))
         if not np.isfinite(ex).all():
             bad = frames[~np.isfinite(ex).all(axis=1)]
             raise FacecapError(f"examples: frame(s) {bad[:8].tolist()} have no visible marker (or could not be stabilised)")
         notes.append(f"examples: {int(gappy.sum())} example frame(s) had marker gaps, filled through the take's principal subspace")
     return idx, ex.reshape(len(idx), *take.deltas.shape[1:]), W, notes
+
+
+def filled_frames(deltas, idx):
+    """The frames ``idx`` of a take's deltas (F, M, D), flattened, their gaps filled through the
+    take's principal subspace (``gap_subspace``); returns (rows (N, M * D), which had gaps (N,))."""
+    X = flat(deltas)
+    ex = X[idx]
+    gappy = ~np.isfinite(ex).all(axis=1)
+    if gappy.any():
+        ex, _ = fill_gaps(ex, *gap_subspace(X))
+    return ex, gappy
 
 
 def fit_strategy(settings, target, inputs, take, *, prepare):
