@@ -103,7 +103,8 @@ def _segment_couplings(ctx, a, b, edges):
     if not ps:
         z = np.zeros(0, np.int64)
         n_seg = edges.size - 1
-        return (z, z, np.zeros(0)), np.zeros(n_seg + 1, np.int64), np.zeros(n_seg + 1, np.int64), np.zeros(n_seg, np.int64)
+        empty = [0] * (n_seg + 1)
+        return (z, z, np.zeros(0)), empty, empty, np.zeros(n_seg, np.int64)
     p, q, v = np.concatenate(ps), np.concatenate(qs), np.concatenate(vs)
     var = lay.offs[edges] - lay.offs[a]  # first variable of each segment, and the end
     inside = q < var[np.searchsorted(var, p, side="right")]

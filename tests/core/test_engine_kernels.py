@@ -73,7 +73,7 @@ def _window_problem(mu=(0.3, 0.7)):
     return ctx, r, dense_solve
 
 
-@pytest.mark.parametrize("a, b, seg", [(0, 50, 4), (0, 50, 7), (5, 40, 3), (0, 50, 100), (3, 20, 5)])
+@pytest.mark.parametrize("a, b, seg", [(0, 50, 4), (0, 50, 7), (5, 40, 3), (0, 50, 100), (3, 20, 5), (20, 21, 3), (8, 16, 3)])
 @pytest.mark.parametrize("mu", [(0.3, 0.7), (0.0, 0.5), (0.4, 0.0)])  # both lags, lag 2 dominant, lag 1 only
 def test_banded_window_solve_matches_dense(a, b, seg, mu):
     ctx, r, dense_solve = _window_problem(mu)
