@@ -150,7 +150,8 @@ def solve_bounded(
     start : ndarray (F, K), optional
         Weights of an earlier solve of similar data (e.g. the same take before a head refit; NaN =
         none): the active-set iterations start from them. Only the work changes, not the result
-        (the optimum is unique up to the tolerances above).
+        (the optimum is unique up to the tolerances above); should the whole-take iteration not
+        settle from it, it starts again from its own per-frame guess.
 
     Returns
     -------

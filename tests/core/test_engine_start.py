@@ -65,3 +65,31 @@ def test_start_of_the_wrong_shape_is_named():
     A, D, _ = refit_pair(6, F=20)
     with pytest.raises(FacecapError, match=r"`start` must have shape \(F, K\) = \(20, 12\)"):
         solve_bounded(A, D, start=np.zeros((20, 11)))
+
+
+def test_a_start_the_active_set_cannot_settle_from_is_dropped_for_the_guess(monkeypatch):
+    """300 frames of a long take of the sample character started from a smooth (interpolated) guess:
+    on its weakly observed shapes the active set wanders for all 40 iterations. The solve then
+    starts again from the per-frame guess and reaches the optimum."""
+    from pathlib import Path
+
+    from facecap.solvers import engine_temporal
+
+    d = np.load(Path(__file__).parent / "data" / "temporal_wandering_start.npz")
+    G = d["G"]
+    lo, hi = np.broadcast_to(d["lo"], G.shape), np.broadcast_to(d["hi"], G.shape)
+    args = (d["A"], d["C"], G, d["R"], lo, hi, d["lam"], tuple(d["mu"]))
+    settled = []
+    active_set = engine_temporal._active_set
+
+    def record(*a, **k):
+        out = active_set(*a, **k)
+        settled.append(out[2])
+        return out
+
+    monkeypatch.setattr(engine_temporal, "_active_set", record)
+    w, it, ok = engine_temporal.solve_temporal(*args, split=False, start=d["start"])
+    assert settled == [False, True] and ok  # the given start did not settle; the guess did
+    ref, _, ok_ref = engine_temporal.solve_temporal(*args, split=False)
+    assert ok_ref
+    np.testing.assert_allclose(w, ref, atol=1e-9, rtol=0)
