@@ -86,9 +86,9 @@ def _segment_couplings(ctx, a, b, edges):
     """The temporal couplings among the free variables of frames [a, b), grouped by segment.
 
     Variables are numbered from the window's first; ``edges`` are the segment edges (frames).
-    Returns (band, cross, reach): entries (p, q, value) with p < q sorted by p; ``band`` = the
-    index ranges of each segment's entries with both ends inside it, ``cross`` = of those reaching
-    into the next segment (from its last two frames into the next one's first two), and
+    Returns ((p, q, value), band, cross, reach): the entries, p < q; ``band[i]:band[i + 1]`` =
+    segment i's entries with both ends inside it (sorted by p), ``cross[i]:cross[i + 1]`` = those
+    reaching into the next segment (from its last two frames into the next one's first two), and
     ``reach[i]`` = the largest q - p inside segment i (0 if none)."""
     _, _, (_, o1, o2), lay, _ = ctx
     fr = lay.free[a:b]
