@@ -247,9 +247,7 @@ def pca_gappy(X, *, center=True, n_components=None, variance=None, tol=1e-4, max
         if full.any():  # start from the gap-free rows' span: exact when they span the rest, else only faster
             Xf = fill_gaps(Xf, np.zeros(X.shape[1]), pca(Xf[full], center=False, n_components=start_components)[1])[0]
         Xf[np.isnan(Xf)] = 0.0
-        s = np.linalg.svd(Xf, compute_uv=False)
-        beta = min(Xf.shape) / max(Xf.shape)
-        threshold = (0.56 * beta**3 - 0.95 * beta**2 + 1.82 * beta + 1.43) * float(np.median(s))
+        threshold = noise_threshold(np.linalg.svd(Xf, compute_uv=False), Xf.shape)
         scale = max(float(np.sqrt(np.mean(Xf**2))), 1e-300)
         for _ in range(max_iterations):
             U, s, Vt = np.linalg.svd(Xf, full_matrices=False)
@@ -260,6 +258,13 @@ def pca_gappy(X, *, center=True, n_components=None, variance=None, tol=1e-4, max
                 break
         X = Xf + mean
     return pca(X, center=center, n_components=n_components, variance=variance)
+
+
+def noise_threshold(s, shape):
+    """Gavish & Donoho's optimal hard threshold for the singular values ``s`` of an ``shape`` (N, P)
+    matrix whose noise level is unknown: ``omega(beta) * median(s)``, beta the aspect ratio."""
+    beta = min(shape) / max(shape)
+    return (0.56 * beta**3 - 0.95 * beta**2 + 1.82 * beta + 1.43) * float(np.median(s))
 
 
 def gap_subspace(*frames, variance=0.99999, max_components=60):

@@ -25,7 +25,8 @@ import numpy as np
 
 from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
-from .base import StrategyResult, as_deltas, as_target, clamp_to, fill_gaps, flat, pca, pca_gappy, reorder
+from .base import (StrategyResult, as_deltas, as_target, clamp_to, fill_gaps, flat, noise_threshold, pca, pca_gappy,
+                   reorder)
 from .linear import align_source, as_source
 
 MODES = ("related", "posed")
@@ -64,9 +65,7 @@ def signal_rank(Xc, *, max_rows=2000):
     s = np.linalg.svd(Xc, compute_uv=False)
     if s.size == 0 or s[0] <= 0:
         return 0
-    beta = min(Xc.shape) / max(Xc.shape)
-    threshold = (0.56 * beta**3 - 0.95 * beta**2 + 1.82 * beta + 1.43) * float(np.median(s))
-    return int(np.sum(s > threshold))
+    return int(np.sum(s > noise_threshold(s, Xc.shape)))
 
 
 def fast_ica(Z, *, max_iter=400, tol=1e-8, step=1.0, seed=0):
