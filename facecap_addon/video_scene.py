@@ -39,7 +39,33 @@ def clip_seeds(clip, frame):
     return names, np.array(points, dtype=np.float64).reshape(-1, 2)
 
 
-class ClipTracking:
+class _ClipJob:
+    """A cancellable clip job (``self.job``) driven frame by frame by the modal operators."""
+
+    what = ""  # for reports: "<what> cancelled at frame N"
+    label = ""  # status bar: "<label> '<clip>': frame N (k/T)"
+
+    @property
+    def result(self):
+        """The job's result once finished, else None."""
+        return self.job.result
+
+    def step(self, max_frames=1, *, seconds=None):
+        """Advance up to ``max_frames`` more frames (or for ``seconds``); True when finished."""
+        return self.job.step(max_frames, seconds=seconds)
+
+    def run(self, progress=None):
+        return self.job.run(progress)
+
+    def cancel(self):
+        self.job.cancel()
+
+    def status(self):
+        frame = "" if self.job.frame is None else f"frame {self.job.frame} "
+        return f"{self.label} '{self.clip_name}': {frame}({self.job.done}/{self.job.total}) - Esc to cancel"
+
+
+class ClipTracking(_ClipJob):
     """Tracking of a movie clip that advances in steps; nothing in the scene changes until the caller
     writes :attr:`result` (so a cancelled run leaves the scene as it was).
 
@@ -48,7 +74,7 @@ class ClipTracking:
     (Lucas-Kanade) or a dense flow ("dis", "farneback", "tvl1") sampled at the seeds.
     """
 
-    what = "Tracking"
+    what = label = "Tracking"
 
     def __init__(self, scene, clip, frame, *, region=(0, 0, 0, 0), max_points=100, method="lk"):
         from ..solvers.video import Footage
@@ -72,28 +98,9 @@ class ClipTracking:
         else:  # dense flow (DIS, Farneback, TV-L1) sampled at the seeds
             self.job = track_with_flow_job(footage, reference=frame, method=method, **seeds)
 
-    @property
-    def result(self):
-        """The TrackResult once finished, else None."""
-        return self.job.result
-
-    def step(self, max_frames=1, *, seconds=None):
-        """Track up to ``max_frames`` more frames (or for ``seconds``); True when finished."""
-        return self.job.step(max_frames, seconds=seconds)
-
-    def run(self, progress=None):
-        return self.job.run(progress)
-
-    def cancel(self):
-        self.job.cancel()
-
-    def status(self):
-        """``"Tracking 'clip': frame N (k/T)"`` for the status bar."""
-        frame = "" if self.job.frame is None else f"frame {self.job.frame} "
-        return f"Tracking '{self.clip_name}': {frame}({self.job.done}/{self.job.total}) - Esc to cancel"
 
 
-class ClipFlowSolving:
+class ClipFlowSolving(_ClipJob):
     """Solve from Clip Flow in steps: dense flow of the movie clip over the face region (Scene.facecap.video)
     relative to the neutral ``frame``, flow-PCA features, the strategy learned from the Solve panel's
     Examples action (its keyed frames on the character), weights for every clip frame. Nothing in the
@@ -101,6 +108,7 @@ class ClipFlowSolving:
     """
 
     what = "Solve from clip flow"
+    label = "Flow of"
 
     def __init__(self, scene, clip, frame):
         from dataclasses import replace
@@ -127,24 +135,6 @@ class ClipFlowSolving:
                                  grid_step=video.flow_grid_step or None, n_components=video.flow_components)
         self.clip_name, self.settings = clip.name, settings
         self.job = retarget_flow_job(footage, character, examples, settings=rsettings, flow=flow)
-
-    @property
-    def result(self):
-        """The RetargetResult once finished, else None."""
-        return self.job.result
-
-    def step(self, max_frames=1, *, seconds=None):
-        return self.job.step(max_frames, seconds=seconds)
-
-    def run(self, progress=None):
-        return self.job.run(progress)
-
-    def cancel(self):
-        self.job.cancel()
-
-    def status(self):
-        frame = "" if self.job.frame is None else f"frame {self.job.frame} "
-        return f"Flow of '{self.clip_name}': {frame}({self.job.done}/{self.job.total}) - Esc to cancel"
 
     def write(self):
         """Key the finished solve (per-shape controls applied) as the character's solve layer; returns
