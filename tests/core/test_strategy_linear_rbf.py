@@ -8,6 +8,7 @@ from facecap.solvers.errors import FacecapError
 from facecap.solvers.strategies.linear import LinearStrategy
 from facecap.solvers.strategies.rbf import KERNELS, RBFStrategy
 
+from gappy_example_takes import example_takes, weight_errors
 from synthetic_face import make_basis
 
 
@@ -96,29 +97,13 @@ def test_rbf_options_are_validated():
 
 @pytest.fixture(scope="module")
 def gappy_takes():
-    """The sample character's actor, 600 frames, solved with and without 5% gaps (same noise and
-    head motion); 30 posed examples. With 60 occludable markers ~80% of frames have a gap and the
-    gap-free ones are mostly the neutral holds."""
-    from facecap.solvers.basis import Basis
-    from facecap.solvers.compare import SAMPLE_BASIS, STABLE, actor_take, make_actor
-    from facecap.solvers.pipeline import RetargetSettings, retarget
-    from facecap.solvers.strategies.options import ExamplePairs, StrategyInputs
-    from facecap.solvers.strategies.pca import farthest_frames
-    from facecap.solvers.synth import performance_weights
-
-    character = Basis.load_npz(SAMPLE_BASIS)
-    actor = make_actor(character, seed=0)
-    W = performance_weights(character.shape_names, 600, seed=0)
-    clean, gappy = actor_take(actor, W, gaps=0.0, seed=2), actor_take(actor, W, gaps=0.05, seed=2)
-    ex = farthest_frames(clean.deltas, 30)
-    inputs = StrategyInputs(examples=ExamplePairs(clean.markers.frames[ex], W[ex], character.shape_names))
-    gap = np.isnan(gappy.markers.positions).any(axis=(1, 2))
+    """linear and rbf solved on the take with and without 5 % gaps (``gappy_example_takes``)."""
+    takes = example_takes()
     errors = {}
     for strategy in ("linear", "rbf"):
-        settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), strategy=strategy)
-        for label, take in (("clean", clean), ("gappy", gappy)):
-            errors[strategy, label] = np.nan_to_num(retarget(take.markers, character, settings, inputs=inputs).weights - W, nan=1.0)
-    return errors, gap
+        for label, e in weight_errors(takes, strategy=strategy).items():
+            errors[strategy, label] = e
+    return errors, takes.gap
 
 
 def _rmse(e):

@@ -7,6 +7,7 @@ from numpy.testing import assert_allclose
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.strategies.pca import PCAStrategy, farthest_frames, fast_ica
 
+from gappy_example_takes import example_takes, weight_errors
 from synthetic_face import make_basis
 
 
@@ -145,28 +146,15 @@ def test_fill_gaps_matches_least_squares_per_frame():
 
 @pytest.fixture(scope="module")
 def gappy_takes():
-    """The sample character's actor, 600 frames with and without 5% gaps (same noise and head
-    motion), 30 posed examples (farthest frames of the gap-free take). ~80% of the frames have a
-    gap; the gap-free ones are mostly the neutral holds."""
-    from facecap.solvers.basis import Basis
-    from facecap.solvers.compare import SAMPLE_BASIS, STABLE, actor_take, make_actor
-    from facecap.solvers.pipeline import RetargetSettings, retarget
-    from facecap.solvers.strategies.options import ExamplePairs, PCASettings, StrategyInputs
-    from facecap.solvers.synth import performance_weights
+    """pca (related and posed) solved on the take with and without 5 % gaps (``gappy_example_takes``)."""
+    from facecap.solvers.strategies.options import PCASettings
 
-    character = Basis.load_npz(SAMPLE_BASIS)
-    actor = make_actor(character, seed=0)
-    W = performance_weights(character.shape_names, 600, seed=0)
-    clean, gappy = actor_take(actor, W, gaps=0.0, seed=2), actor_take(actor, W, gaps=0.05, seed=2)
-    ex = farthest_frames(clean.deltas, 30)
-    inputs = StrategyInputs(examples=ExamplePairs(clean.markers.frames[ex], W[ex], character.shape_names))
-    gap = np.isnan(gappy.markers.positions).any(axis=(1, 2))
+    takes = example_takes()
     errors = {}
     for mode in ("related", "posed"):
-        settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), strategy="pca", pca=PCASettings(mode=mode))
-        for label, t in (("clean", clean), ("gappy", gappy)):
-            errors[mode, label] = np.nan_to_num(retarget(t.markers, character, settings, inputs=inputs).weights - W, nan=1.0)
-    return errors, gap, clean, gappy, W
+        for label, e in weight_errors(takes, strategy="pca", pca=PCASettings(mode=mode)).items():
+            errors[mode, label] = e
+    return errors, takes.gap, takes.clean, takes.gappy, takes.W
 
 
 def _rmse(e):
