@@ -351,7 +351,7 @@ def _finish(target, weights, settings, notes):
 
 def _retarget_markers(markers, character, settings, inputs):
     """calibrated, refine, linear, rbf, pca: shared stabilisation and neutral, actor-space deltas."""
-    from .strategies.wiring import fit_strategy, prepare_take
+    from .strategies.wiring import prepare_take
 
     timings = {}
     notes = list(inputs.notes)
@@ -370,17 +370,7 @@ def _retarget_markers(markers, character, settings, inputs):
                      "or bridged by the strategy's temporal smoothing")
     timings["stabilise"] = time.perf_counter() - t0
     target = _target(character, settings)
-    t1 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        strategy, fit_notes = fit_strategy(settings, target, inputs, take, prepare=prepare)
-        t2 = time.perf_counter()
-        res = strategy.solve(take.deltas, names=take.names, neutral=take.neutral)
-    t3 = time.perf_counter()
-    timings.update(fit=t2 - t1, solve=t3 - t2)
-    notes += fit_notes
-    notes.extend(res.warnings)
-    weights = _finish(target, res.weights, settings, notes)
+    strategy, res, weights = fit_and_solve(settings, target, inputs, take, prepare, notes, timings)
 
     used, marker_residual, frame_marker = strategy_marker_residuals(strategy, res, take)
     F = take.frames.size
@@ -402,6 +392,24 @@ def _retarget_markers(markers, character, settings, inputs):
         normalise=norm_info, stable_suggestion=suggestion, head_target=settings.head_target,
         frame_marker_residual=frame_marker,
     )
+
+
+def fit_and_solve(settings, target, inputs, take, prepare, notes, timings):
+    """Fit ``settings.strategy`` for ``take`` (examples and training prepared by ``prepare``), solve the
+    take and apply the shape options; notes go to ``notes``, "fit" and "solve" seconds to ``timings``.
+    Returns (strategy, strategy result, weights)."""
+    from .strategies.wiring import fit_strategy
+
+    t1 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        strategy, fit_notes = fit_strategy(settings, target, inputs, take, prepare=prepare)
+        t2 = time.perf_counter()
+        res = strategy.solve(take.deltas, names=take.names, neutral=take.neutral)
+    timings.update(fit=t2 - t1, solve=time.perf_counter() - t2)
+    notes += fit_notes
+    notes.extend(res.warnings)
+    return strategy, res, _finish(target, res.weights, settings, notes)
 
 
 def strategy_marker_residuals(strategy, res, take):

@@ -131,8 +131,8 @@ def retarget_markers_2d(markers, character, settings, inputs):
     ranges, basis in pixels; ``[calibration] align`` "similarity" absorbs a different zoom), or
     posed example frames of a tracked take. Nothing of the character's geometry is used.
     """
-    from .pipeline import _finish, _target, strategy_marker_residuals
-    from .strategies.wiring import fit_strategy, require_inputs
+    from .pipeline import _target, fit_and_solve, strategy_marker_residuals
+    from .strategies.wiring import require_inputs
 
     if settings.strategy not in STRATEGIES_2D:
         raise FacecapError(f"strategy '{settings.strategy}' does not solve 2D image tracks; "
@@ -156,21 +156,13 @@ def retarget_markers_2d(markers, character, settings, inputs):
     if stab.flagged.any():
         notes.append(f"{int(stab.flagged.sum())} frame(s) could not be stabilised (too few stable points)")
     target = _target(character, settings)
-    t1 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        strategy, fit_notes = fit_strategy(settings, target, inputs, take, prepare=prepare)
-        t2 = time.perf_counter()
-        res = strategy.solve(take.deltas, names=take.names, neutral=take.neutral)
-    t3 = time.perf_counter()
-    notes += fit_notes
-    notes.extend(res.warnings)
-    weights = _finish(target, res.weights, settings, notes)
+    timings = {"stabilise": time.perf_counter() - t0}
+    strategy, res, weights = fit_and_solve(settings, target, inputs, take, prepare, notes, timings)
     used, marker_residual, frame_marker = strategy_marker_residuals(strategy, res, take)
     F = take.frames.size
     at_bound = res.solve.at_bound if res.solve is not None else res.clamped
     residual = np.full(F, np.nan) if res.residual_rms is None else np.asarray(res.residual_rms, dtype=np.float64)
-    timings = {"stabilise": t1 - t0, "fit": t2 - t1, "solve": t3 - t2, "total": time.perf_counter() - t0}
+    timings["total"] = time.perf_counter() - t0
     return RetargetResult(
         frames=take.frames, shape_names=target.names, weights=weights, marker_names=used,
         residual_rms=residual, marker_residual=marker_residual,
