@@ -95,6 +95,25 @@ def _per_shape(value):
     return value
 
 
+def example_weights(names, values, target, notes):
+    """Posed weights ``values`` (N, len(names)) in ``target``'s shape order (names matched exactly or
+    by alias key; shapes not posed are 0, with a note in ``notes``); (N, K)."""
+    lookup = {n: j for j, n in enumerate(names)}
+    keyed = {name_key(n): j for j, n in enumerate(names)}
+    cols = [lookup.get(n, keyed.get(name_key(n))) for n in target.names]
+    unknown = sorted(set(names) - {names[c] for c in cols if c is not None})
+    if unknown:
+        raise FacecapError(f"examples: weights name shape(s) the character does not have: {unknown}")
+    unposed = [n for n, c in zip(target.names, cols) if c is None]
+    if unposed:
+        notes.append(f"examples: {len(unposed)} character shape(s) are not in the example weights and are 0 in "
+                     f"every example: {unposed[:8]}{' ...' if len(unposed) > 8 else ''}")
+    W = np.stack([values[:, c] if c is not None else np.zeros(len(values)) for c in cols], axis=1)
+    if not np.isfinite(W).all():
+        raise FacecapError("examples: weights must be finite (a posed frame keys every shape it uses)")
+    return W
+
+
 def example_pairs(examples, target, take):
     """(indices into ``take``, example deltas (N, M, 3) gap-filled, weights (N, K), notes)."""
     notes = []
@@ -102,18 +121,7 @@ def example_pairs(examples, target, take):
     values = np.asarray(examples.weights, dtype=np.float64)
     if values.ndim != 2 or values.shape != (frames.size, len(examples.names)) or frames.size == 0:
         raise FacecapError(f"examples: weights must have shape (N, {len(examples.names)}) for N > 0 frames; got {values.shape}")
-    lookup = {n: j for j, n in enumerate(examples.names)}
-    keyed = {name_key(n): j for j, n in enumerate(examples.names)}
-    cols = [lookup.get(n, keyed.get(name_key(n))) for n in target.names]
-    unknown = sorted(set(examples.names) - {examples.names[c] for c in cols if c is not None})
-    if unknown:
-        raise FacecapError(f"examples: weights name shape(s) the character does not have: {unknown}")
-    unposed = [n for n, c in zip(target.names, cols) if c is None]
-    if unposed:
-        notes.append(f"examples: {len(unposed)} character shape(s) are not in the example weights and are 0 in every example: {unposed}")
-    W = np.stack([values[:, c] if c is not None else np.zeros(frames.size) for c in cols], axis=1)
-    if not np.isfinite(W).all():
-        raise FacecapError("examples: weights must be finite (a posed frame keys every shape it uses)")
+    W = example_weights(examples.names, values, target, notes)
     idx = np.searchsorted(take.frames, frames)
     idx = np.clip(idx, 0, take.frames.size - 1)
     absent = frames[np.abs(take.frames[idx] - frames) > 1e-6]

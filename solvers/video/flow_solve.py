@@ -85,7 +85,7 @@ def check_flow_settings(flow, info):
 def example_matrix(examples, target, frames, *, only=()):
     """(example frames (N,), weights (N, K) in ``target``'s shape order, notes) from ExamplePairs;
     ``only`` (``[examples] frames``) keeps just those posed frames."""
-    from ..aliases import name_key
+    from ..strategies.wiring import example_weights
 
     ex_frames = np.asarray(examples.frames, dtype=np.float64).reshape(-1)
     values = np.asarray(examples.weights, dtype=np.float64)
@@ -99,20 +99,8 @@ def example_matrix(examples, target, frames, *, only=()):
             raise FacecapError(f"examples: frame(s) {missing[:8]} have no posed weights")
         rows = [int(np.flatnonzero(np.abs(ex_frames - f) < 1e-6)[0]) for f in want]
         ex_frames, values = ex_frames[rows], values[rows]
-    lookup = {n: j for j, n in enumerate(examples.names)}
-    keyed = {name_key(n): j for j, n in enumerate(examples.names)}
-    cols = [lookup.get(n, keyed.get(name_key(n))) for n in target.names]
-    unknown = sorted(set(examples.names) - {examples.names[c] for c in cols if c is not None})
-    if unknown:
-        raise FacecapError(f"examples: weights name shape(s) the character does not have: {unknown}")
     notes = []
-    unposed = [n for n, c in zip(target.names, cols) if c is None]
-    if unposed:
-        notes.append(f"examples: {len(unposed)} character shape(s) are not in the example weights and are 0 in "
-                     f"every example: {unposed[:8]}{' ...' if len(unposed) > 8 else ''}")
-    W = np.stack([values[:, c] if c is not None else np.zeros(ex_frames.size) for c in cols], axis=1)
-    if not np.isfinite(W).all():
-        raise FacecapError("examples: weights must be finite (a posed frame keys every shape it uses)")
+    W = example_weights(examples.names, values, target, notes)
     have = np.asarray(frames, dtype=np.float64)
     absent = [f for f in ex_frames.tolist() if not np.any(np.abs(have - f) < 1e-6)]
     if absent:
