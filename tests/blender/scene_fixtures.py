@@ -56,3 +56,19 @@ class LayoutStub:
         return self
 
     column = box = row
+
+
+def modal_driver(operator):
+    """A class running ``operator``'s own modal methods on a plain object (Blender builds operator
+    instances itself): ``Driver(session)``, then ``modal``/``cancel`` as Blender would call them."""
+
+    class Driver:
+        modal, cancel, _stop, _write = operator.modal, operator.cancel, operator._stop, operator._write
+
+        def __init__(self, session):
+            self._session, self._timer, self.reports = session, None, []
+
+        def report(self, kind, message):
+            self.reports.append((kind.pop(), message))
+
+    return Driver

@@ -12,6 +12,7 @@ from facecap.solvers.video.synthetic import write_synthetic_clip
 W, H, N, AMP = 240, 180, 90, 4.0
 SHAPES = ("jawOpen", "mouthSmileLeft", "mouthSmileRight", "browDownLeft", "browDownRight", "cheekPuff")
 POSED = np.linspace(0, N - 1, 15).round().astype(int)  # footage frames; the clip starts at scene frame 1
+from scene_fixtures import modal_driver
 
 
 @pytest.fixture(scope="module")
@@ -85,18 +86,10 @@ def test_missing_examples_or_character_is_one_readable_error(scene):
     assert layers.solved_action(scene.key) is None
 
 
-class ModalDriver:
-    """The operator's own modal methods on a plain object (Blender builds operator instances itself)."""
+def _driver():
+    from facecap.operators.video import FACECAP_OT_solve_clip_flow
 
-    from facecap.operators.video import FACECAP_OT_solve_clip_flow as _op
-
-    modal, cancel, _stop, _write = _op.modal, _op.cancel, _op._stop, _op._write
-
-    def __init__(self, session):
-        self._session, self._timer, self.reports = session, None, []
-
-    def report(self, kind, message):
-        self.reports.append((kind.pop(), message))
+    return modal_driver(FACECAP_OT_solve_clip_flow)
 
 
 def test_esc_cancels_with_the_scene_untouched(scene, monkeypatch):
@@ -106,7 +99,7 @@ def test_esc_cancels_with_the_scene_untouched(scene, monkeypatch):
     monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)  # one frame per tick
     context = bpy.context
     before = state(scene)
-    driver = ModalDriver(ClipFlowSolving(scene.scene, scene.clip, 1))
+    driver = _driver()(ClipFlowSolving(scene.scene, scene.clip, 1))
     tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
     assert [driver.modal(context, tick) for _ in range(4)] == [{"RUNNING_MODAL"}] * 4
     assert driver.modal(context, SimpleNamespace(type="MOUSEMOVE", value="NOTHING")) == {"PASS_THROUGH"}
@@ -121,7 +114,7 @@ def test_modal_ticks_to_the_end_and_keys_the_solve(scene, monkeypatch):
     from facecap.operators import video as video_ops
 
     monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)
-    driver = ModalDriver(ClipFlowSolving(scene.scene, scene.clip, 1))
+    driver = _driver()(ClipFlowSolving(scene.scene, scene.clip, 1))
     tick = SimpleNamespace(type="TIMER", value="NOTHING")
     results = [driver.modal(bpy.context, tick) for _ in range(N + 1)]
     assert results[:N] == [{"RUNNING_MODAL"}] * N and results[N] == {"FINISHED"}

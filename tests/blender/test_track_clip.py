@@ -8,6 +8,7 @@ import pytest
 
 from facecap.facecap_addon import take
 from facecap.solvers.video.synthetic import write_synthetic_clip
+from scene_fixtures import modal_driver
 
 
 @pytest.fixture
@@ -83,18 +84,10 @@ def test_stepping_to_the_end_gives_the_same_tracks_as_one_run(clip):
     assert bpy.ops.facecap.track_clip("INVOKE_DEFAULT", region=(80, 60, 160, 120), max_points=20) == {"FINISHED"}
 
 
-class ModalDriver:
-    """The operator's own modal methods on a plain object (Blender builds operator instances itself)."""
+def _driver():
+    from facecap.operators.video import FACECAP_OT_track_clip
 
-    from facecap.operators.video import FACECAP_OT_track_clip as _op
-
-    modal, cancel, _stop, _write = _op.modal, _op.cancel, _op._stop, _op._write
-
-    def __init__(self, session):
-        self._session, self._timer, self.reports = session, None, []
-
-    def report(self, kind, message):
-        self.reports.append((kind.pop(), message))
+    return modal_driver(FACECAP_OT_track_clip)
 
 
 def scene_state(scene):
@@ -110,7 +103,7 @@ def test_modal_timer_ticks_then_esc_cancels_with_nothing_written(clip, monkeypat
     clip, _ = clip
     context, scene = bpy.context, bpy.context.scene
     before = scene_state(scene)
-    driver = ModalDriver(ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20))
+    driver = _driver()(ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20))
     tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
     assert [driver.modal(context, tick) for _ in range(3)] == [{"RUNNING_MODAL"}] * 3
     assert driver.modal(context, SimpleNamespace(type="MOUSEMOVE", value="NOTHING")) == {"PASS_THROUGH"}
@@ -127,7 +120,7 @@ def test_modal_timer_ticks_to_the_end_and_adds_the_take(clip, monkeypatch):
     monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)
     clip, _ = clip
     context, scene = bpy.context, bpy.context.scene
-    driver = ModalDriver(ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20))
+    driver = _driver()(ClipTracking(scene, clip, 1, region=(80, 60, 160, 120), max_points=20))
     tick = SimpleNamespace(type="TIMER", value="NOTHING")
     results = [driver.modal(context, tick) for _ in range(25)]
     assert results[:24] == [{"RUNNING_MODAL"}] * 24 and results[24] == {"FINISHED"}
