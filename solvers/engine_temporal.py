@@ -208,6 +208,14 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=40, chunk=4096, pad=
     return w, it, ok
 
 
+#: Iterations allowed without fewer wrong variables than the best so far before the iteration
+#: changes one variable at a time (Judice & Pires' safeguard). Plain primal-dual active-set steps
+#: can cycle when Q is not an M-matrix, and second differences make it one (measured on the sample
+#: character: two weights of one shape in neighbouring frames swapping states with period 4, from
+#: any start); with the safeguard the method is finite for any positive definite Q.
+SAFE_TRIES = 3
+
+
 def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
     """The primal-dual active-set iteration over frames with pattern Hessians ``Hp[inv]``, from ``w``."""
     F, K = G.shape
@@ -225,6 +233,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
         grad = qmul_rows(w, None) + _tmul(T, w) - G
         st, sg = classify(w - step[:, None] * grad, step, lo, hi, lam)
         redo = np.ones(F, dtype=bool)  # frames whose state changed: their fixed variables move to the bound
+        best, tries = np.inf, SAFE_TRIES  # fewest wrong variables so far; full changes left without progress
         for it in range(1, max_iter + 1):
             free = st == _FREE
             if redo.any():
@@ -247,9 +256,20 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
             changed = st_t != st[idx]
             if has_l1:
                 changed |= (st_t == _FREE) & (sg_t != sg[idx]) & (lam > 0)
-            rows = changed.any(axis=1)
-            if not rows.any():
+            n_wrong = int(changed.sum())
+            if not n_wrong:
                 return w, it + 1, True  # counted as before: the final check is an iteration
+            if n_wrong < best:
+                best, tries = n_wrong, SAFE_TRIES
+            elif tries:
+                tries -= 1
+            else:  # no progress: change only the first wrong variable (Murty's least-index rule)
+                first = np.unravel_index(np.argmax(changed), changed.shape)
+                changed[:] = False
+                changed[first] = True
+                st_t = np.where(changed, st_t, st[idx])
+                sg_t = np.where(changed, sg_t, sg[idx])
+            rows = changed.any(axis=1)
             redo = np.zeros(F, dtype=bool)
             redo[np.arange(F)[idx][rows]] = True
             st[idx], sg[idx] = st_t, sg_t

@@ -164,3 +164,39 @@ def test_long_take_split_and_windows_agree_with_one_piece(monkeypatch):
     at_lo, at_hi = w <= 1e-12, w >= 1 - 1e-12
     assert at_lo.sum() > 500  # the bounds are active: a test of the active set, not of a linear solve
     assert g[at_lo].min() >= -1e-9 * scale and g[at_hi].max(initial=0.0) <= 1e-9 * scale
+
+
+def kkt_violation(A, C, G, R, lo, hi, lam, mu, w):
+    """Largest violation of the optimality conditions of the whole-take problem at ``w`` (lo >= 0,
+    so the L1 term is linear), relative to the gradient's scale: an optimality certificate that does
+    not depend on how ``w`` was found."""
+    from facecap.solvers.engine_temporal import _tmul, temporal_operator
+
+    H = np.einsum("pk,fp,pl->fkl", A, C.astype(float), A) + R
+    g = np.einsum("fkl,fl->fk", H, w) + _tmul(temporal_operator(len(w), *mu), w) - G + lam
+    assert np.all(lo >= 0) and np.all(w >= lo) and np.all(w <= hi)
+    at_lo, at_hi = w <= lo, w >= hi
+    wrong = np.where(at_lo, np.maximum(-g, 0), np.where(at_hi, np.maximum(g, 0), np.abs(g)))
+    return wrong.max() / np.abs(G).max()
+
+
+def test_an_active_set_cycle_is_broken(monkeypatch):
+    """60 frames of a long take of the sample character (second differences only): plain
+    primal-dual active-set steps cycle with period 4 on one shape in four neighbouring frames, from
+    any start. The safeguard (one variable at a time once the count of wrong variables stops
+    falling) reaches the optimum."""
+    from pathlib import Path
+
+    from facecap.solvers import engine_temporal
+
+    d = np.load(Path(__file__).parent / "data" / "temporal_cycle.npz")
+    G = d["G"]
+    lo, hi = np.broadcast_to(d["lo"], G.shape), np.broadcast_to(d["hi"], G.shape)
+    args = (d["A"], d["C"], G, d["R"], lo, hi, d["lam"], tuple(d["mu"]))
+    w, it, ok = engine_temporal.solve_temporal(*args, split=False)
+    assert ok and it <= 30
+    assert kkt_violation(*args, w) < 1e-9
+
+    monkeypatch.setattr(engine_temporal, "SAFE_TRIES", 10**6)  # without the safeguard: it cycles
+    _, _, ok_plain = engine_temporal.solve_temporal(*args, split=False)
+    assert not ok_plain
