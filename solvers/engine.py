@@ -96,6 +96,7 @@ def solve_bounded(
     max_iter=40,
     chunk=4096,
     start=None,
+    exact=True,
 ):
     """Solve the bounded, regularised least-squares problem of the module docstring.
 
@@ -152,6 +153,11 @@ def solve_bounded(
         none): the active-set iterations start from them. Only the work changes, not the result
         (the optimum is unique up to the tolerances above); should the whole-take iteration not
         settle from it, it starts again from its own per-frame guess.
+    exact : bool
+        Per-frame mode: False keeps, for frames whose active set has not settled within
+        ``max_iter``, the last iterate clipped to the bounds instead of handing them to the exact
+        fallback. With a small ``max_iter`` this is a quick near-optimal prediction (the pipeline's
+        head refits use it); temporal solves are always exact.
 
     Returns
     -------
@@ -173,4 +179,4 @@ def solve_bounded(
         start = np.asarray(start, dtype=np.float64)
         if start.shape != (prob.Dz.shape[0], prob.A.shape[1]):
             raise FacecapError(f"`start` must have shape (F, K) = {(prob.Dz.shape[0], prob.A.shape[1])}; got {start.shape}")
-    return engine_setup.run(prob, max_iter=max_iter, chunk=chunk, start=start)
+    return engine_setup.run(prob, max_iter=max_iter, chunk=chunk, start=start, exact=exact)

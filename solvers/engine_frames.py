@@ -176,7 +176,7 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
             for i in bad:
                 w[i] = exact_frame(Hp[inv[i]], g[i], l[i], h[i], lam, sign[i])
         W[sl] = w
-        return it, bad.size
+        return it, bad.size if exact else 0
 
     with single_blas_thread():
         if workers > 1 and n_chunks > 1:

@@ -190,7 +190,7 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
     return Problem(A, Dz, C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu, binary=mask is None)
 
 
-def run(prob, *, max_iter, chunk, start=None):
+def run(prob, *, max_iter, chunk, start=None, exact=True):
     from . import engine
     from .engine_frames import solve_frames
 
@@ -250,7 +250,7 @@ def run(prob, *, max_iter, chunk, start=None):
                 continue
             rows = slice(None) if idx.size == F else idx  # every frame has data: no (F, P) copies
             w, it, fb = solve_frames(Ar, Cr[rows], G[rows], Rr, lo[rows], hi[rows], l1, max_iter=max_iter,
-                                     chunk=chunk, start=None if w0 is None else w0[rows])
+                                     chunk=chunk, start=None if w0 is None else w0[rows], exact=exact)
             if whole:
                 W[rows] = w
             else:

@@ -41,7 +41,7 @@ def symmetric_pairs(shape_names):
 
 
 def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=None, lower=None, upper=None,
-                    locks=None, regions=None, start=None):
+                    locks=None, regions=None, start=None, max_iter=40, exact=True):
     """Solve weights for character-space marker deltas.
 
     Parameters
@@ -59,6 +59,8 @@ def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=Non
         See :func:`solvers.engine.solve_bounded`.
     start : ndarray (F, K), optional
         Weights of an earlier solve of similar deltas: the solve starts from them (faster, same result).
+    max_iter, exact : see :func:`solvers.engine.solve_bounded` (``exact=False`` with a small
+        ``max_iter``: a quick per-frame prediction instead of the optimum)
 
     Returns
     -------
@@ -82,4 +84,6 @@ def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=Non
         smoothing=tuple(options.smoothing),
         relative=True,
         start=start,
+        max_iter=max_iter,
+        exact=exact,
     )

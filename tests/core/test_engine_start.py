@@ -93,3 +93,19 @@ def test_a_start_the_active_set_cannot_settle_from_is_dropped_for_the_guess(monk
     ref, _, ok_ref = engine_temporal.solve_temporal(*args, split=False)
     assert ok_ref
     np.testing.assert_allclose(w, ref, atol=1e-9, rtol=0)
+
+
+def test_a_quick_prediction_is_feasible_and_near_the_optimum():
+    """``exact=False`` with 2 iterations (the head refits' prediction): no exact fallback, every
+    weight inside its bounds, and the fit to the markers within 1 % of the optimum's."""
+    A, D, _ = refit_pair(6, F=600, lo=-1.0)
+    kw = dict(lower=-1.0, regularisation=1e-4, sparsity=0.01, relative=True)
+    best = solve_bounded(A, D, **kw)
+    quick = solve_bounded(A, D, max_iter=2, exact=False, **kw)
+    exact = solve_bounded(A, D, max_iter=2, **kw)
+    assert quick.fallback_frames == 0 and exact.fallback_frames > best.fallback_frames
+    np.testing.assert_allclose(exact.weights, best.weights, atol=1e-9, rtol=0)  # the fallback is exact
+    assert np.all(quick.weights >= -1.0) and np.all(quick.weights <= 1.0)
+    assert not np.allclose(quick.weights, best.weights, atol=1e-6)  # unsettled frames kept their iterate
+    rms = lambda r: np.sqrt(np.nanmean(r.residuals ** 2))  # noqa: E731
+    assert rms(quick) <= 1.01 * rms(best)
