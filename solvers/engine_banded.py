@@ -59,8 +59,10 @@ def frame_band(ctx, frames):
         idx = order[sel, :s].astype(itype)
         rows = (inv[frames[sel]].astype(itype) * K)[:, None] + idx  # rows of the frames' H, flattened
         m = sel.size * s * s
-        H_ff = np.zeros(m + s * s)  # the free blocks, one after the other, and a zero block as padding
-        np.take(Hflat, ((rows * K)[:, :, None] + idx[:, None, :]).ravel(), out=H_ff[:m])
+        H_ff = np.empty(m + s * s)  # the free blocks, one after the other, and a zero block as padding
+        H_ff[m:] = 0.0
+        # mode="clip": the indices are valid by construction, and "raise" buffers the output (2x slower)
+        np.take(Hflat, ((rows * K)[:, :, None] + idx[:, None, :]).ravel(), out=H_ff[:m], mode="clip")
         # band rows of a frame: [j, d] = H_FF[j + d, j], a strided view (j + d >= s reads the next block
         # or the padding; masked out)
         skew = np.lib.stride_tricks.as_strided(H_ff, shape=(sel.size, s, s), strides=(8 * s * s, 8 * (s + 1), 8 * s),
