@@ -139,7 +139,12 @@ class MarkerSet:
         if self.units not in UNIT_SCALE or units not in UNIT_SCALE:
             raise FacecapError(f"cannot convert marker units from '{self.units}' to '{units}'")
         factor = UNIT_SCALE[self.units] / UNIT_SCALE[units]
-        return replace(self, positions=self.positions * factor, units=units)
+        if factor > 1.0:  # a huge coordinate could overflow: validate as usual
+            return replace(self, positions=self.positions * factor, units=units)
+        # Scaling down keeps what __post_init__ checks (whole gaps, finite samples): skip its O(F M) passes.
+        out = self._with_mapped_positions(self.positions * factor)
+        object.__setattr__(out, "units", units)
+        return out
 
     def gap_counts(self):
         """Number of missing samples per marker, as {name: count}."""

@@ -7,7 +7,41 @@ import numpy as np
 
 from .errors import FacecapError
 from .markers import MarkerSet
-from .transforms import best_rotation, fit_rigid_batch
+from .transforms import _fit_rigid, _gaps, _zero_rows, best_rotation, fit_rigid_batch
+
+
+class _MovedMarkers:
+    """Stabilised markers not computed yet: the pipeline refits or smooths a head pose before
+    anyone reads its markers, so they are applied on first access (an (F, M, 3) product each)."""
+
+    def __init__(self, markers, R, t, scales, flagged):
+        # The pose as of now (small copies), should a caller edit the result's arrays in place.
+        self.args = markers, R.copy(), t.copy(), None if scales is None else scales.copy(), flagged.copy()
+
+    def compute(self):
+        markers, R, t, scales, flagged = self.args
+        moved = _apply(R, t, scales, markers.positions)
+        moved[flagged] = np.nan
+        return markers._with_mapped_positions(moved)
+
+
+class _LazyMarkers:
+    """Descriptor of the ``markers`` field: accepts a :class:`_MovedMarkers` and computes it once."""
+
+    def __set_name__(self, owner, name):
+        self.slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            raise AttributeError(self.slot)  # tells dataclass the field has no default
+        value = obj.__dict__[self.slot]
+        if isinstance(value, _MovedMarkers):
+            value = value.compute()
+            obj.__dict__[self.slot] = value
+        return value
+
+    def __set__(self, obj, value):
+        obj.__dict__[self.slot] = value
 
 
 @dataclass(frozen=True, eq=False)
@@ -20,7 +54,7 @@ class StabiliseResult:
     (``rotations[f]``, ``translations[f]``).
     """
 
-    markers: MarkerSet
+    markers: MarkerSet = _LazyMarkers()  # computed on first access when given as _MovedMarkers
     stable_names: tuple
     reference: np.ndarray  # (S, 3) stable markers in the reference head frame
     rotations: np.ndarray  # (F, 3, 3) raw -> stabilised
@@ -47,11 +81,26 @@ MODES = ("rigid", "similarity")
 
 def _apply(R, t, scales, X):
     """s_f * R_f @ x + t_f for every point of every frame."""
-    out = X @ R.transpose(0, 2, 1)
+    out = X @ _transposed(R)
     if scales is not None:
         out *= scales[:, None, None]
     out += t[:, None, :]
     return out
+
+
+def _transposed(R):
+    """R_f^T laid out contiguously: the batched product with a transposed view is ~2x slower
+    (same result, bit for bit)."""
+    return np.ascontiguousarray(R.transpose(0, 2, 1))
+
+
+def _norm3(x):
+    """``np.linalg.norm(x, axis=-1)`` for (..., 3), bit for bit (same summation order), ~4x faster:
+    the reduction over a length-3 axis is slow."""
+    sq = x * x
+    total = sq[..., 0] + sq[..., 1]
+    total += sq[..., 2]
+    return np.sqrt(total, out=total)
 
 
 def _columns(positions, idx):
@@ -155,16 +204,15 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
     scales = None
     if mode == "similarity":
         scales, t = _frame_scales(R, pts, reference, weights)
-    moved = _apply(R, t, scales, markers.positions)
-    moved[flagged] = np.nan
     fitted = _apply(R, t, scales, pts)
-    err = np.linalg.norm(fitted - reference[None], axis=2)
+    fitted -= reference
+    err = _norm3(fitted)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
     rms[flagged] = np.nan
     return StabiliseResult(
-        markers=markers._with_mapped_positions(moved),
+        markers=_MovedMarkers(markers, R, t, scales, flagged),
         stable_names=stable,
         reference=reference,
         rotations=R,
@@ -219,8 +267,10 @@ def _least_median_start(pts, reference, vis, R0, t0, n_triples=40, seed=0):
 
 def _distances(R, t, filled, reference):
     """(F, S) distance of each (gap-filled) stable marker from the reference after the fit."""
-    fitted = (filled @ R.transpose(0, 2, 1)) + t[:, None, :]
-    return np.linalg.norm(fitted - reference[None], axis=2)
+    fitted = filled @ _transposed(R)
+    fitted += t[:, None, :]
+    fitted -= reference
+    return _norm3(fitted)
 
 
 def _rigid_markers(dist, vis, keep, factor=3.0):
@@ -304,28 +354,33 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     StabiliseResult
     """
     idx = markers.index(names)
-    raw = _columns(markers.positions, idx)
-    w = np.where(np.isnan(raw[:, :, 0]) | np.isnan(predicted[:, :, 0]), 0.0, np.asarray(weights, dtype=np.float64)[None])
-    R, t, rank_ok = fit_rigid_batch(raw, predicted, w)
+    raw = _columns(markers.positions, idx)  # a copy of our own: fit_rigid_batch's cleaning is done here in place
+    predicted = np.asarray(predicted, dtype=np.float64)
+    gap_raw, gap_pred = _gaps(raw), _gaps(predicted)
+    w = np.where(gap_raw | gap_pred, 0.0, np.asarray(weights, dtype=np.float64)[None])
+    raw[gap_raw] = 0.0
+    predicted = _zero_rows(predicted, gap_pred)
+    # keep the gross fit's scale; refit rotation/translation on scaled points (then only the
+    # unscaled fit's rank test is used)
+    scaled = None if stab.scales is None else raw * stab.scales[:, None, None]
+    R, t, rank_ok = _fit_rigid(raw, predicted, w, overwrite=True)
+    if scaled is not None:
+        R, t, _ = _fit_rigid(scaled, predicted, w, overwrite=True)
     flagged = stab.flagged | ~rank_ok
     R = np.where(flagged[:, None, None], stab.rotations, R)
     t = np.where(flagged[:, None], stab.translations, t)
-    if stab.scales is not None:  # keep the gross fit's scale; refit rotation/translation on scaled points
-        raw = raw * stab.scales[:, None, None]
-        R, t, rank_ok = fit_rigid_batch(raw, predicted, w)
-        R = np.where(flagged[:, None, None], stab.rotations, R)
-        t = np.where(flagged[:, None], stab.translations, t)
-    moved = _apply(R, t, stab.scales, markers.positions)
-    moved[flagged] = np.nan
-    fitted = _columns(moved, markers.index(stab.stable_names))
-    err = np.linalg.norm(fitted - stab.reference[None], axis=2)
+    # The stable markers only (the same numbers as those rows of the full product, bit for bit).
+    fitted = _apply(R, t, stab.scales, _columns(markers.positions, markers.index(stab.stable_names)))
+    fitted[flagged] = np.nan
+    fitted -= stab.reference
+    err = _norm3(fitted)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(err**2, axis=1))
     reasons = dict(stab.flag_reasons)
     for f in np.flatnonzero(flagged & ~stab.flagged):
         reasons[_frame_label(markers.frames[f])] = "fine refit: markers not determined"
     return StabiliseResult(
-        markers=markers._with_mapped_positions(moved),
+        markers=_MovedMarkers(markers, R, t, stab.scales, flagged),
         stable_names=stab.stable_names,
         reference=stab.reference,
         rotations=R,
@@ -363,7 +418,8 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     moved[stab.flagged] = np.nan
     fitted = _columns(moved, markers.index(stab.stable_names))
     with np.errstate(invalid="ignore"):
-        rms = np.sqrt(np.nanmean(np.linalg.norm(fitted - stab.reference[None], axis=2) ** 2, axis=1))
+        fitted -= stab.reference
+        rms = np.sqrt(np.nanmean(_norm3(fitted) ** 2, axis=1))
     return StabiliseResult(
         markers=markers._with_mapped_positions(moved),
         stable_names=stab.stable_names,

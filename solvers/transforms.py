@@ -53,13 +53,21 @@ def fit_rigid_batch(source, target, weights):
     gap_src, gap_tgt = _gaps(source), _gaps(target)
     w = np.where(gap_src | gap_tgt, 0.0, w)
     src = _zero_rows(source, gap_src)
-    tgt = _zero_rows(target, gap_tgt)
+    return _fit_rigid(src, _zero_rows(target, gap_tgt), w, overwrite=src is not source)
+
+
+def _fit_rigid(src, tgt, w, *, overwrite=False):
+    """:func:`fit_rigid_batch` for finite ``src``/``tgt`` and weights already 0 at their gaps.
+
+    ``overwrite``: ``src`` is a scratch copy the caller gives up; centring it in place saves an
+    (F, N, 3) temporary (on long takes the allocation and its page faults cost as much as the pass).
+    """
     wsum = w.sum(axis=1)
     safe = np.where(wsum > 0, wsum, 1.0)
     # Batched matmuls, not einsum: three-operand einsum is ~10x slower on long takes.
     cs = (w[:, None, :] @ src)[:, 0] / safe[:, None]
     ct = (w @ tgt if tgt.ndim == 2 else (w[:, None, :] @ tgt)[:, 0]) / safe[:, None]
-    s0 = src - cs[:, None]
+    s0 = np.subtract(src, cs[:, None], out=src if overwrite else None)
     ws0 = s0 * w[:, :, None]
     # sum w s0 (t - ct)' = sum w s0 t' since sum w s0 = 0: the target needs no centring
     H = ws0.transpose(0, 2, 1) @ tgt
