@@ -93,7 +93,7 @@ def solve_bounded(
     smoothing=(0.0, 0.0),
     relative=False,
     dims=None,
-    max_iter=40,
+    max_iter=None,
     chunk=4096,
     start=None,
     exact=True,
@@ -143,9 +143,11 @@ def solve_bounded(
         absolute, in the units of A'A.
     dims : int, optional
         Coordinates per marker (2 or 3), needed only for per-marker ``mask`` shapes.
-    max_iter : int
-        Active-set iterations before the exact fallback (per-frame) or before giving up
-        (temporal: ``converged=False`` and a warning).
+    max_iter : int, optional
+        Active-set iterations before the exact fallback (per-frame; default 40) or before giving
+        up (temporal: ``converged=False`` and a warning; default 200: its late iterations only
+        re-solve windows around the changes, and a degenerate problem, such as L1 at 0 on shapes
+        the markers barely see, can need 100-200 of them).
     chunk : int
         Frames per batch in per-frame mode (memory ~ chunk * K * K floats).
     start : ndarray (F, K), optional

@@ -91,8 +91,9 @@ def hmul_by_pattern(Hp, inv, x):
 
 
 def classify(v, step, lo, hi, lam):
-    """State of each variable from the proximal point v (see module docstring)."""
-    tau = step[:, None] * lam
+    """State of each variable from the proximal point v (see module docstring); ``step`` per frame
+    (F,) or per variable (F, K)."""
+    tau = (step if step.ndim == 2 else step[:, None]) * lam
     t = np.sign(v) * np.maximum(np.abs(v) - tau, 0.0)
     state = np.full(v.shape, _FREE, dtype=np.int8)
     state[np.abs(v) <= tau] = _ZERO

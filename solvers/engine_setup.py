@@ -132,7 +132,7 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
         raise FacecapError("`lower` and `upper` must not be NaN")
     if np.any(lo > hi):
         raise FacecapError("`lower` must not exceed `upper`")
-    if int(max_iter) < 1 or int(chunk) < 1:
+    if (max_iter is not None and int(max_iter) < 1) or int(chunk) < 1:
         raise FacecapError("`max_iter` and `chunk` must be >= 1")
 
     scale = float(np.mean(np.einsum("pk,pk->k", A, A))) or 1.0
@@ -190,6 +190,10 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
     return Problem(A, Dz, C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu, binary=mask is None)
 
 
+#: Default active-set iteration budgets (``solve_bounded(max_iter=None)``).
+FRAME_MAX_ITER, TEMPORAL_MAX_ITER = 40, 200
+
+
 def run(prob, *, max_iter, chunk, start=None, exact=True):
     from . import engine
     from .engine_frames import solve_frames
@@ -198,6 +202,8 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
     F, P = Dz.shape
     K = A.shape[1]
     temporal = prob.mu[0] > 0 or prob.mu[1] > 0
+    if max_iter is None:
+        max_iter = TEMPORAL_MAX_ITER if temporal else FRAME_MAX_ITER
     locked = np.isfinite(prob.lock)
     any_lock = bool(locked.any())
     # held values: lock value, else clip(0, lo, hi)

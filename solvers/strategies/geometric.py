@@ -41,7 +41,7 @@ def symmetric_pairs(shape_names):
 
 
 def solve_geometric(basis, deltas, *, options=GeometricOptions(), confidence=None, lower=None, upper=None,
-                    locks=None, regions=None, start=None, max_iter=40, exact=True):
+                    locks=None, regions=None, start=None, max_iter=None, exact=True):
     """Solve weights for character-space marker deltas.
 
     Parameters
