@@ -17,6 +17,14 @@ a few frames). The gradient is updated from each window's change and only frames
 are reclassified, so late iterations cost their windows, not the take. It is exact: the result
 is the optimum once the active set has settled.
 
+Plain active-set steps are not globally convergent here (Q is not an M-matrix), so three rules keep
+them from cycling: each variable's proximal step is its own curvature 1 / Q_kk (no jumps from one
+bound straight to the other); a free weight whose sign changes under L1 stops at 0 first; and when
+the count of wrong variables stops falling, only the first wrong variable of each group of frames
+changes until it falls again (after Judice & Pires' block-pivoting safeguard). Measured on 1,500-
+frame slices of the sample take with L1 1-10^4 times the default, smoothing 0.1-10 times and
+kinks at 0: 15 of 24 configurations ran out of 40 iterations before, 1 runs out of 200 now.
+
 Long takes are first solved as two overlapping halves at the same time (``engine_split``: the
 second in a forked child); the whole-take iteration then starts from the joined halves and only
 has to settle the seam (measured: 2 iterations, 0.3 s on 36,000 frames).
