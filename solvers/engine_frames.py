@@ -134,7 +134,7 @@ def solve_free(Hp, inv, free, rhs):
             continue
         idx = idx_all[sel, :s]
         rows = inv_k[sel][:, None] + idx  # row of H_p, flattened over patterns
-        M = np.take(flat_H, (rows * K)[:, :, None] + idx[:, None, :], mode="clip")  # valid: no checks
+        M = np.take(flat_H, (rows * K)[:, :, None] + idx[:, None, :])
         b = np.take_along_axis(rhs[sel], idx, axis=1)
         sol = np.linalg.solve(M, b[:, :, None])[:, :, 0]
         x[sel[:, None], idx] = sol
