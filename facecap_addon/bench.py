@@ -5,7 +5,6 @@ timed on a subset are scaled per key or per frame.
 """
 
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -14,16 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..solvers.bench import median_time
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _median(fn, repeat):
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def _shape_key_mesh(n_shapes):
@@ -50,7 +42,7 @@ def bench_keying(frames=36000, shapes=52, baseline_frames=300, repeat=3):
     curves = [(f'key_blocks["{n}"].value', 0) for n in names]
     values = np.random.default_rng(0).uniform(0, 1, size=(frames, shapes))
     f = np.arange(1, frames + 1, dtype=np.float64)
-    t = _median(lambda: anim.new_action_with_curves(key, name="bench", curves=curves, frames=f, values=values), repeat)
+    t = median_time(lambda: anim.new_action_with_curves(key, name="bench", curves=curves, frames=f, values=values), repeat)[0]
 
     def insert_loop():
         key.animation_data_clear()
@@ -60,7 +52,7 @@ def bench_keying(frames=36000, shapes=52, baseline_frames=300, repeat=3):
                 block.value = values[i, k]
                 block.keyframe_insert("value", frame=i + 1)  # the naive baseline being measured
 
-    t_base = _median(insert_loop, 1) * frames / baseline_frames
+    t_base = median_time(insert_loop, 1)[0] * frames / baseline_frames
     return dict(
         name=f"keying {shapes} F-curves x {frames} frames", seconds=t, baseline_seconds=t_base,
         ratio=t_base / t, goal=">= 50x and < 1 s",

@@ -60,7 +60,7 @@ def make_take(n_frames=36000, n_shapes=52, n_markers=80, dims=3, *, gap_fraction
     return A, D.reshape(n_frames, -1), W
 
 
-def _median_time(fn, repeat, cpu=None, first=None):
+def median_time(fn, repeat, cpu=None, first=None):
     """Median wall time of ``repeat`` runs (and, into the list ``cpu``, their median process CPU time:
     on a shared machine it shows how much of a slow run was waiting for a core; into the list
     ``first``, the first run's time: a fresh process pays for its first large allocations)."""
@@ -117,12 +117,12 @@ def run_benchmarks(cases=None, quick=False):
     results = []
 
     n_base = 100 if quick else 300
-    t_base, _ = _median_time(lambda: bvls_loop(A, D[:n_base], lam), 1)
+    t_base, _ = median_time(lambda: bvls_loop(A, D[:n_base], lam), 1)
     baseline = t_base * F / n_base
 
     if "per-frame" in cases:
         cpu, first = [], []
-        t, res = _median_time(lambda: solve_bounded(A, D, regularisation=lam), repeat + 2, cpu, first)
+        t, res = median_time(lambda: solve_bounded(A, D, regularisation=lam), repeat + 2, cpu, first)
         results.append(dict(
             name=f"per-frame bounded solve {F}x{A.shape[1]} shapes x{A.shape[0] // 3} markers (3D)",
             frames=F, seconds=t, cpu_seconds=cpu[0], baseline_seconds=baseline, ratio=baseline / t,
@@ -132,7 +132,7 @@ def run_benchmarks(cases=None, quick=False):
     mu = DEFAULT_SMOOTHING
     if "temporal" in cases:
         cpu = []
-        t, res = _median_time(
+        t, res = median_time(
             lambda: solve_bounded(A, D, regularisation=1e-3, sparsity=3e-3, smoothing=mu, relative=True),
             repeat, cpu,
         )
@@ -145,7 +145,7 @@ def run_benchmarks(cases=None, quick=False):
         Ft = 720 if quick else 3600
         At, Dt, _ = make_take(Ft, n_markers=68, seed=2)
         cpu = []
-        t, res = _median_time(
+        t, res = median_time(
             lambda: solve_bounded(At, Dt, regularisation=1e-3, sparsity=3e-3, smoothing=mu, relative=True),
             repeat, cpu,
         )

@@ -7,7 +7,6 @@ of the (F, M, 3) float64 array the reader returns. Goal from issue 5: under 2 s 
 3x the array. A last line times writing and reading a weights CSV of the same frames x 52 shapes.
 """
 
-import statistics
 import sys
 import tempfile
 import time
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .bench import median_time
 from .io_c3d import read_c3d, write_c3d
 from .io_csv import read_weights_csv, read_wide_csv, write_markers_csv, write_weights_csv
 from .markers import MarkerSet
@@ -49,15 +49,6 @@ def measure(read, path, **options):
     return seconds, peak, result
 
 
-def _median_seconds(call, repeats):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def run(frames=36000, markers=100, out=print, repeats=5):
     """Print one line per format; returns {format: (seconds, peak_bytes, array_bytes)}.
 
@@ -75,15 +66,15 @@ def run(frames=36000, markers=100, out=print, repeats=5):
             _, peak, back = measure(read, path, units="mm", fps=120)
             if not np.allclose(back.positions, take.positions, equal_nan=True, atol=1e-4):
                 raise AssertionError(f"{name}: read back differs from what was written")
-            seconds = _median_seconds(lambda: read(path, units="mm", fps=120), repeats)
+            seconds = median_time(lambda: read(path, units="mm", fps=120), repeats)[0]
             results[name] = (seconds, peak, array_bytes)
             out(f"{name}: {frames} frames x {markers} markers ({size / 1e6:.1f} MB file): {seconds:.2f} s, "
                 f"peak {peak / 1e6:.1f} MB = {peak / array_bytes:.2f}x the {array_bytes / 1e6:.1f} MB array")
         weights = synthetic_weights(frames)
         names = [f"shape{k:02d}" for k in range(weights.shape[1])]
         path = Path(tmp) / "weights.csv"
-        write_s = _median_seconds(lambda: write_weights_csv(path, take.frames, names, weights), repeats)
-        read_s = _median_seconds(lambda: read_weights_csv(path), repeats)
+        write_s = median_time(lambda: write_weights_csv(path, take.frames, names, weights), repeats)[0]
+        read_s = median_time(lambda: read_weights_csv(path), repeats)[0]
         back = read_weights_csv(path)[2]
         if not np.allclose(back, weights, equal_nan=True, rtol=1e-8, atol=0):
             raise AssertionError("weights: read back differs from what was written")
