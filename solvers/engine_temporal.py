@@ -278,6 +278,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
             # only frames whose w or grad moved can change state (early on: all of them, no gathers)
             near = touched | _near(redo, F) | pending
             idx = slice(None) if near.mean() > 0.9 else np.flatnonzero(near)
+            frames = np.arange(F)[idx]  # the frames classified
             st_t, sg_t = classify(w[idx] - step[idx] * grad[idx], step[idx], lo[idx], hi[idx], lam)
             if has_l1:
                 # A free weight whose sign changes stops at the kink 0 first: on shapes the markers
@@ -298,12 +299,12 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
                 tries -= 1
             else:  # no progress: one variable at a time (Murty's least-index rule), see _single_changes
                 wrong = changed.any(axis=1)
-                changed, st_t = _single_changes(changed, st[idx], st_t, np.arange(F)[idx], pad)
+                changed, st_t = _single_changes(changed, st[idx], st_t, frames, pad)
                 st_t = np.where(changed, st_t, st[idx])
                 sg_t = np.where(changed, sg_t, sg[idx])
-                pending[np.arange(F)[idx][wrong & ~changed.any(axis=1)]] = True  # classified again next time
+                pending[frames[wrong & ~changed.any(axis=1)]] = True  # classified again next time
             rows = changed.any(axis=1)
             redo = np.zeros(F, dtype=bool)
-            redo[np.arange(F)[idx][rows]] = True
+            redo[frames[rows]] = True
             st[idx], sg[idx] = st_t, sg_t
     return np.clip(w, lo, hi), max_iter, False  # active-set iterates can leave the box
