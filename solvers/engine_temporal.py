@@ -17,6 +17,13 @@ a few frames). The gradient is updated from each window's change and only frames
 are reclassified, so late iterations cost their windows, not the take. It is exact: the result
 is the optimum once the active set has settled.
 
+Runs of frames held at a bound that are too long shrink by only one frame per plain iteration
+(second differences act like a beam on a support), so from the second classification on, the new
+states go through a predictor that solves each changing shape's trajectory on its own
+(``engine_trajectory``, cheap: one band of width 2); the exact iteration then checks and corrects
+them. Measured on the 36,000-frame sample take: 15 iterations per half before, 9 now (8.2/7.6 s
+against 5.5 s single-threaded on 18,000 frames).
+
 Plain active-set steps are not globally convergent here (Q is not an M-matrix), so three rules keep
 them from cycling: each variable's proximal step is its own curvature 1 / Q_kk (no jumps from one
 bound straight to the other); a free weight whose sign changes under L1 stops at 0 first; and when
@@ -35,6 +42,7 @@ import numpy as np
 from .engine_banded import context, frame_band, solve_window
 from .engine_frames import _FREE, _ZERO, classify, fixed_values, hmul_by_pattern, pattern_hessians, patterns, solve_frames
 from .engine_threads import single_blas_thread
+from .engine_trajectory import predict_states
 
 
 def temporal_operator(F, mu1, mu2):
@@ -232,6 +240,13 @@ def _single_changes(changed, st_old, st_new, frames, pad):
     return one, np.where(jump, _FREE, st_new).astype(st_new.dtype)
 
 
+#: First iteration whose classification goes through the trajectory predictor. The first one reads
+#: the start (per-frame weights, not smoothed: most of the take changes); predicting from it
+#: measured no fewer iterations at twice the predictor's cost, and two configurations of the
+#: 24-case sweep slower. The predictor stops for good once an iteration fails to reduce the count
+#: of wrong variables (the safeguard then takes over).
+PREDICT_FROM = 2
+
 #: Iterations allowed without fewer wrong variables than the best so far before the iteration
 #: changes one variable at a time per group of frames (after Judice & Pires' safeguard). Plain
 #: primal-dual active-set steps can cycle when Q is not an M-matrix, and second differences make
@@ -259,6 +274,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
         st, sg = classify(w - step * grad, step, lo, hi, lam)
         redo = np.ones(F, dtype=bool)  # frames whose state changed: their fixed variables move to the bound
         best, tries = np.inf, SAFE_TRIES  # fewest wrong variables so far; full changes left without progress
+        predict = True  # the trajectory predictor, until an iteration fails to reduce the wrong count
         pending = np.zeros(F, dtype=bool)  # frames with wrong variables the safeguard left for later
         for it in range(1, max_iter + 1):
             free = st == _FREE
@@ -293,6 +309,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
                 # counted as before: the final check is an iteration; free weights can sit a rounding
                 # error outside their bounds (a weight at 0 under L1, a proximal point just inside)
                 return np.clip(w, lo, hi), it + 1, True
+            predict = predict and n_wrong < best
             if n_wrong < best:
                 best, tries = n_wrong, SAFE_TRIES
             elif tries:
@@ -303,6 +320,11 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
                 st_t = np.where(changed, st_t, st[idx])
                 sg_t = np.where(changed, sg_t, sg[idx])
                 pending[frames[wrong & ~changed.any(axis=1)]] = True  # classified again next time
+            if predict and it >= PREDICT_FROM:
+                # runs of frames at a bound move as far as their own trajectory says (engine_trajectory)
+                st_t, sg_t = predict_states(w[idx], grad[idx], st_t, sg_t, changed, 1.0 / step[idx], lo[idx],
+                                            hi[idx], lam, T, frames)
+                changed = st_t != st[idx]
             rows = changed.any(axis=1)
             redo = np.zeros(F, dtype=bool)
             redo[frames[rows]] = True

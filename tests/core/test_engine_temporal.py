@@ -208,7 +208,9 @@ def test_an_active_set_cycle_is_broken(monkeypatch):
     assert ok and it <= 30
     assert kkt_violation(*args, w) < 1e-9
 
-    monkeypatch.setattr(engine_temporal, "SAFE_TRIES", 10**6)  # without the safeguard: it cycles
+    # plain steps (no safeguard, no trajectory predictor): it cycles
+    monkeypatch.setattr(engine_temporal, "SAFE_TRIES", 10**6)
+    monkeypatch.setattr(engine_temporal, "PREDICT_FROM", 10**6)
     _, _, ok_plain = engine_temporal.solve_temporal(*args, split=False)
     assert not ok_plain
 
