@@ -1,4 +1,5 @@
-"""Two halves of a long take solved at the same time: one in a forked child process, one here.
+"""Two halves of a long take solved at the same time: one in a forked child process, one here
+(and, with ``run_beside``, any two independent jobs: the CLI reads the take while Blender starts).
 
 The temporal kernel's banded LAPACK calls go through scipy's wrappers, which hold the GIL, so
 threads cannot overlap them; a forked child can, and it inherits the inputs without a copy (only
@@ -23,17 +24,28 @@ def fork_available():
 
 def run_pair(fn, first, second):
     """``(fn(*first), fn(*second))``, the second computed in a forked child when possible."""
+    return run_beside(lambda: fn(*first), lambda: fn(*second))
+
+
+def run_beside(here, there, *, let_finish=False):
+    """``(here(), there())`` with ``there`` run in a forked child meanwhile, when possible.
+
+    ``there()``'s result comes back pickled. If the child fails, ``there()`` runs here after
+    ``here()`` (so its errors are raised here, with their messages). If ``here()`` raises, the child
+    is killed, or, with ``let_finish``, waited for (a child writing a file then completes its
+    atomic write instead of leaving a temporary file behind).
+    """
     import multiprocessing as mp
 
     if not fork_available():
-        return fn(*first), fn(*second)
+        return here(), there()
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
 
     def child():
         try:
-            out = ("ok", fn(*second))
-        except BaseException as e:  # the parent then solves this half itself
+            out = ("ok", there())
+        except BaseException as e:  # the parent then runs it itself
             out = ("error", repr(e))
         send.send(out)
 
@@ -43,17 +55,23 @@ def run_pair(fn, first, second):
     except OSError:
         recv.close()
         send.close()
-        return fn(*first), fn(*second)
+        return here(), there()
     send.close()  # so that recv() ends with EOFError if the child dies without an answer
     done = False
     try:
-        a = fn(*first)
+        a = here()
         try:
             status, b = recv.recv()
         except EOFError:
             status, b = "error", None
         done = True
     finally:
+        if not done and let_finish:
+            try:
+                recv.recv()
+            except EOFError:
+                pass
+            done = True
         recv.close()
         if done:
             proc.join(timeout=10.0)  # it exits right after sending
@@ -61,5 +79,5 @@ def run_pair(fn, first, second):
             proc.kill()
         proc.join()
     if status != "ok":
-        b = fn(*second)
+        b = there()
     return a, b
