@@ -180,11 +180,12 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=200, chunk=4096, pad
 
     Returns (W (F, K), iterations, converged).
     """
+    from .engine_frames import reusable
     from .engine_split import fork_available, run_pair
 
     F, K = G.shape
     pats, inv = patterns(C)
-    Hp = pattern_hessians(A, pats, R)
+    Hp = pattern_hessians(A, pats, R, products=reusable(A, R, C))  # kept from earlier solves when asked
 
     def run(first):
         def guess(a, b, workers):

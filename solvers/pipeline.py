@@ -11,12 +11,14 @@ strategy aligns onto what it was fitted on) and is fitted from ``StrategyInputs`
 
 import time
 import warnings
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .basis import Basis
 from .engine import DEFAULT_SMOOTHING
+from .engine_frames import PatternSetup, reuse_pattern_setup
 from .errors import FacecapError
 from .diagnostics import basis_warnings
 from .shape_options import resolve_bounds, resolve_locks, resolve_regions
@@ -263,6 +265,8 @@ def _retarget_geometric(markers, basis, settings):
     trust = np.array([1.0 if n in stable_set else settings.fine_weight for n in used])
     t_solve = t_align = 0.0
     previous = None  # the last solve's weights: the next one starts from them
+    # The solves differ only in their data (same A, R, gaps): each pattern's setup is done once.
+    setup = PatternSetup() if settings.fine_iterations else None
     for iteration in range(settings.fine_iterations + 1):
         t1 = time.perf_counter()
         neutral_all, offsets, norm_info = normalise_stabilised(stab, settings, notes if iteration == 0 else [])
@@ -272,7 +276,7 @@ def _retarget_geometric(markers, basis, settings):
         # np.take keeps the frame-major layout (positions[:, idx] would be marker-major, 2x slower later)
         deltas = align.apply_vectors(np.take(positions, used_idx, axis=1) - neutral[None])
         t2 = time.perf_counter()
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), (reuse_pattern_setup(setup) if setup is not None else nullcontext()):
             warnings.simplefilter("ignore", RuntimeWarning)
             # The refits only need a prediction of the face: a few per-frame active-set iterations
             # are enough there (measured on the 36,000-frame sample take: the same final accuracy as
@@ -292,6 +296,7 @@ def _retarget_geometric(markers, basis, settings):
         t_align += t2 - t1
         t_solve += t3 - t2
         if iteration == settings.fine_iterations:
+            setup = None  # hundreds of MB on long takes: not kept for the residuals
             break
         # Hierarchical stabilisation: refit the head on all markers against the solve's prediction.
         char_pred = _predict(solved.weights, sub.deltas)
