@@ -73,7 +73,7 @@ def run_retarget(config, *, quiet=False, solve=None):
 
     def read():
         t = time.perf_counter()
-        markers, imported, notes, cleaning = None, None, [], []
+        markers, source, notes, cleaning = None, None, [], []
         if config.markers_path is not None:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
@@ -85,7 +85,8 @@ def run_retarget(config, *, quiet=False, solve=None):
             # C-ordered, and sums over another layout round differently in the last bits)
             markers = dataclasses.replace(cleaned.markers, positions=np.ascontiguousarray(cleaned.markers.positions))
             cleaning = cleaned.report.summary().splitlines()
-        return markers, imported, notes, cleaning, load_strategy_inputs(config), time.perf_counter() - t
+            source = {"format": imported.format, "units": imported.markers.units}  # not the raw take (a second copy)
+        return markers, source, notes, cleaning, load_strategy_inputs(config), time.perf_counter() - t
 
     def open_blend():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
@@ -103,7 +104,7 @@ def run_retarget(config, *, quiet=False, solve=None):
     else:
         taken = read()
         obj, t_open = open_blend()
-    markers, imported, notes, cleaning, inputs, timings["read"] = taken
+    markers, read_source, notes, cleaning, inputs, timings["read"] = taken
 
     import bpy
 
@@ -143,7 +144,7 @@ def run_retarget(config, *, quiet=False, solve=None):
         outputs["actor_basis"] = str(config.output_actor_basis)
     if markers is not None:
         source = {"markers_file": str(config.markers_path),
-                  "source": {"format": imported.format, "units": imported.markers.units, "fps": markers.fps,
+                  "source": {**read_source, "fps": markers.fps,
                              "segments": {k: v for k, v in markers.segments.items()}}}
     else:
         track = inputs.weights
