@@ -47,3 +47,25 @@ def test_an_error_in_the_parent_half_is_raised():
 
     with pytest.raises(ValueError, match="first half"):
         engine_split.run_pair(boom, (0,), (1,))
+
+
+@pytest.mark.skipif(not engine_split.fork_available(), reason="no fork on this platform")
+@pytest.mark.parametrize("let_finish", [True, False])
+def test_a_failing_parent_job_kills_or_waits_for_the_child(tmp_path, let_finish):
+    """run_beside: when the job here raises, the child is killed, or with ``let_finish`` allowed to
+    complete (the CLI's weights CSV is then written whole, no temporary file left)."""
+    import time
+
+    out = tmp_path / "written.txt"
+
+    def slow_write():
+        time.sleep(1.0)
+        out.write_text("done")
+
+    def fails():
+        raise ValueError("here")
+
+    with pytest.raises(ValueError, match="here"):
+        engine_split.run_beside(fails, slow_write, let_finish=let_finish)
+    time.sleep(0.2 if let_finish else 1.5)  # a killed child would have written by now
+    assert out.exists() == let_finish
