@@ -42,7 +42,7 @@ def test_long_runs_at_a_bound_settle_in_a_few_iterations(seed, monkeypatch):
 
     monkeypatch.setattr(engine_temporal, "PREDICT_FROM", 10**6)
     w_plain, it_plain, ok_plain = engine_temporal.solve_temporal(*args, split=False, start=start)
-    assert ok_plain and it_plain >= 12
+    assert ok_plain and it_plain >= it + 5  # measured: 12-22 against 5-7
     np.testing.assert_allclose(w, w_plain, atol=1e-6)
 
 
