@@ -42,7 +42,7 @@ import numpy as np
 from .engine_banded import context, frame_band, solve_window
 from .engine_frames import _FREE, _ZERO, classify, fixed_values, hmul_by_pattern, pattern_hessians, patterns, solve_frames
 from .engine_threads import single_blas_thread
-from .engine_trajectory import predict_states
+from .engine_trajectory import dilate, pentadiagonal_mul, predict_states
 
 
 def temporal_operator(F, mu1, mu2):
@@ -64,15 +64,9 @@ def temporal_operator(F, mu1, mu2):
 
 
 def _tmul(T, X):
+    """(mu1 D1'D1 + mu2 D2'D2) X over the frames (rows) of X."""
     diag, off1, off2 = T
-    Y = diag[:, None] * X
-    if off1.size:
-        Y[:-1] += off1[:, None] * X[1:]
-        Y[1:] += off1[:, None] * X[:-1]
-    if off2.size:
-        Y[:-2] += off2[:, None] * X[2:]
-        Y[2:] += off2[:, None] * X[:-2]
-    return Y
+    return pentadiagonal_mul(diag[:, None], off1[:, None], off2[:, None], X)
 
 
 #: Per-frame active-set iterations for the starting guess (a guess: more iterations measured no
@@ -120,15 +114,6 @@ def _qdelta(qmul_rows, T, delta, rows):
     return y
 
 
-def _near(rows, F):
-    """Frames within 2 of a frame in ``rows``: where Q couples them."""
-    out = rows.copy()
-    for s in (1, 2):
-        out[s:] |= rows[:-s]
-        out[:-s] |= rows[s:]
-    return out
-
-
 def _settle(ctx, qmul_rows, T, G, w, grad, free, lin, tol, pad, max_rounds=8):
     """Make w exact on the free set: solve ``Q_FF w_F = G_F - lin_F - Q_FB w_B`` by banded windows
     around the frames whose residual exceeds ``tol`` (all of them at first; afterwards only the
@@ -161,7 +146,7 @@ def _settle(ctx, qmul_rows, T, G, w, grad, free, lin, tol, pad, max_rounds=8):
                 moved[a:b] = True
         w = w + delta
         grad = grad + _qdelta(qmul_rows, T, delta, moved)
-        touched |= _near(moved, F)
+        touched |= dilate(moved, 2)  # where Q couples them
     return w, grad, touched
 
 
@@ -267,7 +252,8 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
 
     # per-variable proximal step 1 / Q_kk: a variable leaving a bound lands where its own curvature
     # puts it (a step from the mean curvature sent strong shapes from one bound straight to the other)
-    step = 1.0 / np.maximum(np.einsum("nkk->nk", Hp)[inv] + T[0][:, None], 1e-300)
+    curvature = np.maximum(np.einsum("nkk->nk", Hp)[inv] + T[0][:, None], 1e-300)  # Q_kk
+    step = 1.0 / curvature
     scale = float(np.abs(Hp).max() + np.abs(T[0]).max(initial=0.0))
     has_l1 = bool(np.any(lam > 0))
     with single_blas_thread():
@@ -293,7 +279,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
             tol = 1e-12 * scale * max(1.0, float(np.abs(w).max(initial=0.0)))
             w, grad, touched = _settle(context(Hp, inv, T, free), qmul_rows, T, G, w, grad, free, lin, tol, pad)
             # only frames whose w or grad moved can change state (early on: all of them, no gathers)
-            near = touched | _near(redo, F) | pending
+            near = touched | dilate(redo, 2) | pending
             idx = slice(None) if near.mean() > 0.9 else np.flatnonzero(near)
             frames = np.arange(F)[idx]  # the frames classified
             st_t, sg_t = classify(w[idx] - step[idx] * grad[idx], step[idx], lo[idx], hi[idx], lam)
@@ -323,7 +309,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
                 pending[frames[wrong & ~changed.any(axis=1)]] = True  # classified again next time
             if predict and it >= PREDICT_FROM:
                 # runs of frames at a bound move as far as their own trajectory says (engine_trajectory)
-                st_t, sg_t = predict_states(w[idx], grad[idx], st_t, sg_t, changed, 1.0 / step[idx], lo[idx],
+                st_t, sg_t = predict_states(w[idx], grad[idx], st_t, sg_t, changed, curvature[idx], lo[idx],
                                             hi[idx], lam, T, frames)
                 changed = st_t != st[idx]
             rows = changed.any(axis=1)

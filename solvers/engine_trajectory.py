@@ -27,7 +27,8 @@ PAD = 8
 ROUNDS = 40
 
 
-def _dilate(mask, pad):
+def dilate(mask, pad):
+    """``mask`` (frames first) grown by ``pad`` frames both ways."""
     out = mask.copy()
     for s in range(1, pad + 1):
         out[s:] |= mask[:-s]
@@ -35,7 +36,9 @@ def _dilate(mask, pad):
     return out
 
 
-def _pentadiagonal_mul(diag, c1, c2, x):
+def pentadiagonal_mul(diag, c1, c2, x):
+    """y = M x for the symmetric M with diagonal ``diag`` and off-diagonals ``c1`` (lag 1), ``c2``
+    (lag 2), along the first axis of x (coefficients broadcast, e.g. (F, 1) against (F, K))."""
     y = diag * x
     y[:-1] += c1 * x[1:]
     y[1:] += c1 * x[:-1]
@@ -67,7 +70,7 @@ def _round(diag, couplings, w0, g0, lo0, hi0, lam0, st, sg):
     c1, c2 = couplings
     free = st == _FREE
     d = np.where(free, 0.0, fixed_values(st, lo0, hi0) - w0)
-    rhs = g0 + _pentadiagonal_mul(diag, c1, c2, d) + lam0 * np.where(free, sg, 0.0)
+    rhs = g0 + pentadiagonal_mul(diag, c1, c2, d) + lam0 * np.where(free, sg, 0.0)
     fi = np.flatnonzero(free)
     if fi.size:
         # the free entries' system, compressed: still pentadiagonal (couplings reach 2 frames)
@@ -81,7 +84,7 @@ def _round(diag, couplings, w0, g0, lo0, hi0, lam0, st, sg):
             return None
         d[fi] = x
     step = 1.0 / diag
-    v = (w0 + d) - step * (g0 + _pentadiagonal_mul(diag, c1, c2, d))
+    v = (w0 + d) - step * (g0 + pentadiagonal_mul(diag, c1, c2, d))
     st_new, sg_new = classify(v[None], step[None], lo0[None], hi0[None], lam0[None])
     st_new, sg_new = st_new[0], sg_new[0]
     flip = (st == _FREE) & (st_new == _FREE) & (sg_new != sg) & (lam0 > 0)  # as the kernel: stop at 0 first
@@ -98,7 +101,7 @@ def predict_states(w, grad, state, sign, changed, curvature, lo, hi, lam, T, fra
     not positive definite (it is a principal submatrix of Q, so only rounding can do that).
     """
     n_rows, K = w.shape
-    mask = _dilate(changed, pad)
+    mask = dilate(changed, pad)
     ks, rs = np.nonzero(mask.T)  # shape-major: a shape's window frames are consecutive
     if ks.size == 0:
         return state, sign
