@@ -16,6 +16,11 @@ Keys are written in bulk: ``keyframe_points.add(n)`` + ``foreach_set("co", ...)`
 and one ``FCurve.update()`` per curve; there is no Python loop over keyframes. Keys are read back
 with ``foreach_get("co", ...)``.
 
+Read-only curves (a solve's diagnostics) can be written as *samples* instead (``sampled``): one
+``FPoint`` (8 bytes) per whole frame, where a keyframe takes 72. The Graph Editor draws them, the
+animation system evaluates them, and *Channel > Convert to Keyframes* makes them editable. Measured
+on a 36,000-frame take: 70 curves keyed 0.5 s, saved 0.8 s; sampled 0.09 s, saved 0.24 s.
+
 Policy on actions: writing always makes a *new* action and never modifies or removes an existing
 one. Both the new action and the one it replaces get a fake user (see
 :func:`new_action_with_curves`), so every take survives a save and reload until the user clears
@@ -79,7 +84,7 @@ def ensure_animation_data(id_data):
 
 
 def new_action_with_curves(
-    id_data, *, name, curves, frames, values, group=None, interpolation="LINEAR", assign=True
+    id_data, *, name, curves, frames, values, group=None, interpolation="LINEAR", assign=True, sampled=False
 ):
     """Create a new action keyed from arrays and assign it (and its slot) to ``id_data``.
 
@@ -107,6 +112,10 @@ def new_action_with_curves(
     assign : bool, optional
         Assign the new action to ``id_data`` (default). False leaves ``id_data``'s animation data
         alone (the caller places the action, e.g. in an NLA strip; see ``layers``).
+    sampled : bool or sequence of bool, optional
+        Write these curves (all, or one flag per curve) as samples, one per whole frame from the
+        curve's first to its last value, NaN where it has none, instead of keys: for curves nobody
+        edits (see the module docstring). Takes whose frames are not whole numbers get keys.
 
     Returns
     -------
@@ -152,12 +161,19 @@ def new_action_with_curves(
     groups = [group] * len(curves) if group is None or isinstance(group, str) else list(group)
     if len(groups) != len(curves):
         raise FacecapError(f"`group` must be one name or one per curve ({len(curves)}); got {len(groups)}")
+    samples = [sampled] * len(curves) if isinstance(sampled, bool) else [bool(s) for s in sampled]
+    if len(samples) != len(curves):
+        raise FacecapError(f"`sampled` must be one flag or one per curve ({len(curves)}); got {len(samples)}")
+    whole = bool(np.all(frames == np.round(frames)))
     for column, (data_path, index) in enumerate(curves):
         keep = ~np.isnan(values[:, column])
         count = int(np.count_nonzero(keep))
         if count == 0:
             continue
         fcurve = _new_fcurve(action, channelbag, data_path, index, groups[column])
+        if samples[column] and whole:
+            _write_samples(fcurve, frames[keep], values[keep, column])
+            continue
         co = np.empty((count, 2), dtype=np.float32)
         co[:, 0] = frames[keep]
         co[:, 1] = values[keep, column]
@@ -222,7 +238,8 @@ def remove_fcurve(action, fcurve):
 
 
 def read_curves(id_data, curves, action=None):
-    """Read back the keys of ``curves`` on ``id_data``'s assigned action (or ``action``), in bulk.
+    """Read back the keys (or samples) of ``curves`` on ``id_data``'s assigned action (or
+    ``action``), in bulk.
 
     Parameters
     ----------
@@ -251,9 +268,11 @@ def read_curves(id_data, curves, action=None):
         if fcurve is None:
             keys.append(np.zeros((0, 2), dtype=np.float32))
             continue
-        co = np.empty(2 * len(fcurve.keyframe_points), dtype=np.float32)
-        fcurve.keyframe_points.foreach_get("co", co)
-        keys.append(co.reshape(-1, 2))
+        points = fcurve.keyframe_points if len(fcurve.keyframe_points) else fcurve.sampled_points
+        co = np.empty(2 * len(points), dtype=np.float32)
+        points.foreach_get("co", co)
+        co = co.reshape(-1, 2)
+        keys.append(co[~np.isnan(co[:, 1])])  # a sampled curve's NaN: no value at that frame
     frames = np.unique(np.concatenate([k[:, 0] for k in keys])) if keys else np.zeros(0)
     values = np.full((frames.size, len(curves)), np.nan)
     for column, co in enumerate(keys):
@@ -302,6 +321,26 @@ def _ensure_channelbag(action, slot):
     layer = action.layers[0] if len(action.layers) else action.layers.new("Layer")
     strip = layer.strips[0] if len(layer.strips) else layer.strips.new(type="KEYFRAME")
     return strip.channelbag(slot, ensure=True)
+
+
+def _write_samples(fcurve, frames, values):
+    """Samples of an empty ``fcurve`` at the whole frames from frames[0] to frames[-1] (NaN between
+    the given ones). Blender bakes samples from a curve's evaluation: one key to bake from, then
+    the values are set in bulk."""
+    first, last = int(round(frames[0])), int(round(frames[-1]))
+    n = last - first + 1
+    points = fcurve.keyframe_points
+    points.add(1)
+    points.foreach_set("co", [float(first), 0.0])
+    fcurve.convert_to_samples(first, last + 1)  # end excluded (4.2-5.0)
+    if len(fcurve.sampled_points) != n:
+        raise FacecapError(f"Blender {bpy.app.version_string} made {len(fcurve.sampled_points)} samples "
+                           f"for frames {first}-{last} of '{fcurve.data_path}' (expected {n})")
+    co = np.empty((n, 2), dtype=np.float32)
+    co[:, 0] = np.arange(first, last + 1)
+    co[:, 1] = np.nan
+    co[np.round(frames).astype(np.int64) - first, 1] = values
+    fcurve.sampled_points.foreach_set("co", co.ravel())
 
 
 def _new_fcurve(action, channelbag, data_path, index, group):

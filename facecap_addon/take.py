@@ -280,6 +280,8 @@ def key_weights(obj, result, action_name, *, take_name=""):
     per-frame diagnostics as custom-property curves on the shape-key datablock
     (``facecap_residual_mm``, ``facecap_at_bound``) and, when the result has them, the per-marker
     error (``facecap_error_mm_<marker>``, group "FaceCap Marker Error"), visible in the Graph Editor.
+    The weights are keys; the diagnostics are samples (one per frame, NaN where a frame has no
+    value; read-only until *Convert to Keyframes*).
     """
     key = obj.data.shape_keys
     if key is None:
@@ -298,8 +300,11 @@ def key_weights(obj, result, action_name, *, take_name=""):
         key[prop] = 0.0
     curves += [(f'["{p}"]', 0) for p in props]
     values = np.column_stack(columns)
+    # the diagnostics as samples: nobody edits them, and keys would double the keying and the .blend
+    # (measured on the 36,000-frame CLI take: see README)
+    sampled = [False] * len(result.shape_names) + [True] * len(props)
     action = anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values,
-                                         group=groups, assign=False)
+                                         group=groups, assign=False, sampled=sampled)
     layers.place_solved_action(key, action, take_name or action_name)
     if getattr(result, "head_target", "") and result.stabilise is not None:
         scale = getattr(result.alignment, "scale", 1.0) if result.alignment is not None else 1.0

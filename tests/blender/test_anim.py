@@ -89,6 +89,43 @@ def test_nan_samples_are_skipped(face):
     assert_allclose(got_values, values, atol=1e-6, equal_nan=True)
 
 
+def test_sampled_curves_read_back_as_keys_do(face):
+    """Sampled curves (the solve's diagnostics): one sample per whole frame over the curve's range,
+    NaN where it has no value; read back, evaluated and saved like keys."""
+    key = face.data.shape_keys
+    frames = np.array([3.0, 4.0, 5.0, 8.0, 9.0, 12.0])  # frames 6, 7, 10, 11 missing
+    rng = np.random.default_rng(1)
+    values = rng.uniform(0.0, 1.0, size=(frames.size, len(SHAPES)))
+    values[[0, 4], 1] = np.nan
+    action = anim.new_action_with_curves(key, name="diag", curves=CURVES, frames=frames, values=values,
+                                         sampled=[False, True, True])
+    by_path = {fc.data_path: fc for fc in anim.action_fcurves(action, key)}
+    assert len(by_path[_path(SHAPES[0])].keyframe_points) == frames.size
+    for shape, (first, last) in ((SHAPES[1], (4, 12)), (SHAPES[2], (3, 12))):
+        fc = by_path[_path(shape)]
+        assert len(fc.keyframe_points) == 0 and len(fc.sampled_points) == last - first + 1
+        co = np.empty(2 * len(fc.sampled_points), dtype=np.float32)
+        fc.sampled_points.foreach_get("co", co)
+        assert_array_equal(co[0::2], np.arange(first, last + 1))
+    got_frames, got_values = anim.read_curves(key, CURVES, action=action)
+    assert_array_equal(got_frames, frames)
+    assert_allclose(got_values, values, atol=1e-6)  # NaN where no value, as with keys
+    fc = by_path[_path(SHAPES[2])]
+    assert fc.evaluate(8.0) == pytest.approx(values[3, 2], abs=1e-6)
+    assert np.isnan(fc.evaluate(7.0))  # a missing frame has no value (keys would interpolate)
+
+
+def test_sampled_needs_whole_frames_else_keys(face):
+    key = face.data.shape_keys
+    frames = np.array([1.0, 1.5, 2.0])
+    values = np.full((3, len(SHAPES)), 0.25)
+    action = anim.new_action_with_curves(key, name="half", curves=CURVES, frames=frames, values=values, sampled=True)
+    for fc in anim.action_fcurves(action, key):
+        assert len(fc.keyframe_points) == 3 and len(fc.sampled_points) == 0
+    with pytest.raises(FacecapError, match="sampled"):
+        anim.new_action_with_curves(key, name="bad", curves=CURVES, frames=frames, values=values, sampled=[True])
+
+
 def test_read_curves_union_of_frames(face):
     key = face.data.shape_keys
     frames = np.array([1.0, 2.0, 3.0, 4.0])

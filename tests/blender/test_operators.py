@@ -109,15 +109,17 @@ def test_solve_keys_a_new_solve_layer_and_keeps_the_previous(take):
     assert solved.shape == (N_FRAMES, len(names))
     np.testing.assert_allclose(solved, take["weights"], atol=1e-4)  # float32 mesh, noise-free take
 
-    before = [fc.keyframe_points[10].co[1] for fc in anim.action_fcurves(first, key)]
+    # every curve of the first take (keyed weights, sampled diagnostics), read at a few frames
+    probe = [5.0, 11.0, 30.0]
+    before = [[fc.evaluate(f) for f in probe] for fc in anim.action_fcurves(first, key)]
     s.regularisation = 0.05
     assert bpy.ops.facecap.solve() == {"FINISHED"}
     second = layers.solved_action(key)
     assert second != first and second.name == "take01.001"
     assert first.use_fake_user and len(layers.solve_track(key).strips) == 1
     assert first.name in bpy.data.actions
-    after = [fc.keyframe_points[10].co[1] for fc in anim.action_fcurves(first, key)]
-    assert before == after, "the first take's keys must be untouched"
+    after = [[fc.evaluate(f) for f in probe] for fc in anim.action_fcurves(first, key)]
+    np.testing.assert_array_equal(after, before, err_msg="the first take's curves must be untouched")
     assert s.last_action == "take01.001"
 
 
@@ -186,6 +188,10 @@ def test_diagnostic_curves_are_keyed_with_the_weights(take):
     np.testing.assert_allclose(rms, values[:, 0], rtol=1e-4, atol=1e-5)
     groups = {fc.group.name for fc in anim.action_fcurves(layers.solved_action(key), key) if fc.group}
     assert {"FaceCap Weights", "FaceCap Diagnostics", "FaceCap Marker Error"} <= groups
+    # weights are keys (the animator edits them), diagnostics are samples (one per frame, 9x smaller)
+    for fc in anim.action_fcurves(layers.solved_action(key), key):
+        diagnostic = fc.group.name != "FaceCap Weights"
+        assert (len(fc.sampled_points) > 0) == diagnostic and (len(fc.keyframe_points) > 0) != diagnostic
 
 
 @pytest.mark.parametrize(
