@@ -179,6 +179,6 @@ def solve_bounded(
     )
     if start is not None:
         start = np.asarray(start, dtype=np.float64)
-        if start.shape != (prob.Dz.shape[0], prob.A.shape[1]):
-            raise FacecapError(f"`start` must have shape (F, K) = {(prob.Dz.shape[0], prob.A.shape[1])}; got {start.shape}")
+        if start.shape != (prob.D.shape[0], prob.A.shape[1]):
+            raise FacecapError(f"`start` must have shape (F, K) = {(prob.D.shape[0], prob.A.shape[1])}; got {start.shape}")
     return engine_setup.run(prob, max_iter=max_iter, chunk=chunk, start=start, exact=exact)

@@ -67,12 +67,57 @@ def pattern_hessians(A, pats, R, H_full=None, products=None, out=None):
     return out
 
 
-def pattern_inverses(Hp):
-    """(H_p^-1, whether the dual form may use it) for each pattern."""
-    Hinv = np.linalg.inv(Hp)
+#: Condition proxy ``max|H| * max|H^-1|`` below which a pattern's inverse is trusted (dual form,
+#: and the low-rank update below).
+WELL_CONDITIONED = 1e8
+
+
+class FullInverse:
+    """The full-visibility inverse ``H^-1`` (H = A'A + R) and what a gap pattern's inverse is updated
+    from. A binary pattern missing the coordinates m has ``H_p = H - A_m' A_m``, so (Woodbury)
+    ``H_p^-1 = H^-1 + V_m' (I - Q_mm)^-1 V_m`` with ``V = A H^-1`` and ``Q = V A'``: an r x r solve
+    and a K x r x K product for r missing coordinates instead of a K x K inverse. Measured on the
+    benchmark take (2-7 of 80 markers missing per pattern): 2.5x faster than ``np.linalg.inv``.
+    ``usable`` is False when H itself is ill-conditioned (the update would lose the digits)."""
+
+    def __init__(self, A, H_full):
+        self.Hinv = np.linalg.inv(H_full)
+        self.usable = bool(np.abs(H_full).max() * np.abs(self.Hinv).max() < WELL_CONDITIONED)
+        self.V = A @ self.Hinv
+        self.Q = self.V @ A.T
+
+
+def pattern_inverses(Hp, pats=None, full=None):
+    """(H_p^-1, whether the dual form may use it) for each pattern. With the patterns and a
+    ``FullInverse`` of the same A and R, binary patterns missing at most K/2 coordinates are
+    updated from it (each pattern's result depends on that pattern only, whatever the batch)."""
+    n, K = Hp.shape[0], Hp.shape[1]
+    if full is None or not full.usable or pats is None:
+        Hinv = np.linalg.inv(Hp)
+    else:
+        missing = pats == 0
+        r = missing.sum(axis=1)
+        update = ((pats == 1) | missing).all(axis=1) & (r <= K // 2)
+        Hinv = np.empty_like(Hp)
+        direct = np.flatnonzero(~update)
+        if direct.size:
+            Hinv[direct] = np.linalg.inv(Hp[direct])
+        for size in np.unique(r[update]).tolist():
+            sel = np.flatnonzero(update & (r == size))
+            if size == 0:
+                Hinv[sel] = full.Hinv
+                continue
+            m = np.argsort(~missing[sel], axis=1, kind="stable")[:, :size]  # the missing coordinates
+            Vm = full.V[m]
+            S = np.eye(size) - full.Q[m[:, :, None], m[:, None, :]]
+            Hinv[sel] = full.Hinv + Vm.transpose(0, 2, 1) @ np.linalg.solve(S, Vm)
     # The fixed-set ("dual") form solves with Hinv_BB, |B| = fixed count: cheaper than H_FF when
     # fewer shapes are fixed than free, and accurate while H is well conditioned.
-    ok = np.abs(Hp).max(axis=(1, 2)) * np.abs(Hinv).max(axis=(1, 2)) < 1e8
+    ok = np.abs(Hp).max(axis=(1, 2)) * np.abs(Hinv).max(axis=(1, 2)) < WELL_CONDITIONED
+    if full is not None and full.usable and pats is not None and not ok.all():
+        bad = np.flatnonzero(~ok & update)  # an update loses more digits there: invert directly
+        Hinv[bad] = np.linalg.inv(Hp[bad])
+        ok[bad] = np.abs(Hp[bad]).max(axis=(1, 2)) * np.abs(Hinv[bad]).max(axis=(1, 2)) < WELL_CONDITIONED
     return Hinv, ok
 
 
@@ -144,9 +189,6 @@ class _Blocks:
         self.where[rows, 0] = len(self.blocks) - 1
         self.where[rows, 1] = np.arange(rows.size)
 
-    def missing(self, rows):
-        return rows[self.where[rows, 0] < 0]
-
     def snapshot(self, rows):
         """What ``gather`` needs for ``rows`` (take it under the lock; gather outside it)."""
         return list(self.blocks), self.where[rows]
@@ -187,10 +229,13 @@ class _Products:
         self.H, self.Hinv = _Blocks(), _Blocks()
         self.ok = np.zeros(0, bool)
 
-    def prepare(self, A, pats, R, H_full=None, inverses=False, map_=map):
+    def prepare(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None):
         """Snapshots of the products of ``pats`` for ``_Blocks.gather``: (H, (Hinv, ok) or None).
-        Missing ones are computed in slices mapped by ``map_`` (e.g. a thread pool's)."""
+        Missing ones are computed in slices mapped by ``map_`` (e.g. a thread pool's); inverses are
+        updated from ``full`` (a ``FullInverse`` of this A, R; default: made here)."""
         K = A.shape[1]
+        if inverses and full is None:
+            full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
         if pats.shape[0] == 0:
             none = ([np.empty((0, K, K))], np.zeros((0, 2), np.intp))
             return none, ((none, np.zeros(0, bool)) if inverses else None)
@@ -204,7 +249,7 @@ class _Products:
 
                 def fill(span):
                     pattern_hessians(A, pn[span[0] : span[1]], R, H_full, out=block[span[0] : span[1]])
-                    return pattern_inverses(block[span[0] : span[1]]) if inverses else None
+                    return pattern_inverses(block[span[0] : span[1]], pn[span[0] : span[1]], full) if inverses else None
 
                 spans = _spans(new.size)
                 done = list(map_(fill, spans))
@@ -222,11 +267,16 @@ class _Products:
             H = self.H.snapshot(rows)
             if not inverses:
                 return H, None
-            todo = self.Hinv.missing(rows)  # kept by a solve that needed no inverses (a temporal one)
-            if todo.size:
+            need = self.Hinv.where[rows, 0] < 0  # kept by a solve that needed no inverses (a temporal one)
+            if need.any():
+                todo, pt = rows[need], pats[need]
                 Ht = _Blocks.gather(self.H.snapshot(todo))
                 spans = _spans(todo.size)
-                for (a, b), (Hi, ok) in zip(spans, map_(lambda ab: pattern_inverses(Ht[ab[0] : ab[1]]), spans)):
+
+                def invert(span):
+                    return pattern_inverses(Ht[span[0] : span[1]], pt[span[0] : span[1]], full)
+
+                for (a, b), (Hi, ok) in zip(spans, map_(invert, spans)):
                     self.Hinv.add(todo[a:b], Hi)
                     self.ok[todo[a:b]] = ok
             return H, (self.Hinv.snapshot(rows), self.ok[rows])
@@ -268,10 +318,14 @@ def hmul_by_pattern(Hp, inv, x):
 def classify(v, step, lo, hi, lam):
     """State of each variable from the proximal point v (see module docstring); ``step`` per frame
     (F,) or per variable (F, K)."""
-    tau = (step if step.ndim == 2 else step[:, None]) * lam
-    t = np.sign(v) * np.maximum(np.abs(v) - tau, 0.0)
     state = np.full(v.shape, _FREE, dtype=np.int8)
-    state[np.abs(v) <= tau] = _ZERO
+    if not lam.any():  # no L1: the shrunk point is v itself (the same states, fewer passes)
+        t = v
+        state[v == 0] = _ZERO
+    else:
+        tau = (step if step.ndim == 2 else step[:, None]) * lam
+        t = np.sign(v) * np.maximum(np.abs(v) - tau, 0.0)
+        state[np.abs(v) <= tau] = _ZERO
     state[t >= hi] = _HI
     state[t <= lo] = _LO
     sign = np.sign(v)
@@ -340,13 +394,16 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
         n_chunks = -(-n_chunks // workers) * workers  # every thread gets as many chunks (no straggler)
     chunk = -(-F // n_chunks) if n_chunks else chunk  # even chunks
 
+    full = None
+
     def one(first):
         sl = slice(first, min(first + chunk, F))
         pats, inv = patterns(C[sl])
         if products is None:
-            Hp, inverses = pattern_hessians(A, pats, R, H_full), None
+            Hp = pattern_hessians(A, pats, R, H_full)
+            inverses = pattern_inverses(Hp, pats, full)
         else:  # this chunk's patterns, in its own order (the kernels' shapes and code paths as without)
-            H, (Hinv, ok) = products.prepare(A, pats, R, H_full, inverses=True)
+            H, (Hinv, ok) = products.prepare(A, pats, R, H_full, inverses=True, full=full)
             Hp, inverses = _Blocks.gather(H), (_Blocks.gather(Hinv), ok)
         state = None if start is None else start_state(start[sl], lo[sl], hi[sl], lam)
         w, it, bad, sign = _pdas(Hp, inv, G[sl], lo[sl], hi[sl], lam, max_iter, state, inverses)
@@ -360,10 +417,11 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
         return it, bad.size if exact else 0
 
     with single_blas_thread():
+        full = FullInverse(A, H_full)  # in here: the same bits whichever path computes an inverse
         if workers > 1 and n_chunks > 1:
             with ThreadPoolExecutor(workers) as pool:
                 if products is not None:  # the take's patterns once, on the threads (chunks repeat them)
-                    products.prepare(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map)
+                    products.prepare(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full)
                 out = list(pool.map(one, range(0, F, chunk)))
         else:
             out = [one(s) for s in range(0, F, chunk)]
