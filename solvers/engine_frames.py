@@ -91,7 +91,7 @@ def pattern_inverses(Hp, pats=None, full=None):
     """(H_p^-1, whether the dual form may use it) for each pattern. With the patterns and a
     ``FullInverse`` of the same A and R, binary patterns missing at most K/2 coordinates are
     updated from it (each pattern's result depends on that pattern only, whatever the batch)."""
-    n, K = Hp.shape[0], Hp.shape[1]
+    K = Hp.shape[1]
     if full is None or not full.usable or pats is None:
         Hinv = np.linalg.inv(Hp)
     else:

@@ -1,4 +1,5 @@
-"""Engine kernels on their own: the numpy box QP of the exact fallback against BVLS, and the
+"""Engine kernels on their own: the numpy box QP of the exact fallback against BVLS, the gap
+patterns' inverses (low-rank updates of the full-visibility one) against ``np.linalg.inv``, and the
 segment-wise banded Cholesky of the temporal kernel against a dense solve."""
 
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 from scipy.optimize import lsq_linear
 
 from facecap.solvers.engine_banded import context, frame_band, solve_window
-from facecap.solvers.engine_frames import box_qp
+from facecap.solvers.engine_frames import FullInverse, box_qp, pattern_hessians, pattern_inverses
 from facecap.solvers.engine_temporal import temporal_operator
 
 
@@ -23,6 +24,52 @@ def test_box_qp_matches_bvls(seed):
     ref = np.r_[0.25, lsq_linear(M[:, 1:], b - 0.25 * M[:, 0], bounds=(lb[1:], ub[1:]), method="bvls", tol=1e-15).x]
     np.testing.assert_allclose(x, ref, atol=1e-9, rtol=0)
     assert np.all((x >= lb) & (x <= ub))
+
+
+def _gap_patterns(P, n, rng, most_missing):
+    pats = np.ones((n, P))
+    for i in range(1, n):  # row 0: nothing missing
+        pats[i, rng.choice(P, size=rng.integers(1, most_missing + 1), replace=False)] = 0.0
+    return pats
+
+
+def test_pattern_inverses_by_update_match_direct_inverses():
+    from test_engine_refs import localised_basis
+
+    rng = np.random.default_rng(3)
+    A = localised_basis(P_markers=20, K=12, seed=4)  # 60 coordinates
+    R = 1e-3 * np.eye(12) * np.mean(A * A) * 60
+    pats = _gap_patterns(60, 40, rng, 6)  # 1-6 coordinates missing: updated
+    pats = np.vstack([pats, _gap_patterns(60, 5, rng, 40)[1:]])  # up to 40 missing: some directly
+    pats[-1, :3] = 0.5  # a weighted (non-binary) pattern: directly
+    Hp = pattern_hessians(A, pats, R)
+    H_full = A.T @ A + R
+    Hinv, ok = pattern_inverses(Hp, pats, FullInverse(A, H_full))
+    ref, ref_ok = pattern_inverses(Hp)
+    scale = np.abs(ref).max(axis=(1, 2))[:, None, None]
+    np.testing.assert_allclose(Hinv / scale, ref / scale, atol=1e-12, rtol=0)
+    np.testing.assert_array_equal(ok, ref_ok)
+    # each pattern's inverse is its own: the same bits in any batch
+    one, _ = pattern_inverses(Hp[7:8], pats[7:8], FullInverse(A, H_full))
+    assert np.array_equal(one[0], Hinv[7])
+
+
+def test_ill_conditioned_patterns_are_inverted_directly():
+    """A shape seen only by the missing markers leaves H_p nearly singular: the update would lose
+    the digits, so such patterns are flagged (no dual form) and inverted directly."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(30, 6)) * 0.01
+    A[:, 5] = 0.0
+    A[:3, 5] = 0.01  # shape 5: coordinates 0-2 only
+    R = 1e-12 * np.eye(6) * np.mean(A * A) * 30
+    pats = np.ones((3, 30))
+    pats[1, :3] = 0.0  # shape 5 unseen
+    pats[2, 10:13] = 0.0
+    Hp = pattern_hessians(A, pats, R)
+    Hinv, ok = pattern_inverses(Hp, pats, FullInverse(A, A.T @ A + R))
+    assert ok.tolist() == [True, False, True]
+    assert np.array_equal(Hinv[1], np.linalg.inv(Hp[1]))
+    np.testing.assert_allclose(Hp[2] @ Hinv[2], np.eye(6), atol=1e-9)
 
 
 def test_exact_fallback_does_not_import_scipy():
