@@ -446,7 +446,7 @@ def _pdas(Hp, inv, g, lo, hi, lam, max_iter, state=None, inverses=None):
     w = u0.copy()
     step = 1.0 / np.maximum(np.einsum("nkk->n", Hp) / K, 1e-300)[inv]
     grad = np.zeros_like(w)
-    prev = None
+    prev = prev_sg = None
     active = np.arange(n)
     sign = np.zeros((n, K))
     has_l1 = bool(np.any(lam > 0))
