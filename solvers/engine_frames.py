@@ -5,7 +5,8 @@ Every frame f solves::
     minimise  1/2 w' H_f w - g_f' w + sum_k lam_k |w_k|   subject to  lo_f <= w <= hi_f
 
 with ``H_f = A' diag(c_f) A + R``. ``H_f`` only depends on the frame's confidence pattern ``c_f``,
-so it is formed once per distinct pattern (per chunk of frames). The iteration is a primal-dual
+so it is formed once per distinct pattern (per chunk of frames), and its inverse is a low-rank update
+of the full-visibility one (``FullInverse``). The iteration is a primal-dual
 active-set / semi-smooth Newton method on the proximal fixed point
 ``w = clip(soft(w - s grad, s lam), lo, hi)``: each variable is either fixed (at ``lo``, ``hi`` or at
 the L1 kink 0) or free with a known sign, and the free variables solve a linear system, or, when
