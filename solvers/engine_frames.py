@@ -235,14 +235,14 @@ class _Products:
         Missing ones are computed in slices mapped by ``map_`` (e.g. a thread pool's); inverses are
         updated from ``full`` (a ``FullInverse`` of this A, R; default: made here)."""
         K = A.shape[1]
-        if inverses and full is None:
-            full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
         if pats.shape[0] == 0:
             none = ([np.empty((0, K, K))], np.zeros((0, 2), np.intp))
             return none, ((none, np.zeros(0, bool)) if inverses else None)
         with self.lock:
             keys = [p.tobytes() for p in pats]
             new = np.array([i for i, k in enumerate(keys) if k not in self.index], dtype=np.intp)
+            if inverses and full is None and (new.size or (self.Hinv.where[:, 0] < 0).any()):
+                full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
             if new.size:
                 n0, n = len(self.index), len(self.index) + new.size
                 pn = pats if new.size == len(keys) else pats[new]

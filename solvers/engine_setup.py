@@ -51,6 +51,11 @@ def _per_shape(x, name, F, K, *, allow_frames=True):
     return np.broadcast_to(a, (F, K) if allow_frames else (K,))
 
 
+def _compact(x):
+    """(F, K) ``x`` as (1, K) where every row is the same by construction (a broadcast view)."""
+    return x[:1] if x.shape[0] and x.strides[0] == 0 else x
+
+
 def _mask(mask, finite, dims):
     F, P = finite.shape
     if mask is None:
@@ -139,9 +144,10 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
     C = _mask(mask, finite, dims)
     lo = _per_shape(lower, "lower", F, K)
     hi = _per_shape(upper, "upper", F, K)
-    if np.isnan(lo).any() or np.isnan(hi).any():
+    lo1, hi1 = _compact(lo), _compact(hi)  # checked once per distinct row
+    if np.isnan(lo1).any() or np.isnan(hi1).any():
         raise FacecapError("`lower` and `upper` must not be NaN")
-    if np.any(lo > hi):
+    if np.any(lo1 > hi1):
         raise FacecapError("`lower` must not exceed `upper`")
     if (max_iter is not None and int(max_iter) < 1) or int(chunk) < 1:
         raise FacecapError("`max_iter` and `chunk` must be >= 1")
@@ -200,11 +206,6 @@ def build_problem(A, D, *, mask, lower, upper, regularisation, sparsity, locks, 
     return Problem(A, D, C, lo, hi, R, np.asarray(l1, float), lock, regs, held, mu, binary=mask is None)
 
 
-def _compact(x):
-    """(F, K) ``x`` as (1, K) where every row is the same by construction (a broadcast view)."""
-    return x[:1] if x.shape[0] and x.strides[0] == 0 else x
-
-
 #: Default active-set iteration budgets (``solve_bounded(max_iter=None)``).
 FRAME_MAX_ITER, TEMPORAL_MAX_ITER = 40, 200
 
@@ -219,8 +220,9 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
     temporal = prob.mu[0] > 0 or prob.mu[1] > 0
     if max_iter is None:
         max_iter = TEMPORAL_MAX_ITER if temporal else FRAME_MAX_ITER
-    locked = np.broadcast_to(np.isfinite(_compact(prob.lock)), prob.lock.shape)
-    any_lock = bool(locked.any())
+    locked1 = np.isfinite(_compact(prob.lock))
+    locked = np.broadcast_to(locked1, prob.lock.shape)
+    any_lock = bool(locked1.any())
     # held values: lock value, else clip(0, lo, hi)
     hold = None
     if prob.held.size:
@@ -294,7 +296,7 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
 
     lo, hi = _compact(prob.lo), _compact(prob.hi)  # bounds the same for every frame: (1, K), no (F, K) temporaries
     tol = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
-    free_shape = ~_compact(locked)
+    free_shape = ~locked1
     if prob.held.size:
         free_shape[:, prob.held] = False
     near = np.abs(Wz - lo) <= tol
