@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..solvers.bench import median_time
+from ..solvers.tools.bench import median_time
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,9 +64,9 @@ def bench_cli_retarget(frames=36000, repeat=3):
     saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
     import json
 
-    from ..solvers.basis import Basis
-    from ..solvers.io_csv import write_markers_csv
-    from ..solvers.synth import performance_weights, synthesize_take
+    from ..solvers.character.basis import Basis
+    from ..solvers.io.csv import write_markers_csv
+    from ..solvers.tools.synth import performance_weights, synthesize_take
 
     samples = ROOT / "sample_blends"
     basis = Basis.load_npz(samples / "character_basis.npz")

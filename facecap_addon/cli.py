@@ -50,12 +50,12 @@ def run_retarget(config, *, quiet=False, solve=None):
 
     import numpy as np
 
-    from ..solvers.cleaning import clean
-    from ..solvers.engine_split import run_beside
+    from ..solvers.capture.cleaning import clean
+    from ..solvers.engine.split import run_beside
     from ..solvers.errors import ConfigError
     from ..solvers.pipeline import retarget
-    from ..solvers.readers import import_markers
-    from ..solvers.strategy_config import load_strategy_inputs
+    from ..solvers.io import import_markers
+    from ..solvers.config.strategies import load_strategy_inputs
 
     if getattr(config, "video", None) is not None:  # [source] video: flow-PCA features, no markers
         if solve is not None:
@@ -185,9 +185,9 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings.
     Returns ``outputs`` with the action and the written paths.
     """
-    from ..solvers.engine_split import run_beside
-    from ..solvers.fileio import write_json_atomic
-    from ..solvers.io_csv import write_weights_csv
+    from ..solvers.engine.split import run_beside
+    from ..solvers.io.files import write_json_atomic
+    from ..solvers.io.csv import write_weights_csv
     from . import anim
     from .take import key_weights
 
@@ -269,7 +269,7 @@ def _cmd_demo(args):
     import numpy as np
 
     from ..solvers.config import load_take_config
-    from ..solvers.io_csv import read_weights_csv
+    from ..solvers.io.csv import read_weights_csv
     from ..solvers.transforms import rotation_angle_deg
 
     out = Path(args.out).resolve()
@@ -308,13 +308,13 @@ def _cmd_demo(args):
 
 
 def _cmd_inspect(args):
-    from ..solvers.inspect import main as inspect_main
+    from ..solvers.tools.inspect import main as inspect_main
 
     return inspect_main(args.rest)
 
 
 def _cmd_compare(args):
-    from ..solvers.compare import main as compare_main
+    from ..solvers.tools.compare import main as compare_main
 
     return compare_main(args.rest)
 
@@ -332,7 +332,7 @@ def _cmd_tune(args):
 
 
 def _cmd_bench(args):
-    from ..solvers.bench import run_benchmarks
+    from ..solvers.tools.bench import run_benchmarks
 
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ..solvers.basis import Basis
+from ..solvers.character.basis import Basis
 from ..solvers.errors import FacecapError
 
 

@@ -7,7 +7,7 @@ import numpy as np
 from ..solvers.errors import FacecapError
 from ..solvers.markers import MarkerSet
 from ..solvers.pipeline import RetargetSettings
-from ..solvers.shape_options import Region
+from ..solvers.character.shape_options import Region
 from ..solvers.strategies.base import Target
 from ..solvers.strategies.options import (
     CalibrationSettings,
@@ -100,7 +100,7 @@ def neutral_options(settings):
     mode = settings.neutral_mode
     out = {"stabilise_mode": settings.stabilise_mode, "align_regions": (), "landmarks": _patterns(settings.landmarks)}
     if settings.align_regions:
-        from ..solvers.align import region_patterns
+        from ..solvers.capture.align import region_patterns
 
         out["align_regions"] = region_patterns(True)
     if mode == "RANGES":
@@ -228,7 +228,7 @@ def strategy_inputs(settings):
                 inputs["calibration"] = markers_from_empties(settings.calib_collection, [m.name for m in settings.markers],
                                                              settings.fps)
         elif settings.calib_path:
-            from ..solvers.readers import import_markers
+            from ..solvers.io import import_markers
 
             imported = import_markers(bpy.path.abspath(settings.calib_path), units=settings.calib_units)
             inputs["calibration"] = imported.markers
@@ -239,7 +239,7 @@ def strategy_inputs(settings):
                 raise FacecapError("choose the character first")
             inputs["examples"] = examples_from_action(settings.examples_action, settings.target)
     elif strategy == "parallel" and settings.weights_path:
-        from ..solvers.io_weights import read_weights
+        from ..solvers.io.weights import read_weights
 
         track = read_weights(bpy.path.abspath(settings.weights_path))
         inputs["weights"] = track
@@ -254,7 +254,7 @@ def source_channel_names(settings):
     if settings.strategy == "parallel":
         if not settings.weights_path:
             raise FacecapError("choose the weights file first")
-        from ..solvers.io_weights import read_weights
+        from ..solvers.io.weights import read_weights
 
         return read_weights(bpy.path.abspath(settings.weights_path)).names
     names = []

@@ -1,7 +1,7 @@
 """``python -m facecap tune --config take.toml``: the animator feedback loop, headless (issue 7).
 
 Solves the take (with ``[tuning] library`` if given), reads ``[tuning] corrections``, re-optimises
-what the strategy learned (``solvers.tuning_take.retune_take``, the same call as the Blender
+what the strategy learned (``solvers.tuning.take.retune_take``, the same call as the Blender
 Retune operator), stores the new library version in ``[tuning] out`` (never overwriting) and
 writes the re-solved take exactly as ``retarget`` does (.blend / weights CSV / report, with the
 tuning figures in the report). ``retarget`` uses the helpers here to honour ``[tuning] library``
@@ -15,9 +15,9 @@ from pathlib import Path
 def prepare_solve(config, character, inputs):
     """(character, inputs, settings, info) for the solve: ``[tuning] library`` applied and the
     ``[controls]`` locks added to the solve's locks."""
-    from ..solvers.library_store import load_version
-    from ..solvers.shape_controls import locks_from_controls
-    from ..solvers.tuning_take import apply_version
+    from ..solvers.tuning.store import load_version
+    from ..solvers.character.shape_controls import locks_from_controls
+    from ..solvers.tuning.take import apply_version
 
     settings, info = config.settings, {}
     tuning = config.tuning
@@ -35,7 +35,7 @@ def prepare_solve(config, character, inputs):
 
 def finish_solve(config, result, fps):
     """The result with ``[controls]`` applied to its weights (after the solve, as in the sidebar)."""
-    from ..solvers.shape_controls import apply_controls
+    from ..solvers.character.shape_controls import apply_controls
 
     if not config.controls:
         return result
@@ -56,9 +56,9 @@ def tune_solver(config, state):
     """A ``solve`` for ``run_retarget``: solve, retune from the corrections, store the version; the
     re-solved result is returned and the figures land in ``state``."""
     from ..solvers.errors import ConfigError
-    from ..solvers.library_store import read_corrections_csv, save_version
+    from ..solvers.tuning.store import read_corrections_csv, save_version
     from ..solvers.pipeline import retarget
-    from ..solvers.tuning_take import retune_take
+    from ..solvers.tuning.take import retune_take
 
     tuning = config.tuning
     if tuning is None or tuning.corrections is None:

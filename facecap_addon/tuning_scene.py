@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..solvers.errors import FacecapError
-from ..solvers.shape_controls import ShapeControl, apply_controls
+from ..solvers.character.shape_controls import ShapeControl, apply_controls
 from . import anim, layers, take
 
 #: scene ID property holding {version name: base64 npz}
@@ -49,7 +49,7 @@ def shape_controls(settings, *, with_locks=False):
 
 def set_controls(settings, controls):
     """Write {shape or glob: ShapeControl} into the shape list (shapes not listed are left alone)."""
-    from ..solvers.shape_controls import resolve_controls
+    from ..solvers.character.shape_controls import resolve_controls
 
     names = [s.name for s in settings.shapes]
     for item, c in zip(settings.shapes, resolve_controls(names, controls)):
@@ -111,7 +111,7 @@ def store_version(scene, version):
 
 def load_version(scene, name):
     """The LibraryVersion ``name`` stored in the .blend."""
-    from ..solvers.tuning_take import LibraryVersion
+    from ..solvers.tuning.take import LibraryVersion
 
     store = scene.get(LIBRARY_PROP)
     if store is None or name not in store:
@@ -141,7 +141,7 @@ def solve_inputs(settings, scene):
 
             rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
     if settings.library_active:
-        from ..solvers.tuning_take import apply_version
+        from ..solvers.tuning.take import apply_version
 
         version = load_version(scene, settings.library_active)
         character, inputs, rsettings = apply_version(version, character, inputs, rsettings)

@@ -152,7 +152,7 @@ def camera_from_scene(scene, name=None, *, object_matrix=None, resolution=None):
     coordinates, where its bound points and shape deltas live. ``resolution`` (width, height) gives
     pixels of footage whose size differs from the render resolution (same aspect expected).
     """
-    from ..solvers.camera import Camera
+    from ..solvers.character.camera import Camera
 
     if name:
         obj = bpy.data.objects.get(name)
@@ -186,7 +186,7 @@ def camera_from_scene(scene, name=None, *, object_matrix=None, resolution=None):
 
 
 def projection_for(scene, character, projection="front", camera_name=None, *, resolution=None):
-    """What ``solvers.pipeline_2d`` projects a 2D take's character through: ``"front"`` or the
+    """What ``solvers.pipeline.markers_2d`` projects a 2D take's character through: ``"front"`` or the
     camera (``camera_name`` or the scene camera) seeing ``character``'s local coordinates.
 
     For the take config (``[solve] projection`` / ``camera``) and the sidebar (Scene.facecap.video).
@@ -217,7 +217,7 @@ def run_flow_retarget(config, *, quiet=False):
     import sys
     import time
 
-    from ..solvers.strategy_config import load_strategy_inputs
+    from ..solvers.config.strategies import load_strategy_inputs
     from ..solvers.video.cli import _Progress, sigint_cancels
     from ..solvers.video.flow_config import check_against_footage
     from ..solvers.video.flow_solve import retarget_flow_job

@@ -50,7 +50,7 @@ class _ImportMarkers(ImportHelper):
         import warnings
 
         from ..facecap_addon import import_scene
-        from ..solvers.readers import import_markers
+        from ..solvers.io import import_markers
 
         options = {"up_axis": self.up_axis}
         if self.units == "bu":
@@ -239,7 +239,7 @@ class FACECAP_OT_clean_markers(bpy.types.Operator):
 
     def execute(self, context):
         from ..facecap_addon import import_scene, take
-        from ..solvers.cleaning import CleanSettings, clean
+        from ..solvers.capture.cleaning import CleanSettings, clean
 
         settings = context.scene.facecap
         try:

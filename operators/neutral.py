@@ -22,7 +22,7 @@ class FACECAP_OT_set_neutral(bpy.types.Operator):
 
     def execute(self, context):
         from ..facecap_addon import take
-        from ..solvers.neutral import neutral_from_frames
+        from ..solvers.capture.neutral import neutral_from_frames
 
         scene = context.scene
         first, last = self.first, self.last
@@ -60,7 +60,7 @@ class FACECAP_OT_detect_neutral(bpy.types.Operator):
         from dataclasses import replace
 
         from ..facecap_addon import take
-        from ..solvers.normalise import detect_neutral_frames
+        from ..solvers.capture.normalise import detect_neutral_frames
         from ..solvers.pipeline import _spans, stabilise_take
 
         settings = context.scene.facecap
@@ -94,7 +94,7 @@ class FACECAP_OT_load_master(bpy.types.Operator):
         import numpy as np
 
         from ..facecap_addon import take
-        from ..solvers.readers import import_markers
+        from ..solvers.io import import_markers
 
         settings = context.scene.facecap
         try:
@@ -134,7 +134,7 @@ class FACECAP_OT_master_from_take(bpy.types.Operator):
         from dataclasses import replace
 
         from ..facecap_addon import take
-        from ..solvers.neutral import neutral_from_frames
+        from ..solvers.capture.neutral import neutral_from_frames
         from ..solvers.pipeline import stabilise_take
 
         settings = context.scene.facecap

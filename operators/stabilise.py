@@ -67,7 +67,7 @@ class FACECAP_OT_suggest_stable(bpy.types.Operator):
 
     def execute(self, context):
         from ..facecap_addon import take
-        from ..solvers.stable_selection import suggest_stable_markers
+        from ..solvers.capture.stable_markers import suggest_stable_markers
 
         settings = context.scene.facecap
         try:

@@ -136,7 +136,7 @@ class FACECAP_OT_retune(bpy.types.Operator):
         import numpy as np
 
         from ..facecap_addon import tuning_scene
-        from ..solvers.tuning_take import retune_take
+        from ..solvers.tuning.take import retune_take
 
         scene = context.scene
         settings = scene.facecap
@@ -234,7 +234,7 @@ class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
         import numpy as np
 
         from ..facecap_addon import layers, tuning_scene
-        from ..solvers.tuning import fit_gain_offset
+        from ..solvers.tuning.retune import fit_gain_offset
 
         settings = context.scene.facecap
         try:
@@ -298,7 +298,7 @@ class FACECAP_OT_controls_save(bpy.types.Operator, ExportHelper):
 
     def execute(self, context):
         from ..facecap_addon import tuning_scene
-        from ..solvers.shape_controls import save_preset
+        from ..solvers.character.shape_controls import save_preset
 
         try:
             save_preset(self.filepath, tuning_scene.shape_controls(context.scene.facecap, with_locks=True))
@@ -324,7 +324,7 @@ class FACECAP_OT_controls_load(bpy.types.Operator, ImportHelper):
 
     def execute(self, context):
         from ..facecap_addon import tuning_scene
-        from ..solvers.shape_controls import load_preset
+        from ..solvers.character.shape_controls import load_preset
 
         try:
             tuning_scene.set_controls(context.scene.facecap, load_preset(self.filepath))

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from facecap.solvers.arkit import ARKIT_52
+from facecap.solvers.io.arkit import ARKIT_52
 
 ARKIT_NAMES = ARKIT_52  # the project's single list of the 52 ARKit names
 

@@ -19,8 +19,8 @@ import bpy
 import numpy as np
 
 from facecap.facecap_addon.scene_data import basis_from_object
-from facecap.solvers.io_csv import write_markers_csv, write_weights_csv
-from facecap.solvers.synth import performance_weights, synthesize_take
+from facecap.solvers.io.csv import write_markers_csv, write_weights_csv
+from facecap.solvers.tools.synth import performance_weights, synthesize_take
 
 HERE = Path(__file__).resolve().parent
 N_FRAMES = 720  # 12 s at 60 fps

@@ -1,14 +1,14 @@
 """facecap core: numpy/scipy only, never Blender modules (tests assert this)."""
 
-from .basis import Basis
+from .character.basis import Basis
 from .config import TakeConfig, load_take_config
 from .engine import SolveResult, solve_bounded
 from .errors import ConfigError, FacecapError, InputFileError
-from .io_csv import read_markers_csv, read_weights_csv, write_markers_csv, write_weights_csv
+from .io.csv import read_markers_csv, read_weights_csv, write_markers_csv, write_weights_csv
 from .markers import MarkerSet
-from .neutral import neutral_from_frames
+from .capture.neutral import neutral_from_frames
 from .pipeline import RetargetResult, RetargetSettings, retarget
-from .stabilise import StabiliseResult, stabilise_rigid
+from .capture.stabilise import StabiliseResult, stabilise_rigid
 from .transforms import Similarity, fit_rigid_batch, fit_similarity
 
 __all__ = [

@@ -47,7 +47,7 @@ refine         RefineStrategy        as calibrated, plus a ``training`` take
 
 Name matching (ARKit, Live Link Face, MediaPipe, FACS action units) lives in ``solvers.aliases``;
 mapping tables (one-to-one by name or many-to-many with gains) in ``mapping.Mapping``.
-``solvers.compare`` measures every strategy on the same synthetic cross-retarget takes.
+``solvers.tools.compare`` measures every strategy on the same synthetic cross-retarget takes.
 """
 
 import importlib

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..basis import Basis
+from ..character.basis import Basis
 from ..errors import FacecapError
 from ..transforms import fit_similarity
 

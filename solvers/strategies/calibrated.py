@@ -13,13 +13,13 @@ import warnings
 
 import numpy as np
 
-from ..aliases import name_key
-from ..basis import Basis
+from ..character.aliases import name_key
+from ..character.basis import Basis
 from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
 from ..markers import UNIT_SCALE
-from ..neutral import neutral_from_frames
-from ..stabilise import stabilise_2d, stabilise_rigid
+from ..capture.neutral import neutral_from_frames
+from ..capture.stabilise import stabilise_2d, stabilise_rigid
 from .base import StrategyResult, as_deltas, as_target, clamp_to, flat, reorder
 from .geometric import symmetric_pairs
 from .linear import align_source

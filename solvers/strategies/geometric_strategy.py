@@ -8,7 +8,7 @@ class is for strategy switching and comparisons.
 
 import numpy as np
 
-from ..basis import Basis
+from ..character.basis import Basis
 from ..engine import DEFAULT_SMOOTHING
 from ..errors import FacecapError
 from .base import StrategyResult, as_deltas, reorder

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..aliases import match_names, name_key
+from ..character.aliases import match_names, name_key
 from ..errors import FacecapError
 
 

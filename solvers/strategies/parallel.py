@@ -15,9 +15,9 @@ scalar applies to every shape; the ``"*"`` key sets the default inside a dict.
 
 import numpy as np
 
-from ..aliases import canonical_names, mirror_name, name_key
+from ..character.aliases import canonical_names, mirror_name, name_key
 from ..errors import FacecapError
-from ..shape_controls import curve_function
+from ..character.shape_controls import curve_function
 from .base import StrategyResult, as_target
 from .mapping import Mapping
 

@@ -16,7 +16,7 @@ beside the original and then solves like ``calibrated`` with it.
 
 import numpy as np
 
-from ..basis import Basis
+from ..character.basis import Basis
 from ..engine import solve_bounded
 from ..errors import FacecapError
 from .base import align_to, as_deltas, flat, reorder

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..aliases import name_key
+from ..character.aliases import name_key
 from ..errors import FacecapError
-from ..neutral import neutral_from_frames
-from ..stabilise import smooth_head_motion, stabilise_rigid
+from ..capture.neutral import neutral_from_frames
+from ..capture.stabilise import smooth_head_motion, stabilise_rigid
 from . import make_strategy
 from .base import fill_gaps, flat, gap_subspace
 

@@ -12,7 +12,7 @@ from .flow import (DenseFlowResult, FlowEstimator, ReferenceFlow, compose, dense
                    reverse, sample_flow, track_with_flow, track_with_flow_job, warp)
 from .pca import FlowPCA, flow_pca
 from .reading import Cancelled, Footage, FootageInfo, Job, open_footage, write_video
-from ..stabilise import stabilise_2d  # the one 2D stabilisation (image tracks), re-exported here
+from ..capture.stabilise import stabilise_2d  # the one 2D stabilisation (image tracks), re-exported here
 from .tracking import LKTracker, TrackResult, auto_seeds, read_seed_points, track_points, track_points_job
 
 __all__ = [

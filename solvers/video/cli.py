@@ -39,8 +39,8 @@ import tomllib
 from pathlib import Path
 
 from ..errors import ConfigError, FacecapError
-from ..fileio import write_json_atomic
-from ..io_csv import write_markers_csv, write_weights_csv
+from ..io.files import write_json_atomic
+from ..io.csv import write_markers_csv, write_weights_csv
 
 SCHEMA = {
     "source": {"video", "first", "last", "step", "scale", "fps", "frame_offset"},

@@ -165,7 +165,7 @@ def retarget_flow_job(footage, character, examples, *, settings=None, flow=None)
     """:func:`retarget_flow` as a :class:`~.reading.Job` (a footage frame per step; the features and
     the solve run after the last frame). Everything is validated before the first step."""
     from ..pipeline import RetargetResult, RetargetSettings
-    from ..shape_options import resolve_bounds, resolve_locks
+    from ..character.shape_options import resolve_bounds, resolve_locks
     from ..strategies.base import Target, as_target
     from .flow import dense_flow_job
 

@@ -7,7 +7,7 @@ from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
 
 from facecap.facecap_addon.video_scene import camera_from_scene
-from facecap.solvers.camera import look_at
+from facecap.solvers.character.camera import look_at
 
 
 def add_camera(scene, *, lens=35.0, sensor=(36.0, 24.0), fit="AUTO", shift=(0.0, 0.0), location=(0.4, -0.9, 0.3),

@@ -12,9 +12,9 @@ from scene_fixtures import build_character
 from facecap.facecap_addon.scene_data import basis_from_object
 from facecap.facecap_addon.video_scene import projection_for
 from facecap.solvers import Basis, MarkerSet, RetargetSettings
-from facecap.solvers.camera import look_at
-from facecap.solvers.pipeline_2d import retarget_geometric_2d
-from facecap.solvers.synth import performance_weights
+from facecap.solvers.character.camera import look_at
+from facecap.solvers.pipeline.markers_2d import retarget_geometric_2d
+from facecap.solvers.tools.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 
@@ -103,7 +103,7 @@ def test_solve_and_key_a_tracked_2d_take_through_the_sidebar_camera(empty_scene,
     import subprocess
     import sys
 
-    from facecap.solvers.io_csv import read_weights_csv, write_markers_csv
+    from facecap.solvers.io.csv import read_weights_csv, write_markers_csv
 
     out = tmp_path
     write_markers_csv(out / "tracks.csv", markers)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facecap.facecap_addon import cli
-from facecap.solvers import engine_split
+from facecap.solvers.engine import split as engine_split
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import InputFileError
 

@@ -7,7 +7,7 @@ import pytest
 from facecap.facecap_addon import anim, take
 from facecap.operators import importers
 from facecap.solvers import MarkerSet
-from facecap.solvers.readers import write_markers
+from facecap.solvers.io import write_markers
 
 
 def make_take():

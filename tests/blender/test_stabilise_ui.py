@@ -9,7 +9,7 @@ from scene_fixtures import LayoutStub
 from test_operators import _import, _solved_values, take  # noqa: F401  (fixture)
 
 from facecap.facecap_addon import anim, take as take_mod
-from facecap.solvers.stabilise import stabilise_rigid
+from facecap.solvers.capture.stabilise import stabilise_rigid
 
 
 def _stable_names(s):

@@ -12,10 +12,10 @@ import pytest
 from scene_fixtures import LayoutStub, build_character
 
 from facecap.facecap_addon import anim, import_scene, layers
-from facecap.solvers.basis import Basis
-from facecap.solvers.compare import SAMPLE_BASIS, STABLE, _phone_weights, actor_take, calibration_weights, make_actor
-from facecap.solvers.io_csv import write_markers_csv
-from facecap.solvers.synth import performance_weights, synthesize_take
+from facecap.solvers.character.basis import Basis
+from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE, _phone_weights, actor_take, calibration_weights, make_actor
+from facecap.solvers.io.csv import write_markers_csv
+from facecap.solvers.tools.synth import performance_weights, synthesize_take
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 

@@ -15,10 +15,10 @@ import pytest
 from scene_fixtures import LayoutStub, build_character
 
 from facecap.facecap_addon import anim, layers, tuning_scene
-from facecap.solvers.basis import Basis
-from facecap.solvers.compare import SAMPLE_BASIS, STABLE
-from facecap.solvers.io_csv import write_markers_csv
-from facecap.solvers.synth import performance_weights, synthesize_take
+from facecap.solvers.character.basis import Basis
+from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE
+from facecap.solvers.io.csv import write_markers_csv
+from facecap.solvers.tools.synth import performance_weights, synthesize_take
 
 WEAK = ("jawOpen", "mouthSmileLeft", "browInnerUp", "eyeBlinkLeft")
 N_FRAMES = 480
@@ -224,8 +224,8 @@ def test_the_cli_gives_the_same_retune_as_the_operator(solved, data, tmp_path):
     import subprocess
     import sys
 
-    from facecap.solvers.io_csv import read_weights_csv, write_weights_csv
-    from facecap.solvers.library_store import load_version
+    from facecap.solvers.io.csv import read_weights_csv, write_weights_csv
+    from facecap.solvers.tuning.store import load_version
 
     ctx = solved
     rows = _worst_rows(data, _solve_values(ctx))

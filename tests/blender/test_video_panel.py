@@ -8,7 +8,7 @@ from scene_fixtures import LayoutStub
 
 from facecap.facecap_addon import panels_video, properties_video
 from facecap.facecap_addon.video_scene import projection_for
-from facecap.solvers.camera import Camera
+from facecap.solvers.character.camera import Camera
 
 
 @pytest.fixture

@@ -10,11 +10,11 @@ def example_takes(frames=600, n_examples=30):
     """600 frames with and without 5 % gaps and ``n_examples`` posed frames (farthest frames of the
     gap-free take). With 60 occludable markers ~80 % of the frames have a gap and the gap-free ones
     are mostly the neutral holds. ``gap`` (F,) marks the frames of the gappy take with a gap."""
-    from facecap.solvers.basis import Basis
-    from facecap.solvers.compare import SAMPLE_BASIS, actor_take, make_actor
+    from facecap.solvers.character.basis import Basis
+    from facecap.solvers.tools.compare import SAMPLE_BASIS, actor_take, make_actor
     from facecap.solvers.strategies.options import ExamplePairs, StrategyInputs
     from facecap.solvers.strategies.pca import farthest_frames
-    from facecap.solvers.synth import performance_weights
+    from facecap.solvers.tools.synth import performance_weights
 
     character = Basis.load_npz(SAMPLE_BASIS)
     actor = make_actor(character, seed=0)
@@ -29,7 +29,7 @@ def example_takes(frames=600, n_examples=30):
 def weight_errors(takes, **settings):
     """{"clean": errors, "gappy": errors} (F, K) of ``retarget`` with ``RetargetSettings(**settings)``
     on both takes (unsolved weights count as an error of 1)."""
-    from facecap.solvers.compare import STABLE
+    from facecap.solvers.tools.compare import STABLE
     from facecap.solvers.pipeline import RetargetSettings, retarget
 
     rs = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), **settings)

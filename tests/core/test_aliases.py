@@ -1,7 +1,7 @@
 """Alias tables: Live Link Face, MediaPipe, ARKit raw strings and FACS action units onto ARKit keys."""
 
-from facecap.solvers.aliases import canonical_names, match_names, mirror_name
-from facecap.solvers.arkit import ARKIT_52
+from facecap.solvers.character.aliases import canonical_names, match_names, mirror_name
+from facecap.solvers.io.arkit import ARKIT_52
 
 # MediaPipe face landmarker blendshape categories (52 = "_neutral" + 51 ARKit names, no tongueOut).
 MEDIAPIPE = ("_neutral",) + tuple(n for n in ARKIT_52 if n != "tongueOut")

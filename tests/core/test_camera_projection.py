@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings
-from facecap.solvers.camera import Camera, look_at
-from facecap.solvers.pipeline_2d import retarget_geometric_2d
-from facecap.solvers.synth import performance_weights
+from facecap.solvers.character.camera import Camera, look_at
+from facecap.solvers.pipeline.markers_2d import retarget_geometric_2d
+from facecap.solvers.tools.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 CENTRE = np.array([0.0, -0.06, 0.0])  # middle of the sample character's bound points

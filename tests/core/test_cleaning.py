@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers import FacecapError, MarkerSet
-from facecap.solvers.cleaning import (CleanSettings, clean, fill_gaps_model, fill_gaps_spline, fix_swaps,
+from facecap.solvers.capture.cleaning import (CleanSettings, clean, fill_gaps_model, fill_gaps_spline, fix_swaps,
                                       lowpass, one_euro, remove_spikes)
 
 SIGMA = 0.1  # mm of marker noise

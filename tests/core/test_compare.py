@@ -1,6 +1,6 @@
 """The strategy comparison table: every strategy runs on the same synthetic takes."""
 
-from facecap.solvers import compare
+from facecap.solvers.tools import compare
 
 
 def test_main_prints_a_markdown_row_per_strategy(capsys):

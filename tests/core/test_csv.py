@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers import FacecapError, InputFileError, MarkerSet, read_markers_csv, write_markers_csv
-from facecap.solvers.io_csv import read_weights_csv, write_weights_csv
+from facecap.solvers.io.csv import read_weights_csv, write_weights_csv
 
 
 def write(tmp_path, text, name="take.csv"):

@@ -8,9 +8,9 @@ bit for bit (``view(np.uint64)``: -0.0, NaN and the last ulp all count).
 import numpy as np
 import pytest
 
-from facecap.solvers import io_csv, io_csv_vector
+from facecap.solvers.io import csv as io_csv, csv_vector as io_csv_vector
 from facecap.solvers.errors import InputFileError
-from facecap.solvers.io_csv import read_numeric_columns, read_weights_csv, sniff, write_weights_csv
+from facecap.solvers.io.csv import read_numeric_columns, read_weights_csv, sniff, write_weights_csv
 
 
 def bits(a):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from facecap.solvers.diagnostics import basis_conditioning, basis_warnings, residual_stats
+from facecap.solvers.character.diagnostics import basis_conditioning, basis_warnings, residual_stats
 from facecap.solvers.engine import solve_bounded
 from test_engine_refs import localised_basis
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from facecap.solvers.engine_banded import context, frame_band, solve_window
-from facecap.solvers.engine_frames import FullInverse, box_qp, pattern_hessians, pattern_inverses
-from facecap.solvers.engine_temporal import temporal_operator
+from facecap.solvers.engine.banded import context, frame_band, solve_window
+from facecap.solvers.engine.frames import FullInverse, box_qp, pattern_hessians, pattern_inverses
+from facecap.solvers.engine.temporal import temporal_operator
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -78,7 +78,7 @@ def test_exact_fallback_does_not_import_scipy():
 
     code = (
         "import sys, numpy as np\n"
-        "from facecap.solvers.engine_frames import exact_frame\n"
+        "from facecap.solvers.engine.frames import exact_frame\n"
         "H = np.array([[2.0, 0.5], [0.5, 1.0]])\n"
         "w = exact_frame(H, np.array([-1.0, 2.0]), np.zeros(2), np.ones(2), np.zeros(2))\n"
         "assert np.allclose(w, [0.0, 1.0]), w\n"

@@ -4,9 +4,9 @@ condition flag give bit-identical weights to solves that compute them afresh."""
 import numpy as np
 import pytest
 
-from facecap.solvers import engine_frames, engine_temporal
+from facecap.solvers.engine import frames as engine_frames, temporal as engine_temporal
 from facecap.solvers.engine import solve_bounded
-from facecap.solvers.engine_frames import PatternSetup, reuse_pattern_setup
+from facecap.solvers.engine.frames import PatternSetup, reuse_pattern_setup
 from test_engine_refs import localised_basis
 
 KW = dict(regularisation=1e-4, sparsity=0.01, relative=True, chunk=64)

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from facecap.solvers import engine_split
+from facecap.solvers.engine import split as engine_split
 
 
 def _work(seed, n):

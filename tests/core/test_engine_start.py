@@ -29,7 +29,7 @@ def test_per_frame_start_reaches_the_cold_optimum(lo):
 
 
 def test_temporal_start_reaches_the_cold_optimum(monkeypatch):
-    from facecap.solvers import engine_temporal
+    from facecap.solvers.engine import temporal as engine_temporal
 
     A, D, D2 = refit_pair(4, F=900)
     kw = dict(regularisation=1e-4, sparsity=0.01, relative=True)
@@ -81,7 +81,7 @@ def test_a_smooth_start_settles():
     """From this start the active set used to wander for all 40 iterations on the weakly observed
     shapes (a proximal step from the frame's mean curvature; sign changes straight across 0). With
     per-variable steps and stops at the kink it settles like the per-frame guess does."""
-    from facecap.solvers import engine_temporal
+    from facecap.solvers.engine import temporal as engine_temporal
 
     args, start = _wandering_start()
     w, it, ok = engine_temporal.solve_temporal(*args, split=False, start=start)
@@ -93,7 +93,7 @@ def test_a_smooth_start_settles():
 def test_a_start_that_does_not_settle_is_dropped_for_the_guess(monkeypatch):
     """Should the iteration not settle from a given start, the solve starts again from the
     per-frame guess and reaches the optimum (the first run is made to report failure here)."""
-    from facecap.solvers import engine_temporal
+    from facecap.solvers.engine import temporal as engine_temporal
 
     args, start = _wandering_start()
     settled = []

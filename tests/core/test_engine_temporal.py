@@ -115,7 +115,7 @@ def test_default_smoothing_trade_off():
 @pytest.mark.parametrize("fork", [True, False])
 def test_split_take_matches_the_stacked_reference(monkeypatch, fork):
     """A take cut in two halves (one in a forked child where possible) and joined: still the optimum."""
-    from facecap.solvers import engine_split, engine_temporal
+    from facecap.solvers.engine import split as engine_split, temporal as engine_temporal
 
     monkeypatch.setattr(engine_temporal, "SPLIT_FRAMES", 30)
     monkeypatch.setattr(engine_temporal, "OVERLAP", 6)
@@ -136,7 +136,7 @@ def test_split_take_matches_the_stacked_reference(monkeypatch, fork):
 def test_long_take_split_and_windows_agree_with_one_piece(monkeypatch):
     """1,500 frames: the windowed iteration (incremental gradient) with and without the split agree,
     and the result meets the optimality conditions."""
-    from facecap.solvers import engine_temporal
+    from facecap.solvers.engine import temporal as engine_temporal
 
     A = localised_basis(K=10)
     W, D = take(A, F=1500, seed=24)
@@ -170,7 +170,7 @@ def kkt_violation(A, C, G, R, lo, hi, lam, mu, w):
     """Largest violation of the optimality conditions of the whole-take problem at ``w``, relative
     to the gradient's scale: an optimality certificate that does not depend on how ``w`` was found.
     L1 is the true |w| (a kink at 0 on shapes whose range contains 0)."""
-    from facecap.solvers.engine_temporal import _tmul, temporal_operator
+    from facecap.solvers.engine.temporal import _tmul, temporal_operator
 
     H = np.einsum("pk,fp,pl->fkl", A, C.astype(float), A) + R
     g = np.einsum("fkl,fl->fk", H, w) + _tmul(temporal_operator(len(w), *mu), w) - G  # smooth part
@@ -200,7 +200,7 @@ def test_an_active_set_cycle_is_broken(monkeypatch):
     primal-dual active-set steps cycle with period 4 on one shape in four neighbouring frames, from
     any start. The safeguard (one variable at a time once the count of wrong variables stops
     falling) reaches the optimum."""
-    from facecap.solvers import engine_temporal
+    from facecap.solvers.engine import temporal as engine_temporal
 
     A, C, G, R, lo, hi, lam, mu = _cycle_take()
     args = (A, C, G, R, lo, hi, lam, tuple(mu))
@@ -225,7 +225,7 @@ def test_strong_sparsity_other_smoothing_and_kinks_settle(l1, smooth, kink):
     iterations before (strong shapes jumped from one bound straight to the other, weakly observed
     ones from one sign straight to the other); all reach the optimum now, the last one in the
     whole-take budget (200: the late iterations only re-solve windows)."""
-    from facecap.solvers import engine_temporal
+    from facecap.solvers.engine import temporal as engine_temporal
 
     A, C, G, R, lo, hi, lam, mu = _cycle_take()
     lo = lo.copy()

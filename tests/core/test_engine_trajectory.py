@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from facecap.solvers import engine_temporal
-from facecap.solvers.engine_frames import _FREE, classify, fixed_values, solve_frames
-from facecap.solvers.engine_temporal import _tmul, temporal_operator
-from facecap.solvers.engine_trajectory import predict_states
+from facecap.solvers.engine import temporal as engine_temporal
+from facecap.solvers.engine.frames import _FREE, classify, fixed_values, solve_frames
+from facecap.solvers.engine.temporal import _tmul, temporal_operator
+from facecap.solvers.engine.trajectory import predict_states
 
 
 def _beam_take(seed, F=600, mu2=1e-2):

@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from facecap.solvers import FacecapError, MarkerSet, fit_rigid_batch
-from facecap.solvers.align import align_actor, region_patterns
-from facecap.solvers.smoothing import local_polynomial
+from facecap.solvers.capture.align import align_actor, region_patterns
+from facecap.solvers.capture.smoothing import local_polynomial
 from facecap.solvers.transforms import _rotation_svd, _spread_ok, best_rotation
 
 RNG = np.random.default_rng(11)

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from facecap.solvers import FacecapError, MarkerSet
-from facecap.solvers.io_c3d import read_c3d, write_c3d
-from facecap.solvers.io_csv import read_long_csv, read_wide_csv, write_markers_csv
-from facecap.solvers.io_json import read_json, write_json
-from facecap.solvers.io_trc import read_trc, write_trc
-from facecap.solvers.io_weights import read_weights
+from facecap.solvers.io.c3d import read_c3d, write_c3d
+from facecap.solvers.io.csv import read_long_csv, read_wide_csv, write_markers_csv
+from facecap.solvers.io.json import read_json, write_json
+from facecap.solvers.io.trc import read_trc, write_trc
+from facecap.solvers.io.weights import read_weights
 
 CASES = 2000
 MAX_SECONDS = 5.0

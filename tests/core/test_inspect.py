@@ -5,8 +5,8 @@ import re
 import numpy as np
 
 from facecap.solvers import MarkerSet
-from facecap.solvers.inspect import describe, main
-from facecap.solvers.readers import write_markers
+from facecap.solvers.tools.inspect import describe, main
+from facecap.solvers.io import write_markers
 
 
 def test_describe_lists_markers_gaps_and_segments():

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from facecap.solvers import InputFileError, MarkerSet
-from facecap.solvers.io_c3d import read_c3d, write_c3d
-from facecap.solvers.readers import detect_format, import_markers, read_markers, read_weights, write_markers
+from facecap.solvers.io.c3d import read_c3d, write_c3d
+from facecap.solvers.io import detect_format, import_markers, read_markers, read_weights, write_markers
 
 BLENDERFACE = Path(__file__).resolve().parents[3] / "shared" / "data" / "blenderface"
 if not BLENDERFACE.is_dir():
@@ -182,7 +182,7 @@ def test_live_link_face_csv(tmp_path):
 
 
 def test_mediapipe_csv(tmp_path):
-    from facecap.solvers.arkit import ARKIT_52
+    from facecap.solvers.io.arkit import ARKIT_52
 
     names = ["_neutral"] + [n for n in ARKIT_52 if n != "tongueOut"]
     path = tmp_path / "mp.csv"

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from facecap.solvers.basis import Basis
+from facecap.solvers.character.basis import Basis
 from facecap.solvers.errors import InputFileError
-from facecap.solvers.library_store import list_versions, load_version, read_corrections_csv, save_version
+from facecap.solvers.tuning.store import list_versions, load_version, read_corrections_csv, save_version
 from facecap.solvers.strategies.options import ExamplePairs
-from facecap.solvers.tuning_take import LibraryVersion
+from facecap.solvers.tuning.take import LibraryVersion
 
 SHAPES = ("jawOpen", "mouthSmileLeft", "eyeBlinkLeft")
 

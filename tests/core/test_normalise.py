@@ -9,11 +9,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from facecap.solvers import Basis, FacecapError, MarkerSet, load_take_config, read_markers_csv, retarget
-from facecap.solvers.align import align_actor, region_patterns
-from facecap.solvers.io_csv import read_weights_csv
-from facecap.solvers.normalise import detect_neutral_frames, master_offsets, neutral_from_ranges
-from facecap.solvers.stabilise import stabilise_2d, stabilise_rigid
-from facecap.solvers.stable_selection import suggest_stable_markers
+from facecap.solvers.capture.align import align_actor, region_patterns
+from facecap.solvers.io.csv import read_weights_csv
+from facecap.solvers.capture.normalise import detect_neutral_frames, master_offsets, neutral_from_ranges
+from facecap.solvers.capture.stabilise import stabilise_2d, stabilise_rigid
+from facecap.solvers.capture.stable_markers import suggest_stable_markers
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 

@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 from synthetic_face import make_basis
 
 from facecap.solvers import FacecapError, RetargetSettings, retarget
-from facecap.solvers.synth import synthesize_take
+from facecap.solvers.tools.synth import synthesize_take
 from facecap.solvers.transforms import rotation_angle_deg
 
 # No priors and no smoothing: exact data must give exact weights.
@@ -90,8 +90,8 @@ def test_frame_marker_residual_is_the_per_marker_split_of_residual_rms(setup):
 def test_frame_marker_residual_of_a_marker_strategy_and_none_for_parallel():
     from dataclasses import replace
 
-    from facecap.solvers.compare import STABLE, build_scenario
-    from facecap.solvers.io_weights import WeightTrack
+    from facecap.solvers.tools.compare import STABLE, build_scenario
+    from facecap.solvers.io.weights import WeightTrack
     from facecap.solvers.strategies.options import CalibrationSettings, StrategyInputs
 
     sc = build_scenario(frames=240, n_examples=20)

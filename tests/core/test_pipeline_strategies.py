@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 from facecap.solvers import ConfigError, load_take_config
-from facecap.solvers.compare import STABLE, build_scenario
+from facecap.solvers.tools.compare import STABLE, build_scenario
 from facecap.solvers.errors import FacecapError
-from facecap.solvers.io_weights import WeightTrack
+from facecap.solvers.io.weights import WeightTrack
 from facecap.solvers.pipeline import RetargetSettings, retarget
 from facecap.solvers.strategies.base import Target
 from facecap.solvers.strategies.options import CalibrationSettings, ExamplePairs, MappingSettings, StrategyInputs
 from facecap.solvers.strategies.pca import farthest_frames
-from facecap.solvers.strategy_config import load_strategy_inputs
+from facecap.solvers.config.strategies import load_strategy_inputs
 
 
 @pytest.fixture(scope="module")
@@ -266,7 +266,7 @@ def test_weights_source_belongs_to_parallel(tmp_path):
 
 
 def test_load_strategy_inputs_reads_the_named_files(tmp_path, sc):
-    from facecap.solvers.io_csv import write_markers_csv, write_weights_csv
+    from facecap.solvers.io.csv import write_markers_csv, write_weights_csv
 
     write_markers_csv(tmp_path / "calib.csv", sc.calibration)
     poses = ", ".join(f"{k} = {v}" for k, v in list(sc.poses.items())[:3])

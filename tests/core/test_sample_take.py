@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from facecap.solvers import Basis, RetargetSettings, load_take_config, read_markers_csv, retarget
-from facecap.solvers.io_csv import read_weights_csv
+from facecap.solvers.io.csv import read_weights_csv
 from facecap.solvers.transforms import rotation_angle_deg
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"

@@ -7,9 +7,9 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from facecap.solvers.errors import FacecapError, InputFileError
-from facecap.solvers.shape_controls import (ShapeControl, apply_controls, controls_from_gain_offset, curve_function,
+from facecap.solvers.character.shape_controls import (ShapeControl, apply_controls, controls_from_gain_offset, curve_function,
                                             load_preset, locks_from_controls, save_preset)
-from facecap.solvers.tuning import apply_gain_offset, fit_gain_offset
+from facecap.solvers.tuning.retune import apply_gain_offset, fit_gain_offset
 
 NAMES = ("jawOpen", "mouthSmileLeft", "mouthSmileRight", "browInnerUp")
 

@@ -5,8 +5,8 @@ import pytest
 from synthetic_face import make_basis
 
 from facecap.solvers import FacecapError, RetargetSettings, retarget
-from facecap.solvers.shape_options import Region, resolve_bounds, resolve_locks, resolve_regions
-from facecap.solvers.synth import synthesize_take
+from facecap.solvers.character.shape_options import Region, resolve_bounds, resolve_locks, resolve_regions
+from facecap.solvers.tools.synth import synthesize_take
 
 EXACT = dict(regularisation=0.0, sparsity=0.0, symmetry=0.0, head_smoothing=0.0, smoothing=(0.0, 0.0))
 

@@ -106,7 +106,7 @@ def _head_with_deforming_stable_markers(seed=0, n_frames=600):
 
 
 def test_robust_fit_survives_deforming_markers_in_the_stable_set():
-    from facecap.solvers.stabilise import smooth_head_motion
+    from facecap.solvers.capture.stabilise import smooth_head_motion
 
     markers, R, moving = _head_with_deforming_stable_markers()
     errors = {}
@@ -122,7 +122,7 @@ def test_robust_fit_survives_deforming_markers_in_the_stable_set():
 
 
 def test_rotation_error_with_noise_after_smoothing():
-    from facecap.solvers.stabilise import smooth_head_motion
+    from facecap.solvers.capture.stabilise import smooth_head_motion
 
     markers, R, moving = _head_with_deforming_stable_markers(seed=1)
     rigid = [n for n in markers.names if n not in moving]

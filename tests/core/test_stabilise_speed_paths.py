@@ -9,8 +9,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from facecap.solvers import MarkerSet, fit_rigid_batch, stabilise_rigid
-from facecap.solvers import smoothing
-from facecap.solvers.stabilise import _apply, _norm3, refine_rigid, smooth_head_motion
+from facecap.solvers.capture import smoothing
+from facecap.solvers.capture.stabilise import _apply, _norm3, refine_rigid, smooth_head_motion
 from facecap.solvers.transforms import _zero_rows
 
 RNG = np.random.default_rng(5)

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from facecap.solvers.basis import Basis
-from facecap.solvers.compare import STABLE, actor_take, calibration_weights, make_actor, SAMPLE_BASIS
+from facecap.solvers.character.basis import Basis
+from facecap.solvers.tools.compare import STABLE, actor_take, calibration_weights, make_actor, SAMPLE_BASIS
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.strategies import STRATEGY_NAMES, make_strategy
 from facecap.solvers.strategies.calibrated import CalibratedStrategy, actor_basis_from_poses
 from facecap.solvers.strategies.mapping import Mapping
 from facecap.solvers.strategies.refine import RefineStrategy
-from facecap.solvers.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synth import performance_weights, synthesize_take
 from facecap.solvers.transforms import fit_similarity
 
 

@@ -197,8 +197,8 @@ def test_ica_runs_on_the_signal_components_only(gappy_takes):
     # noise like signal. related, weights RMSE plain / ICA: before 0.0383 / 0.0927, now 0.0383 / 0.0344
     # (ICA on the 14 components above the Gavish-Donoho noise level, the rest of the PCA span kept).
     # posed (the 30 given examples): 0.0401 with and without ICA, before and now.
-    from facecap.solvers.basis import Basis
-    from facecap.solvers.compare import SAMPLE_BASIS, STABLE
+    from facecap.solvers.character.basis import Basis
+    from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE
     from facecap.solvers.pipeline import RetargetSettings, retarget
     from facecap.solvers.strategies.options import ExamplePairs, PCASettings, StrategyInputs
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from facecap.solvers.basis import Basis
-from facecap.solvers.compare import SAMPLE_BASIS, make_actor
+from facecap.solvers.character.basis import Basis
+from facecap.solvers.tools.compare import SAMPLE_BASIS, make_actor
 from facecap.solvers.errors import FacecapError
-from facecap.solvers.synth import performance_weights
-from facecap.solvers.tuning import (apply_gain_offset, closed_form_update, default_solver, fit_gain_offset,
+from facecap.solvers.tools.synth import performance_weights
+from facecap.solvers.tuning.retune import (apply_gain_offset, closed_form_update, default_solver, fit_gain_offset,
                                     retune, spread_frames)
 
 WEAK = ("jawOpen", "mouthSmileLeft", "browInnerUp", "eyeBlinkLeft")
@@ -220,10 +220,10 @@ def test_through_the_calibrated_strategy():
     """The 40% poses come from a synthetic calibration session (holds at 0.4) through
     ``actor_basis_from_poses``; the take is solved by ``CalibratedStrategy`` (head motion, rigid
     alignment onto the calibration neutral); the tuned library goes back in as ``actor_basis``."""
-    from facecap.solvers.compare import STABLE, actor_take, calibration_weights
+    from facecap.solvers.tools.compare import STABLE, actor_take, calibration_weights
     from facecap.solvers.strategies.base import align_to, reorder
     from facecap.solvers.strategies.calibrated import CalibratedStrategy
-    from facecap.solvers.synth import synthesize_take
+    from facecap.solvers.tools.synth import synthesize_take
 
     character = Basis.load_npz(SAMPLE_BASIS)
     actor = make_actor(character, seed=0)

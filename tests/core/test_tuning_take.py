@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from facecap.solvers.basis import Basis
-from facecap.solvers.compare import SAMPLE_BASIS, STABLE, actor_take, calibration_weights, make_actor
+from facecap.solvers.character.basis import Basis
+from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE, actor_take, calibration_weights, make_actor
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.pipeline import RetargetSettings, retarget
 from facecap.solvers.strategies.options import CalibrationSettings, ExamplePairs, MappingSettings, StrategyInputs
 from facecap.solvers.strategies.pca import farthest_frames
-from facecap.solvers.synth import performance_weights, synthesize_take
-from facecap.solvers.tuning_take import LibraryVersion, apply_version, original_version, retune_take
+from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tuning.take import LibraryVersion, apply_version, original_version, retune_take
 from test_tuning import WEAK, _worst_frames
 
 

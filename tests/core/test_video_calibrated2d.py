@@ -8,9 +8,9 @@ import pytest
 
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings
 from facecap.solvers.pipeline import retarget
-from facecap.solvers.pipeline_2d import retarget_markers_2d
+from facecap.solvers.pipeline.markers_2d import retarget_markers_2d
 from facecap.solvers.strategies.options import CalibrationSettings, StrategyInputs
-from facecap.solvers.synth import performance_weights
+from facecap.solvers.tools.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 HOLD, GAP, NEUTRAL = 8, 3, 20  # calibration: frames each pose is held, relaxed frames between, neutral frames

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("cv2")
 
 from facecap.solvers import solve_bounded  # noqa: E402
-from facecap.solvers.stabilise import stabilise_2d  # noqa: E402
+from facecap.solvers.capture.stabilise import stabilise_2d  # noqa: E402
 from facecap.solvers.video.synthetic import write_synthetic_clip  # noqa: E402
 from facecap.solvers.video.tracking import track_points  # noqa: E402
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers import FacecapError, MarkerSet
-from facecap.solvers.stabilise import stabilise_2d, transforms_2d
+from facecap.solvers.capture.stabilise import stabilise_2d, transforms_2d
 
 
 def moving_tracks(F=20, seed=0, model="similarity"):

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecap.solvers.io_csv import read_weights_csv
+from facecap.solvers.io.csv import read_weights_csv
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "sample_blends"
@@ -192,8 +192,8 @@ def test_retarget_2d_tracks_from_the_command_line(tmp_path):
     from test_pipeline_2d import tracks_2d
 
     from facecap.solvers import Basis
-    from facecap.solvers.io_csv import write_markers_csv
-    from facecap.solvers.synth import performance_weights
+    from facecap.solvers.io.csv import write_markers_csv
+    from facecap.solvers.tools.synth import performance_weights
 
     basis = Basis.load_npz(SAMPLES / "character_basis.npz")
     layout = json.loads((SAMPLES / "marker_layout.json").read_text())

@@ -18,7 +18,7 @@ import pytest
 
 pytest.importorskip("cv2")
 
-from facecap.solvers.io_csv import read_weights_csv, write_weights_csv  # noqa: E402
+from facecap.solvers.io.csv import read_weights_csv, write_weights_csv  # noqa: E402
 from facecap.solvers.video.synthetic import write_synthetic_clip  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,0 +1,258 @@
+"""The strategy sections of a take config: [calibration] [mapping] [examples] [pca] [refine].
+
+``strategy_settings`` validates them (errors name ``[section.key]``) into the frozen settings of
+``solvers.strategies.options``; ``load_strategy_inputs`` reads the files they name (calibration
+take, stored actor basis, posed example weights, training take, solved weights) into
+``StrategyInputs``. Defaults are those of the settings dataclasses.
+"""
+
+import warnings
+
+from ..errors import ConfigError, FacecapError
+from ..strategies.options import (
+    CalibrationSettings,
+    ExamplePairs,
+    ExampleSettings,
+    MappingSettings,
+    PCASettings,
+    RefineSettings,
+    StrategyInputs,
+)
+from ..strategies.wiring import NEEDS
+
+ALIGN = ("rigid", "similarity", "none")
+KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
+           "inverse_multiquadric", "inverse_quadratic")  # as strategies.rbf.KERNELS (scipy stays unimported here)
+PCA_MODES = ("related", "posed")
+
+
+def _number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _frame_pair(value):
+    return isinstance(value, list) and len(value) == 2 and all(isinstance(v, int) and not isinstance(v, bool)
+                                                               for v in value) and value[0] <= value[1]
+
+
+def strategy_settings(path, data, strategy):
+    """``{calibration, mapping, examples, pca, refine}`` settings for RetargetSettings."""
+    cal = data.get("calibration", {})
+    ex = data.get("examples", {})
+
+    def fail(key, message):
+        raise ConfigError(message, path=path, key=key)
+
+    if strategy in ("calibrated", "refine"):
+        has_take = "markers" in cal and "poses" in cal
+        if "basis" in cal and ("markers" in cal or "poses" in cal):
+            fail("calibration.basis", "give either a stored basis or calibration markers + poses, not both")
+        if not has_take and "basis" not in cal:
+            fail("calibration.markers" if "markers" not in cal else "calibration.poses",
+                 f"strategy '{strategy}' needs {NEEDS[strategy]}")
+    if strategy in ("linear", "rbf", "pca") and "weights" not in ex:
+        fail("examples.weights", f"strategy '{strategy}' needs {NEEDS[strategy]}")
+    return {
+        "calibration": _calibration(cal, fail),
+        "mapping": _mapping(data.get("mapping", {}), fail),
+        "examples": _examples(ex, fail),
+        "pca": _pca(data.get("pca", {}), fail),
+        "refine": _refine(data.get("refine", {}), fail),
+    }
+
+
+def _calibration(cal, fail):
+    poses = []
+    for name, spec in cal.get("poses", {}).items():
+        ranges = [spec] if _frame_pair(spec) else spec
+        if not (isinstance(ranges, list) and ranges and all(_frame_pair(r) for r in ranges)):
+            fail(f"calibration.poses.{name}", f"expected [first, last] or [[first, last], ...] with first <= last; got {spec}")
+        poses.append((name, tuple(tuple(r) for r in ranges)))
+    split = cal.get("split", [])
+    if not all(isinstance(s, str) for s in split):
+        fail("calibration.split", "expected a list of pose names")
+    unknown = [s for s in split if s not in dict(poses)]
+    if unknown and poses:
+        fail("calibration.split", f"names pose(s) not in [calibration] poses: {unknown}")
+    neutral = cal.get("neutral")
+    if neutral is not None and not _frame_pair(neutral):
+        fail("calibration.neutral", f"expected [first, last] frame numbers; got {neutral}")
+    stable = cal.get("stable_markers", [])
+    if stable and (len(stable) < 3 or not all(isinstance(s, str) for s in stable)):
+        fail("calibration.stable_markers", "expected a list of at least 3 marker names")
+    align = cal.get("align", "rigid")
+    if align not in ALIGN:
+        fail("calibration.align", f"expected one of {ALIGN}; got '{align}'")
+    return CalibrationSettings(poses=tuple(poses), neutral_frames=None if neutral is None else tuple(neutral),
+                               split=tuple(split), stable_markers=tuple(stable), align=align)
+
+
+def _table(table, keyed_by, fail):
+    rows = []
+    for outer, entry in table.items():
+        key = f"mapping.table.{outer}"
+        if isinstance(entry, str):
+            entry = {entry: 1.0}
+        elif isinstance(entry, list) and all(isinstance(e, str) for e in entry):
+            entry = {e: 1.0 for e in entry}
+        if not isinstance(entry, dict) or not entry:
+            fail(key, "expected a name, a list of names or { name = gain, ... }")
+        for inner, gain in entry.items():
+            if not _number(gain):
+                fail(key, f"gain for '{inner}' must be a number; got {gain!r}")
+            source, target = (outer, inner) if keyed_by == "source" else (inner, outer)
+            rows.append((source, target, float(gain)))
+    return tuple(rows)
+
+
+def _per_shape(value, key, fail, check):
+    """A scalar, or a {shape: value} table -> ((shape, value), ...)."""
+    if isinstance(value, dict):
+        for shape, v in value.items():
+            if not check(v):
+                fail(f"{key}.{shape}", f"invalid value {v!r}")
+        return tuple((shape, tuple(v) if isinstance(v, list) else v) for shape, v in value.items())
+    if not check(value):
+        fail(key, f"invalid value {value!r}")
+    return tuple(value) if isinstance(value, list) else value
+
+
+def _curve_ok(spec):
+    from ..strategies.parallel import _curve
+
+    try:
+        _curve(spec)
+    except FacecapError:
+        return False
+    return True
+
+
+def _mapping(m, fail):
+    keyed_by = m.get("keyed_by", "source")
+    if keyed_by not in ("source", "target"):
+        fail("mapping.keyed_by", f"expected 'source' or 'target'; got '{keyed_by}'")
+    neutral = m.get("neutral")
+    if neutral is not None and not _frame_pair(neutral):
+        fail("mapping.neutral", f"expected [first, last] frame numbers of the source weights; got {neutral}")
+    clamp = m.get("clamp")
+    clamp_ok = lambda v: isinstance(v, list) and len(v) == 2 and all(_number(x) for x in v) and v[0] <= v[1]  # noqa: E731
+    return MappingSettings(
+        table=_table(m.get("table", {}), keyed_by, fail),
+        keyed_by=keyed_by,
+        aliases=m.get("aliases", True),
+        gain=_per_shape(m.get("gain", 1.0), "mapping.gain", fail, _number),
+        offset=_per_shape(m.get("offset", 0.0), "mapping.offset", fail, _number),
+        clamp=None if clamp is None else _per_shape(clamp, "mapping.clamp", fail, clamp_ok),
+        curve=_per_shape(m.get("curve", "linear"), "mapping.curve", fail, _curve_ok),
+        mirror=m.get("mirror", False),
+        neutral_frames=None if neutral is None else tuple(neutral),
+    )
+
+
+def _examples(ex, fail):
+    d = ExampleSettings()
+    frames = ex.get("frames", [])
+    if not all(_number(f) for f in frames):
+        fail("examples.frames", "expected a list of frame numbers")
+    for key in ("ridge", "rbf_smoothing"):
+        if ex.get(key, 0) < 0:
+            fail(f"examples.{key}", f"must be >= 0; got {ex[key]}")
+    if ex.get("far", 1) <= 0:
+        fail("examples.far", f"must be > 0; got {ex['far']}")
+    kernel = ex.get("kernel", d.kernel)
+    if kernel not in KERNELS:
+        fail("examples.kernel", f"unknown kernel '{kernel}'; available: {', '.join(KERNELS)}")
+    degree = ex.get("degree", d.degree)
+    if degree not in (-1, 0, 1, 2):
+        fail("examples.degree", f"must be -1 (none), 0, 1 or 2; got {degree}")
+    n_components = ex.get("n_components")
+    if n_components is not None and n_components < 1:
+        fail("examples.n_components", f"must be >= 1; got {n_components}")
+    return ExampleSettings(frames=tuple(float(f) for f in frames), ridge=float(ex.get("ridge", d.ridge)), kernel=kernel,
+                           rbf_smoothing=float(ex.get("rbf_smoothing", d.rbf_smoothing)), degree=degree,
+                           n_components=n_components, far=float(ex.get("far", d.far)))
+
+
+def _pca(p, fail):
+    d = PCASettings()
+    mode = p.get("mode", d.mode)
+    if mode not in PCA_MODES:
+        fail("pca.mode", f"expected one of {PCA_MODES}; got '{mode}'")
+    if p.get("n_basis", 1) < 1:
+        fail("pca.n_basis", f"must be >= 1; got {p['n_basis']}")
+    variance = p.get("variance", d.variance)
+    if not 0 < variance <= 1:
+        fail("pca.variance", f"must be in (0, 1]; got {variance}")
+    return PCASettings(mode=mode, ica=p.get("ica", d.ica), n_basis=p.get("n_basis", d.n_basis), variance=float(variance))
+
+
+def _refine(r, fail):
+    d = RefineSettings()
+    for key in ("max_iterations", "tol", "stiffness"):
+        if r.get(key, 0) < 0:
+            fail(f"refine.{key}", f"must be >= 0; got {r[key]}")
+    return RefineSettings(max_iterations=r.get("max_iterations", d.max_iterations), tol=float(r.get("tol", d.tol)),
+                          stiffness=float(r.get("stiffness", d.stiffness)))
+
+
+def load_strategy_inputs(config, *, read_markers=None):
+    """Read the files a take config's strategy needs into ``StrategyInputs``.
+
+    Parameters
+    ----------
+    config : TakeConfig
+    read_markers : callable(path, units, fps) -> MarkerSet, optional
+        How extra marker takes (calibration, example take, training take) are read; default
+        ``readers.import_markers`` with the [source] read options and the [clean] steps.
+    """
+    import numpy as np
+
+    from ..character.basis import Basis
+    from ..errors import InputFileError
+    from ..io.csv import read_weights_csv
+    from ..io.weights import read_weights
+
+    notes = []
+    if read_markers is None:
+        from ..capture.cleaning import clean
+        from ..io import import_markers
+
+        options = {k: v for k, v in config.read_options.items() if k != "format"}
+
+        def read_markers(path, units, fps):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                imported = import_markers(path, units=units, fps=fps, **options)
+            notes.extend(f"{path.name}: {w.message}" for w in caught)
+            return clean(imported.markers, config.clean).markers
+
+    def need(path, what):
+        if not path.is_file():
+            raise InputFileError(path, f"file not found (config {what})")
+        return path
+
+    strategy = config.settings.strategy
+    inputs = {}
+    if strategy in ("calibrated", "refine"):
+        if config.actor_basis_path is not None:
+            try:
+                inputs["actor_basis"] = Basis.load_npz(need(config.actor_basis_path, "[calibration] basis"))
+            except (OSError, KeyError, ValueError) as exc:
+                raise InputFileError(config.actor_basis_path, f"not a stored basis (Basis.save_npz): {exc}") from None
+        else:
+            path = need(config.calibration_path, "[calibration] markers")
+            inputs["calibration"] = read_markers(path, config.calibration_units or config.units,
+                                                 config.calibration_fps or config.fps)
+        if strategy == "refine" and config.training_path is not None:
+            inputs["training"] = read_markers(need(config.training_path, "[refine] training"), config.units, config.fps)
+    if strategy in ("linear", "rbf", "pca"):
+        frames, names, values = read_weights_csv(need(config.examples_weights_path, "[examples] weights"))
+        markers = None
+        if config.examples_markers_path is not None:
+            markers = read_markers(need(config.examples_markers_path, "[examples] markers"), config.units, config.fps)
+        inputs["examples"] = ExamplePairs(np.asarray(frames, dtype=np.float64), values, tuple(names), markers)
+    if strategy == "parallel":
+        track = read_weights(need(config.weights_path, "[source] weights"), fps=config.fps)
+        notes.extend(f"{config.weights_path.name}: {n}" for n in track.notes)
+        inputs["weights"] = track
+    return StrategyInputs(**inputs, notes=tuple(notes))

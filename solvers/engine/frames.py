@@ -1,0 +1,593 @@
+"""Per-frame kernel of the engine: many small box/L1 quadratic programmes, solved together.
+
+Every frame f solves::
+
+    minimise  1/2 w' H_f w - g_f' w + sum_k lam_k |w_k|   subject to  lo_f <= w <= hi_f
+
+with ``H_f = A' diag(c_f) A + R``. ``H_f`` only depends on the frame's confidence pattern ``c_f``,
+so it is formed once per distinct pattern (per chunk of frames), and its inverse is a low-rank update
+of the full-visibility one (``FullInverse``). The iteration is a primal-dual
+active-set / semi-smooth Newton method on the proximal fixed point
+``w = clip(soft(w - s grad, s lam), lo, hi)``: each variable is either fixed (at ``lo``, ``hi`` or at
+the L1 kink 0) or free with a known sign, and the free variables solve a linear system, or, when
+fewer shapes are fixed than free, the fixed ones solve for their multipliers with ``H^-1``
+(``Hinv_BB m = x_B - u_B``, u the unconstrained optimum). Frames only re-solve while their state
+changes; the systems are gathered by size and solved in batches of exactly that size, so a frame
+costs O(min(free, fixed)^3), not O(K^3). Frames that have not settled after ``max_iter``
+iterations go to an exact per-frame fallback (``box_qp``, a BVLS-style primal active set in plain
+numpy, with a finite sign search for L1 on shapes whose range contains 0): per-frame solves need
+no scipy, which Blender does not ship.
+
+Inputs are trusted (validated by ``engine.solve_bounded``). Locked shapes arrive as lo == hi.
+"""
+
+import threading
+from contextlib import contextmanager
+from contextvars import ContextVar
+
+import numpy as np
+
+from .threads import single_blas_thread
+
+# state codes
+_FREE, _LO, _HI, _ZERO = 0, 1, 2, 3
+
+
+def patterns(C):
+    """Distinct rows of C: (unique rows (n_pat, P), inverse (F,))."""
+    C = np.ascontiguousarray(C)
+    if C.shape[0] == 0:
+        return C[:0], np.zeros(0, dtype=np.intp)
+    binary = C.dtype == bool or bool(np.all((C == 0) | (C == 1)))
+    key = np.packbits(C > 0, axis=1) if binary else C
+    key = np.ascontiguousarray(key)
+    view = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).ravel()
+    _, first, inverse = np.unique(view, return_index=True, return_inverse=True)
+    return C[first], inverse.reshape(-1)
+
+
+def pattern_hessians(A, pats, R, H_full=None, products=None, out=None):
+    """H_p = A' diag(c_p) A + R for each pattern, via the full-visibility matrix where cheaper;
+    ``products`` (from ``reusable``): taken from / kept in the active ``reuse_pattern_setup``."""
+    if products is not None:
+        return products.hessians(A, pats, R, H_full)
+    n = pats.shape[0]
+    if H_full is None:
+        H_full = A.T @ A + R
+    miss = 1.0 - pats
+    out = np.empty((n, A.shape[1], A.shape[1])) if out is None else out
+    for i in range(n):
+        nz = np.flatnonzero(miss[i])
+        if nz.size == 0:
+            out[i] = H_full
+        elif nz.size * 2 < A.shape[0]:
+            An = A[nz]
+            out[i] = H_full - An.T @ (miss[i, nz, None] * An)
+        else:
+            out[i] = A.T @ (pats[i, :, None] * A) + R
+    return out
+
+
+#: Condition proxy ``max|H| * max|H^-1|`` below which a pattern's inverse is trusted (dual form,
+#: and the low-rank update below).
+WELL_CONDITIONED = 1e8
+
+
+class FullInverse:
+    """The full-visibility inverse ``H^-1`` (H = A'A + R) and what a gap pattern's inverse is updated
+    from. A binary pattern missing the coordinates m has ``H_p = H - A_m' A_m``, so (Woodbury)
+    ``H_p^-1 = H^-1 + V_m' (I - V_m A_m')^-1 V_m`` with ``V = A H^-1``: an r x r solve and a
+    K x r x K product for r missing coordinates instead of a K x K inverse. Measured on the
+    benchmark take (2-7 of 80 markers missing per pattern): 2.5x faster than ``np.linalg.inv``.
+    ``usable`` is False when H itself is ill-conditioned (the update would lose the digits)."""
+
+    def __init__(self, A, H_full):
+        self.A = A
+        self.Hinv = np.linalg.inv(H_full)
+        self.usable = bool(np.abs(H_full).max() * np.abs(self.Hinv).max() < WELL_CONDITIONED)
+        self.V = A @ self.Hinv
+
+
+def pattern_inverses(Hp, pats=None, full=None):
+    """(H_p^-1, whether the dual form may use it) for each pattern. With the patterns and a
+    ``FullInverse`` of the same A and R, binary patterns missing at most K/2 coordinates are
+    updated from it (each pattern's result depends on that pattern only, whatever the batch)."""
+    K = Hp.shape[1]
+    if full is None or not full.usable or pats is None:
+        Hinv = np.linalg.inv(Hp)
+    else:
+        missing = pats == 0
+        r = missing.sum(axis=1)
+        update = ((pats == 1) | missing).all(axis=1) & (r <= K // 2)
+        Hinv = np.empty_like(Hp)
+        direct = np.flatnonzero(~update)
+        if direct.size:
+            Hinv[direct] = np.linalg.inv(Hp[direct])
+        for size in np.unique(r[update]).tolist():
+            sel = np.flatnonzero(update & (r == size))
+            if size == 0:
+                Hinv[sel] = full.Hinv
+                continue
+            m = np.argsort(~missing[sel], axis=1, kind="stable")[:, :size]  # the missing coordinates
+            Vm = full.V[m]
+            S = np.eye(size) - Vm @ full.A[m].transpose(0, 2, 1)  # not a P x P table: P may be large
+            Hinv[sel] = full.Hinv + Vm.transpose(0, 2, 1) @ np.linalg.solve(S, Vm)
+    # The fixed-set ("dual") form solves with Hinv_BB, |B| = fixed count: cheaper than H_FF when
+    # fewer shapes are fixed than free, and accurate while H is well conditioned.
+    ok = np.abs(Hp).max(axis=(1, 2)) * np.abs(Hinv).max(axis=(1, 2)) < WELL_CONDITIONED
+    if full is not None and full.usable and pats is not None and not ok.all():
+        bad = np.flatnonzero(~ok & update)  # an update loses more digits there: invert directly
+        Hinv[bad] = np.linalg.inv(Hp[bad])
+        ok[bad] = np.abs(Hp[bad]).max(axis=(1, 2)) * np.abs(Hinv[bad]).max(axis=(1, 2)) < WELL_CONDITIONED
+    return Hinv, ok
+
+
+_REUSE = ContextVar("facecap_pattern_setup", default=None)
+
+
+class PatternSetup:
+    """Products kept by ``reuse_pattern_setup``: one ``_Products`` per exact (A, R)."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.problems = {}
+
+
+@contextmanager
+def reuse_pattern_setup(setup=None):
+    """Within it, solves keep and reuse each confidence pattern's Hessian, inverse and condition
+    flag, keyed by the pattern and the exact (A, R) the kernel sees; results are bit-identical.
+
+    Why: the pipeline solves one take three times (two head refits, the final temporal solve) with
+    the same A, R and gaps; only the data changes, and most of a quick refit is this setup. Measured
+    on the 36,000-frame sample take (8,519 patterns; 5 interleaved runs, medians): second refit
+    1.34 -> 0.95 s, first 1.69 -> 1.81 s (it stores them), whole pipeline 12.7 -> 12.2 s wall and
+    15.6 -> 14.1 s CPU; the temporal solve takes its Hessians without a copy.
+
+    Scoped, not global: the products (two K x K floats per pattern: 2 x 184 MB there; the Hessians
+    replace the temporal solve's own, so +180 MB peak) live as long as ``setup`` (a
+    ``PatternSetup``; default: a new one, dropped on exit; pass one to share it across several
+    ``with`` blocks). Without ``setup``, a nested use shares the outer one. Per thread/task (a
+    context variable): solves elsewhere in the same process do not see it. Yields the setup.
+    """
+    if setup is None and _REUSE.get() is not None:
+        yield _REUSE.get()
+        return
+    setup = PatternSetup() if setup is None else setup
+    token = _REUSE.set(setup)
+    try:
+        yield setup
+    finally:
+        _REUSE.reset(token)
+
+
+def reusable(A, R, C):
+    """The active ``reuse_pattern_setup``'s products for this A, R (and confidence dtype), or None.
+    Call it in the solving thread: worker threads do not inherit the context."""
+    setup = _REUSE.get()
+    if setup is None:
+        return None
+    # exact bytes (and layout) rather than a hash: equal keys then mean bit-identical products
+    key = (A.shape, A.strides, R.shape, R.strides, np.dtype(C.dtype).str, A.tobytes(), R.tobytes())
+    with setup.lock:
+        return setup.problems.setdefault(key, _Products())
+
+
+class _Blocks:
+    """Rows kept in the blocks they were computed in: adding never copies (fresh arrays of hundreds
+    of MB cost, in page faults, about what reusing saves)."""
+
+    def __init__(self):
+        self.blocks = []
+        self.where = np.zeros((0, 2), np.intp)  # per row: (block, index in it); -1: not computed
+
+    def grow(self, n):
+        """Room for ``n`` rows (a new array: snapshots taken earlier stay valid)."""
+        self.where = np.concatenate([self.where, np.full((n - self.where.shape[0], 2), -1, np.intp)])
+
+    def add(self, rows, data):
+        self.blocks.append(data)
+        self.where[rows, 0] = len(self.blocks) - 1
+        self.where[rows, 1] = np.arange(rows.size)
+
+    def snapshot(self, rows):
+        """What ``gather`` needs for ``rows`` (take it under the lock; gather outside it)."""
+        return list(self.blocks), self.where[rows]
+
+    @staticmethod
+    def gather(snap):
+        blocks, loc = snap
+        b, i = loc[:, 0], loc[:, 1]
+        if b.size == 0:
+            return blocks[0][:0]
+        first = blocks[b[0]]
+        if (b == b[0]).all():
+            if i.size == first.shape[0] and np.array_equal(i, np.arange(i.size)):
+                return first  # the rows of one block, in order: no copy
+            return first[i]
+        out = np.empty((b.size,) + first.shape[1:], first.dtype)
+        for k in np.unique(b).tolist():
+            m = b == k
+            out[m] = blocks[k][i[m]]
+        return out
+
+
+def _spans(n, size=512):
+    """[a, b) slices of range(n) of about ``size``: a few MB of temporaries each, which the heap
+    reuses (one slice of thousands measured 2x slower, in page faults)."""
+    cuts = np.linspace(0, n, -(-n // size) + 1).astype(int).tolist()
+    return list(zip(cuts[:-1], cuts[1:]))
+
+
+class _Products:
+    """Per-pattern setup products of one (A, R): each pattern's H, and its inverse and ``ok`` flag
+    once a per-frame solve asked, found by the pattern's bytes. Each is computed on its own, so it
+    is bit-identical to a per-chunk computation, and never changes once stored."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.index = {}  # pattern bytes -> row
+        self.H, self.Hinv = _Blocks(), _Blocks()
+        self.ok = np.zeros(0, bool)
+
+    def prepare(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None):
+        """Snapshots of the products of ``pats`` for ``_Blocks.gather``: (H, (Hinv, ok) or None).
+        Missing ones are computed in slices mapped by ``map_`` (e.g. a thread pool's); inverses are
+        updated from ``full`` (a ``FullInverse`` of this A, R; default: made here)."""
+        K = A.shape[1]
+        if pats.shape[0] == 0:
+            none = ([np.empty((0, K, K))], np.zeros((0, 2), np.intp))
+            return none, ((none, np.zeros(0, bool)) if inverses else None)
+        with self.lock:
+            keys = [p.tobytes() for p in pats]
+            new = np.array([i for i, k in enumerate(keys) if k not in self.index], dtype=np.intp)
+            if inverses and full is None and (new.size or (self.Hinv.where[:, 0] < 0).any()):
+                full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
+            if new.size:
+                n0, n = len(self.index), len(self.index) + new.size
+                pn = pats if new.size == len(keys) else pats[new]
+                block = np.empty((new.size, K, K))  # one block: the temporal kernel can use it as is
+
+                def fill(span):
+                    pattern_hessians(A, pn[span[0] : span[1]], R, H_full, out=block[span[0] : span[1]])
+                    return pattern_inverses(block[span[0] : span[1]], pn[span[0] : span[1]], full) if inverses else None
+
+                spans = _spans(new.size)
+                done = list(map_(fill, spans))
+                block.flags.writeable = False  # shared from now on
+                self.H.grow(n)
+                self.Hinv.grow(n)
+                self.H.add(np.arange(n0, n), block)
+                self.index.update(zip((keys[i] for i in new.tolist()), range(n0, n)))
+                self.ok = np.concatenate([self.ok, np.zeros(new.size, bool)])
+                for (a, b), inv in zip(spans, done):
+                    if inv is not None:
+                        self.Hinv.add(np.arange(n0 + a, n0 + b), inv[0])
+                        self.ok[n0 + a : n0 + b] = inv[1]
+            rows = np.fromiter((self.index[k] for k in keys), dtype=np.intp, count=len(keys))
+            H = self.H.snapshot(rows)
+            if not inverses:
+                return H, None
+            need = self.Hinv.where[rows, 0] < 0  # kept by a solve that needed no inverses (a temporal one)
+            if need.any():
+                todo, pt = rows[need], pats[need]
+                Ht = _Blocks.gather(self.H.snapshot(todo))
+                spans = _spans(todo.size)
+
+                def invert(span):
+                    return pattern_inverses(Ht[span[0] : span[1]], pt[span[0] : span[1]], full)
+
+                for (a, b), (Hi, ok) in zip(spans, map_(invert, spans)):
+                    self.Hinv.add(todo[a:b], Hi)
+                    self.ok[todo[a:b]] = ok
+            return H, (self.Hinv.snapshot(rows), self.ok[rows])
+
+    def hessians(self, A, pats, R, H_full=None):
+        return _Blocks.gather(self.prepare(A, pats, R, H_full)[0])
+
+
+def hmul(Hp, inv, x):
+    """y_f = H_{inv[f]} x_f for every row of x."""
+    n_pat = Hp.shape[0]
+    if n_pat == 1:
+        return x @ Hp[0]
+    if n_pat * 2 > x.shape[0]:  # few rows per pattern: one gathered einsum (GIL-free in threads)
+        return np.einsum("nkl,nl->nk", Hp[inv], x)
+    return hmul_by_pattern(Hp, inv, x)
+
+
+def hmul_by_pattern(Hp, inv, x):
+    """``hmul`` as one product per pattern present: rows sorted by pattern, slices, no gather of
+    the matrices. Faster single-threaded for many rows (the temporal kernel); its Python loop makes
+    it slower than the einsum in the threaded per-frame kernel (measured)."""
+    n = x.shape[0]
+    if n <= 256:  # few rows: gathering their matrices is cheap
+        return np.einsum("nkl,nl->nk", Hp[inv], x)
+    order = np.argsort(inv, kind="stable")
+    si = inv[order]
+    starts = np.flatnonzero(np.concatenate([[True], si[1:] != si[:-1]]))
+    ends = np.append(starts[1:], n)
+    xs = x[order]
+    ys = np.empty_like(xs)
+    for a, b, p in zip(starts.tolist(), ends.tolist(), si[starts].tolist()):
+        ys[a:b] = xs[a:b] @ Hp[p]
+    y = np.empty_like(x)
+    y[order] = ys
+    return y
+
+
+def classify(v, step, lo, hi, lam):
+    """State of each variable from the proximal point v (see module docstring); ``step`` per frame
+    (F,) or per variable (F, K)."""
+    state = np.full(v.shape, _FREE, dtype=np.int8)
+    if not lam.any():  # no L1: the shrunk point is v itself (the same states, fewer passes)
+        t = v
+        state[v == 0] = _ZERO
+    else:
+        tau = (step if step.ndim == 2 else step[:, None]) * lam
+        t = np.sign(v) * np.maximum(np.abs(v) - tau, 0.0)
+        state[np.abs(v) <= tau] = _ZERO
+    state[t >= hi] = _HI
+    state[t <= lo] = _LO
+    sign = np.sign(v)
+    return state, sign
+
+
+def start_state(w, lo, hi, lam):
+    """(state, sign) of the weights ``w`` (e.g. an earlier solve's), read as an active set."""
+    state = np.full(w.shape, _FREE, dtype=np.int8)
+    state[(w == 0) & (lam > 0) & (lo < 0) & (hi > 0)] = _ZERO
+    state[w <= lo] = _LO
+    state[w >= hi] = _HI
+    return state, np.sign(w)
+
+
+def fixed_values(state, lo, hi):
+    return np.where(state == _LO, lo, np.where(state == _HI, hi, 0.0))
+
+
+def solve_free(Hp, inv, free, rhs):
+    """x with x_F = H_FF^{-1} rhs_F per frame (0 elsewhere), batched by free-set size."""
+    n, K = free.shape
+    x = np.zeros((n, K))
+    cnt = free.sum(axis=1)
+    itype = np.int32 if Hp.size < 2**31 else np.int64  # smaller index arrays gather faster
+    idx_all = np.argsort(~free, axis=1, kind="stable").astype(itype)  # free indices first, in order
+    inv_k = inv.astype(itype) * K
+    flat_H = Hp.reshape(-1)
+    order = np.lexsort((inv, cnt))  # by size, then by pattern (cache-friendly gathers)
+    sizes = cnt[order]
+    starts = np.searchsorted(sizes, np.arange(K + 2))
+    for s in range(1, K + 1):
+        sel = order[starts[s] : starts[s + 1]]
+        if sel.size == 0:
+            continue
+        idx = idx_all[sel, :s]
+        rows = inv_k[sel][:, None] + idx  # row of H_p, flattened over patterns
+        M = np.take(flat_H, (rows * K)[:, :, None] + idx[:, None, :])
+        b = np.take_along_axis(rhs[sel], idx, axis=1)
+        sol = np.linalg.solve(M, b[:, :, None])[:, :, 0]
+        x[sel[:, None], idx] = sol
+    return x
+
+
+def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None, exact=True, start=None):
+    """Solve every frame. C (F, P) confidences, G (F, K) = A' (c * d), lo/hi (F, K), lam (K,).
+    ``start`` (F, K): weights of a similar earlier solve; each frame's first active set is read
+    from it (fewer iterations, same optimum).
+
+    Chunks of frames run on ``workers`` threads (default: CPU count, at most 4); BLAS is pinned to
+    one thread meanwhile, since the work is many tiny solves (numpy releases the GIL in most of them:
+    two threads measured as fast as two forked halves, and faster when the machine is shared).
+
+    Returns (W (F, K), iterations, number of frames handed to the exact fallback).
+    """
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    F, K = G.shape
+    W = np.empty((F, K))
+    H_full = A.T @ A + R
+    products = reusable(A, R, C)  # read here: the worker threads do not see the context
+    workers = workers or min(4, os.cpu_count() or 1)
+    n_chunks = -(-F // chunk)
+    if workers > 1 and n_chunks > 1:
+        n_chunks = -(-n_chunks // workers) * workers  # every thread gets as many chunks (no straggler)
+    chunk = -(-F // n_chunks) if n_chunks else chunk  # even chunks
+
+    full = None
+
+    def one(first):
+        sl = slice(first, min(first + chunk, F))
+        pats, inv = patterns(C[sl])
+        if products is None:
+            Hp = pattern_hessians(A, pats, R, H_full)
+            inverses = pattern_inverses(Hp, pats, full)
+        else:  # this chunk's patterns, in its own order (the kernels' shapes and code paths as without)
+            H, (Hinv, ok) = products.prepare(A, pats, R, H_full, inverses=True, full=full)
+            Hp, inverses = _Blocks.gather(H), (_Blocks.gather(Hinv), ok)
+        state = None if start is None else start_state(start[sl], lo[sl], hi[sl], lam)
+        w, it, bad, sign = _pdas(Hp, inv, G[sl], lo[sl], hi[sl], lam, max_iter, state, inverses)
+        if bad.size and not exact:  # a starting guess is enough: clip the last iterate
+            w[bad] = np.clip(w[bad], lo[sl][bad], hi[sl][bad])
+        elif bad.size:
+            g, l, h = G[sl], lo[sl], hi[sl]
+            for i in bad:
+                w[i] = exact_frame(Hp[inv[i]], g[i], l[i], h[i], lam, sign[i])
+        W[sl] = w
+        return it, bad.size if exact else 0
+
+    with single_blas_thread():
+        full = FullInverse(A, H_full)  # in here: the same bits whichever path computes an inverse
+        if workers > 1 and n_chunks > 1:
+            with ThreadPoolExecutor(workers) as pool:
+                if products is not None:  # the take's patterns once, on the threads (chunks repeat them)
+                    products.prepare(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full)
+                out = list(pool.map(one, range(0, F, chunk)))
+        else:
+            out = [one(s) for s in range(0, F, chunk)]
+    iters = max((o[0] for o in out), default=0)
+    fallback = sum(o[1] for o in out)
+    return W, iters, fallback
+
+
+#: Active-set iterations without a settled frame after which a handful of remaining frames go to
+#: the exact fallback.
+STALL = 6
+
+
+def _pdas(Hp, inv, g, lo, hi, lam, max_iter, state=None, inverses=None):
+    """The active-set iteration for frames with Hessians ``Hp[inv]``; the first active set is
+    ``state`` = (state, sign) if given, else read from the unconstrained optimum. ``inverses``:
+    ``pattern_inverses(Hp)`` if the caller has them."""
+    n, K = g.shape
+    Hinv, ok = pattern_inverses(Hp) if inverses is None else inverses
+    dual_ok = ok[inv]
+    u0 = hmul(Hinv, inv, g)  # unconstrained optimum of the smooth part
+    w = u0.copy()
+    step = 1.0 / np.maximum(np.einsum("nkk->n", Hp) / K, 1e-300)[inv]
+    grad = np.zeros_like(w)
+    prev = prev_sg = None
+    active = np.arange(n)
+    sign = np.zeros((n, K))
+    has_l1 = bool(np.any(lam > 0))
+    it = last_drop = 0
+    for it in range(1, max_iter + 1):
+        ia = inv[active]
+        if it == 1 and state is not None:
+            st, sg = state
+        else:
+            st, sg = classify(w[active] - step[active, None] * grad, step[active], lo[active], hi[active], lam)
+        if prev is not None:
+            keep = ((st != prev) | ((st == _FREE) & (sg != prev_sg) & (lam > 0))).any(axis=1)
+            if not keep.all():
+                last_drop = it
+            active, st, sg, ia = active[keep], st[keep], sg[keep], ia[keep]
+            if active.size == 0:
+                return w, it, active, sign
+            if it - last_drop >= STALL and active.size <= max(8, n // 500):
+                # a few frames cycling between states (measured: 2-8 of 4000 for 30 iterations on
+                # the sample character): the exact fallback is cheaper than waiting for max_iter
+                return w, it, active, sign
+        free = st == _FREE
+        xf = fixed_values(st, lo[active], hi[active])
+        lin = lam * np.where(free, sg, 0.0) if has_l1 else None
+        wa, grad = _equality_solve(Hp, Hinv, ia, free, xf, g[active], u0[active], lin, dual_ok[active])
+        w[active] = wa
+        sign[active] = np.where(free, sg, 0.0)
+        prev, prev_sg = st, sg
+    return w, it, active, sign
+
+
+def _equality_solve(Hp, Hinv, ia, free, xf, g, u0, lin, dual_ok):
+    """Per frame: w with w_B = xf_B minimising 1/2 w'Hw - q'w (q = g - lin); returns (w, Hw - g).
+
+    Frames with fewer fixed than free shapes (and a well-conditioned H) solve for the multipliers
+    of the fixed set, ``Hinv_BB m = xf_B - u_B`` with ``u = Hinv q``, then ``w = u + Hinv m``;
+    the others solve ``H_FF w_F = q_F - H_FB xf_B``."""
+    n, K = free.shape
+    w = np.empty((n, K))
+    grad = np.empty((n, K))
+    nf = free.sum(axis=1)
+    dual = dual_ok & (2 * nf > K)
+    P = np.flatnonzero(~dual)
+    if P.size:
+        q = g[P] if lin is None else g[P] - lin[P]
+        fx = np.where(free[P], 0.0, xf[P])
+        away = np.flatnonzero(fx.any(axis=1))  # frames with a shape held away from 0 (most hold at 0)
+        if away.size:
+            q[away] -= hmul(Hp, ia[P][away], fx[away])
+        wp = fx + solve_free(Hp, ia[P], free[P], q)
+        w[P] = wp
+        grad[P] = hmul(Hp, ia[P], wp) - g[P]
+    Dn = np.flatnonzero(dual)
+    if Dn.size:
+        iD = ia[Dn]
+        u = u0[Dn] if lin is None else u0[Dn] - hmul(Hinv, iD, lin[Dn])
+        fixed = ~free[Dn]
+        m = solve_free(Hinv, iD, fixed, xf[Dn] - u)
+        w[Dn] = np.where(fixed, xf[Dn], u + hmul(Hinv, iD, m))
+        grad[Dn] = m if lin is None else m - lin[Dn]
+    return w, grad
+
+
+def exact_frame(H, g, lo, hi, lam, sign0=None):
+    """Exact solve of one frame's box/L1 QP.
+
+    Fixed variables (lo == hi) are eliminated; shapes whose range excludes 0 carry their L1 term as
+    a linear term; shapes whose range straddles 0 (with lam > 0) are solved orthant by orthant with
+    ``box_qp``, flipping the sign of any variable stuck at 0 whose subgradient condition fails. Each flip
+    strictly lowers the objective, so the search ends.
+    """
+    K = g.size
+    w = np.where(lo == hi, lo, 0.0).astype(float)
+    fr = np.flatnonzero(lo < hi)
+    if fr.size == 0:
+        return w
+    fx = np.flatnonzero(lo == hi)
+    Hr = H[np.ix_(fr, fr)]
+    gr = g[fr] - H[np.ix_(fr, fx)] @ w[fx]
+    l, h, lm = lo[fr], hi[fr], lam[fr]
+    straddle = (l < 0) & (h > 0) & (lm > 0)
+    s = np.where(l >= 0, 1.0, np.where(h <= 0, -1.0, 0.0))
+    if sign0 is not None:
+        s0 = np.sign(sign0[fr])
+        s[straddle] = np.where(s0[straddle] < 0, -1.0, 1.0)
+    else:
+        s[straddle] = 1.0
+    x = None
+    for _ in range(4 * K + 8):
+        lb = np.where(straddle & (s > 0), 0.0, l)
+        ub = np.where(straddle & (s < 0), 0.0, h)
+        x = box_qp(Hr, gr - lm * s, lb, ub, x)
+        grad = Hr @ x - gr
+        at0 = straddle & (np.abs(x) <= 1e-14)
+        flip = at0 & (((s > 0) & (grad > lm)) | ((s < 0) & (grad < -lm)))
+        if not flip.any():
+            break
+        s[flip] = -s[flip]
+    w[fr] = x
+    return w
+
+
+def box_qp(H, q, lb, ub, x0=None):
+    """Exact minimiser of ``1/2 x'Hx - q'x`` on ``lb <= x <= ub`` (H SPD; bounds may be infinite).
+
+    Primal active set in the manner of Lawson-Hanson / BVLS: keep a feasible point and a set of
+    variables held at a bound; solve for the others; if that point leaves the box, step to the
+    first bound hit and hold that variable too; otherwise release the held variable whose
+    multiplier has the wrong sign (the worst one), or stop when none has. Each release strictly
+    lowers the objective and each step holds one more variable, so it ends; a generous iteration
+    cap guards against rounding-induced cycling.
+    """
+    n = q.size
+    x = np.clip(np.zeros(n) if x0 is None else x0, lb, ub)
+    held = (x <= lb) | (x >= ub)
+    movable = lb < ub
+    scale = max(float(np.abs(np.diag(H)).max(initial=0.0)), 1e-300)
+    tol = 1e-13 * scale * max(1.0, float(np.abs(x).max(initial=0.0)))
+    for _ in range(20 * n + 40):
+        fr = ~held
+        z = x.copy()
+        if fr.any():
+            z[fr] = np.linalg.solve(H[np.ix_(fr, fr)], q[fr] - H[np.ix_(fr, held)] @ x[held])
+        out = fr & ((z < lb) | (z > ub))
+        if not out.any():
+            x = z
+            grad = H @ x - q
+            wrong = np.where(held & movable & (x <= lb), -grad, 0.0)  # wants to rise off lb
+            wrong = np.maximum(wrong, np.where(held & movable & (x >= ub), grad, 0.0))
+            k = int(np.argmax(wrong))
+            if wrong[k] <= tol:
+                return x
+            held[k] = False
+            continue
+        d = z - x
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(out & (z < lb), (lb - x) / d, np.where(out & (z > ub), (ub - x) / d, np.inf))
+        k = int(np.argmin(t))
+        x = x + np.clip(t[k], 0.0, 1.0) * d
+        x[k] = lb[k] if z[k] < lb[k] else ub[k]
+        x = np.clip(x, lb, ub)
+        held[k] = True
+    return x

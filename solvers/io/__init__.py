@@ -1,0 +1,126 @@
+"""One entry point for every capture file: ``read_markers(path)`` and ``read_weights(path)``.
+
+Formats (detected from the extension, then from the content):
+
+==============  =================  ==========================================================
+format          extensions         notes
+==============  =================  ==========================================================
+``c3d``         .c3d               POINT:LABELS/UNITS/RATE, first frame, residual < 0 = gap
+``trc``         .trc               OpenSim / Motion Analysis; units and rate from the header
+``csv``         .csv .txt .tsv     wide ``frame,<m>_x,<m>_y,<m>_z``; text columns -> segments
+``csv-long``    .csv .txt .tsv     ``frame,marker,x,y,z`` (detected from the header)
+``json``        .json              schema in :mod:`facecap.solvers.io.json`
+==============  =================  ==========================================================
+
+Common options: ``units`` ("m", "cm", "mm", "bu" with ``unit_scale``, "px"; None = from the file
+or guessed), ``fps`` (None = from the file), ``unit_scale`` (metres per unit), ``up_axis``
+("Z" or "Y"). CSV readers also take ``delimiter`` and ``decimal``.
+"""
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import FacecapError, InputFileError
+from .c3d import read_c3d, write_c3d
+from .csv import is_long_header, read_long_csv, read_wide_csv, sniff, write_markers_csv
+from .json import read_json, write_json
+from .trc import read_trc, write_trc
+from .weights import WeightTrack, read_weights
+from ..markers import MarkerSet
+
+FORMATS = ("c3d", "trc", "csv", "csv-long", "json")
+EXTENSIONS = {".c3d": "c3d", ".trc": "trc", ".json": "json", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
+_OPTIONS = {
+    "c3d": ("units", "fps", "unit_scale", "up_axis"),
+    "trc": ("units", "fps", "unit_scale", "up_axis"),
+    "json": ("units", "fps", "unit_scale", "up_axis"),
+    "csv": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
+    "csv-long": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
+}
+#: Notes that mean the data were changed, not just described: also raised as warnings.
+_CHANGED = ("resampled",)
+
+
+@dataclass(frozen=True, eq=False)
+class ImportResult:
+    """A MarkerSet and what the reader found or did (``notes``), and the detected ``format``."""
+
+    markers: MarkerSet
+    format: str
+    notes: tuple = field(default_factory=tuple)
+
+
+def detect_format(path):
+    """Format name of ``path`` (see FORMATS), from its extension and, for text, its header."""
+    path = Path(path)
+    fmt = EXTENSIONS.get(path.suffix.lower())
+    if fmt is None:
+        try:
+            with open(path, "rb") as fh:
+                head = fh.read(512)
+        except FileNotFoundError:
+            raise InputFileError(path, "file not found") from None
+        except OSError as exc:
+            raise InputFileError(path, f"cannot read: {exc.strerror}") from None
+        if len(head) >= 2 and head[1] == 0x50 and head[0] >= 2:
+            return "c3d"
+        if head.startswith(b"PathFileType"):
+            return "trc"
+        if head.lstrip().startswith(b"{"):
+            return "json"
+        fmt = "csv"
+    if fmt == "csv" and is_long_header(sniff(path).header):
+        return "csv-long"
+    return fmt
+
+
+def import_markers(path, *, format=None, units=None, fps=None, **options):
+    """Read any supported marker file; returns an ImportResult (markers, format, notes).
+
+    Parameters
+    ----------
+    path : path-like
+    format : str or None
+        One of FORMATS; None detects it.
+    units, fps : see the module docstring.
+    **options
+        ``unit_scale``, ``up_axis`` and, for CSV, ``delimiter`` and ``decimal``.
+    """
+    fmt = detect_format(path) if format is None else format
+    if fmt not in FORMATS:
+        raise FacecapError(f"`format` must be one of {', '.join(FORMATS)}; got {format!r}")
+    unknown = sorted(set(options) - set(_OPTIONS[fmt]))
+    if unknown:
+        raise FacecapError(f"option(s) {unknown} do not apply to {fmt} files; "
+                           f"allowed: {', '.join(_OPTIONS[fmt])}")
+    notes = []
+    reader = {"c3d": read_c3d, "trc": read_trc, "json": read_json, "csv": read_wide_csv,
+              "csv-long": read_long_csv}[fmt]
+    markers = reader(path, units=units, fps=fps, notes=notes, **options)
+    return ImportResult(markers=markers, format=fmt, notes=tuple(notes))
+
+
+def read_markers(path, *, units=None, fps=None, **options):
+    """Read any supported marker file as a MarkerSet (see :func:`import_markers`).
+
+    Notes saying the data were changed (variable-rate resampling) are raised as warnings.
+    """
+    result = import_markers(path, units=units, fps=fps, **options)
+    for note in result.notes:
+        if any(word in note for word in _CHANGED):
+            warnings.warn(f"{path}: {note}", stacklevel=2)
+    return result.markers
+
+
+def write_markers(path, markers):
+    """Write ``markers`` in the format of ``path``'s extension (.csv, .c3d, .trc, .json)."""
+    fmt = EXTENSIONS.get(Path(path).suffix.lower())
+    writers = {"csv": write_markers_csv, "c3d": write_c3d, "trc": write_trc, "json": write_json}
+    if fmt not in writers:
+        raise FacecapError(f"{path}: cannot write this extension; use .csv, .c3d, .trc or .json")
+    writers[fmt](path, markers)
+
+
+__all__ = ["EXTENSIONS", "FORMATS", "ImportResult", "WeightTrack", "detect_format", "import_markers",
+           "read_markers", "read_weights", "write_markers"]

@@ -1,0 +1,600 @@
+"""Marker and weight CSV files.
+
+* **Wide** markers: one row per frame, ``frame`` (or ``Frame``, ``time`` / ``timestamp`` in
+  seconds, ``time_ms`` in milliseconds) then ``<name>_x, <name>_y[, <name>_z]`` per marker.
+  Delimiter ``,`` ``;`` tab or ``|`` is detected from the header; with a non-comma delimiter a
+  decimal comma (``0,25``) is detected from the data. Empty, ``NA``, ``NaN``, ``N/A``, ``null``
+  cells are gaps. Extra text columns (blenderFace's ``Stimulustype``) become
+  ``MarkerSet.segments``: each run of equal non-empty labels is a segment ``(first, last)``.
+  Extra numeric columns are ignored (noted).
+* **Long** markers: one row per sample, ``frame,marker,x,y[,z]`` (column names ``marker``,
+  ``name`` or ``label``; ``time`` instead of ``frame`` allowed), see :func:`read_long_csv`.
+* **Weights**: ``frame,<shape>,...`` (:func:`read_weights_csv`, :func:`write_weights_csv`).
+
+Purely numeric files (numbers and empty cells) are parsed by a vectorised reader (about 0.1 us a
+cell); files with anything else (gap words, text columns, quotes, ragged rows) by numpy's text
+parser; anything that refuses is re-read cell by cell so that the error names the line and field.
+All three give bit-identical arrays. Writers format blocks of rows at once (``%.9g``, empty for
+NaN) and replace their output atomically.
+"""
+
+import csv
+import io
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FacecapError, InputFileError
+from .files import atomic_path
+from .csv_vector import SlowPath as _SlowPath
+from .csv_vector import vector_numeric as _vector_numeric
+from .timing import check_markerset, finish, finish_arrays, segments_from_labels
+from ..markers import MarkerSet
+
+GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
+_GAP_SPELLINGS = ("", "NA", "na", "N/A", "n/a", "null", "NULL", "None", "none")  # nan: parsed by numpy
+FRAME_HEADERS = ("frame", "frames", "frame_number", "frame#", "frame_no", "frameno")
+TIME_HEADERS = {
+    "time": 1.0, "times": 1.0, "t": 1.0, "time_s": 1.0, "time (s)": 1.0, "time[s]": 1.0, "seconds": 1.0,
+    "timestamp": 1.0, "timestamps": 1.0, "time_sec": 1.0,
+    "time_ms": 1e-3, "time (ms)": 1e-3, "timestamp_ms": 1e-3, "ms": 1e-3,
+    "time_us": 1e-6, "timestamp_us": 1e-6,
+}
+AXES = ("x", "y", "z")
+DELIMITERS = (",", ";", "\t", "|")
+SNIFF_BYTES = 1 << 16
+
+
+@dataclass(frozen=True)
+class Sniffed:
+    """What :func:`sniff` found at the top of a delimited text file."""
+
+    path: Path
+    delimiter: str
+    decimal: str
+    header: tuple
+    header_line: int
+
+
+def _open_text(path):
+    try:
+        return open(path, encoding="utf-8-sig", newline="")
+    except FileNotFoundError:
+        raise InputFileError(path, "file not found") from None
+    except IsADirectoryError:
+        raise InputFileError(path, "is a directory, expected a file") from None
+    except OSError as exc:
+        raise InputFileError(path, f"cannot read: {exc.strerror}") from None
+
+
+def _decode_error(path, exc):
+    return InputFileError(path, f"not a text file ({exc.reason} at byte {exc.start})")
+
+
+def sniff(path, *, delimiter=None, decimal=None):
+    """Find the header line, delimiter and decimal separator of a delimited text file."""
+    path = Path(path)
+    with _open_text(path) as fh:
+        try:
+            head = fh.read(SNIFF_BYTES)
+        except UnicodeDecodeError as exc:
+            raise _decode_error(path, exc) from None
+    if "\x00" in head:
+        raise InputFileError(path, "not a text file (contains NUL bytes)")
+    lines = re.split(r"\r\n|\r|\n", head)
+    header_line = next((i for i, line in enumerate(lines) if line.strip()), None)
+    if header_line is None:
+        raise InputFileError(path, "empty file; expected a header line", line=1)
+    header_text = lines[header_line]
+    if delimiter is None:
+        counts = [header_text.count(d) for d in DELIMITERS]
+        delimiter = DELIMITERS[int(np.argmax(counts))] if max(counts) else ","
+    elif delimiter not in DELIMITERS:
+        raise FacecapError(f"`delimiter` must be one of {DELIMITERS!r}; got {delimiter!r}")
+    if decimal is None:
+        decimal = "."
+        if delimiter != ",":
+            sample = [c.strip() for line in lines[header_line + 1:header_line + 50]
+                      for c in line.split(delimiter)]
+            commas = sum(1 for c in sample if _is_comma_number(c))
+            dots = sum(1 for c in sample if "." in c and _is_float(c))
+            if commas > dots:
+                decimal = ","
+    elif decimal not in (".", ","):
+        raise FacecapError(f"`decimal` must be '.' or ','; got {decimal!r}")
+    if decimal == "," and delimiter == ",":
+        raise FacecapError("`decimal` ',' needs a delimiter other than ','")
+    header = next(csv.reader([header_text], delimiter=delimiter))
+    header = tuple(h.strip() for h in header)
+    return Sniffed(path, delimiter, decimal, header, header_line + 1)
+
+
+def _is_float(text):
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _is_comma_number(text):
+    return text.count(",") == 1 and _is_float(text.replace(",", "."))
+
+
+def _rows(sn):
+    """Yield (line_number, cells) for every non-blank data row, with decoding/CSV errors as InputFileError."""
+    fh = _open_text(sn.path)
+    with fh:
+        reader = csv.reader(fh, delimiter=sn.delimiter)
+        try:
+            for row in reader:
+                if reader.line_num <= sn.header_line:
+                    continue
+                if any(cell.strip() for cell in row):
+                    yield reader.line_num, row
+        except UnicodeDecodeError as exc:
+            raise _decode_error(sn.path, exc) from None
+        except csv.Error as exc:
+            raise InputFileError(sn.path, f"malformed CSV ({exc})", line=reader.line_num + 1) from None
+
+
+def _to_float(text, decimal):
+    cell = text.strip()
+    if cell.lower() in GAP_TOKENS:
+        return np.nan
+    if decimal == ",":
+        cell = cell.replace(",", ".")
+    value = float(cell)  # ValueError handled by the caller
+    if not np.isfinite(value) and not np.isnan(value):
+        raise ValueError("infinite")
+    return value
+
+
+def _slow_numeric(sn, columns):
+    """Cell-by-cell reading of ``columns``: exact errors with line and field. Returns (lines, values)."""
+    width = len(sn.header)
+    lines, values = [], []
+    for line, row in _rows(sn):
+        if len(row) != width:
+            raise InputFileError(sn.path, f"{len(row)} fields but the header has {width}", line=line)
+        out = []
+        for c in columns:
+            try:
+                out.append(_to_float(row[c], sn.decimal))
+            except ValueError:
+                raise InputFileError(sn.path, f"expected a number, got {row[c].strip()!r}",
+                                     line=line, field=sn.header[c]) from None
+        lines.append(line)
+        values.append(out)
+    return lines, np.array(values, dtype=np.float64).reshape(len(values), len(columns))
+
+
+CHUNK_CHARS = 1 << 22
+
+
+def _prepared_chunks(fh, sn):
+    """Yield blocks of data lines with every gap spelling replaced by ``nan`` (C-speed str.replace)."""
+    d = sn.delimiter
+    width = len(sn.header)
+    for _ in range(sn.header_line):
+        if '"' in fh.readline():
+            raise _SlowPath  # the csv module reads a quoted header cell on across lines
+    while True:
+        lines = fh.readlines(CHUNK_CHARS)
+        if not lines:
+            return
+        lines = [line.rstrip("\r\n") for line in lines]
+        lines = [line for line in lines if line.replace(d, "").strip()]  # as _rows: skip rows of blank cells
+        if not lines:
+            continue
+        if any(line.count(d) != width - 1 for line in lines):
+            raise _SlowPath
+        block = "\n".join(lines)
+        if '"' in block:
+            raise _SlowPath
+        if sn.decimal == ",":
+            block = block.replace(",", ".")
+        sep = d + "\n" + d
+        block = d + block.replace("\n", sep) + d
+        for token in _GAP_SPELLINGS:
+            bad = d + token + d
+            if bad in block:
+                good = d + "nan" + d
+                block = block.replace(bad, good).replace(bad, good)
+        yield block[1:-1].replace(sep, "\n")
+
+
+def _fast_numeric(sn, columns):
+    """numpy's C parser over pre-processed blocks; raises _SlowPath for anything unusual."""
+    parts = []
+    with _open_text(sn.path) as fh:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                for block in _prepared_chunks(fh, sn):
+                    parts.append(np.loadtxt(io.StringIO(block), delimiter=sn.delimiter, usecols=columns,
+                                            ndmin=2, dtype=np.float64, comments=None, quotechar=None))
+        except (ValueError, UserWarning, UnicodeDecodeError, _SlowPath):
+            raise _SlowPath from None
+    if not parts:
+        raise _SlowPath
+    values = np.concatenate(parts) if len(parts) != 1 else parts[0]
+    del parts
+    if np.isinf(values).any():
+        raise _SlowPath
+    return values
+
+
+def read_numeric_columns(sn, columns):
+    """(F, len(columns)) float64 of the data rows; gaps NaN; errors name line and field.
+
+    Three readers, each falling back to the next on anything it does not handle: the vectorised
+    one (numbers and empty cells only), numpy's text parser, and the cell-by-cell reader whose
+    errors name line and field. All three return bit-identical arrays where they succeed.
+    """
+    columns = list(columns)
+    for reader in (_vector_numeric, _fast_numeric):
+        try:
+            return None, reader(sn, columns)
+        except _SlowPath:
+            pass
+    return _slow_numeric(sn, columns)
+
+
+def read_text_columns(sn, columns):
+    """List (one per column) of per-row stripped strings."""
+    out = [[] for _ in columns]
+    for _, row in _rows(sn):
+        for j, c in enumerate(columns):
+            out[j].append(row[c].strip() if c < len(row) else "")
+    return out
+
+
+def _time_column(header):
+    for i, h in enumerate(header):
+        low = h.strip().lower()
+        if low in FRAME_HEADERS:
+            return i, None
+    for i, h in enumerate(header):
+        low = h.strip().lower()
+        if low in TIME_HEADERS:
+            return i, TIME_HEADERS[low]
+    return None, None
+
+
+@dataclass(frozen=True)
+class WideLayout:
+    key_col: int
+    time_scale: float  # None: frame numbers
+    names: tuple
+    dim: int
+    columns: tuple
+    extra: tuple
+
+
+def wide_layout(sn):
+    """Column roles of a wide marker CSV; InputFileError for a header that cannot be one."""
+    header = list(sn.header)
+    path = sn.path
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise InputFileError(path, f"duplicate columns {dup}", line=sn.header_line)
+    key_col, time_scale = _time_column(header)
+    if key_col is None:
+        raise InputFileError(path, "no frame column; expected a 'frame' or 'time' column, "
+                             f"got {header[0]!r} first", line=sn.header_line)
+    axes_by_name, extra = {}, []
+    for i, h in enumerate(header):
+        if i == key_col:
+            continue
+        base, sep, axis = h.rpartition("_")
+        if sep and base and axis.lower() in AXES and axis.lower() not in axes_by_name.get(base, {}):
+            axes_by_name.setdefault(base, {})[axis.lower()] = i
+        else:
+            extra.append(i)
+    if not axes_by_name:
+        raise InputFileError(path, "no marker columns; expected '<name>_x', '<name>_y', '<name>_z'",
+                             line=sn.header_line)
+    dim = max(len(a) for a in axes_by_name.values())
+    dim = max(dim, 2)
+    for name, axes in axes_by_name.items():
+        missing = [a for a in AXES[:dim] if a not in axes]
+        extra_axes = [a for a in axes if a not in AXES[:dim]]
+        if missing or extra_axes:
+            raise InputFileError(path, f"marker '{name}' lacks column(s) {[f'{name}_{a}' for a in missing]}",
+                                 line=sn.header_line)
+    names = tuple(axes_by_name)
+    columns = tuple(axes_by_name[n][a] for n in names for a in AXES[:dim])
+    return WideLayout(key_col, time_scale, names, dim, columns, tuple(extra))
+
+
+def _parse_wide(path, *, delimiter=None, decimal=None):
+    sn = sniff(path, delimiter=delimiter, decimal=decimal)
+    lay = wide_layout(sn)
+    lines, values = read_numeric_columns(sn, (lay.key_col,) + lay.columns)
+    if values.shape[0] == 0:
+        raise InputFileError(sn.path, "no data rows after the header", line=sn.header_line)
+    key = values[:, 0]
+    bad = np.flatnonzero(~np.isfinite(key))
+    field = sn.header[lay.key_col]
+    if bad.size or np.any(np.diff(key) <= 0):
+        lines = lines or _data_line_numbers(sn)  # the fast path does not keep line numbers
+    if bad.size:
+        what = "missing frame number" if lay.time_scale is None else "missing timestamp"
+        raise InputFileError(sn.path, what, line=lines[bad[0]], field=field)
+    order_bad = np.flatnonzero(np.diff(key) <= 0)
+    if order_bad.size:
+        what = "frame numbers" if lay.time_scale is None else "timestamps"
+        raise InputFileError(sn.path, f"{what} must increase from row to row",
+                             line=lines[order_bad[0] + 1], field=field)
+    positions = values[:, 1:].reshape(len(key), len(lay.names), lay.dim)
+    labels, numeric_extra, text_extra = None, [], []
+    if lay.extra:
+        texts = read_text_columns(sn, lay.extra)
+        keep = []
+        for c, cells in zip(lay.extra, texts):
+            if all(_is_float(v) or v.lower() in GAP_TOKENS for v in cells):
+                numeric_extra.append(sn.header[c])
+            else:
+                text_extra.append(sn.header[c])
+                keep.append(cells)
+        if len(keep) == 1:
+            labels = keep[0]
+        elif keep:
+            labels = [" | ".join(f"{sn.header[c]}={v}" for c, v in zip(lay.extra, row) if v)
+                      for row in zip(*keep)]
+    return sn, lay, key, positions, labels, numeric_extra, text_extra
+
+
+def _data_line_numbers(sn):
+    return [line for line, _ in _rows(sn)]
+
+
+def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, delimiter=None,
+                  decimal=None, notes=None):
+    """Read a wide marker CSV (see the module docstring) with units, axis and timing applied.
+
+    Parameters
+    ----------
+    path : path-like
+    units : str or None
+        "m", "cm", "mm", "bu" (with ``unit_scale``) or "px"; None guesses from the face size.
+    fps : float or None
+        Frame rate; with a time column None estimates it from the timestamps, otherwise 60.
+    unit_scale : float or None
+        Metres per unit for ``units="bu"``.
+    up_axis : {"Z", "Y", None}
+    delimiter, decimal : str or None
+        Override detection.
+    notes : list or None
+        Receives a line per thing detected or done.
+
+    Returns
+    -------
+    MarkerSet
+    """
+    notes = [] if notes is None else notes
+    sn, lay, key, positions, labels, numeric_extra, text_extra = _parse_wide(
+        path, delimiter=delimiter, decimal=decimal)
+    if sn.delimiter != "," or sn.decimal != ".":
+        notes.append(f"delimiter {sn.delimiter!r}, decimal {sn.decimal!r}")
+    if numeric_extra:
+        notes.append(f"ignored numeric column(s) {numeric_extra}")
+    if text_extra:
+        notes.append(f"text column(s) {text_extra} read as segment labels")
+    times = None if lay.time_scale is None else key * lay.time_scale
+    return check_markerset(lambda: finish_arrays(
+        lay.names, key if times is None else np.arange(len(key), dtype=np.float64), positions,
+        source=str(sn.path), units=units, unit_scale=unit_scale, up_axis=up_axis, times=times, fps=fps,
+        labels=labels, notes=notes), sn.path)
+
+
+def read_markers_csv(path, *, units="m", fps=60.0):
+    """Read a wide marker CSV with a frame column, units and fps as given (the original API).
+
+    Text columns become ``segments`` and, as before, every non-coordinate column is reported
+    with a warning. Use :func:`facecap.solvers.io.read_markers` for timestamps, unit
+    detection and every other format.
+
+    Returns
+    -------
+    MarkerSet
+    """
+    sn, lay, key, positions, labels, numeric_extra, text_extra = _parse_wide(path)
+    if lay.time_scale is not None:
+        raise InputFileError(sn.path, f"no frame column; expected the first header to be 'frame', "
+                             f"got {sn.header[0]!r}", line=sn.header_line)
+    if numeric_extra or text_extra:
+        warnings.warn(f"{sn.path}: ignored non-coordinate column(s) {numeric_extra + text_extra}"
+                      + (f"; {text_extra} kept as segment labels" if text_extra else ""), stacklevel=2)
+    segments = segments_from_labels(labels, key) if labels is not None else {}
+    return check_markerset(lambda: MarkerSet(lay.names, key, positions, fps=float(fps), units=units,
+                                             source=str(sn.path), segments=segments), sn.path)
+
+
+LONG_MARKER_HEADERS = ("marker", "name", "label", "marker_name")
+
+
+def is_long_header(header):
+    low = [h.strip().lower() for h in header]
+    return any(h in LONG_MARKER_HEADERS for h in low) and "x" in low and "y" in low
+
+
+def read_long_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, delimiter=None,
+                  decimal=None, notes=None):
+    """Read a long marker CSV: one row per sample, ``frame,marker,x,y[,z]``.
+
+    Columns are found by name (any order): ``frame`` (or a time column as for the wide
+    format), ``marker`` / ``name`` / ``label``, ``x``, ``y`` and optionally ``z``. Markers keep
+    the order of first appearance; a (frame, marker) pair missing from the file is a gap, and
+    one that appears twice is an error. Options as for :func:`read_wide_csv`.
+    """
+    notes = [] if notes is None else notes
+    sn = sniff(path, delimiter=delimiter, decimal=decimal)
+    low = [h.lower() for h in sn.header]
+    if len(set(low)) != len(low):
+        dup = sorted({h for h in sn.header if low.count(h.lower()) > 1})
+        raise InputFileError(sn.path, f"duplicate columns {dup}", line=sn.header_line)
+    key_col, time_scale = _time_column(sn.header)
+    name_col = next((i for i, h in enumerate(low) if h in LONG_MARKER_HEADERS), None)
+    if key_col is None or name_col is None or "x" not in low or "y" not in low:
+        raise InputFileError(sn.path, "expected columns frame (or time), marker, x, y[, z]",
+                             line=sn.header_line)
+    axis_cols = [low.index(a) for a in AXES if a in low]
+    dim = len(axis_cols)
+    width = len(sn.header)
+    keys, names, coords = [], [], []
+    lines = []
+    for line, row in _rows(sn):
+        if len(row) != width:
+            raise InputFileError(sn.path, f"{len(row)} fields but the header has {width}", line=line)
+        name = row[name_col].strip()
+        if not name:
+            raise InputFileError(sn.path, "empty marker name", line=line, field=sn.header[name_col])
+        vals = []
+        for c in [key_col] + axis_cols:
+            try:
+                vals.append(_to_float(row[c], sn.decimal))
+            except ValueError:
+                raise InputFileError(sn.path, f"expected a number, got {row[c].strip()!r}",
+                                     line=line, field=sn.header[c]) from None
+        if np.isnan(vals[0]):
+            raise InputFileError(sn.path, "missing frame number", line=line, field=sn.header[key_col])
+        keys.append(vals[0])
+        names.append(name)
+        coords.append(vals[1:])
+        lines.append(line)
+    if not keys:
+        raise InputFileError(sn.path, "no data rows after the header", line=sn.header_line)
+    order = list(dict.fromkeys(names))
+    keys = np.asarray(keys)
+    uniq, frame_idx = np.unique(keys, return_inverse=True)
+    lookup = {n: i for i, n in enumerate(order)}
+    marker_idx = np.array([lookup[n] for n in names])
+    flat = frame_idx * len(order) + marker_idx
+    seen, first = np.unique(flat, return_index=True)
+    if seen.size != flat.size:
+        dup_rows = np.setdiff1d(np.arange(flat.size), first)
+        r = int(dup_rows[0])
+        raise InputFileError(sn.path, f"marker {names[r]!r} appears twice at {sn.header[key_col]} {keys[r]:g}",
+                             line=lines[r])
+    positions = np.full((uniq.size, len(order), dim), np.nan)
+    positions[frame_idx, marker_idx] = np.asarray(coords)
+    times = None if time_scale is None else uniq * time_scale
+    raw = check_markerset(lambda: MarkerSet(tuple(order), uniq if times is None else np.arange(uniq.size),
+                                            positions, fps=60.0 if fps is None else fps, units="m",
+                                            source=str(sn.path)), sn.path)
+    return check_markerset(lambda: finish(raw, units=units, unit_scale=unit_scale, up_axis=up_axis,
+                                          times=times, fps=fps, notes=notes), sn.path)
+
+
+def write_markers_csv(path, markers, *, delimiter=","):
+    """Write a MarkerSet as a wide CSV (gaps as empty cells), atomically.
+
+    Non-overlapping ``segments`` are written as a last ``segment`` text column.
+    """
+    axes = AXES[: markers.dim]
+    header = ["frame"] + [f"{n}_{a}" for n in markers.names for a in axes]
+    flat = markers.positions.reshape(markers.n_frames, -1)
+    labels = segment_labels(markers)
+    _write_table(path, header, markers.frames, flat, delimiter, labels=labels)
+
+
+def segment_labels(markers):
+    """One label per frame from ``markers.segments``, or None if there are none or they overlap."""
+    if not markers.segments:
+        return None
+    labels = [""] * markers.n_frames
+    for label, spans in markers.segments.items():
+        for first, last in spans:
+            for i in np.flatnonzero(markers.frame_range_mask(first, last)):
+                if labels[i]:
+                    return None
+                labels[i] = label
+    return labels
+
+
+def write_weights_csv(path, frames, names, weights, *, delimiter=","):
+    """Write ``frame,<shape>,...`` with one row per frame, atomically."""
+    _write_table(path, ["frame", *names], np.asarray(frames), np.asarray(weights), delimiter)
+
+
+def read_weights_csv(path):
+    """Read ``frame,<shape>,...``. Returns (frames (F,), names tuple, weights (F, K))."""
+    sn = sniff(path)
+    header = list(sn.header)
+    key_col, _ = _time_column(header)
+    if key_col is None or _time_column(header)[1] is not None:
+        raise InputFileError(sn.path, f"no frame column; expected the first header to be 'frame', "
+                             f"got {header[0]!r}", line=sn.header_line)
+    cols = [i for i in range(len(header)) if i != key_col]
+    lines, values = read_numeric_columns(sn, [key_col] + cols)
+    if values.shape[0] == 0:
+        raise InputFileError(sn.path, "no data rows after the header", line=sn.header_line)
+    return values[:, 0], tuple(header[i] for i in cols), values[:, 1:]
+
+
+def _format_frames(frames):
+    if np.all(frames == np.round(frames)):
+        return [str(int(f)) for f in frames]
+    return [repr(float(f)) for f in frames]
+
+
+def _write_table(path, header, frames, values, delimiter, *, labels=None):
+    if values.ndim != 2 or values.shape != (len(frames), len(header) - 1):
+        raise FacecapError(
+            f"{path}: values must have shape ({len(frames)}, {len(header) - 1}); got {values.shape}"
+        )
+    frame_text = _format_frames(np.asarray(frames, dtype=np.float64))
+    if labels is not None:
+        header = header + ["segment"]
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+        fh.write(delimiter.join(header) + "\n")
+        for text in _data_lines(frame_text, values, delimiter, labels):
+            fh.write(text)
+
+
+WRITE_BLOCK_CELLS = 1 << 18
+
+
+def _data_lines(frame_text, values, delimiter, labels):
+    """Blocks of data lines: the frame, ``f"{v:.9g}"`` per value (empty for NaN), the label.
+
+    Numeric arrays are formatted a block of rows at a time by one ``%`` over a repeated row
+    format (the same conversion as the f-string); the NaN cells, which ``%.9g`` writes as
+    ``nan``, are then emptied. Other arrays, and labels that contain ``nan``, go cell by cell.
+    """
+    n, k = values.shape
+    if k == 0 or values.dtype.kind not in "fiu" or (labels is not None and any("nan" in x for x in labels)):
+        yield from _data_lines_per_cell(frame_text, values, delimiter, labels)
+        return
+    d = delimiter
+    row = "%s" + (d + "%.9g") * k + ("" if labels is None else d + "%s") + "\n"
+    step = max(1, WRITE_BLOCK_CELLS // k)
+    for start in range(0, n, step):
+        block = values[start:start + step]
+        cells = np.empty((len(block), k + 1 + (labels is not None)), dtype=object)
+        cells[:, 0] = frame_text[start:start + step]
+        cells[:, 1:k + 1] = block
+        if labels is not None:
+            cells[:, -1] = labels[start:start + step]
+        text = (row * len(block)) % tuple(cells.ravel().tolist())
+        if np.isnan(block).any():
+            gap = d + "nan"  # a value cell; frames start a line and labels have no "nan"
+            text = text.replace(gap + d, d + d).replace(gap + d, d + d).replace(gap + "\n", d + "\n")
+        yield text
+
+
+def _data_lines_per_cell(frame_text, values, delimiter, labels):
+    for i, (f, row) in enumerate(zip(frame_text, values)):
+        cells = ["" if np.isnan(v) else f"{v:.9g}" for v in row]
+        if labels is not None:
+            cells.append(labels[i])
+        yield f + delimiter + delimiter.join(cells) + "\n"
+
+
+__all__ = ["read_long_csv", "read_markers_csv", "read_weights_csv", "read_wide_csv", "sniff",
+           "write_markers_csv", "write_weights_csv"]

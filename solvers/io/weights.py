@@ -1,0 +1,197 @@
+"""Already-solved blendshape weights: Live Link Face / ARKit CSV and MediaPipe-style CSV.
+
+* **Live Link Face** (Epic's iOS app): ``Timecode,BlendShapeCount,EyeBlinkLeft,...,TongueOut,
+  HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,LeftEyeRoll,RightEyeYaw,RightEyePitch,
+  RightEyeRoll``. Timecode ``HH:MM:SS:FF[.sub]`` at the timecode rate (``timecode_fps``, detected
+  from the largest ``FF`` when not given: the next standard rate above it, 30 when below 24);
+  frame 1 is the first row, ``WeightTrack.timecode`` keeps its timecode. Channel names are
+  mapped to ARKit's lower-camel case.
+* **MediaPipe** blendshape CSV: ``_neutral`` plus the 51 ARKit names MediaPipe outputs, with an
+  optional ``frame`` / ``timestamp_ms`` / ``time`` column (otherwise row 1 is frame 1).
+* Plain ``frame,<shape>,...`` (what facecap writes) is read too.
+
+Variable-rate timestamps are resampled to ``fps`` (linear; the note says what was done).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .arkit import ARKIT_52
+from ..errors import FacecapError, InputFileError
+from .csv import TIME_HEADERS, _rows, _time_column, read_numeric_columns, read_text_columns, sniff
+from .timing import frames_from_times, resample
+
+HEAD_CHANNELS = ("HeadYaw", "HeadPitch", "HeadRoll")
+EYE_CHANNELS = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
+_ARKIT_BY_LOWER = {n.lower(): n for n in ARKIT_52}
+_TIMECODE_RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0)
+
+
+@dataclass(frozen=True, eq=False)
+class WeightTrack:
+    """Per-frame blendshape weights from another solver.
+
+    Attributes
+    ----------
+    frames : ndarray (F,)
+    fps : float
+    names : tuple of str, length K
+        ARKit names where recognised (``eyeBlinkLeft``), otherwise as in the file.
+    values : ndarray (F, K)
+        Weights, usually in [0, 1]; NaN for a missing cell.
+    head : ndarray (F, 3) or None
+        Head yaw, pitch, roll (radians, as Live Link Face writes them).
+    eyes : ndarray (F, 6) or None
+        Left eye yaw/pitch/roll then right eye yaw/pitch/roll.
+    source : str
+    format : str
+        "livelinkface", "mediapipe" or "weights".
+    timecode : str
+        First timecode of the take ("" when the file has none).
+    notes : tuple of str
+    """
+
+    frames: np.ndarray
+    fps: float
+    names: tuple
+    values: np.ndarray
+    head: np.ndarray = None
+    eyes: np.ndarray = None
+    source: str = ""
+    format: str = "weights"
+    timecode: str = ""
+    notes: tuple = field(default_factory=tuple)
+
+
+def parse_timecode(text, rate):
+    """Seconds for ``HH:MM:SS:FF[.sub]`` (``;`` allowed for drop-frame) at ``rate`` frames per second."""
+    parts = text.strip().replace(";", ":").split(":")
+    if len(parts) != 4:
+        raise ValueError(text)
+    h, m, s = int(parts[0]), int(parts[1]), int(parts[2])
+    ff = float(parts[3])
+    if not (0 <= m < 60 and 0 <= s < 60 and 0 <= ff and h >= 0 and np.isfinite(ff)):
+        raise ValueError(text)
+    return h * 3600 + m * 60 + s + ff / rate
+
+
+def read_weights(path, *, fps=None, timecode_fps=None):
+    """Read a solved-weights CSV (Live Link Face, MediaPipe or ``frame,<shape>``) as a WeightTrack.
+
+    Parameters
+    ----------
+    path : path-like
+    fps : float or None
+        Frame rate of the result; None takes the file's (estimated from timestamps; 60 for Live
+        Link Face without usable timecodes, 30 for MediaPipe without a time column).
+    timecode_fps : float or None
+        Rate of the ``FF`` field of Live Link Face timecodes; None detects it.
+    """
+    notes = []
+    sn = sniff(path)
+    header = list(sn.header)
+    path = sn.path
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise InputFileError(path, f"duplicate columns {dup}", line=sn.header_line)
+    low = [h.lower() for h in header]
+    tc_col = low.index("timecode") if "timecode" in low else None
+    key_col, time_scale = _time_column(header)
+    skip = {i for i, h in enumerate(low) if h in ("timecode", "blendshapecount")}
+    if key_col is not None:
+        skip.add(key_col)
+    cols = [i for i in range(len(header)) if i not in skip]
+    if not cols:
+        raise InputFileError(path, "no weight columns", line=sn.header_line)
+    kind = "livelinkface" if tc_col is not None or "blendshapecount" in low else (
+        "mediapipe" if "_neutral" in low else "weights")
+    lines, values = read_numeric_columns(sn, ([key_col] if key_col is not None else []) + cols)
+    if values.shape[0] == 0:
+        raise InputFileError(path, "zero frames: no data rows after the header", line=sn.header_line)
+    if key_col is not None:
+        key, values = values[:, 0], values[:, 1:]
+    names = [header[i] for i in cols]
+    times, frames = None, None
+    timecode = ""
+    if tc_col is not None:
+        cells = read_text_columns(sn, [tc_col])[0]
+        line_numbers = [line for line, _ in _rows(sn)]
+        timecode = cells[0]
+        ff = []
+        for r, cell in enumerate(cells):
+            parts = cell.replace(";", ":").split(":")
+            try:
+                ff.append(float(parts[3]) if len(parts) == 4 else np.nan)
+            except ValueError:
+                ff.append(np.nan)
+            if not np.isfinite(ff[-1]):
+                raise InputFileError(path, f"expected a timecode HH:MM:SS:FF, got {cell!r}",
+                                     line=line_numbers[r], field=header[tc_col])
+        ff_max = max(ff)
+        rate = timecode_fps or (30.0 if ff_max < 24 else next((r for r in _TIMECODE_RATES if ff_max < r), 60.0))
+        secs = []
+        for r, cell in enumerate(cells):
+            try:
+                secs.append(parse_timecode(cell, rate))
+            except (ValueError, IndexError):
+                raise InputFileError(path, f"expected a timecode HH:MM:SS:FF, got {cell!r}",
+                                     line=line_numbers[r], field=header[tc_col]) from None
+        times = np.asarray(secs)
+        notes.append(f"timecode rate {rate:g} fps" + ("" if timecode_fps else " (detected)"))
+    elif key_col is not None:
+        if time_scale is None:
+            frames = key
+        else:
+            times = key * time_scale
+    else:
+        frames = np.arange(1, values.shape[0] + 1, dtype=np.float64)
+        notes.append("no frame or time column: row 1 is frame 1")
+    if times is not None:
+        if np.any(~np.isfinite(times)) or np.any(np.diff(times) <= 0):
+            raise InputFileError(path, "timestamps must be present and increase strictly", line=sn.header_line)
+        try:
+            frames, rate, regular = frames_from_times(times, fps=fps, where=str(path))
+        except FacecapError as exc:
+            raise InputFileError(path, str(exc).split(": ", 1)[-1]) from None
+        if not regular:
+            try:
+                frames, resampled = resample(times, values[:, None, :], rate)
+            except FacecapError as exc:
+                raise InputFileError(path, str(exc)) from None
+            values = resampled[:, 0, :]
+            notes.append(f"variable-rate timestamps resampled to {rate:.6g} fps: {len(times)} -> {len(frames)} frames")
+        if tc_col is not None:
+            frames = frames - frames[0] + 1.0
+            notes.append(f"frame 1 is timecode {timecode}")
+        fps_out = rate
+    else:
+        if np.any(~np.isfinite(frames)):
+            raise InputFileError(path, "missing frame number", field=header[key_col])
+        if np.any(np.diff(frames) <= 0):
+            raise InputFileError(path, "frame numbers must increase from row to row", field=header[key_col])
+        fps_out = fps or (30.0 if kind == "mediapipe" else 60.0)
+    head = _take(names, values, HEAD_CHANNELS)
+    eyes = _take(names, values, EYE_CHANNELS)
+    extra = set(HEAD_CHANNELS + EYE_CHANNELS)
+    keep = [j for j, n in enumerate(names) if n not in extra]
+    shape_names = tuple(_ARKIT_BY_LOWER.get(names[j].lower(), names[j]) for j in keep)
+    if len(set(shape_names)) != len(shape_names):
+        raise InputFileError(path, "two columns map to the same shape name", line=sn.header_line)
+    weights = values[:, keep]
+    outside = int(np.count_nonzero((weights < -1e-6) | (weights > 1 + 1e-6)))
+    if outside:
+        notes.append(f"{outside} weight(s) outside [0, 1]")
+    return WeightTrack(frames=np.asarray(frames, dtype=np.float64), fps=float(fps_out), names=shape_names,
+                       values=weights, head=head, eyes=eyes, source=str(path), format=kind,
+                       timecode=timecode, notes=tuple(notes))
+
+
+def _take(names, values, wanted):
+    idx = [names.index(w) for w in wanted if w in names]
+    if len(idx) != len(wanted):
+        return None
+    return values[:, idx]
+
+
+__all__ = ["EYE_CHANNELS", "HEAD_CHANNELS", "TIME_HEADERS", "WeightTrack", "parse_timecode", "read_weights"]
