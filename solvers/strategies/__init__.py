@@ -54,7 +54,7 @@ import importlib
 
 #: strategy name -> (module, class), imported on first use (``get_strategy``)
 STRATEGY_CLASSES = {
-    "geometric": ("geometric_strategy", "GeometricStrategy"),
+    "geometric": ("geometric", "GeometricStrategy"),
     "calibrated": ("calibrated", "CalibratedStrategy"),
     "parallel": ("parallel", "ParallelStrategy"),
     "linear": ("linear", "LinearStrategy"),

@@ -20,7 +20,8 @@ from ..errors import FacecapError
 from ..markers import UNIT_SCALE
 from ..capture.neutral import neutral_from_frames
 from ..capture.stabilise import stabilise_2d, stabilise_rigid
-from .base import StrategyResult, as_deltas, as_target, clamp_to, flat, reorder
+from .base import StrategyResult, as_target
+from .sources import as_deltas, clamp_to, flat, reorder
 from .geometric import symmetric_pairs
 from .linear import align_source
 from .mapping import Mapping

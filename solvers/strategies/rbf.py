@@ -13,7 +13,9 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from ..errors import FacecapError
-from .base import StrategyResult, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, pca_gappy, reorder
+from .base import StrategyResult, as_target
+from .sources import check_pairs, clamp_to, flat, reorder
+from .lowrank import fill_gaps, gap_subspace, pca_gappy
 from .linear import align_source, as_source
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",

@@ -19,7 +19,7 @@ import numpy as np
 from ..character.basis import Basis
 from ..engine import solve_bounded
 from ..errors import FacecapError
-from .base import align_to, as_deltas, flat, reorder
+from .sources import align_to, as_deltas, flat, reorder
 from .calibrated import CalibratedStrategy
 from .geometric import symmetric_pairs
 

@@ -281,7 +281,7 @@ def retune_take(markers, character, settings, inputs, corrections, *, mu=None, b
 
 def _tune_actor(markers, base, settings, idx, Wc, mu, parent, notes):
     """calibrated/refine: retune the actor library on the aligned actor deltas and pose activations."""
-    from ..strategies.base import align_to, reorder
+    from ..strategies.sources import align_to, reorder
     from .retune import retune
 
     strategy = base.fitted
@@ -301,8 +301,8 @@ def _tune_actor(markers, base, settings, idx, Wc, mu, parent, notes):
 
 def _take_deltas(base, settings):
     """The stabilised, neutral-normalised actor deltas (F, M, 3), neutral (M, 3) and marker names the
-    pipeline solved: its final stabilisation and the same normalisation (``pipeline.normalise_stabilised``)."""
-    from ..pipeline import normalise_stabilised
+    pipeline solved: its final stabilisation and the same normalisation (``pipeline.stages.normalise_stabilised``)."""
+    from ..pipeline.stages import normalise_stabilised
 
     stab = base.stabilise
     neutral, offsets, _ = normalise_stabilised(stab, settings, [])
