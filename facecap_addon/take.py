@@ -216,11 +216,12 @@ def examples_from_action(action, obj):
     return ExamplePairs(frames.astype(np.float64), values, names)
 
 
-def strategy_inputs(settings):
-    """StrategyInputs for the Solve panel's strategy, read from the scene and the files it names."""
+def strategy_inputs(settings, strategy=None):
+    """StrategyInputs for ``strategy`` (default: the Solve panel's), read from the scene and the files
+    the panel names."""
     import bpy
 
-    strategy = settings.strategy
+    strategy = strategy or settings.strategy
     inputs, notes = {}, []
     if strategy in ("calibrated", "refine"):
         if settings.calib_source == "COLLECTION":

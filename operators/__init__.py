@@ -4,3 +4,19 @@ from . import calibration, importers, mapping, neutral, solve, stabilise, tuning
 
 CLASSES = (importers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
            + mapping.CLASSES + video.CLASSES + tuning.CLASSES)
+
+
+def register():
+    import bpy
+
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_import.append(importers.menu_func_import)
+
+
+def unregister():
+    import bpy
+
+    bpy.types.TOPBAR_MT_file_import.remove(importers.menu_func_import)
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

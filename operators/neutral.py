@@ -61,7 +61,7 @@ class FACECAP_OT_detect_neutral(bpy.types.Operator):
 
         from ..facecap_addon import take
         from ..solvers.capture.normalise import detect_neutral_frames
-        from ..solvers.pipeline import _spans, stabilise_take
+        from ..solvers.pipeline.stages import spans, stabilise_take
 
         settings = context.scene.facecap
         try:
@@ -73,7 +73,7 @@ class FACECAP_OT_detect_neutral(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         settings.neutral_mode = "DETECT"
-        self.report({"INFO"}, f"Neutral detected from {len(frames)} frame(s): {_spans(frames)}")
+        self.report({"INFO"}, f"Neutral detected from {len(frames)} frame(s): {spans(frames)}")
         return {"FINISHED"}
 
 
@@ -135,7 +135,7 @@ class FACECAP_OT_master_from_take(bpy.types.Operator):
 
         from ..facecap_addon import take
         from ..solvers.capture.neutral import neutral_from_frames
-        from ..solvers.pipeline import stabilise_take
+        from ..solvers.pipeline.stages import stabilise_take
 
         settings = context.scene.facecap
         try:

@@ -20,12 +20,12 @@ class FACECAP_OT_solve(bpy.types.Operator):
     def execute(self, context):
         import numpy as np
 
-        from ..facecap_addon import tuning_scene
+        from ..facecap_addon import scene_solve
 
         settings = context.scene.facecap
         try:
-            result = tuning_scene.solve_take(settings, context.scene)
-            action = tuning_scene.key_solve(settings, result)
+            result = scene_solve.solve_take(settings, context.scene)
+            action = scene_solve.key_solve(settings, result)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

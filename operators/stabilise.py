@@ -23,7 +23,7 @@ class FACECAP_OT_stabilise(bpy.types.Operator):
         import numpy as np
 
         from ..facecap_addon import take
-        from ..solvers.pipeline import stabilise_take
+        from ..solvers.pipeline.stages import stabilise_take
 
         settings = context.scene.facecap
         notes = []

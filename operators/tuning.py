@@ -135,25 +135,22 @@ class FACECAP_OT_retune(bpy.types.Operator):
     def execute(self, context):
         import numpy as np
 
-        from ..facecap_addon import tuning_scene
-        from ..solvers.tuning.take import retune_take
+        from ..facecap_addon import scene_solve, tuning_scene
 
         scene = context.scene
         settings = scene.facecap
         try:
             corrections = tuning_scene.corrections(settings)
-            markers, character, rsettings, inputs = tuning_scene.solve_inputs(settings, scene)
             mu = None if settings.tune_auto_mu else settings.tune_mu
-            tuned = retune_take(markers, character, rsettings, inputs, corrections, mu=mu,
-                                parent=settings.library_active)
+            result = scene_solve.solve_take(settings, scene, corrections=corrections, mu=mu)
+            tuned = result.retune
             if tuned.changed:
                 tuning_scene.store_version(scene, tuned.version)
                 settings.library_active = tuned.version.name
                 settings.library_index = list(settings.library_versions.keys()).index(tuned.version.name)
             if self.consume:
                 tuning_scene.take_in_corrections(settings, sorted(corrections))
-            result = tuning_scene.with_controls(settings, tuned.result)
-            tuning_scene.key_solve(settings, result)
+            scene_solve.key_solve(settings, result)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -182,7 +179,7 @@ class FACECAP_OT_library_use(bpy.types.Operator):
     name: StringProperty(name="Version", description="Stored version name; empty = the original library")
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
+        from ..facecap_addon import scene_solve
 
         settings = context.scene.facecap
         if self.name and self.name not in settings.library_versions:
@@ -191,8 +188,8 @@ class FACECAP_OT_library_use(bpy.types.Operator):
         previous = settings.library_active
         settings.library_active = self.name
         try:
-            result = tuning_scene.solve_take(settings, context.scene)
-            tuning_scene.key_solve(settings, result)
+            result = scene_solve.solve_take(settings, context.scene)
+            scene_solve.key_solve(settings, result)
         except FacecapError as exc:
             settings.library_active = previous
             self.report({"ERROR"}, str(exc))
@@ -233,7 +230,7 @@ class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
     def execute(self, context):
         import numpy as np
 
-        from ..facecap_addon import layers, tuning_scene
+        from ..facecap_addon import layers, scene_solve, tuning_scene
         from ..solvers.tuning.retune import fit_gain_offset
 
         settings = context.scene.facecap
@@ -246,7 +243,7 @@ class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
                                                    for i, f in enumerate(frames)})
             changed = tuning_scene.compose_gain_offset(settings, names, gain, offset)
             tuning_scene.take_in_corrections(settings, frames)
-            tuning_scene.key_solve(settings, tuning_scene.solve_take(settings, context.scene))
+            scene_solve.key_solve(settings, scene_solve.solve_take(settings, context.scene))
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -7,7 +7,7 @@ Pixels have their origin at the top-left corner of the image and y growing downw
 size spans (``AUTO``: the larger one, with the sensor *width*), and the lens shift is a fraction
 of that dimension. Blender's camera looks down its local -Z with +Y up.
 
-Never imports Blender: ``facecap_addon.video_scene.camera_from_scene`` reads a camera object into
+Never imports Blender: ``facecap_addon.scene_camera.camera_from_scene`` reads a camera object into
 :meth:`Camera.from_blender`.
 """
 

@@ -33,6 +33,7 @@ class RetargetResult:
     # (F, M) per-frame distance of each marker from its fit (metres, same space as residual_rms), NaN where
     # the marker is missing or the frame unsolved; None where the strategy has no marker fit (parallel, 2D)
     frame_marker_residual: np.ndarray = None
+    retune: object = None  # tuning.take.TakeTuneResult when the solve retuned from an animator's corrections
 
     def report(self):
         """A JSON-ready summary (lengths in millimetres)."""

@@ -89,6 +89,16 @@ class Job:
     def finished(self):
         return self.result is not None
 
+    def then(self, finish):
+        """This job, its result passed through ``finish`` when the last step ends."""
+        steps = self._steps
+
+        def finishing():
+            return finish((yield from steps))
+
+        self._steps = finishing()
+        return self
+
     @property
     def fraction(self):
         return self.done / max(self.total, 1)

@@ -11,7 +11,7 @@ from mathutils import Matrix, Vector
 from scene_fixtures import build_character
 
 from facecap.facecap_addon.scene_data import basis_from_object
-from facecap.facecap_addon.video_scene import projection_for
+from facecap.facecap_addon.scene_camera import projection_for
 from facecap.solvers import Basis, MarkerSet, RetargetSettings
 from facecap.solvers.character.camera import look_at
 from facecap.solvers.pipeline import retarget

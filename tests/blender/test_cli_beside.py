@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import cli
+from facecap.facecap_addon import headless
 from facecap.solvers.engine import split as engine_split
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import InputFileError
@@ -40,9 +40,9 @@ def _run(monkeypatch, config, beside):
         return real(here, there, **kw)
 
     monkeypatch.setattr(engine_split, "run_beside", spy)
-    monkeypatch.setattr(cli, "PARALLEL_READ_BYTES", -1 if beside else 1 << 60)
-    monkeypatch.setattr(cli, "PARALLEL_WRITE_VALUES", -1 if beside else 1 << 60)
-    cli.run_retarget(config, quiet=True)
+    monkeypatch.setattr(headless, "PARALLEL_READ_BYTES", -1 if beside else 1 << 60)
+    monkeypatch.setattr(headless, "PARALLEL_WRITE_VALUES", -1 if beside else 1 << 60)
+    headless.run_take(config, quiet=True)
     return calls
 
 
