@@ -9,8 +9,8 @@ read them, then the panels that draw both. The Blender layer is imported lazily 
 
 
 def register():
-    from . import operators
-    from .facecap_addon import registration
+    from . import operators  # bpy: only when Blender registers the add-on
+    from .facecap_addon import registration  # bpy
 
     registration.register_properties()
     operators.register()
@@ -18,8 +18,8 @@ def register():
 
 
 def unregister():
-    from . import operators
-    from .facecap_addon import registration
+    from . import operators  # bpy: only when Blender registers the add-on
+    from .facecap_addon import registration  # bpy
 
     registration.unregister_panels()
     operators.unregister()

@@ -4,6 +4,7 @@ Run through ``python -m facecap bench`` (with the solver cases). Times are media
 timed on a subset are scaled per key or per frame.
 """
 
+import json
 import os
 import subprocess
 import sys
@@ -12,13 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..solvers.character.basis import Basis
+from ..solvers.io.csv import write_markers_csv
 from ..solvers.tools.bench import median_time
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _shape_key_mesh(n_shapes):
-    import bpy
+    import bpy  # bpy: Blender starts on first import
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     mesh = bpy.data.meshes.new("BenchFace")
@@ -33,7 +36,7 @@ def _shape_key_mesh(n_shapes):
 
 def bench_keying(frames=36000, shapes=52, baseline_frames=300, repeat=3):
     """Bulk keying (keyframe_points.add + foreach_set) against keyframe_insert per key."""
-    from . import anim
+    from . import anim  # loads bpy
 
     obj = _shape_key_mesh(shapes)
     key = obj.data.shape_keys
@@ -62,11 +65,11 @@ def bench_keying(frames=36000, shapes=52, baseline_frames=300, repeat=3):
 def bench_cli_retarget(frames=36000, repeat=3):
     """``python -m facecap retarget`` on a long synthetic take of the sample character, process start to
     saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
-    import json
 
-    from ..solvers.character.basis import Basis
-    from ..solvers.io.csv import write_markers_csv
-    from ..solvers.tools.synth import performance_weights, synthesize_take
+    from ..solvers.tools.synth import (  # loads scipy
+        performance_weights,
+        synthesize_take,
+    )
 
     samples = ROOT / "sample_blends"
     basis = Basis.load_npz(samples / "character_basis.npz")

@@ -17,19 +17,54 @@ Every expected failure (bad config, missing or malformed file) exits with status
 stderr naming the file and field; there is no traceback for those.
 """
 
-import argparse
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _script_package():
+    """The package this file belongs to, when run as a script (``blender -b -P .../cli.py``)."""
+    import importlib.util
+
+    for name, module in list(sys.modules.items()):
+        if name.startswith("bl_ext.") and name.endswith(".facecap") and Path(module.__file__).parent == ROOT:
+            return module
+    spec = importlib.util.spec_from_file_location("facecap", ROOT / "__init__.py", submodule_search_locations=[str(ROOT)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["facecap"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+if __name__ == "__main__" and not __package__:
+    # Run as a script: import the package, then its own copy of this module (relative imports need it).
+    # Blender passes its own arguments; ours follow "--".
+    import importlib
+
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
+    cli = importlib.import_module(_script_package().__name__ + ".facecap_addon.cli")
+    sys.exit(cli.main(argv))
+
+# Imported here, after the script guard: as a script this file has no package for them.
+import argparse  # noqa: E402
+import ctypes  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from ..solvers.config import load_take_config  # noqa: E402
+from ..solvers.errors import FacecapError  # noqa: E402
+from ..solvers.tools import config_docs  # noqa: E402
+from ..solvers.tools.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
+from ..solvers.video.cli import main as track_main  # noqa: E402
+from ..solvers.video.reading import Cancelled  # noqa: E402
+from .bench import bench_cli_retarget, bench_keying  # noqa: E402
+from .demo import run_demo  # noqa: E402
+from .headless import run_take  # noqa: E402
+
+
 def _cmd_retarget(args):
-    import numpy as np
-
-    from ..solvers.config import load_take_config
-    from .headless import run_take
-
     config = load_take_config(args.config)
     result, outputs = run_take(config)
 
@@ -43,33 +78,28 @@ def _cmd_retarget(args):
 
 
 def _cmd_demo(args):
-    from .demo import run_demo
-
     return run_demo(Path(args.out))
 
 
 def _cmd_inspect(args):
-    from ..solvers.tools.inspect import main as inspect_main
-
     return inspect_main(args.rest)
 
 
 def _cmd_compare(args):
-    from ..solvers.tools.compare import main as compare_main
+    from ..solvers.tools.compare import main as compare_main  # loads scipy
 
     return compare_main(args.rest)
 
 
-def _cmd_track(args):
-    from ..solvers.video.cli import main as track_main
+def _cmd_config_docs(args):
+    return config_docs.main(args.rest)
 
+
+def _cmd_track(args):
     return track_main(args.rest)
 
 
 def _cmd_tune(args):
-    from ..solvers.config import load_take_config
-    from .headless import run_take
-
     config = load_take_config(args.config)
     result, outputs = run_take(config, tune=True)
     tuned = result.retune
@@ -87,13 +117,9 @@ def _cmd_tune(args):
 
 
 def _cmd_bench(args):
-    from ..solvers.tools.bench import run_benchmarks
-
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
         print(_bench_line(row), flush=True)
-    from .bench import bench_cli_retarget, bench_keying
-
     print(_bench_line(bench_keying(frames=frames)), flush=True)
     print(_bench_line(bench_cli_retarget(frames=frames)), flush=True)
     return 0
@@ -127,6 +153,10 @@ def build_parser():
     p = sub.add_parser("tune", help="retune the strategy from an animator's corrected frames and re-solve the take")
     p.add_argument("--config", required=True, help="take config (.toml) with [tuning] corrections")
     p.set_defaults(func=_cmd_tune)
+    p = sub.add_parser("config-docs", help="write the take-config reference (docs/config.md) from the option table",
+                       add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_config_docs)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.set_defaults(func=_cmd_bench)
@@ -135,12 +165,11 @@ def build_parser():
 
 def main(argv=None):
     """Entry point; returns the process exit status."""
-    from ..solvers.errors import FacecapError
 
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:
-        if args.command not in ("compare", "track", "inspect"):  # these forward their options
+        if args.command not in ("compare", "track", "inspect", "config-docs"):  # these forward their options
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         args.rest = extra + list(args.rest)
     if args.command in BATCH_COMMANDS:
@@ -148,8 +177,6 @@ def main(argv=None):
     try:
         return args.func(args)
     except FacecapError as exc:
-        from ..solvers.video.reading import Cancelled
-
         if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written
             print(f"facecap: {exc}; nothing written", file=sys.stderr)
             return 130
@@ -172,7 +199,6 @@ def keep_freed_memory():
     million faults, 5-8 s of system CPU; with this 0.67-0.81 million, 3.7-5.3 s; peak memory +3 %).
     For one-shot batch processes only: a Blender session should give memory back. Elsewhere (no
     glibc) it does nothing. Returns whether the settings were taken."""
-    import ctypes
 
     if not sys.platform.startswith("linux"):
         return False
@@ -183,27 +209,3 @@ def keep_freed_memory():
     m_trim_threshold, m_top_pad, m_mmap_threshold = -1, -2, -3  # from malloc.h
     settings = ((m_mmap_threshold, 32 << 20), (m_trim_threshold, 1 << 30), (m_top_pad, 64 << 20))
     return all([bool(mallopt(option, value)) for option, value in settings])  # a list: every setting is applied
-
-
-def _script_package():
-    """The package this file belongs to, when run as a script (``blender -b -P .../cli.py``)."""
-    import importlib.util
-
-    for name, module in list(sys.modules.items()):
-        if name.startswith("bl_ext.") and name.endswith(".facecap") and Path(module.__file__).parent == ROOT:
-            return module
-    spec = importlib.util.spec_from_file_location("facecap", ROOT / "__init__.py", submodule_search_locations=[str(ROOT)])
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["facecap"] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-if __name__ == "__main__":
-    # Blender passes its own arguments; ours follow "--".
-    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
-    package = _script_package()
-    import importlib
-
-    cli = importlib.import_module(package.__name__ + ".facecap_addon.cli")
-    sys.exit(cli.main(argv))

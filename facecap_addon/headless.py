@@ -10,9 +10,24 @@ import dataclasses
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
+import numpy as np
+
+from ..solvers.capture.cleaning import clean
+from ..solvers.config.strategies import load_strategy_inputs
+from ..solvers.engine.split import run_beside
 from ..solvers.errors import ConfigError, InputFileError
+from ..solvers.io import import_markers
+from ..solvers.io.csv import write_weights_csv
+from ..solvers.io.files import write_json_atomic
+from ..solvers.solve import SolveRequest, solve_job
+from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
+from ..solvers.video.cli import _Progress, sigint_cancels
+from ..solvers.video.flow_config import check_against_footage
+from ..solvers.video.reading import Footage
+from .scene_data import basis_from_object
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
@@ -85,7 +100,6 @@ def _read_and_open(config, say):
     """(take, target object, read seconds, open seconds). A big marker file is read in a forked
     child while Blender starts and opens the character (measured on a 36,000-frame CSV take: 1.0-1.5 s
     of reading beside 0.8-1.0 s of start-up); a bad file is read again here, so its error is raised here."""
-    from ..solvers.engine.split import run_beside
 
     def read():
         t = time.perf_counter()
@@ -107,19 +121,11 @@ def _read_and_open(config, say):
 def read_take(config, say):
     """Read the take's source (markers cleaned as ``[clean]`` says, footage, or solved weights) and
     the strategy's inputs."""
-    import warnings
 
-    import numpy as np
 
-    from ..solvers.capture.cleaning import clean
-    from ..solvers.config.strategies import load_strategy_inputs
-    from ..solvers.io import import_markers
 
     inputs = load_strategy_inputs(config)
     if config.video is not None:
-        from ..solvers.video.flow_config import check_against_footage
-        from ..solvers.video.reading import Footage
-
         say(f"[1/5] reading footage {config.video.path}")
         footage = Footage(config.video.path, **config.video.footage)
         check_against_footage(config.path, config.video, footage.info)
@@ -143,7 +149,7 @@ def read_take(config, say):
 def open_target(config, say):
     """Open ``[target] blend`` (if given) and return ``[target] object``; the output .blend must not
     be the input one."""
-    import bpy
+    import bpy  # bpy: Blender starts on first import
 
     if config.target_blend is not None:
         if not config.target_blend.is_file():
@@ -163,25 +169,21 @@ def open_target(config, say):
 
 def _request(config, obj, take, *, tune):
     """The SolveRequest of a take config, and the report's source fields."""
-    from ..solvers.solve import SolveRequest
-    from .scene_data import basis_from_object
-    from .take import character_target
+    from .take import character_target  # loads bpy
 
     settings = config.settings
     # Only geometric samples the character at bound vertices; the others need its shape names and ranges.
     character = basis_from_object(obj, take.markers.names) if settings.strategy == "geometric" else \
         character_target(obj)
     if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
-        import bpy
+        import bpy  # bpy: Blender starts on first import
 
-        from .scene_camera import projection_for
+        from .scene_camera import projection_for  # loads bpy
 
         settings = dataclasses.replace(settings, projection=projection_for(bpy.context.scene, obj, "camera",
                                                                            config.camera_name))
     tuning, version, corrections = config.tuning, None, None
     if tuning is not None and tuning.library is not None:
-        from ..solvers.tuning.store import load_version
-
         version = load_version(tuning.library)
     if tune:
         corrections = _corrections(config, _shape_names(character))
@@ -197,8 +199,6 @@ def _shape_names(character):
 
 
 def _corrections(config, names):
-    from ..solvers.tuning.store import read_corrections_csv
-
     tuning = config.tuning
     if tuning is None or tuning.corrections is None:
         raise ConfigError("the tune command needs the animator's corrections (frame,<shape>,... CSV)",
@@ -226,8 +226,6 @@ def _source_fields(config, take):
 def _run(request, *, quiet):
     """Run the request; footage shows progress on stderr and Ctrl-C stops it between two frames with
     ``Cancelled`` (nothing written; the CLI exits 130)."""
-    from ..solvers.solve import solve_job
-    from ..solvers.video.cli import _Progress, sigint_cancels
 
     job = solve_job(request)
     if request.footage is None:
@@ -259,7 +257,6 @@ def versions_folder(config):
 
 def _store_retune(config, tuned):
     """Store the retune's new version (and, once, the original: the way back); the report's fields."""
-    from ..solvers.tuning.store import save_version
 
     folder = versions_folder(config)
     saved = {}
@@ -287,11 +284,8 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings.
     Returns ``outputs`` with the action and the written paths.
     """
-    from ..solvers.engine.split import run_beside
-    from ..solvers.io.csv import write_weights_csv
-    from ..solvers.io.files import write_json_atomic
-    from . import anim
-    from .take import key_weights
+    from . import anim  # loads bpy
+    from .take import key_weights  # loads bpy
 
     def key_and_save():
         t3 = time.perf_counter()
@@ -336,7 +330,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
 
 
 def _save_blend_atomic(path):
-    import bpy
+    import bpy  # bpy: Blender starts on first import
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -78,3 +78,27 @@ def add_segment_markers(scene, segments):
             made.append(scene.timeline_markers.new(label, frame=int(round(first))))
             made.append(scene.timeline_markers.new(f"{label} end", frame=int(round(last))))
     return made
+
+
+def remember_take(scene, markers, path, coll):
+    """Point the sidebar settings at the new take, as File > Import does."""
+    settings = scene.facecap
+    settings.take_name = path.stem
+    settings.markers_path = str(path)
+    if markers.units in ("mm", "cm", "m"):
+        settings.units = markers.units
+    settings.fps = markers.fps
+    settings.marker_collection = coll
+    settings.markers.clear()
+    gaps = markers.gap_counts()
+    for name in markers.names:
+        item = settings.markers.add()
+        item.name = name
+        item.gaps = gaps[name]
+        item.stable = name.startswith("head")
+    first, last = int(markers.frames[0]), int(markers.frames[-1])
+    neutral = markers.segments.get("posed_neutral") or markers.segments.get("neutral")
+    if neutral:
+        settings.neutral_first, settings.neutral_last = int(neutral[0][0]), int(neutral[0][1])
+    elif not (first <= settings.neutral_first <= settings.neutral_last <= last):
+        settings.neutral_first, settings.neutral_last = first, min(first + 29, last)

@@ -3,6 +3,7 @@
 import bpy
 import numpy as np
 
+from ..solvers.character.camera import Camera
 from ..solvers.errors import FacecapError
 
 
@@ -13,7 +14,6 @@ def camera_from_scene(scene, name=None, *, object_matrix=None, resolution=None):
     coordinates, where its bound points and shape deltas live. ``resolution`` (width, height) gives
     pixels of footage whose size differs from the render resolution (same aspect expected).
     """
-    from ..solvers.character.camera import Camera
 
     if name:
         obj = bpy.data.objects.get(name)

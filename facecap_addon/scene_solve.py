@@ -14,6 +14,7 @@ import numpy as np
 from ..solvers.solve import SolveRequest, solve
 from . import anim, layers, take
 from .scene_camera import projection_from_sidebar
+from .scene_data import basis_from_object
 from .tuning_scene import load_version, shape_controls
 
 
@@ -23,7 +24,6 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     ``footage`` (with ``flow``): a video take solved from flow features instead of the imported
     markers; ``corrections`` ({frame: {shape: value}}) and ``mu``: retune from them and re-solve.
     """
-    from .scene_data import basis_from_object
 
     strategy = settings.strategy if footage is None else settings.video.flow_strategy
     markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)

@@ -12,8 +12,9 @@ import io
 
 import numpy as np
 
+from ..solvers.character.shape_controls import ShapeControl, resolve_controls
 from ..solvers.errors import FacecapError
-from ..solvers.character.shape_controls import ShapeControl
+from ..solvers.tuning.take import LibraryVersion
 from . import anim, layers, take
 
 #: scene ID property holding {version name: base64 npz}
@@ -47,7 +48,6 @@ def shape_controls(settings, *, with_locks=False):
 
 def set_controls(settings, controls):
     """Write {shape or glob: ShapeControl} into the shape list (shapes not listed are left alone)."""
-    from ..solvers.character.shape_controls import resolve_controls
 
     names = [s.name for s in settings.shapes]
     for item, c in zip(settings.shapes, resolve_controls(names, controls)):
@@ -109,7 +109,6 @@ def store_version(scene, version):
 
 def load_version(scene, name):
     """The LibraryVersion ``name`` stored in the .blend."""
-    from ..solvers.tuning.take import LibraryVersion
 
     store = scene.get(LIBRARY_PROP)
     if store is None or name not in store:

@@ -7,6 +7,12 @@ import bpy
 import numpy as np
 
 from ..solvers.errors import FacecapError
+from ..solvers.solve import solve_job
+from ..solvers.video.flow import track_with_flow_job
+from ..solvers.video.flow_solve import FlowSolveSettings
+from ..solvers.video.reading import Footage
+from ..solvers.video.tracking import track_points_job
+from .scene_solve import key_solve, request_from_scene
 
 
 def clip_footage(clip):
@@ -77,10 +83,6 @@ class ClipTracking(_ClipJob):
     what = label = "Tracking"
 
     def __init__(self, scene, clip, frame, *, region=(0, 0, 0, 0), max_points=100, method="lk"):
-        from ..solvers.video import Footage
-        from ..solvers.video.flow import track_with_flow_job
-        from ..solvers.video.tracking import track_points_job
-
         source, offset = clip_footage(clip)
         names, points = clip_seeds(clip, frame)
         if names:
@@ -111,11 +113,6 @@ class ClipFlowSolving(_ClipJob):
     label = "Flow of"
 
     def __init__(self, scene, clip, frame):
-        from ..solvers.solve import solve_job
-        from ..solvers.video import Footage
-        from ..solvers.video.flow_solve import FlowSolveSettings
-        from .scene_solve import request_from_scene
-
         settings, video = scene.facecap, scene.facecap.video
         if settings.target is None:
             raise FacecapError("choose the character (Target) first")
@@ -135,72 +132,5 @@ class ClipFlowSolving(_ClipJob):
     def write(self):
         """Key the finished solve (per-shape controls applied) as the character's solve layer; returns
         (action, the keyed RetargetResult)."""
-        from .scene_solve import key_solve
 
         return key_solve(self.settings, self.result), self.result
-
-
-# -- flow-PCA features: solving footage without markers -------------------------------------------
-def run_flow_retarget(config, *, quiet=False):
-    """``run_retarget`` for a ``[source] video`` take: flow-PCA features of the footage, the
-    ``[solve] strategy`` (linear / rbf / pca) learned from ``[examples] weights`` posed at footage
-    frames; keys the solve layer and writes the same outputs. Returns (RetargetResult, outputs).
-
-    The flow shows progress on stderr; Ctrl-C stops it between two frames with
-    :class:`~facecap.solvers.video.Cancelled` and nothing written (the CLI exits 130).
-    """
-    import sys
-    import time
-
-    from ..solvers.config.strategies import load_strategy_inputs
-    from ..solvers.video.cli import _Progress, sigint_cancels
-    from ..solvers.video.flow_config import check_against_footage
-    from ..solvers.video.flow_solve import retarget_flow_job
-    from ..solvers.video.reading import Footage
-    from .cli import key_and_write, open_target
-    from .take import character_target
-    from .tune_cli import finish_solve, prepare_solve
-
-    def say(message):
-        if not quiet:
-            print(f"facecap: {message}", file=sys.stderr, flush=True)
-
-    video, timings, t0 = config.video, {}, time.perf_counter()
-    say(f"[1/5] reading footage {video.path}")
-    footage = Footage(video.path, **video.footage)
-    info = footage.info
-    check_against_footage(config.path, video, info)
-    inputs = load_strategy_inputs(config)
-    timings["read"] = time.perf_counter() - t0
-
-    t1 = time.perf_counter()
-    obj = open_target(config, say)
-    character, inputs, settings, tuning_info = prepare_solve(config, character_target(obj), inputs)
-    timings["load_character"] = time.perf_counter() - t1
-
-    job = retarget_flow_job(footage, character, inputs.examples, settings=settings, flow=video.flow)
-    say(f"[3/5] {video.flow.method} flow over {info.n_frames} frames ({info.work_width}x{info.work_height}), "
-        f"solving {len(character.names)} shapes (strategy: {settings.strategy}, "
-        f"{len(inputs.examples.frames)} posed frames)")
-    shown = None if quiet else _Progress(sys.stderr, f"flow ({video.flow.method})")
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            result = job.run(progress)
-        finally:
-            if shown is not None:
-                shown.close_line()
-    result = finish_solve(config, result, info.fps)
-
-    source = {"video_file": video.path,
-              "source": {"format": "video", "kind": info.kind, "fps": info.fps, "width": info.width,
-                         "height": info.height, "scale": info.scale, "frames": [info.frames[0], info.frames[-1]],
-                         "count": info.n_frames},
-              "flow": result.info["flow"], "examples_file": str(config.examples_weights_path), "cleaning": []}
-    outputs = key_and_write(config, obj, result, outputs={}, timings=timings, t0=t0, notes=list(inputs.notes),
-                            say=say, report_fields={**source, **tuning_info})
-    return result, outputs

@@ -1,7 +1,9 @@
 """Solve the take onto the character and key the weights as a new solve layer."""
 
 import bpy
+import numpy as np
 
+from ..facecap_addon import scene_solve
 from ..solvers.errors import FacecapError
 
 
@@ -18,10 +20,6 @@ class FACECAP_OT_solve(bpy.types.Operator):
         return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import scene_solve
-
         settings = context.scene.facecap
         try:
             result = scene_solve.solve_take(settings, context.scene)

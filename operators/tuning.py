@@ -6,23 +6,23 @@ frames; see ``facecap_addon/layers.py`` and ``solvers/tuning_take.py``.
 """
 
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
+from ..facecap_addon import layers, scene_solve, tuning_scene
+from ..solvers.character.shape_controls import load_preset, save_preset
 from ..solvers.errors import FacecapError
+from ..solvers.tuning.retune import fit_gain_offset
 
 
 def _solved(context):
-    from ..facecap_addon import layers
-
     s = context.scene.facecap
     key = getattr(getattr(s.target, "data", None), "shape_keys", None)
     return key is not None and layers.solved_action(key) is not None
 
 
 def _add_frames(settings, frames):
-    from ..facecap_addon import tuning_scene
-
     have = {t.frame for t in settings.tuning_frames}
     new = [int(f) for f in frames if int(f) not in have]
     if new:
@@ -47,8 +47,6 @@ class FACECAP_OT_tuning_add_current(bpy.types.Operator):
         return _solved(context)
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         new = _add_frames(settings, [context.scene.frame_current])
         tuning_scene.sync_markers(context.scene)
@@ -68,8 +66,6 @@ class FACECAP_OT_tuning_add_edited(bpy.types.Operator):
         return _solved(context)
 
     def execute(self, context):
-        from ..facecap_addon import layers, tuning_scene
-
         settings = context.scene.facecap
         key = settings.target.data.shape_keys
         frames = layers.edited_frames(key, tuning_scene.shape_names(settings.target))
@@ -91,8 +87,6 @@ class FACECAP_OT_tuning_remove(bpy.types.Operator):
         return len(context.scene.facecap.tuning_frames) > 0
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         settings.tuning_frames.remove(settings.tuning_index)
         settings.tuning_index = max(0, min(settings.tuning_index, len(settings.tuning_frames) - 1))
@@ -108,8 +102,6 @@ class FACECAP_OT_tuning_clear(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         context.scene.facecap.tuning_frames.clear()
         tuning_scene.sync_markers(context.scene)
         return {"FINISHED"}
@@ -133,10 +125,6 @@ class FACECAP_OT_retune(bpy.types.Operator):
         return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import scene_solve, tuning_scene
-
         scene = context.scene
         settings = scene.facecap
         try:
@@ -179,8 +167,6 @@ class FACECAP_OT_library_use(bpy.types.Operator):
     name: StringProperty(name="Version", description="Stored version name; empty = the original library")
 
     def execute(self, context):
-        from ..facecap_addon import scene_solve
-
         settings = context.scene.facecap
         if self.name and self.name not in settings.library_versions:
             self.report({"ERROR"}, f"no library version '{self.name}' in this .blend")
@@ -228,11 +214,6 @@ class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
         return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import layers, scene_solve, tuning_scene
-        from ..solvers.tuning.retune import fit_gain_offset
-
         settings = context.scene.facecap
         try:
             corrections = tuning_scene.corrections(settings)
@@ -263,8 +244,6 @@ class FACECAP_OT_jump_worst(bpy.types.Operator):
         return _solved(context)
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         try:
             frames, residual = tuning_scene.residual_curve(settings.target.data.shape_keys)
@@ -294,9 +273,6 @@ class FACECAP_OT_controls_save(bpy.types.Operator, ExportHelper):
     filter_glob: StringProperty(default="*.json", options={"HIDDEN"})
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-        from ..solvers.character.shape_controls import save_preset
-
         try:
             save_preset(self.filepath, tuning_scene.shape_controls(context.scene.facecap, with_locks=True))
         except FacecapError as exc:
@@ -320,9 +296,6 @@ class FACECAP_OT_controls_load(bpy.types.Operator, ImportHelper):
         return len(context.scene.facecap.shapes) > 0
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-        from ..solvers.character.shape_controls import load_preset
-
         try:
             tuning_scene.set_controls(context.scene.facecap, load_preset(self.filepath))
         except FacecapError as exc:

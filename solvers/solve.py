@@ -14,6 +14,8 @@ from .character.shape_controls import apply_controls, locks_from_controls
 from .errors import FacecapError
 from .pipeline import retarget
 from .strategies.options import StrategyInputs
+from .tuning.take import apply_version, retune_take
+from .video.flow_solve import retarget_flow_job
 from .video.reading import Job
 
 
@@ -59,8 +61,6 @@ def solve_job(request):
     CLI's Ctrl-C); a marker take is one step. Everything is validated before the first step."""
     character, inputs, settings = request.character, request.inputs, request.settings
     if request.version is not None:
-        from .tuning.take import apply_version
-
         character, inputs, settings = apply_version(request.version, character, inputs, settings)
     if request.controls:
         names = character.shape_names if hasattr(character, "shape_names") else _names(character)
@@ -68,7 +68,6 @@ def solve_job(request):
     if request.footage is not None:
         if request.corrections is not None:
             raise FacecapError("tuning a video take from corrections is not supported yet; use the shape controls")
-        from .video.flow_solve import retarget_flow_job
 
         job = retarget_flow_job(request.footage, character, inputs.examples, settings=settings, flow=request.flow)
         fps = request.footage.info.fps
@@ -77,8 +76,6 @@ def solve_job(request):
     def steps():
         result = retarget(request.markers, character, settings, inputs=inputs)
         if request.corrections is not None:
-            from .tuning.take import retune_take
-
             tuned = retune_take(request.markers, character, settings, inputs, request.corrections, mu=request.mu,
                                 base=result, parent=request.parent)
             result = replace(tuned.result, retune=tuned)

@@ -249,6 +249,7 @@ def fill_gaps_spline(markers, *, max_gap):
     frames on each side; its smoothing weight is chosen once per marker by hiding 5-frame blocks
     of the marker's longest visible run and keeping the weight that predicts them best.
     """
+    # scipy: loaded on first use
     from scipy.interpolate import make_smoothing_spline
 
     pos = markers.positions.copy()
@@ -279,6 +280,7 @@ _LAMBDAS = 10.0 ** np.arange(-1.0, 3.01, 0.5)
 
 def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
     """Smoothing weight for ``make_smoothing_spline`` by hold-out of 5-frame blocks (None = GCV)."""
+    # scipy: loaded on first use
     from scipy.interpolate import make_smoothing_spline
 
     runs = _visible_runs(vis)
@@ -370,7 +372,10 @@ def lowpass(markers, *, cutoff_hz, order=4):
     Returns (markers, removed (F, M, D) = raw - filtered, StepReport). Runs too short for the
     filter's padding are left unfiltered and counted in the message.
     """
-    from scipy.signal import butter, filtfilt
+    from scipy.signal import (  # scipy: loaded on first use
+        butter,
+        filtfilt,
+    )
 
     nyquist = markers.fps / 2.0
     if not 0 < cutoff_hz < nyquist:

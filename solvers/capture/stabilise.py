@@ -8,6 +8,7 @@ import numpy as np
 from ..errors import FacecapError
 from ..markers import MarkerSet
 from ..transforms import _fit_rigid, _gaps, _zero_rows, best_rotation, fit_rigid_batch
+from .smoothing import local_polynomial
 
 
 class _MovedMarkers:
@@ -402,7 +403,6 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     average, exact for the small changes within a window) and projected back onto rotations.
     Flagged frames do not contribute and stay flagged.
     """
-    from .smoothing import local_polynomial
 
     if half_window <= 0 or markers.dim != 3:
         return stab

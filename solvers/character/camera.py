@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from .basis import Basis
 
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 
@@ -147,7 +148,6 @@ class Camera:
         yaw from 0.55 m (noise-free, no priors) weights RMSE 0.0010 (tangent) vs 0.0040 (secant).
         ``basis`` is in the coordinates the camera sees (world, or object-local after :meth:`relative_to`).
         """
-        from .basis import Basis
 
         if basis.neutral.shape[1] != 3:
             raise FacecapError("camera: project_basis needs a 3D basis")

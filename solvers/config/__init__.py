@@ -22,12 +22,16 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..capture.align import region_patterns
+from ..capture.cleaning import CleanSettings
+from ..character.shape_options import Region
 from ..errors import ConfigError, FacecapError
 from ..options import BY_NAME, OPTIONS, SECTIONS, default
 from ..pipeline import RetargetSettings
-from ..character.shape_options import Region
+from ..video.flow_config import split_video_sections, video_take
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
+
 
 @dataclass(frozen=True)
 class TakeConfig:
@@ -81,7 +85,6 @@ def load_take_config(path):
         raise ConfigError(f"cannot read: {exc}", path=path) from None
     _check_schema(path, data)
     free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by config.tuning
-    from ..video.flow_config import split_video_sections, video_take
 
     video_raw = split_video_sections(data)  # [source] video, [tracking], [flow]: a markerless video take
     base = path.parent
@@ -235,7 +238,6 @@ def _stabilise_neutral(path, data, resolve):
         for name, pats in regions.items():
             if not (isinstance(pats, list) and pats and all(isinstance(v, str) for v in pats)):
                 raise ConfigError("expected a non-empty list of marker patterns", path=path, key=f"align.regions.{name}")
-    from ..capture.align import region_patterns
 
     out["align_regions"] = region_patterns(regions)
     if "flag_mm" in al:
@@ -316,7 +318,6 @@ def _shape_options(path, solve):
 
 def _clean_settings(path, section):
     """[clean] -> CleanSettings (every step off unless named)."""
-    from ..capture.cleaning import CleanSettings
 
     values = dict(section)
     if "one_euro" in values:

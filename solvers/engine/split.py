@@ -8,6 +8,7 @@ its result comes back through a pipe). Fork is used only where it is the platfor
 or if the child fails, both halves run here one after the other. Same results either way.
 """
 
+import multiprocessing as mp
 import os
 import sys
 
@@ -35,7 +36,6 @@ def run_beside(here, there, *, let_finish=False):
     is killed, or, with ``let_finish``, waited for (a child writing a file then completes its
     atomic write instead of leaving a temporary file behind).
     """
-    import multiprocessing as mp
 
     if not fork_available():
         return here(), there()

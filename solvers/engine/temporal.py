@@ -40,7 +40,18 @@ has to settle the seam (measured: 2 iterations, 0.3 s on 36,000 frames).
 import numpy as np
 
 from .banded import context, frame_band, solve_window
-from .frames import _FREE, _ZERO, classify, fixed_values, hmul_by_pattern, pattern_hessians, patterns, solve_frames
+from .frames import (
+    _FREE,
+    _ZERO,
+    classify,
+    fixed_values,
+    hmul_by_pattern,
+    pattern_hessians,
+    patterns,
+    reusable,
+    solve_frames,
+)
+from .split import fork_available, run_pair
 from .threads import single_blas_thread
 from .trajectory import dilate, pentadiagonal_mul, predict_states
 
@@ -165,8 +176,6 @@ def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=200, chunk=4096, pad
 
     Returns (W (F, K), iterations, converged).
     """
-    from .frames import reusable
-    from .split import fork_available, run_pair
 
     F, K = G.shape
     pats, inv = patterns(C)

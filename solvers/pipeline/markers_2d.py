@@ -7,6 +7,7 @@ are not removed).
 """
 
 from ..character.basis import Basis
+from ..character.camera import Camera
 from ..errors import FacecapError
 
 #: marker strategies that solve 2D image tracks natively (their fits are dimension-free); geometric
@@ -35,7 +36,6 @@ def projected(basis, projection):
     linearised at the neutral (``Camera.project_basis``), scaled by the units a pixel spans at the
     face so residuals read in scene units (metres for a metre-scale rig), as with the front view.
     """
-    from ..character.camera import Camera
 
     if projection is None or projection == "front":
         return basis.front_view(), "2D take: solved against the character's front view (depth motion is not observed)"

@@ -11,10 +11,17 @@ from dataclasses import replace
 import numpy as np
 
 from ..capture.neutral import neutral_from_frames
-from ..capture.normalise import DEFAULT_LANDMARKS, detect_neutral_frames, master_offsets, neutral_from_file, \
-    neutral_from_ranges
+from ..capture.normalise import (
+    DEFAULT_LANDMARKS,
+    detect_neutral_frames,
+    master_offsets,
+    neutral_from_file,
+    neutral_from_ranges,
+)
 from ..capture.stabilise import smooth_head_motion, stabilise_2d, stabilise_rigid
+from ..capture.stable_markers import suggest_stable_markers
 from ..errors import FacecapError
+from ..io import import_markers
 from ..strategies.base import PreparedTake
 
 
@@ -33,8 +40,6 @@ def stabilise_take(markers, settings, notes):
     suggestion = None
     stable = tuple(settings.stable_markers)
     if settings.auto_stable:
-        from ..capture.stable_markers import suggest_stable_markers  # scipy.ndimage: loaded when asked for
-
         suggestion = suggest_stable_markers(markers)
         stable = suggestion.names
         notes.append(f"stable markers suggested from the take ({len(stable)}, score gap x{suggestion.gap:.1f}"
@@ -58,7 +63,6 @@ def head_half_window(settings, fps):
 def _load(source):
     if source is None or hasattr(source, "positions"):
         return source
-    from ..io import import_markers
 
     return import_markers(source).markers.to_units("m")
 

@@ -13,18 +13,18 @@ import warnings
 
 import numpy as np
 
+from ..capture.neutral import neutral_from_frames
+from ..capture.stabilise import stabilise_2d, stabilise_rigid
 from ..character.aliases import name_key
 from ..character.basis import Basis
 from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
 from ..markers import UNIT_SCALE
-from ..capture.neutral import neutral_from_frames
-from ..capture.stabilise import stabilise_2d, stabilise_rigid
 from .base import StrategyResult, as_target
-from .sources import as_deltas, clamp_to, flat, reorder
 from .geometric import symmetric_pairs
 from .linear import align_source
 from .mapping import Mapping
+from .sources import as_deltas, clamp_to, flat, reorder
 
 
 def _ranges(name, spec):

@@ -16,8 +16,8 @@ import numpy as np
 from ..errors import FacecapError
 from ..transforms import Similarity, fit_similarity_2d
 from .base import StrategyResult, as_target
-from .sources import align_to, as_deltas, check_pairs, clamp_to, flat, reorder
 from .lowrank import fill_gaps, gap_subspace
+from .sources import align_to, as_deltas, check_pairs, clamp_to, flat, reorder
 
 
 def as_source(source, *, what="source"):

@@ -16,13 +16,13 @@ scalar applies to every shape; the ``"*"`` key sets the default inside a dict.
 import numpy as np
 
 from ..character.aliases import canonical_names, mirror_name, name_key
-from ..errors import FacecapError
 from ..character.shape_controls import curve_function
+from ..errors import FacecapError
 from .base import StrategyResult, as_target
 from .mapping import Mapping
 
 
-def _curve(spec):
+def parallel_curve(spec):
     """The shared response curve (``shape_controls.curve_function``) with parallel's error prefix."""
     return curve_function(spec, what="parallel")
 
@@ -57,7 +57,7 @@ class ParallelStrategy:
         self.curve = curve
         self.mirror = bool(mirror)
         for spec in (curve.values() if isinstance(curve, dict) else [curve]):
-            _curve(spec)
+            parallel_curve(spec)
         self.target = None
         self.mapping = None
         self.source_names = None
@@ -151,7 +151,7 @@ class ParallelStrategy:
 
     def _per_shape_curves(self):
         specs = self._lookup(self.curve, "linear", "curve") if isinstance(self.curve, dict) else [self.curve] * self.target.n_shapes
-        return [_curve(s) for s in specs]
+        return [parallel_curve(s) for s in specs]
 
     def _mirror_permutation(self):
         index = {name_key(n): i for i, n in enumerate(self.source_names)}

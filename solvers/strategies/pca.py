@@ -26,9 +26,9 @@ import numpy as np
 from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
 from .base import StrategyResult, as_target
-from .sources import as_deltas, clamp_to, flat, reorder
-from .lowrank import fill_gaps, noise_threshold, pca, pca_gappy
 from .linear import align_source, as_source
+from .lowrank import fill_gaps, noise_threshold, pca, pca_gappy
+from .sources import as_deltas, clamp_to, flat, reorder
 
 MODES = ("related", "posed")
 

@@ -14,9 +14,9 @@ from scipy.interpolate import RBFInterpolator
 
 from ..errors import FacecapError
 from .base import StrategyResult, as_target
-from .sources import check_pairs, clamp_to, flat, reorder
-from .lowrank import fill_gaps, gap_subspace, pca_gappy
 from .linear import align_source, as_source
+from .lowrank import fill_gaps, gap_subspace, pca_gappy
+from .sources import check_pairs, clamp_to, flat, reorder
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
            "inverse_multiquadric", "inverse_quadratic")

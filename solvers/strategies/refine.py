@@ -19,9 +19,9 @@ import numpy as np
 from ..character.basis import Basis
 from ..engine import solve_bounded
 from ..errors import FacecapError
-from .sources import align_to, as_deltas, flat, reorder
 from .calibrated import CalibratedStrategy
 from .geometric import symmetric_pairs
+from .sources import align_to, as_deltas, flat, reorder
 
 
 class RefineStrategy(CalibratedStrategy):

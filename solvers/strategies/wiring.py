@@ -13,8 +13,9 @@ from ..character.shape_options import resolve_bounds
 from ..errors import FacecapError
 from . import make_strategy
 from .base import Target, as_target
-from .sources import flat
 from .lowrank import fill_gaps, gap_subspace
+from .options import ExamplePairs
+from .sources import flat
 
 #: what each strategy needs besides the take, in the words of the take config
 NEEDS = {
@@ -199,7 +200,6 @@ def _selected(examples, frames):
     missing = [f for f in want.tolist() if not np.any(np.abs(have - f) < 1e-6)]
     if missing:
         raise FacecapError(f"examples: frame(s) {missing[:8]} have no posed weights")
-    from .options import ExamplePairs
 
     return ExamplePairs(have[rows], np.asarray(examples.weights)[rows], examples.names, examples.markers)
 

@@ -19,7 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from ..pipeline import RetargetSettings, hold_locks
+from ..pipeline.result import assemble
+from ..strategies.wiring import example_weights, shape_target
 from .features import EXAMPLE_STRATEGIES, FlowFeatures, fit_from_flow, remove_similarity
+from .flow import dense_flow_job
 from .pca import flow_pca
 from .reading import Footage, Job
 
@@ -85,7 +89,6 @@ def check_flow_settings(flow, info):
 def example_matrix(examples, target, frames, *, only=()):
     """(example frames (N,), weights (N, K) in ``target``'s shape order, notes) from ExamplePairs;
     ``only`` (``[examples] frames``) keeps just those posed frames."""
-    from ..strategies.wiring import example_weights
 
     ex_frames = np.asarray(examples.frames, dtype=np.float64).reshape(-1)
     values = np.asarray(examples.weights, dtype=np.float64)
@@ -164,10 +167,6 @@ def retarget_flow(footage, character, examples, *, settings=None, flow=None, pro
 def retarget_flow_job(footage, character, examples, *, settings=None, flow=None):
     """:func:`retarget_flow` as a :class:`~.reading.Job` (a footage frame per step; the features and
     the solve run after the last frame). Everything is validated before the first step."""
-    from ..pipeline import RetargetSettings, hold_locks
-    from ..pipeline.result import assemble
-    from ..strategies.wiring import shape_target
-    from .flow import dense_flow_job
 
     t0 = time.perf_counter()
     settings = RetargetSettings((), (1, 1), strategy="linear") if settings is None else settings

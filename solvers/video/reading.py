@@ -53,7 +53,7 @@ class FootageInfo:
 
 def _cv2():
     try:
-        import cv2
+        import cv2  # OpenCV: imported on first use
     except ImportError:  # pragma: no cover - the pinned environment has it
         raise FacecapError("video input needs OpenCV: pip install opencv-contrib-python-headless") from None
     return cv2

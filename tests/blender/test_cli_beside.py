@@ -39,7 +39,7 @@ def _run(monkeypatch, config, beside):
         calls.append(kw)
         return real(here, there, **kw)
 
-    monkeypatch.setattr(engine_split, "run_beside", spy)
+    monkeypatch.setattr(headless, "run_beside", spy)
     monkeypatch.setattr(headless, "PARALLEL_READ_BYTES", -1 if beside else 1 << 60)
     monkeypatch.setattr(headless, "PARALLEL_WRITE_VALUES", -1 if beside else 1 << 60)
     headless.run_take(config, quiet=True)
