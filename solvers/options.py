@@ -11,9 +11,9 @@ Kinds: ``bool``, ``int``, ``float``, ``str``, ``choice`` (one of ``choices``), `
 or folder, relative to the config's folder), ``frames`` ([first, last] frame numbers),
 ``names`` (a list of names or glob patterns), ``floats`` (a fixed-length list of numbers),
 ``table`` (a TOML table checked by the section's own parser), or a tuple of kinds for a value
-that may take several forms. ``ui`` names the control: ``facecap.<prop>`` (a ``Scene.facecap``
-setting, ``facecap.video.<prop>`` for the video group) or ``op:<operator>.<prop>`` (an operator's
-option); an empty ``ui`` needs a ``headless`` reason.
+that may take several forms. ``ui`` names the controls, comma-separated: ``facecap.<prop>`` (a
+``Scene.facecap`` setting, ``facecap.video.<prop>`` for the video group) or ``op:<operator>.<prop>``
+(an operator's option); an empty ``ui`` needs a ``headless`` reason.
 """
 
 import math
@@ -136,7 +136,7 @@ OPTIONS = (
       doc="File format (default: from the extension and content)", headless="File > Import picks the format"),
     O("source", "units", "choice", choices=UNITS,
       doc="Units of the coordinates (default: the file's, else guessed from the face size with a note)",
-      ui="op:facecap.import_markers.units"),
+      ui="facecap.units, op:facecap.import_markers.units"),
     O("source", "unit_scale", "float", above=0.0, doc="Metres per unit for `units = \"bu\"` (Blender units)",
       ui="op:facecap.import_markers.unit_scale"),
     O("source", "fps", "float", above=0.0, high=MAX_FPS, doc="Frame rate (default: the file's)",
@@ -186,7 +186,7 @@ OPTIONS = (
     # -- [stabilise] -------------------------------------------------------------------------------
     O("stabilise", "markers", ("names", "str"),
       doc="Markers that move only with the head, or \"auto\" to suggest them (required for marker takes)",
-      ui="facecap.markers"),
+      ui="facecap.markers, facecap.auto_stable"),
     O("stabilise", "mode", "choice", default="rigid", choices=("rigid", "similarity"),
       doc="Per-frame head fit: rotation + translation, or also a uniform scale", ui="facecap.stabilise_mode"),
     O("stabilise", "fine_iterations", "int", default=2, low=0, high=10,
@@ -199,12 +199,12 @@ OPTIONS = (
       doc="Half-window (s) of the zero-phase head-pose smoothing; 0 = off", ui="facecap.head_smoothing"),
     # -- [neutral] ---------------------------------------------------------------------------------
     O("neutral", "frames", ("frames", "list"), doc="Neutral / T-pose frames [first, last], or [[first, last], ...]",
-      ui="facecap.neutral_first"),
+      ui="facecap.neutral_first, facecap.neutral_last, facecap.neutral_end_first, facecap.neutral_end_last"),
     O("neutral", "file", "path", doc="A neutral captured in a separate file", ui="facecap.neutral_file"),
     O("neutral", "detect", "bool", default=False, doc="Detect the most neutral frames (the pose held longest)",
       ui="facecap.neutral_mode"),
     O("neutral", "master", "path", doc="The performer's master T-pose (offsets carried through the take)",
-      ui="facecap.use_master"),
+      ui="facecap.use_master, facecap.master_data, facecap.master_source"),
     O("neutral", "landmarks", "names", doc="Markers the master alignment uses (default: eye and mouth corners)",
       ui="facecap.landmarks"),
     # -- [align] -----------------------------------------------------------------------------------
@@ -214,8 +214,8 @@ OPTIONS = (
     O("align", "flag_mm", "float", above=0.0, high=1e4, doc="Alignment residual (mm) that flags a binding",
       headless="the default robust threshold suits the sidebar"),
     # -- [solve] -----------------------------------------------------------------------------------
-    O("solve", "strategy", "choice", default="geometric", choices=STRATEGIES, doc="Cross-mapping strategy",
-      ui="facecap.strategy"),
+    O("solve", "strategy", "choice", default="geometric", choices=STRATEGIES,
+      doc="Cross-mapping strategy (video takes: linear, rbf or pca)", ui="facecap.strategy, facecap.video.flow_strategy"),
     O("solve", "regularisation", "float", default=1e-3, low=0.0, high=1e6,
       doc="Ridge weight relative to the basis scale: larger keeps weights smaller and steadier",
       ui="facecap.regularisation"),
@@ -227,7 +227,7 @@ OPTIONS = (
       ui="facecap.symmetry"),
     O("solve", "smoothing", "floats", default=(0.0, 0.3), length=2, low=0.0, high=1e6,
       doc="Temporal weights [first difference, second difference]; [0, 0] solves frames independently",
-      ui="facecap.smoothing_second"),
+      ui="facecap.smoothing_first, facecap.smoothing_second"),
     O("solve", "bounds", "table", doc="{shape pattern = [lower, upper]} overriding the slider ranges",
       ui="facecap.shapes"),
     O("solve", "locks", "table", doc="{shape pattern = value}: shapes held fixed (animator-owned)",
@@ -246,17 +246,18 @@ OPTIONS = (
     O("output", "actor_basis", "path", doc="The actor library used (refine: refined), as .npz", headless=OUTPUT_FILE),
     O("output", "action", "str", doc="Name of the new action (default: the take file's name)", ui="facecap.take_name"),
     O("output", "head", "str", doc="Key the removed head motion on \"Object\" or \"Armature:bone\"",
-      ui="facecap.head_target"),
+      ui="facecap.head_target, facecap.head_bone"),
     # -- [calibration] (calibrated, refine) --------------------------------------------------------
-    O("calibration", "markers", "path", doc="The actor's calibration take", ui="facecap.calib_path"),
+    O("calibration", "markers", "path", doc="The actor's calibration take",
+      ui="facecap.calib_source, facecap.calib_path, facecap.calib_collection"),
     O("calibration", "units", "choice", choices=("m", "cm", "mm", "px"), doc="Units of the calibration take",
       ui="facecap.calib_units"),
     O("calibration", "fps", "float", above=0.0, high=MAX_FPS, doc="Frame rate of the calibration take",
       headless="taken from the imported calibration take"),
     O("calibration", "neutral", "frames", doc="The calibration take's neutral (default: [neutral] frames)",
-      ui="facecap.calib_neutral_first"),
+      ui="facecap.calib_neutral_first, facecap.calib_neutral_last"),
     O("calibration", "poses", "table", doc="{pose = [first, last] or [[first, last], ...]}: held poses",
-      ui="facecap.calib_poses"),
+      ui="facecap.calib_poses, facecap.calib_pose_name"),
     O("calibration", "split", "names", doc="Poses split into <pose>Left / <pose>Right by marker side",
       ui="facecap.calib_poses"),
     O("calibration", "stable_markers", "names", doc="Stable markers of the calibration take (default: the take's)",
@@ -280,11 +281,12 @@ OPTIONS = (
     O("mapping", "clamp", ("floats", "table"), length=2, doc="parallel: [lo, hi], or {shape = [lo, hi]}",
       headless="the Shapes panel's per-shape clamp does this in the sidebar"),
     O("mapping", "curve", ("str", "table"), default="linear",
-      doc="parallel: \"linear\", \"smoothstep\", \"gamma:<g>\", or {shape = curve}", ui="facecap.parallel_curve"),
+      doc="parallel: \"linear\", \"smoothstep\", \"gamma:<g>\", or {shape = curve}",
+      ui="facecap.parallel_curve, facecap.parallel_gamma"),
     O("mapping", "mirror", "bool", default=False, doc="parallel: swap Left/Right source channels",
       ui="facecap.parallel_mirror"),
     O("mapping", "neutral", "frames", doc="parallel: frames whose median is subtracted from the source",
-      ui="facecap.parallel_use_neutral"),
+      ui="facecap.parallel_use_neutral, facecap.parallel_neutral_first, facecap.parallel_neutral_last"),
     # -- [examples] (linear, rbf, pca) -------------------------------------------------------------
     O("examples", "weights", "path", doc="frame,<shape>,... character weights posed at frames of the take",
       ui="facecap.examples_action"),
@@ -345,12 +347,13 @@ OPTIONS = (
     O("tuning", "corrections", "path", doc="frame,<shape>,... corrected weights (the `tune` command)",
       ui="facecap.tuning_frames"),
     O("tuning", "mu", "float", above=0.0, doc="Prior of the correction (absent: chosen automatically; inf = gains only)",
-      ui="facecap.tune_mu"),
-    O("tuning", "library", "path", doc="A stored library version to solve with", ui="facecap.library_active"),
+      ui="facecap.tune_auto_mu, facecap.tune_mu"),
+    O("tuning", "library", "path", doc="A stored library version to solve with",
+      ui="facecap.library_active, facecap.library_versions"),
     O("tuning", "out", "path", doc="Where new versions go (default: beside the [output] files)",
       headless="the sidebar stores versions in the .blend"),
     O("controls", "preset", "path", doc="Per-shape controls preset (.json); table entries win",
-      ui="op:facecap.load_controls.filepath"),
+      ui="op:facecap.controls_load.filepath"),
     O("controls", "<shape>", "table",
       doc="{gain, offset, clamp = [lo, hi], curve, smoothing, mute, lock} for a shape name or glob",
       ui="facecap.shapes"),

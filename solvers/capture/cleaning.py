@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..markers import MarkerSet
+from ..options import default
 
 
 @dataclass(frozen=True)
@@ -52,15 +53,15 @@ class CleanSettings:
     one_euro : tuple (min_cutoff_hz, beta, d_cutoff_hz) or None
     """
 
-    fix_swaps: bool = False
-    swap_ratio: float = 0.5
+    fix_swaps: bool = default("clean.fix_swaps")
+    swap_ratio: float = default("clean.swap_ratio")
     spike_speed: float = None
     spike_mad: float = None
-    fill_spline: int = 0
-    fill_model: int = 0
+    fill_spline: int = default("clean.fill_spline")
+    fill_model: int = default("clean.fill_model")
     model_rank: int = None
     lowpass_hz: float = None
-    lowpass_order: int = 4
+    lowpass_order: int = default("clean.lowpass_order")
     one_euro: tuple = None
 
     def __post_init__(self):

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from ..options import default
 from ..pipeline import RetargetSettings, hold_locks
 from ..pipeline.result import assemble
 from ..strategies.wiring import example_weights, shape_target
@@ -45,14 +46,14 @@ class FlowSolveSettings:
         components explaining that fraction)
     """
 
-    method: str = "dis"
+    method: str = default("tracking.method")
     reference: int = None
     region: tuple = None
     stable_region: tuple = ()
     grid_step: int = None
-    drift: str = "fuse"
-    preset: str = "balanced"
-    n_components: int = 12
+    drift: str = default("tracking.drift")
+    preset: str = default("tracking.preset")
+    n_components: int = default("flow.components")
     variance: float = None
 
 

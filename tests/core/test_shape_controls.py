@@ -168,9 +168,9 @@ def test_curve_function_is_shared_with_parallel():
     from facecap.solvers.strategies import parallel
 
     x = np.linspace(-0.2, 1.2, 8)
-    assert_allclose(parallel._curve("smoothstep")(x), curve_function("smoothstep")(x))
+    assert_allclose(parallel.parallel_curve("smoothstep")(x), curve_function("smoothstep")(x))
     with pytest.raises(FacecapError, match="parallel: unknown curve"):
-        parallel._curve("nope")
+        parallel.parallel_curve("nope")
 
 
 def _config(tmp_path, text):
