@@ -49,6 +49,8 @@ if __name__ == "__main__" and not __package__:
 # Imported here, after the script guard: as a script this file has no package for them.
 import argparse  # noqa: E402
 import ctypes  # noqa: E402
+import signal  # noqa: E402
+import threading  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -66,7 +68,7 @@ from .headless import run_take  # noqa: E402
 
 def _cmd_retarget(args):
     config = load_take_config(args.config)
-    result, outputs = run_take(config)
+    result, outputs = run_take(config, replace=args.replace)
 
     ok = np.isfinite(result.residual_rms)
     residual = (f"mean residual {np.mean(result.residual_rms[ok]) * 1e3:.3f} mm ({result.residual_space} space)"
@@ -135,6 +137,8 @@ def build_parser():
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("retarget", help="retarget a take described by a TOML config")
     p.add_argument("--config", required=True, help="take config (.toml)")
+    p.add_argument("--replace", action="store_true",
+                   help="start from [target] blend even when the output .blend exists (default: add the solve to it)")
     p.set_defaults(func=_cmd_retarget)
     p = sub.add_parser("demo", help="retarget the bundled sample take and print its accuracy")
     p.add_argument("--out", default="facecap-demo", help="output folder (default: ./facecap-demo)")
@@ -174,6 +178,8 @@ def main(argv=None):
         args.rest = extra + list(args.rest)
     if args.command in BATCH_COMMANDS:
         keep_freed_memory()
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _interrupt) if main_thread else None  # cleans up as Ctrl-C does
     try:
         return args.func(args)
     except FacecapError as exc:
@@ -183,8 +189,15 @@ def main(argv=None):
         print(f"facecap: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("facecap: interrupted", file=sys.stderr)
+        print("facecap: interrupted; outputs not finished were not written", file=sys.stderr)
         return 130
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).

@@ -7,7 +7,6 @@ exit status 1.
 """
 
 import dataclasses
-import os
 import sys
 import time
 import warnings
@@ -21,7 +20,9 @@ from ..solvers.engine.split import run_beside
 from ..solvers.errors import ConfigError, InputFileError
 from ..solvers.io import import_markers
 from ..solvers.io.csv import write_weights_csv
-from ..solvers.io.files import write_json_atomic
+from ..solvers.config.checks import check_against_take
+from ..solvers.config.paths import check_outputs, take_outputs
+from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import _Progress, sigint_cancels
@@ -40,21 +41,21 @@ def progress_line(message):
     print(f"facecap: {message}", file=sys.stderr, flush=True)
 
 
-def run_take(config, *, quiet=False, tune=False):
+def run_take(config, *, quiet=False, tune=False, replace=False):
     """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
 
     ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
-    are retuned from and the new library version stored (``[tuning] out``).
+    are retuned from and the new library version stored (``[tuning] out``). An existing output
+    .blend is added to (everything in it kept, the new solve the active layer) unless ``replace``:
+    then the run starts from ``[target] blend``. Nothing is read or solved before every output path
+    is checked (``preflight``).
     """
     say = (lambda _m: None) if quiet else progress_line
-    if tune and config.video is not None:
-        raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     t0 = time.perf_counter()
     timings = {}
-    if config.output_actor_basis is not None and config.output_actor_basis == config.actor_basis_path:
-        raise ConfigError("must differ from [calibration] basis (a stored library is never overwritten)",
-                          path=config.path, key="output.actor_basis")
-    take, obj, timings["read"], t_open = _read_and_open(config, say)
+    base = preflight(config, tune=tune, replace=replace)
+    take, obj, timings["read"], t_open = _read_and_open(config, say, base)
+    check_against_take(config, take.markers, take.inputs)
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune)
     timings["load_character"] = time.perf_counter() - t1 + t_open
@@ -71,9 +72,54 @@ def run_take(config, *, quiet=False, tune=False):
         extra["flow"] = result.info["flow"]
     if config.output_actor_basis is not None:
         _write_actor_basis(config, result, outputs)
+    if config.output_blend is not None:
+        extra["output_blend"] = base.report()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
-                            report_fields={**source_info, "cleaning": take.cleaning, **extra})
+                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=take.fps())
     return result, outputs
+
+
+@dataclasses.dataclass(frozen=True)
+class Base:
+    """The .blend a run opens: ``[target] blend``, or the existing output .blend it adds to."""
+
+    path: Path  # None: the open file (or Blender's start-up scene)
+    mode: str  # "new" (no output .blend yet, or none asked for), "added" (to the existing output), "replaced"
+
+    def report(self):
+        return {"mode": self.mode, "opened": None if self.path is None else str(self.path)}
+
+
+def preflight(config, *, tune=False, replace=False):
+    """Every check that needs no solve, before any work: something will be written, no output is an
+    input or another output, every output can be written; stale temporary files of earlier killed
+    runs are removed. Returns the ``Base`` to open."""
+    if tune and config.video is not None:
+        raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
+    if not tune and not take_outputs(config):
+        raise ConfigError("nothing would be written: give [output] blend, weights or report", path=config.path,
+                          key="output")
+    check_outputs(config, library=versions_folder(config) if tune else None)
+    for path in take_outputs(config).values():
+        remove_stale_temporaries(path.parent)
+    out = config.output_blend
+    if out is not None and out.is_file():
+        if replace:
+            return Base(config.target_blend, "replaced")
+        check_blend_file(out, "[output.blend]", config.path)
+        return Base(out, "added")
+    return Base(config.target_blend, "new")
+
+
+def check_blend_file(path, key, config_path):
+    """Raise ConfigError unless ``path`` starts like a .blend (plain, gzip or zstd compressed)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError as exc:
+        raise ConfigError(f"{key} {path}: cannot be read ({exc.strerror})", path=config_path) from None
+    if not head.startswith((b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")):
+        raise ConfigError(f"{key} {path}: not a .blend file", path=config_path)
 
 
 @dataclasses.dataclass
@@ -87,6 +133,13 @@ class _Take:
     notes: tuple = ()
     cleaning: tuple = ()
 
+    def fps(self):
+        if self.markers is not None:
+            return self.markers.fps
+        if self.footage is not None:
+            return self.footage.info.fps
+        return self.inputs.weights.fps
+
     def describe(self):
         if self.markers is not None:
             return f"{self.markers.n_frames} frames from {self.markers.n_markers} markers"
@@ -96,7 +149,7 @@ class _Take:
         return f"{len(self.inputs.weights.frames)} frames of {len(self.inputs.weights.names)} solved channels"
 
 
-def _read_and_open(config, say):
+def _read_and_open(config, say, base):
     """(take, target object, read seconds, open seconds). A big marker file is read in a forked
     child while Blender starts and opens the character (measured on a 36,000-frame CSV take: 1.0-1.5 s
     of reading beside 0.8-1.0 s of start-up); a bad file is read again here, so its error is raised here."""
@@ -107,7 +160,7 @@ def _read_and_open(config, say):
 
     def open_blend():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
-        return open_target(config, say), time.perf_counter() - t
+        return open_target(config, say, base), time.perf_counter() - t
 
     path = config.markers_path
     if path is not None and path.is_file() and path.stat().st_size > PARALLEL_READ_BYTES:
@@ -146,23 +199,22 @@ def read_take(config, say):
                  notes=notes, cleaning=tuple(cleaned.report.summary().splitlines()))
 
 
-def open_target(config, say):
-    """Open ``[target] blend`` (if given) and return ``[target] object``; the output .blend must not
-    be the input one."""
+def open_target(config, say, base=None):
+    """Open the run's ``Base`` .blend (default ``[target] blend``, if given); returns ``[target] object``."""
     import bpy  # bpy: Blender starts on first import
 
-    if config.target_blend is not None:
-        if not config.target_blend.is_file():
-            raise InputFileError(config.target_blend, "file not found (config [target] blend)")
-        say(f"[2/5] opening {config.target_blend}")
-        bpy.ops.wm.open_mainfile(filepath=str(config.target_blend), load_ui=False)
-    source_blend = Path(bpy.data.filepath).resolve() if bpy.data.filepath else None
-    if config.output_blend is not None and source_blend is not None and config.output_blend == source_blend:
-        raise ConfigError("must differ from the input .blend (inputs are never overwritten)", path=config.path,
-                          key="output.blend")
+    base = base or Base(config.target_blend, "new")
+    if base.path is not None:
+        if not base.path.is_file():
+            raise InputFileError(base.path, "file not found (config [target] blend)")
+        check_blend_file(base.path, "[output.blend]" if base.mode == "added" else "[target.blend]", config.path)
+        say(f"[2/5] opening {base.path}" + (" (adding to it)" if base.mode == "added" else ""))
+        bpy.ops.wm.open_mainfile(filepath=str(base.path), load_ui=False)
     obj = bpy.data.objects.get(config.target_object)
     if obj is None:
-        raise ConfigError(f"no object named '{config.target_object}' in the .blend", path=config.path,
+        where = "the existing [output] blend (--replace starts from [target] blend)" if base.mode == "added" \
+            else "the .blend"
+        raise ConfigError(f"no object named '{config.target_object}' in {where}", path=config.path,
                           key="target.object")
     return obj
 
@@ -277,20 +329,24 @@ def _write_actor_basis(config, result, outputs):
     outputs["actor_basis"] = str(config.output_actor_basis)
 
 
-def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields):
+def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields, fps=None):
     """Key ``result`` as ``obj``'s solve layer and write ``[output]`` weights / .blend / report.
 
     ``outputs`` holds what was already written; ``report_fields`` are added to the JSON report
-    (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings.
-    Returns ``outputs`` with the action and the written paths.
+    (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings. The scene
+    takes the take's frame range and ``fps``. Returns ``outputs`` with the action and the written paths.
     """
+    import bpy  # bpy: Blender starts on first import
+
     from . import anim  # loads bpy
+    from .import_scene import fit_scene_to_take  # loads bpy
     from .take import key_weights  # loads bpy
 
     def key_and_save():
         t3 = time.perf_counter()
         say("[4/5] keying")
         action = key_weights(obj, result, anim.unique_action_name(config.action_name))
+        fit_scene_to_take(bpy.context.scene, result.frames, fps)
         timings["key"] = time.perf_counter() - t3
         say("[5/5] writing outputs")
         if config.output_blend is not None:
@@ -332,12 +388,5 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
 def _save_blend_atomic(path):
     import bpy  # bpy: Blender starts on first import
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.blend")
-    try:
+    with atomic_path(path, suffix=".blend") as tmp:
         bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, compress=True)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()

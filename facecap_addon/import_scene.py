@@ -64,10 +64,19 @@ def create_take(scene, markers, take_name, *, empty_size=0.002, set_scene_range=
                                     frames=markers.frames, values=pos[:, m, :])
     add_segment_markers(scene, markers.segments)
     if set_scene_range:
-        scene.frame_start, scene.frame_end = int(np.floor(markers.frames[0])), int(np.ceil(markers.frames[-1]))
-        scene.render.fps = max(1, int(round(markers.fps)))
-        scene.render.fps_base = scene.render.fps / markers.fps
+        fit_scene_to_take(scene, markers.frames, markers.fps)
     return coll
+
+
+def fit_scene_to_take(scene, frames, fps):
+    """The scene's frame range and frame rate (``fps`` / ``fps_base``) set to a take's; ``fps`` None
+    leaves the rate."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if frames.size:
+        scene.frame_start, scene.frame_end = int(np.floor(frames[0])), int(np.ceil(frames[-1]))
+    if fps:
+        scene.render.fps = max(1, int(round(fps)))
+        scene.render.fps_base = scene.render.fps / fps
 
 
 def add_segment_markers(scene, segments):

@@ -18,6 +18,8 @@ binding; ``[output] head = "Object"`` or ``"Armature:bone"`` keys the removed he
 The animator feedback loop (issue 7): ``[tuning]`` and ``[controls]``, see ``solvers.config.tuning``.
 """
 
+import math
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +67,7 @@ class TakeConfig:
     tuning: object = None  # [tuning]: TuningConfig (solvers.config.tuning)
     controls: dict = None  # [controls]: {shape or glob: ShapeControl}
     video: object = None  # [source] video + [tracking] / [flow]: VideoTake (solvers.video.flow_config)
+    controls_preset: Path | None = None  # [controls] preset
 
 
 def load_take_config(path):
@@ -74,12 +77,16 @@ def load_take_config(path):
     ------
     ConfigError naming the file and the offending [section] key.
     """
-    path = Path(path).resolve()
+    path = Path(os.path.expanduser(str(path))).resolve()
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a UTF-8 BOM is fine
     except FileNotFoundError:
         raise ConfigError("config file not found", path=path) from None
     except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", path=path) from None
+    except RecursionError:
+        raise ConfigError("not valid TOML: values nested too deeply", path=path) from None
+    except ValueError as exc:  # an integer beyond Python's digit limit
         raise ConfigError(f"not valid TOML: {exc}", path=path) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read: {exc}", path=path) from None
@@ -93,7 +100,7 @@ def load_take_config(path):
         return data.get(section, {}).get(key, default)
 
     def resolve(value):
-        return None if value is None else (base / value).resolve()
+        return None if value is None else (base / os.path.expanduser(value)).resolve()
 
     units = get("source", "units")
     fps = get("source", "fps")
@@ -162,6 +169,7 @@ def load_take_config(path):
         camera_name=camera_name,
         tuning=parse_tuning(path, free.get("tuning"), base),
         controls=parse_controls(path, free.get("controls"), base),
+        controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
     )
 
@@ -292,17 +300,27 @@ def _number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+#: Blender's shape-key slider range: bounds and lock values outside it are typos
+SLIDER_LIMIT = 10.0
+
+
+def _weight(value):
+    return _number(value) and math.isfinite(value) and abs(value) <= SLIDER_LIMIT
+
+
 def _shape_options(path, solve):
     """bounds / locks / regions of [solve]: shape-name glob patterns mapped to values."""
     bounds = []
     for pattern, value in solve.get("bounds", {}).items():
-        if not (isinstance(value, list) and len(value) == 2 and all(_number(v) for v in value) and value[0] <= value[1]):
-            raise ConfigError(f"expected [lower, upper] with lower <= upper; got {value}", path=path, key=f"solve.bounds.{pattern}")
+        if not (isinstance(value, list) and len(value) == 2 and all(_weight(v) for v in value) and value[0] <= value[1]):
+            raise ConfigError(f"expected [lower, upper] with lower <= upper, each between -{SLIDER_LIMIT:g} and "
+                              f"{SLIDER_LIMIT:g}; got {value}", path=path, key=f"solve.bounds.{pattern}")
         bounds.append((pattern, float(value[0]), float(value[1])))
     locks = []
     for pattern, value in solve.get("locks", {}).items():
-        if not _number(value):
-            raise ConfigError(f"expected a number; got {value!r}", path=path, key=f"solve.locks.{pattern}")
+        if not _weight(value):
+            raise ConfigError(f"expected a number between -{SLIDER_LIMIT:g} and {SLIDER_LIMIT:g}; got {value!r}",
+                              path=path, key=f"solve.locks.{pattern}")
         locks.append((pattern, float(value)))
     regions = []
     for name, body in solve.get("regions", {}).items():

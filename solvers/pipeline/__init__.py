@@ -110,9 +110,23 @@ def _retarget_markers(markers, character, settings, inputs):
     res, take = _solve(strategy, take, markers, settings, notes, timings)
     notes.extend(res.warnings)
     weights = hold_locks(res.shape_names, res.weights, settings, notes)
+    _refuse_flat(weights, take, settings)
     timings["total"] = time.perf_counter() - t0
     return assemble(strategy, res, weights, frames=take.frames, settings=settings, notes=notes, timings=timings,
                     take=take, normalise=norm_info, suggestion=suggestion)
+
+
+def _refuse_flat(weights, take, settings):
+    """A solve that holds every shape at 0 while the markers clearly move is certainly wrong: say so."""
+    solved = weights[np.isfinite(weights)]
+    if not solved.size or np.max(np.abs(solved)) > 1e-6 or settings.locks:
+        return
+    motion = float(np.sqrt(np.nanmean(np.nansum(take.deltas**2, axis=2)))) if np.isfinite(take.deltas).any() else 0.0
+    if motion > (1e-3 if take.dim == 3 else 1.0):  # 1 mm, or a pixel: far above marker noise
+        unit = f"{motion * 1e3:.1f} mm" if take.dim == 3 else f"{motion:.1f} px"
+        raise FacecapError(f"every solved weight is 0 although the markers move ({unit} RMS from the neutral): the "
+                           f"priors hold every shape (regularisation {settings.regularisation:g}, sparsity "
+                           f"{settings.sparsity:g}, symmetry {settings.symmetry:g}); lower them")
 
 
 def _solve(strategy, take, markers, settings, notes, timings):

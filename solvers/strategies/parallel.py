@@ -96,6 +96,11 @@ class ParallelStrategy:
                                               aliases=self.aliases)
         else:
             raise FacecapError(f"parallel: `mapping` must be None, a Mapping or a dict; got {type(spec).__name__}")
+        if not np.any(self.mapping.matrix):
+            raise FacecapError(
+                f"parallel: none of the {len(self.source_names)} source channel(s) ({', '.join(self.source_names[:6])}"
+                f"{'...' if len(self.source_names) > 6 else ''}) maps to a shape of the character "
+                f"({', '.join(self.target.names[:6])}...): name them alike or give a [mapping] table")
         self._mirror_perm = self._mirror_permutation() if self.mirror else None
         self._gain = self._per_shape(self.gain, 1.0, "gain")
         self._offset = self._per_shape(self.offset, 0.0, "offset")

@@ -46,7 +46,7 @@ def test_solve_options_are_read(tmp_path):
     "extra, message",
     [
         ("[solve]\nstrategy = \"magic\"\n", r"\[solve.strategy\] expected one of geometric, calibrated, .*; got 'magic'"),
-        ("[solve]\nregularisation = -1\n", r"\[solve.regularisation\] expected a number >= 0 and <= 1e\+06; got -1"),
+        ("[solve]\nregularisation = -1\n", r"\[solve.regularisation\] expected a number >= 0 and <= 100; got -1"),
         ("[solve]\nsmoothing = [1]\n", r"\[solve.smoothing\] expected a list of 2 numbers"),
         ("[solve]\nregularistion = 1\n", r"\[solve.regularistion\] unknown key"),
         ("[sovle]\n", r"unknown section \[sovle\]"),
