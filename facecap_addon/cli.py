@@ -12,6 +12,7 @@ track --config take.toml      track video footage (LK points or dense flow) and 
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
 bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
+docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
 stderr naming the file and field; there is no traceback for those.
@@ -116,6 +117,27 @@ def _cmd_tune(args):
     return 0
 
 
+def _cmd_docs_images(args):
+    import dataclasses
+    import tempfile
+
+    from ..solvers.config import load_take_config
+    from .docs_images import generate
+
+    with tempfile.TemporaryDirectory(prefix="facecap-docs-") as tmp:
+        solved = args.solved
+        if solved is None:  # the demo's retarget, weights only
+            _progress("retargeting the sample take")
+            solved = Path(tmp) / "sample_take_weights_solved.csv"
+            config = dataclasses.replace(load_take_config(SAMPLE_CONFIG), output_blend=None, output_report=None,
+                                         output_weights=solved)
+            run_retarget(config, quiet=True)
+        written = generate(solved, args.out, size=args.size, engine=args.engine, say=_progress)
+    for name, path in written.items():
+        print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)")
+    return 0
+
+
 def _cmd_bench(args):
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
@@ -160,6 +182,13 @@ def build_parser():
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.set_defaults(func=_cmd_bench)
+    p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
+    p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
+    p.add_argument("--size", type=int, default=280, help="tile height in pixels (default: 280)")
+    p.add_argument("--engine", choices=("workbench", "cycles"), default="workbench",
+                   help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
+    p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
+    p.set_defaults(func=_cmd_docs_images)
     return parser
 
 
