@@ -122,17 +122,19 @@ def _cmd_docs_images(args):
     import tempfile
 
     from ..solvers.config import load_take_config
+    from .demo import SAMPLE_CONFIG
     from .docs_images import generate
+    from .headless import progress_line, run_take
 
     with tempfile.TemporaryDirectory(prefix="facecap-docs-") as tmp:
         solved = args.solved
         if solved is None:  # the demo's retarget, weights only
-            _progress("retargeting the sample take")
+            progress_line("retargeting the sample take")
             solved = Path(tmp) / "sample_take_weights_solved.csv"
             config = dataclasses.replace(load_take_config(SAMPLE_CONFIG), output_blend=None, output_report=None,
                                          output_weights=solved)
-            run_retarget(config, quiet=True)
-        written = generate(solved, args.out, size=args.size, engine=args.engine, say=_progress)
+            run_take(config, quiet=True)
+        written = generate(solved, args.out, size=args.size, engine=args.engine, say=progress_line)
     for name, path in written.items():
         print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)")
     return 0
