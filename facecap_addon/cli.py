@@ -50,6 +50,8 @@ if __name__ == "__main__" and not __package__:
 # Imported here, after the script guard: as a script this file has no package for them.
 import argparse  # noqa: E402
 import ctypes  # noqa: E402
+import dataclasses  # noqa: E402
+import tempfile  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -61,8 +63,8 @@ from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
 from .bench import bench_cli_retarget, bench_keying  # noqa: E402
-from .demo import run_demo  # noqa: E402
-from .headless import run_take  # noqa: E402
+from .demo import SAMPLE_CONFIG, run_demo  # noqa: E402
+from .headless import progress_line, run_take  # noqa: E402
 
 
 def _cmd_retarget(args):
@@ -118,13 +120,7 @@ def _cmd_tune(args):
 
 
 def _cmd_docs_images(args):
-    import dataclasses
-    import tempfile
-
-    from ..solvers.config import load_take_config
-    from .demo import SAMPLE_CONFIG
-    from .docs_images import generate
-    from .headless import progress_line, run_take
+    from .docs_images import generate  # imports bpy (and bmesh) at once: only for this command
 
     with tempfile.TemporaryDirectory(prefix="facecap-docs-") as tmp:
         solved = args.solved
