@@ -12,6 +12,7 @@ track --config take.toml      track video footage (LK points or dense flow) and 
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
 bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
+docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
 stderr naming the file and field; there is no traceback for those.
@@ -63,7 +64,7 @@ from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
 from .bench import bench_cli_retarget, bench_keying  # noqa: E402
 from .demo import run_demo  # noqa: E402
-from .headless import run_take  # noqa: E402
+from .headless import progress_line, run_take  # noqa: E402
 
 
 def _cmd_retarget(args):
@@ -118,6 +119,15 @@ def _cmd_tune(args):
     return 0
 
 
+def _cmd_docs_images(args):
+    from .docs_images import render_docs_images  # imports bpy (and bmesh) at once: only for this command
+
+    written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, say=progress_line)
+    for name, path in written.items():
+        print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)")
+    return 0
+
+
 def _cmd_bench(args):
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
@@ -164,6 +174,13 @@ def build_parser():
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.set_defaults(func=_cmd_bench)
+    p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
+    p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
+    p.add_argument("--size", type=int, default=280, help="tile height in pixels (default: 280)")
+    p.add_argument("--engine", choices=("workbench", "cycles"), default="workbench",
+                   help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
+    p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
+    p.set_defaults(func=_cmd_docs_images)
     return parser
 
 

@@ -295,7 +295,7 @@ def key_weights(obj, result, action_name, *, take_name=""):
     curves += [(f'["{p}"]', 0) for p in props]
     values = np.column_stack(columns)
     # the diagnostics as samples: nobody edits them, and keys would double the keying and the .blend
-    # (measured on the 36,000-frame CLI take: see README)
+    # (measured on the 36,000-frame CLI take: see docs/performance.md)
     sampled = [False] * len(result.shape_names) + [True] * len(props)
     action = anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values,
                                          group=groups, assign=False, sampled=sampled)

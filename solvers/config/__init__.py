@@ -2,7 +2,7 @@
 
 Sections: [target] [source] [clean] [binding] [stabilise] [neutral] [solve] [output], plus the
 strategy sections [calibration] [mapping] [examples] [pca] [refine] (see
-``solvers/strategies/README.md`` for every key and its default). ``[stabilise] markers`` and
+``docs/strategies.md`` for every key and its default). ``[stabilise] markers`` and
 ``[neutral] frames`` are required for marker strategies; ``parallel`` reads ``[source] weights``
 instead of ``[source] markers``; a video take reads ``[source] video`` with ``[tracking]`` and ``[flow]``
 (flow-PCA features for linear / rbf / pca; ``solvers.video.flow_config``).
