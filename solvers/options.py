@@ -225,7 +225,7 @@ OPTIONS = (
     O("solve", "symmetry", "float", default=0.0, low=0.0, high=100.0,
       doc="Coupling of Left/Right shape pairs: a side with missing markers follows the other",
       ui="facecap.symmetry"),
-    O("solve", "smoothing", "floats", default=(0.0, 0.3), length=2, low=0.0, high=1e4,
+    O("solve", "smoothing", "floats", default=(0.0, 0.3), length=2, low=0.0, high=1000.0,
       doc="Temporal weights [first difference, second difference]; [0, 0] solves frames independently",
       ui="facecap.smoothing_first, facecap.smoothing_second"),
     O("solve", "bounds", "table", doc="{shape pattern = [lower, upper]} overriding the slider ranges",
