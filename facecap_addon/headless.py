@@ -389,4 +389,5 @@ def _save_blend_atomic(path):
     import bpy  # bpy: Blender starts on first import
 
     with atomic_path(path, suffix=".blend") as tmp:
+        tmp.unlink()  # a name only: over an existing file Blender would keep a .blend1 backup of it
         bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, compress=True)
