@@ -18,6 +18,8 @@ Every expected failure (bad config, missing or malformed file) exits with status
 stderr naming the file and field; there is no traceback for those.
 """
 
+import importlib
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -26,8 +28,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _script_package():
     """The package this file belongs to, when run as a script (``blender -b -P .../cli.py``)."""
-    import importlib.util
-
     for name, module in list(sys.modules.items()):
         if name.startswith("bl_ext.") and name.endswith(".facecap") and Path(module.__file__).parent == ROOT:
             return module
@@ -41,8 +41,6 @@ def _script_package():
 if __name__ == "__main__" and not __package__:
     # Run as a script: import the package, then its own copy of this module (relative imports need it).
     # Blender passes its own arguments; ours follow "--".
-    import importlib
-
     argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
     cli = importlib.import_module(_script_package().__name__ + ".facecap_addon.cli")
     sys.exit(cli.main(argv))
