@@ -22,8 +22,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import FacecapError, InputFileError
-from .c3d import read_c3d, write_c3d
-from .csv import is_long_header, read_long_csv, read_wide_csv, sniff, write_markers_csv
+from .c3d import read_c3d
+from .c3d_write import write_c3d
+from .csv import read_wide_csv, sniff
+from .csv_long import is_long_header, read_long_csv
+from .csv_write import write_markers_csv
 from .json import read_json, write_json
 from .trc import read_trc, write_trc
 from .weights import WeightTrack, read_weights
@@ -38,8 +41,8 @@ _OPTIONS = {
     "csv": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
     "csv-long": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
 }
-#: Notes that mean the data were changed, not just described: also raised as warnings.
-_CHANGED = ("resampled",)
+#: Notes that mean the data were changed or are suspect, not just described: also raised as warnings.
+_CHANGED = ("resampled", "warning:")
 
 
 @dataclass(frozen=True, eq=False)

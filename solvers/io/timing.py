@@ -213,6 +213,7 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segment
                 left = np.clip(nearest - 1, 0, len(raw) - 1)
                 nearest = np.where(np.abs(raw[left] - frames) < np.abs(raw[nearest] - frames), left, nearest)
                 labels = [labels[i] for i in nearest]
+    check_frame_range(frames, where, notes)
     if labels is not None:
         segments = segments_from_labels(list(labels), frames)
     return MarkerSet(names, frames, positions, fps=rate, units=chosen, source=source, segments=segments)
@@ -231,6 +232,50 @@ def segments_from_labels(labels, frames):
     return out
 
 
+#: Frame numbers must stay below this in magnitude (Blender keys frames as 32-bit integers).
+MAX_FRAME = 2 ** 31 - 1
+#: Blender's timeline ends here (MAXFRAME); frames beyond it load, with a note.
+BLENDER_MAX_FRAME = 1_048_574
+
+
+def check_frame_range(frames, where, notes=None):
+    """InputFileError-ready FacecapError when a frame number is not finite or not below 2^31 in magnitude."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if frames.size == 0:
+        return
+    bad = ~np.isfinite(frames) | (np.abs(frames) > MAX_FRAME)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise FacecapError(f"{where}: frame number {frames[i]:.6g} (row {i + 1}) is outside +-{MAX_FRAME} "
+                           "(frame numbers are 32-bit in Blender); renumber the frames")
+    if notes is not None and (frames.max() > BLENDER_MAX_FRAME or frames.min() < -BLENDER_MAX_FRAME):
+        notes.append(f"warning: frames {frames.min():g}..{frames.max():g} run past Blender's timeline "
+                     f"(+-{BLENDER_MAX_FRAME}); keys there cannot be shown")
+
+
+def unique_names(names, notes, *, where="labels"):
+    """``names`` with repeats suffixed ``_2``, ``_3``, ... (never clashing); a warning note names them."""
+    names = list(names)
+    taken = set(names)
+    seen = set()
+    renamed = []
+    for i, name in enumerate(names):
+        if name not in seen:
+            seen.add(name)
+            continue
+        k = 2
+        while f"{name}_{k}" in taken:
+            k += 1
+        names[i] = f"{name}_{k}"
+        taken.add(names[i])
+        renamed.append((name, names[i]))
+    if renamed:
+        shown = ", ".join(f"{a!r} -> {b!r}" for a, b in renamed[:8])
+        more = f" and {len(renamed) - 8} more" if len(renamed) > 8 else ""
+        notes.append(f"warning: {where} repeats {len(renamed)} name(s); the repeats are kept as {shown}{more}")
+    return tuple(names)
+
+
 def check_markerset(build, path):
     """Call ``build()`` and turn a MarkerSet validation error into an InputFileError for ``path``."""
     from ..errors import InputFileError
@@ -245,5 +290,5 @@ def check_markerset(build, path):
         raise InputFileError(path, text[len(prefix):] if text.startswith(prefix) else text) from None
 
 
-__all__ = ["MarkerSet", "UNIT_CHOICES", "finish", "finish_arrays", "frames_from_times", "guess_units", "normalise_units",
-           "resample", "segments_from_labels", "y_up_to_z_up"]
+__all__ = ["BLENDER_MAX_FRAME", "MAX_FRAME", "MarkerSet", "UNIT_CHOICES", "check_frame_range", "finish", "finish_arrays", "frames_from_times", "guess_units", "normalise_units",
+           "resample", "segments_from_labels", "unique_names", "y_up_to_z_up"]

@@ -19,7 +19,7 @@ import numpy as np
 
 from .arkit import ARKIT_52
 from ..errors import FacecapError, InputFileError
-from .csv import TIME_HEADERS, _rows, _time_column, read_numeric_columns, read_text_columns, sniff
+from .csv import TIME_HEADERS, data_rows, duplicate_names, read_numeric_columns, read_text_columns, sniff, time_column
 from .timing import frames_from_times, resample
 
 HEAD_CHANNELS = ("HeadYaw", "HeadPitch", "HeadRoll")
@@ -97,7 +97,7 @@ def read_weights(path, *, fps=None, timecode_fps=None):
         raise InputFileError(path, f"duplicate columns {dup}", line=sn.header_line)
     low = [h.lower() for h in header]
     tc_col = low.index("timecode") if "timecode" in low else None
-    key_col, time_scale = _time_column(header)
+    key_col, time_scale = time_column(header)
     skip = {i for i, h in enumerate(low) if h in ("timecode", "blendshapecount")}
     if key_col is not None:
         skip.add(key_col)
@@ -116,7 +116,7 @@ def read_weights(path, *, fps=None, timecode_fps=None):
     timecode = ""
     if tc_col is not None:
         cells = read_text_columns(sn, [tc_col])[0]
-        line_numbers = [line for line, _ in _rows(sn)]
+        line_numbers = [line for line, _ in data_rows(sn)]
         timecode = cells[0]
         ff = []
         for r, cell in enumerate(cells):

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from facecap.solvers import FacecapError, MarkerSet
-from facecap.solvers.io.c3d import read_c3d, write_c3d
-from facecap.solvers.io.csv import read_long_csv, read_wide_csv, write_markers_csv
+from facecap.solvers.io.c3d import read_c3d
+from facecap.solvers.io.c3d_write import write_c3d
+from facecap.solvers.io.csv import read_wide_csv, write_markers_csv
+from facecap.solvers.io.csv_long import read_long_csv
 from facecap.solvers.io.json import read_json, write_json
 from facecap.solvers.io.trc import read_trc, write_trc
 from facecap.solvers.io.weights import read_weights

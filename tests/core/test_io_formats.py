@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from facecap.solvers import InputFileError, MarkerSet
-from facecap.solvers.io.c3d import read_c3d, write_c3d
+from facecap.solvers.io.c3d import read_c3d
+from facecap.solvers.io.c3d_write import write_c3d
 from facecap.solvers.io import detect_format, import_markers, read_markers, read_weights, write_markers
 
 BLENDERFACE = Path(__file__).resolve().parents[3] / "shared" / "data" / "blenderface"
@@ -148,11 +149,19 @@ def test_bad_files_name_file_line_or_field(tmp_path, name, text, match):
         read_markers(path)
 
 
-def test_truncated_c3d_names_the_frames_field(tmp_path):
-    write_c3d(tmp_path / "t.c3d", take())
+def test_truncated_c3d_gives_the_frames_it_holds_with_a_warning(tmp_path):
+    m = take()
+    write_c3d(tmp_path / "t.c3d", m)
     data = (tmp_path / "t.c3d").read_bytes()
     (tmp_path / "t.c3d").write_bytes(data[:-100])
-    with pytest.raises(InputFileError, match=r"field 'POINT:FRAMES': truncated point data: 40 frames declared"):
+    with pytest.warns(UserWarning, match=r"40 frames declared, the file holds 38 \(truncated\): read 38"):
+        got = read_markers(tmp_path / "t.c3d")
+    assert got.n_frames == 38  # 100 bytes cut: 1.25 frames of 80 bytes
+    np.testing.assert_allclose(got.positions, m.positions[:38], rtol=1e-6, atol=1e-9)
+    header_and_params = 512 * (data[512 + 2] + 1)
+    (tmp_path / "t.c3d").write_bytes(data[:header_and_params + 10])
+    with pytest.raises(InputFileError, match=r"field 'POINT:FRAMES': truncated point data: 40 frames declared, "
+                                             r"the file holds none"):
         read_markers(tmp_path / "t.c3d")
 
 
