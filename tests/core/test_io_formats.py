@@ -128,8 +128,6 @@ def test_c3d_int16_data_with_scale_and_analog_is_read(tmp_path):
 
 
 @pytest.mark.parametrize("name, text, match", [
-    ("dup.trc", "PathFileType\t4\t(X/Y/Z)\tx\nDataRate\tNumMarkers\n60\t2\nFrame#\tTime\ta\t\t\ta\n\n1\t0\t1\t2\t3\t4\t5\t6\n",
-     r"dup\.trc, line 4: duplicate marker names \['a'\]"),
     ("bad.trc", "PathFileType\t4\t(X/Y/Z)\tx\nDataRate\n60\nFrame#\tTime\ta\n\n1\t0\t1\tq\t3\n",
      r"bad\.trc, line 6, field 'aY': expected a number, got 'q'"),
     ("zero.trc", "PathFileType\t4\t(X/Y/Z)\tx\nDataRate\n60\nFrame#\tTime\ta\n\n", r"zero\.trc, line 5: zero frames"),
@@ -147,6 +145,16 @@ def test_bad_files_name_file_line_or_field(tmp_path, name, text, match):
     path.write_text(text)
     with pytest.raises(InputFileError, match=match):
         read_markers(path)
+
+
+def test_trc_repeated_names_are_kept_suffixed_with_a_warning(tmp_path):
+    path = tmp_path / "dup.trc"
+    path.write_text("PathFileType\t4\t(X/Y/Z)\tx\nDataRate\tNumMarkers\n60\t2\nFrame#\tTime\ta\t\t\ta\n\n"
+                    "1\t0\t1\t2\t3\t4\t5\t6\n")
+    with pytest.warns(UserWarning, match=r"line 4 repeats 1 name\(s\); the repeats are kept as 'a' -> 'a_2'"):
+        got = read_markers(path, units="mm")
+    assert got.names == ("a", "a_2")
+    np.testing.assert_array_equal(got.positions[0], [[1, 2, 3], [4, 5, 6]])
 
 
 def test_truncated_c3d_gives_the_frames_it_holds_with_a_warning(tmp_path):
