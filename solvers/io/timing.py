@@ -58,11 +58,33 @@ def y_up_to_z_up(positions):
     return out
 
 
+#: Frame rates an estimate from timestamps snaps to when within SNAP_TOLERANCE (relative).
+STANDARD_RATES = (23.976, 24.0, 25.0, 29.97, 30.0, 48.0, 50.0, 59.94, 60.0, 90.0, 100.0, 120.0, 240.0)
+SNAP_TOLERANCE = 1e-3
+#: Two times closer than this (in frames) are the same frame. Absolute, not relative: Live Link Face
+#: timecodes are times of day, about 1.4 million frames, where a relative tolerance spans frames.
+FRAME_TOLERANCE = 1e-6
+#: A resampled frame between two samples farther apart than this (frames) is a gap, not interpolated.
+MAX_BRIDGE = 2.5
+
+
+def estimate_rate(times):
+    """Frame rate from the median timestamp step, snapped to a standard rate within 0.1 %."""
+    steps = np.diff(np.asarray(times, dtype=np.float64))
+    fps = 1.0 / float(np.median(steps))
+    if np.isfinite(fps) and fps > 0:
+        near = min(STANDARD_RATES, key=lambda r: abs(fps / r - 1.0))
+        if abs(fps / near - 1.0) < SNAP_TOLERANCE:
+            return near
+    return fps
+
+
 def frames_from_times(times, *, fps=None, where="timestamps"):
     """Frame numbers for ``times`` (seconds) at ``fps`` (estimated when None).
 
     Returns (frames, fps, regular): ``regular`` is False when the steps vary by more than
-    RATE_TOLERANCE, in which case ``frames`` are fractional and the caller should resample.
+    RATE_TOLERANCE or rounding would skip or repeat a frame, in which case ``frames`` are
+    fractional and the caller should resample.
     """
     times = np.asarray(times, dtype=np.float64)
     if times.size > 1 and np.any(np.diff(times) <= 0):
@@ -71,16 +93,14 @@ def frames_from_times(times, *, fps=None, where="timestamps"):
     if fps is None:
         if steps.size == 0:
             raise FacecapError(f"{where}: one timestamp gives no frame rate; pass fps")
-        fps = 1.0 / float(np.median(steps))
+        fps = estimate_rate(times)
     if not np.isfinite(fps) or fps <= 0:
         raise FacecapError(f"{where}: frame rate must be positive; got {fps}")
     raw = times * fps
     regular = steps.size == 0 or bool(np.all(np.abs(steps * fps - 1.0) <= RATE_TOLERANCE))
     if regular:
         frames = np.round(raw) + 0.0  # no -0.0
-        if np.any(np.diff(frames) <= 0):
-            regular = False
-        else:
+        if np.all(np.diff(frames) == 1.0):  # drift can make rounding skip or repeat a frame
             return frames, float(fps), True
     return raw, float(fps), False
 
@@ -89,30 +109,43 @@ def resample(times, positions, fps):
     """Linear resampling of (F, M, D) ``positions`` sampled at ``times`` onto whole frames.
 
     A resampled sample is a gap when either bracketing source sample is a gap or the two are more
-    than 2.5 frames apart (interpolation would invent motion). Returns (frames, positions).
+    than MAX_BRIDGE frames apart (interpolation would invent motion). Times are compared in frames
+    with an absolute tolerance, FRAME_TOLERANCE, relative to the first sample's whole frame, so
+    times of day (~1e6 frames) interpolate as exactly as times near zero. Returns (frames, positions).
     """
     raw = np.asarray(times, dtype=np.float64) * fps
     span = raw[-1] - raw[0]
     if span > 10 * raw.size + 1000:
         raise FacecapError(f"timestamps span {span / fps:.6g} s for {raw.size} samples; refusing to resample "
                            f"to {span:.0f} frames at {fps:g} fps (wrong time column or rate?)")
-    frames = np.arange(np.ceil(raw[0] - 1e-9), np.floor(raw[-1] + 1e-9) + 1.0)
+    origin = np.floor(raw[0])
+    rel = raw - origin
+    frames = np.arange(np.ceil(rel[0] - FRAME_TOLERANCE), np.floor(rel[-1] + FRAME_TOLERANCE) + 1.0)
     if frames.size == 0:
-        frames = np.array([np.round(raw[0])])
-    hi = np.clip(np.searchsorted(raw, frames, side="left"), 1, max(raw.size - 1, 1))
-    lo = hi - 1
+        frames = np.array([np.round(rel[0])])
     if raw.size == 1:
-        return frames, positions[:1].copy()
-    span = raw[hi] - raw[lo]
-    t = np.clip((frames - raw[lo]) / span, 0.0, 1.0)[:, None, None]
+        return frames + origin, positions[:1].copy()
+    hi = np.clip(np.searchsorted(rel, frames, side="left"), 1, raw.size - 1)
+    lo = hi - 1
+    gap = rel[hi] - rel[lo]
+    t = np.clip((frames - rel[lo]) / gap, 0.0, 1.0)[:, None, None]
     out = positions[lo] * (1.0 - t) + positions[hi] * t
-    exact_lo = np.isclose(frames, raw[lo])
-    exact_hi = np.isclose(frames, raw[hi])
+    exact_lo = np.abs(frames - rel[lo]) <= FRAME_TOLERANCE
+    exact_hi = np.abs(frames - rel[hi]) <= FRAME_TOLERANCE
     out[exact_lo] = positions[lo][exact_lo]
     out[exact_hi] = positions[hi][exact_hi]
-    wide = (span > 2.5) & ~exact_lo & ~exact_hi
-    out[wide] = np.nan
-    return frames, out
+    out[(gap > MAX_BRIDGE) & ~exact_lo & ~exact_hi] = np.nan
+    return frames + origin, out
+
+
+def bridged_gaps(times, fps):
+    """How many whole frames :func:`resample` leaves as gaps because they fall in dropouts longer than MAX_BRIDGE."""
+    raw = np.asarray(times, dtype=np.float64) * fps
+    rel = raw - np.floor(raw[0])
+    a, b = rel[:-1], rel[1:]
+    wide = (b - a) > MAX_BRIDGE
+    inside = np.floor(b[wide] - FRAME_TOLERANCE) - np.ceil(a[wide] + FRAME_TOLERANCE) + 1
+    return int(np.sum(np.maximum(inside, 0)))
 
 
 def finish(markers, **options):
@@ -290,5 +323,6 @@ def check_markerset(build, path):
         raise InputFileError(path, text[len(prefix):] if text.startswith(prefix) else text) from None
 
 
-__all__ = ["BLENDER_MAX_FRAME", "MAX_FRAME", "MarkerSet", "UNIT_CHOICES", "check_frame_range", "finish", "finish_arrays", "frames_from_times", "guess_units", "normalise_units",
+__all__ = ["BLENDER_MAX_FRAME", "MAX_FRAME", "MarkerSet", "UNIT_CHOICES", "bridged_gaps", "check_frame_range",
+           "estimate_rate", "finish", "finish_arrays", "frames_from_times", "guess_units", "normalise_units",
            "resample", "segments_from_labels", "unique_names", "y_up_to_z_up"]
