@@ -279,7 +279,7 @@ def check_frame_range(frames, where, notes=None):
     bad = ~np.isfinite(frames) | (np.abs(frames) > MAX_FRAME)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise FacecapError(f"{where}: frame number {frames[i]:.6g} (row {i + 1}) is outside +-{MAX_FRAME} "
+        raise FacecapError(f"{where}: frame number {frames[i]:.6g} (data row {i + 1}) is outside +-{MAX_FRAME} "
                            "(frame numbers are 32-bit in Blender); renumber the frames")
     if notes is not None and (frames.max() > BLENDER_MAX_FRAME or frames.min() < -BLENDER_MAX_FRAME):
         notes.append(f"warning: frames {frames.min():g}..{frames.max():g} run past Blender's timeline "
