@@ -7,7 +7,8 @@ retarget --config take.toml   solve a take onto its character with its [solve] s
                               a [source] video take solves from flow-PCA features (Ctrl-C cancels)
 compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
-inspect FILE [options]        describe a capture file; non-zero exit with a one-line reason if it is bad
+inspect FILE [options]        describe a capture file (--json: as JSON); non-zero exit with a one-line reason if it is bad
+convert IN OUT [options]      a capture file in another format (.csv .c3d .trc .json; weights to a weights CSV)
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
@@ -313,6 +314,12 @@ def _cmd_inspect(args):
     return inspect_main(args.rest)
 
 
+def _cmd_convert(args):
+    from ..solvers.tools.convert import main as convert_main
+
+    return convert_main(args.rest)
+
+
 def _cmd_compare(args):
     from ..solvers.tools.compare import main as compare_main
 
@@ -362,6 +369,10 @@ def build_parser():
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_inspect)
+    p = sub.add_parser("convert", help="convert a capture to CSV, C3D, TRC or JSON (weights: to a weights CSV)",
+                       add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_convert)
     p = sub.add_parser("compare", help="accuracy and time of every strategy on the same synthetic takes (Markdown)",
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -385,7 +396,7 @@ def main(argv=None):
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:
-        if args.command not in ("compare", "track", "inspect"):  # these forward their options
+        if args.command not in ("compare", "track", "inspect", "convert"):  # these forward their options
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         args.rest = extra + list(args.rest)
     if args.command in BATCH_COMMANDS:

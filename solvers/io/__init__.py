@@ -24,10 +24,11 @@ from pathlib import Path
 from ..errors import FacecapError, InputFileError
 from .c3d import read_c3d
 from .c3d_write import write_c3d
-from .csv import read_wide_csv, sniff
+from .csv import read_wide_csv, sniff, time_column
 from .csv_long import is_long_header, read_long_csv
 from .csv_write import write_markers_csv
 from .json import read_json, write_json
+from .timing import FPS_ASSUMED, UNITS_GUESSED
 from .trc import read_trc, write_trc
 from .weights import WeightTrack, read_weights
 from ..markers import MarkerSet
@@ -47,11 +48,16 @@ _CHANGED = ("resampled", "warning:")
 
 @dataclass(frozen=True, eq=False)
 class ImportResult:
-    """A MarkerSet and what the reader found or did (``notes``), and the detected ``format``."""
+    """A MarkerSet and what the reader found or did (``notes``), and the detected ``format``.
+
+    ``decided`` says where the units and the frame rate came from: ``{"units": "given" | "file" |
+    "guessed" | "2D (pixels)", "fps": "given" | "file" | "timestamps" | "assumed"}``.
+    """
 
     markers: MarkerSet
     format: str
     notes: tuple = field(default_factory=tuple)
+    decided: dict = field(default_factory=dict)
 
 
 def detect_format(path):
@@ -101,7 +107,35 @@ def import_markers(path, *, format=None, units=None, fps=None, **options):
     reader = {"c3d": read_c3d, "trc": read_trc, "json": read_json, "csv": read_wide_csv,
               "csv-long": read_long_csv}[fmt]
     markers = reader(path, units=units, fps=fps, notes=notes, **options)
-    return ImportResult(markers=markers, format=fmt, notes=tuple(notes))
+    return ImportResult(markers=markers, format=fmt, notes=tuple(notes), decided=_decided(notes, units, fps))
+
+
+def _decided(notes, units, fps):
+    """Where units and frame rate came from, from what was given and the readers' notes."""
+    def said(text):
+        return any(n.startswith(text) for n in notes)
+
+    unit_from = ("given" if units is not None else "guessed" if said(UNITS_GUESSED)
+                 else "2D (pixels)" if said("2D data: units taken as pixels") else "file")
+    fps_from = ("given" if fps is not None else "assumed" if said(FPS_ASSUMED)
+                else "timestamps" if any("timestamps" in n for n in notes) else "file")
+    return {"units": unit_from, "fps": fps_from}
+
+
+def capture_kind(path):
+    """"weights" for a solved-weights CSV (Live Link Face, MediaPipe, ``frame,<shape>,...``),
+    otherwise "markers" (including files that cannot be read: the marker readers say why)."""
+    if detect_format(path) != "csv":
+        return "markers"
+    try:
+        header = [h.lower() for h in sniff(path).header]
+    except FacecapError:
+        return "markers"
+    if {"timecode", "blendshapecount", "_neutral"} & set(header):
+        return "weights"
+    key, _ = time_column(header)
+    coords = [h for h in header if h.rpartition("_")[2] in ("x", "y", "z") and h.rpartition("_")[0]]
+    return "weights" if key is not None and len(header) > 1 and not coords else "markers"
 
 
 def read_markers(path, *, units=None, fps=None, **options):
@@ -125,5 +159,5 @@ def write_markers(path, markers):
     writers[fmt](path, markers)
 
 
-__all__ = ["EXTENSIONS", "FORMATS", "ImportResult", "WeightTrack", "detect_format", "import_markers",
+__all__ = ["EXTENSIONS", "FORMATS", "ImportResult", "WeightTrack", "capture_kind", "detect_format", "import_markers",
            "read_markers", "read_weights", "write_markers"]

@@ -216,9 +216,12 @@ def read_c3d(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
             notes.append(f"POINT:UNITS {unit_text!r} not understood")
     segments = _segments(c)
     frames = np.arange(lay.first, lay.first + lay.n_frames, dtype=np.float64)
+    screen = (c.strings("POINT", "Y_SCREEN") or [None])[0]
+    up_hint = None if not screen else (f"POINT:Y_SCREEN is {screen!r} (Y is up in the capture software)"
+                                       if screen.upper() in ("+Y", "Y") else "")
     return check_markerset(lambda: finish_arrays(
         names, frames, positions, source=path, file_fps=lay.rate, segments=segments, units=units,
-        file_units=file_units, unit_scale=unit_scale, up_axis=up_axis, fps=fps, notes=notes), path)
+        file_units=file_units, unit_scale=unit_scale, up_axis=up_axis, fps=fps, notes=notes, up_hint=up_hint), path)
 
 
 class _Layout:

@@ -81,7 +81,7 @@ def read_long_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, 
                                             positions, fps=60.0 if fps is None else fps, units="m",
                                             source=str(sn.path)), sn.path)
     return check_markerset(lambda: finish(raw, units=units, unit_scale=unit_scale, up_axis=up_axis,
-                                          times=times, fps=fps, notes=notes), sn.path)
+                                          times=times, fps=fps, notes=notes, file_fps=None), sn.path)
 
 
 __all__ = ["LONG_MARKER_HEADERS", "is_long_header", "read_long_csv"]

@@ -33,20 +33,42 @@ def normalise_units(units, *, what="units"):
     return UNIT_ALIASES[key]
 
 
-def guess_units(positions):
+#: Frame rate used when neither the file nor the user gives one (noted).
+DEFAULT_FPS = 60.0
+#: Note prefixes that say a value was not given but decided (``ImportResult.decided`` reads them).
+UNITS_GUESSED = "units not given: guessed"
+FPS_ASSUMED = "frame rate assumed:"
+
+
+def y_up_evidence(positions):
+    """Why (F, M, 3) positions in metres look Y-up, or None: the markers stand high on Y (median
+    above 0.3 m, three times their median |z|), as a body or a face does above a floor in a Y-up lab."""
+    finite = positions[np.isfinite(positions).all(axis=-1)]
+    if finite.shape[0] < 3:
+        return None
+    y, z = np.median(finite[:, 1]), np.median(finite[:, 2])
+    if y > 0.3 and y > 3 * abs(z):
+        return f"the markers stand high on Y (median y {y:.2f} m, z {z:.2f} m)"
+    return None
+
+
+#: Median marker extent (metres) a face's markers span; outside it the guessed units are questioned.
+FACE_SPAN = (0.03, 0.4)
+
+
+def guess_units(positions, *, with_spread=False):
     """Guess m/cm/mm from the size of a face: the median marker spread is ~0.05-0.2 m.
 
-    Returns (units, reason) or (None, reason) when nothing is visible.
+    Returns (units, reason) or (None, reason) when nothing is visible; with ``with_spread``
+    also the median extent in file units (NaN when nothing is visible).
     """
     finite = positions[np.isfinite(positions).all(axis=-1)] if positions.size else positions
     if finite.size == 0:
-        return None, "no visible samples"
+        return (None, "no visible samples", np.nan) if with_spread else (None, "no visible samples")
     spread = float(np.median(np.ptp(finite, axis=0)))
-    if spread > 30:
-        return "mm", f"median extent {spread:.3g}"
-    if spread > 3:
-        return "cm", f"median extent {spread:.3g}"
-    return "m", f"median extent {spread:.3g}"
+    units = "mm" if spread > 30 else "cm" if spread > 3 else "m"
+    why = f"median extent {spread:.3g}"
+    return (units, why, spread) if with_spread else (units, why)
 
 
 def y_up_to_z_up(positions):
@@ -150,13 +172,14 @@ def bridged_gaps(times, fps):
 
 def finish(markers, **options):
     """:func:`finish_arrays` on an existing MarkerSet's names, frames, positions, fps and segments."""
+    options.setdefault("file_fps", markers.fps)
     return finish_arrays(markers.names, markers.frames, markers.positions, source=markers.source,
-                         file_fps=markers.fps, segments=markers.segments, **options)
+                         segments=markers.segments, **options)
 
 
-def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segments=None, units=None,
+def finish_arrays(names, frames, positions, *, source="", file_fps=None, segments=None, units=None,
                   file_units=None, unit_scale=None, up_axis=None, times=None, fps=None, labels=None,
-                  notes=None):
+                  notes=None, up_hint=None):
     """Apply units, axis and timing to a reader's raw MarkerSet.
 
     The MarkerSet is built once, at the end (no intermediate copies of a large take).
@@ -167,8 +190,9 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segment
         Positions (F, M, D) in the file's units; ``frames`` are frame numbers (ignored when
         ``times`` is given).
     source : str
-    file_fps : float
-        The file's frame rate, used when ``fps`` is None and there are no timestamps.
+    file_fps : float or None
+        The file's frame rate, used when ``fps`` is None and there are no timestamps; None (the
+        file has none): DEFAULT_FPS, with a note.
     segments : dict or None
     units : str or None
         What the user says the numbers are; overrides ``file_units``. "bu" needs ``unit_scale``.
@@ -185,7 +209,11 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segment
     labels : sequence of str or None
         One segment label per input row ("" = none); turned into ``segments`` after timing.
     notes : list
-        Receives one line per thing done.
+        Receives one line per thing done; ``hint:`` lines suggest a setting, ``warning:`` lines say
+        the data were changed or are suspect.
+    up_hint : str or None
+        What the file says that suggests it is Y-up (C3D: ``POINT:Y_SCREEN '+Y'``), "" when it says
+        otherwise; None looks at the markers' heights instead. Only used when ``up_axis`` is None.
 
     Returns
     -------
@@ -202,9 +230,14 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segment
             chosen = "px"
             notes.append("2D data: units taken as pixels")
         else:
-            chosen, why = guess_units(positions)
+            chosen, why, spread = guess_units(positions, with_spread=True)
             chosen = chosen or "m"
-            notes.append(f"units not given: guessed {chosen} ({why})")
+            text = f"{UNITS_GUESSED} {chosen} from the markers' size ({why}; a face spans 0.05-0.3 m)"
+            metres = spread * UNIT_SCALE[chosen]
+            if not FACE_SPAN[0] <= metres <= FACE_SPAN[1]:
+                text += (f"; {metres:.3g} m is not a face's size: for Blender units set units = \"bu\" and unit_scale "
+                         "(metres per unit, docs/capture-data.md)")
+            notes.append(text + '; if wrong, set units = "m", "cm" or "mm" ([source] units, --units)')
     if chosen == "bu":
         if unit_scale is None or not np.isfinite(unit_scale) or unit_scale <= 0:
             raise FacecapError(f"{where}: units 'bu' (Blender units) need a positive unit_scale "
@@ -219,6 +252,11 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segment
         notes.append(f"positions scaled by {unit_scale:g}")
     if chosen not in UNIT_SCALE and chosen != "px":
         raise FacecapError(f"{where}: unsupported units {chosen!r}")
+    if up_axis is None and dim == 3:
+        hint = y_up_evidence(positions * UNIT_SCALE.get(chosen, 1.0)) if up_hint is None else up_hint
+        if hint:
+            notes.append(f"hint: {hint}: if the file is Y-up, set up_axis = \"Y\" ([source] up_axis, --up-axis Y) "
+                         "to turn it Z-up for Blender")
     axis = None if up_axis is None else str(up_axis).strip().upper()
     if axis not in (None, "Z", "Y"):
         raise FacecapError(f"`up_axis` must be 'Y' or 'Z'; got {up_axis!r}")
@@ -228,6 +266,11 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=60.0, segment
         positions = y_up_to_z_up(positions)
         notes.append("converted Y-up to Z-up: (x, y, z) -> (x, -z, y)")
     rate = file_fps if fps is None else float(fps)
+    if rate is None:
+        rate = DEFAULT_FPS
+        if times is None:
+            notes.append(f"{FPS_ASSUMED} {DEFAULT_FPS:g} fps (the file gives no frame rate): if wrong, set fps "
+                         "([source] fps, --fps)")
     if times is not None:
         frames, rate, regular = frames_from_times(times, fps=fps, where=where)
         if regular:
@@ -323,6 +366,6 @@ def check_markerset(build, path):
         raise InputFileError(path, text[len(prefix):] if text.startswith(prefix) else text) from None
 
 
-__all__ = ["BLENDER_MAX_FRAME", "MAX_FRAME", "MarkerSet", "UNIT_CHOICES", "bridged_gaps", "check_frame_range",
+__all__ = ["BLENDER_MAX_FRAME", "DEFAULT_FPS", "FPS_ASSUMED", "MAX_FRAME", "MarkerSet", "UNITS_GUESSED", "UNIT_CHOICES", "bridged_gaps", "check_frame_range",
            "estimate_rate", "finish", "finish_arrays", "frames_from_times", "guess_units", "normalise_units",
-           "resample", "segments_from_labels", "unique_names", "y_up_to_z_up"]
+           "resample", "segments_from_labels", "unique_names", "y_up_evidence", "y_up_to_z_up"]

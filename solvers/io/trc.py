@@ -97,10 +97,8 @@ def read_trc(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
     file_units = UNIT_ALIASES.get(meta.get("Units", "").strip().lower())
     if meta.get("Units") and file_units is None:
         notes.append(f"Units {meta.get('Units')!r} not understood")
-    if rate is None and fps is None:
-        notes.append("no DataRate in the header: assumed 60 fps; set `fps` ([source] fps, --fps) if wrong")
     return check_markerset(lambda: finish_arrays(
-        names, np.asarray(frames), positions, source=path, file_fps=rate or 60.0, units=units,
+        names, np.asarray(frames), positions, source=path, file_fps=rate, units=units,
         file_units=file_units, unit_scale=unit_scale, up_axis=up_axis, fps=fps, notes=notes), path)
 
 
@@ -178,8 +176,8 @@ def write_trc(path, markers):
     """Write a 3D MarkerSet as a TRC file (gaps as empty cells), atomically."""
     if markers.dim != 3:
         raise FacecapError(f"{path}: TRC holds 3D points; got {markers.dim}D markers")
-    if any(("\t" in n or " " in n or not n) for n in markers.names):
-        raise FacecapError(f"{path}: TRC marker names cannot contain tabs or spaces")
+    if any(("\t" in n or "\n" in n or "\r" in n or not n.strip()) for n in markers.names):
+        raise FacecapError(f"{path}: TRC marker names cannot be empty or contain tabs or line breaks")
     units = markers.units if markers.units in ("m", "cm", "mm") else "m"
     f, m = markers.n_frames, markers.n_markers
     first = markers.frames[0]

@@ -4,8 +4,9 @@ Seeds: the small files of ``test_fuzz_io`` (one per format), the reader reproduc
 ``/work/shared/bugs/reliability`` and a few small real captures; each seed is mutated ``--cases``
 times with ``test_fuzz_io.mutate`` and read with ``import_markers`` (``read_weights`` for Live Link
 Face). Prints, per seed, how many cases loaded, were refused with a FacecapError, raised anything
-else (by exception type) or ran longer than ``--slow`` seconds. Run with ``PYTHONPATH`` pointing at
-another checkout to count for that version.
+else (by exception type), loaded frame numbers beyond 2^31 or ran longer than ``--slow`` seconds.
+To count for another version, point ``PYTHONPATH`` at its checkout and ``FUZZ_HELPERS`` at its
+``tests/core`` (for its ``test_fuzz_io``).
 """
 
 import argparse
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(os.environ.get("FUZZ_HELPERS", Path(__file__).resolve().parent))
 BUGS = Path("/work/shared/bugs/reliability")
 REAL = Path("/work/shared/data/realdata")
 SEEDS = [
@@ -54,8 +55,9 @@ def seeds(tmp):
     for kind, path in SEEDS:
         if path.is_file():
             data = path.read_bytes()
-            if kind == "csv":  # the first 40 rows are enough, and keep the campaign quick
-                data = b"\n".join(data.split(b"\n")[:40]) + b"\n"
+            if kind == "csv":  # the first 40 rows and the last keep the campaign quick
+                rows = data.rstrip(b"\n").split(b"\n")
+                data = b"\n".join(rows[:40] + rows[-1:]) + b"\n"
             out.append((path.name, kind, data))
     llf = REAL / "llf" / "llf_alex_rom_3.csv"
     if llf.is_file():
@@ -94,7 +96,10 @@ def run(cases, slow):
                 try:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
-                        read(kind, path)
+                        got = read(kind, path)
+                    frames = got.frames if kind == "llf" else got.markers.frames
+                    if np.abs(frames).max() > 2 ** 31 - 1:
+                        counts["loaded frames beyond 2^31"] += 1
                     counts["loaded"] += 1
                 except FacecapError:
                     counts["refused"] += 1
