@@ -1,16 +1,19 @@
 """Similarity alignment of a marker cloud to a surface: landmarks, robust ICP, multi-start search.
 
 All residuals are point-to-plane distances in millimetres (``unit`` = one millimetre in mesh
-units) with Cauchy weights, solved by Gauss-Newton over (rotation, translation, log scale) with a
-weak prior on the scale (a surface alone barely fixes it: shrinking a cloud onto a flat patch
-costs little). numpy only.
+units) with Cauchy weights, solved by Gauss-Newton over (rotation, translation, log scale). The
+scale only moves within SCALE_RANGE of where it starts: a surface alone does not fix it (a cloud
+shrunk onto a small patch always fits), so it comes from the landmarks or, automatically, from
+SEARCH_SCALES around the same-size guess. Landmarks start the alignment; the surface decides
+(an actor's proportions differ from a character's, so marker -> vertex pairs are approximate).
+numpy only (small systems solved by :func:`solve_spd`).
 """
 
 import numpy as np
 
 from ..errors import FacecapError
 from ..transforms import Similarity, fit_similarity, rotation_angle_deg
-from .surface import closest_points
+from .surface import closest_points, squared_distances
 
 #: Cauchy weight scale (times the residuals' robust sigma) and the sigma's floor, mm.
 CAUCHY = 2.385
@@ -33,8 +36,15 @@ CANDIDATES = 16
 TRIM = 0.8
 #: Two poses are different when their rotations differ by more than this (degrees) ...
 DISTINCT_DEG = 10.0
-#: ... and ambiguous when the second scores below best * AMBIGUOUS_RATIO + AMBIGUOUS_MM.
-AMBIGUOUS_RATIO, AMBIGUOUS_MM = 1.3, 0.3
+#: ... and ambiguous when their mean squared distances (plus FLOOR_MM^2, below which distances are
+#: noise) are in a ratio below 1 + 3 / sqrt(n) for n scored markers: within about 1.5 standard
+#: deviations of the ratio of two sums of n squared errors (2 / sqrt(n)).
+FLOOR_MM = 0.1
+
+
+def ambiguous(best, second, n):
+    """Whether trimmed RMS distances ``best`` <= ``second`` (mm) of n markers cannot tell two poses apart."""
+    return (second**2 + FLOOR_MM**2) / (best**2 + FLOOR_MM**2) < 1.0 + 3.0 / np.sqrt(n)
 
 
 def align_landmarks(pairs, *, allow_scale=True):
@@ -86,7 +96,24 @@ def _step(srp, n, r, w, log_s, log_s0, allow_scale):
         A[..., 6, 6] = 1.0
         g[..., 6, 0] = 0.0
     A = A + 1e-9 * np.trace(A, axis1=-2, axis2=-1)[..., None, None] * np.eye(7)
-    return -np.linalg.solve(A, g)[..., 0]
+    return -solve_spd(A, g)[..., 0]
+
+
+def solve_spd(A, b):
+    """Solve batched small symmetric positive definite systems A (..., n, n) x = b (..., n, k) by
+    Gaussian elimination without pivoting, in numpy: LAPACK's threaded call costs far more than
+    the arithmetic of a 7 x 7 system, above all on a busy machine."""
+    A = np.array(A, dtype=np.float64)
+    b = np.array(b, dtype=np.float64)
+    n = A.shape[-1]
+    for i in range(n):
+        f = A[..., i + 1:, i] / A[..., i:i + 1, i]
+        A[..., i + 1:, :] -= f[..., None] * A[..., i:i + 1, :]
+        b[..., i + 1:, :] -= f[..., None] * b[..., i:i + 1, :]
+    x = np.empty_like(b)
+    for i in range(n - 1, -1, -1):
+        x[..., i, :] = (b[..., i, :] - np.einsum("...j,...jk->...k", A[..., i, i + 1:], x[..., i + 1:, :])) / A[..., i, i:i + 1]
+    return x
 
 
 def refine(surface, markers, start, *, unit, allow_scale=True, iterations=60, scale_range=SCALE_RANGE):
@@ -169,7 +196,7 @@ def _coarse(surface, pc, R, s, t, unit):
     for _ in range(COARSE_ITERATIONS + 1):
         srp = s[:, None, None] * pc @ np.swapaxes(R, 1, 2)
         x = srp + t[:, None]
-        d2 = np.sum(x**2, -1)[..., None] - 2 * x @ sample.T + np.sum(sample**2, -1)
+        d2 = squared_distances(x, sample)
         near = np.argmin(d2, axis=-1)
         dist = np.sqrt(np.maximum(np.take_along_axis(d2, near[..., None], -1)[..., 0], 0)) / unit
         n = normals[near]
@@ -185,9 +212,10 @@ def align_automatic(surface, markers, *, unit, scale, allow_scale=True, chunk=48
     """Multi-start alignment of (M, 3) markers to the surface without landmarks.
 
     Every rotation of :func:`hypotheses`, the cloud's most protruding marker touching the
-    surface's farthest point in that direction, is refined coarsely; the best FINALISTS are
-    refined fully and scored (:func:`score`). Raises FacecapError when a different pose
-    (rotated by more than DISTINCT_DEG) scores almost as well as the best.
+    surface's farthest point in that direction, is refined coarsely at each of SEARCH_SCALES; the
+    best distinct rotations (FINALISTS in all) are refined fully and scored (:func:`score`).
+    Raises FacecapError when a different pose (rotated by more than DISTINCT_DEG) scores almost
+    as well as the best (:func:`ambiguous`).
 
     Returns (Similarity, a one-line note).
     """
@@ -235,7 +263,8 @@ def align_automatic(surface, markers, *, unit, scale, allow_scale=True, chunk=48
     best, sim = results[0]
     second = next(((sc, other) for sc, other in results[1:]
                    if rotation_angle_deg(other.rotation @ sim.rotation.T) > DISTINCT_DEG), None)
-    if second is not None and second[0] < best * AMBIGUOUS_RATIO + AMBIGUOUS_MM:
+    kept = max(3, int(np.ceil(TRIM * len(markers))))
+    if second is not None and ambiguous(best, second[0], kept):
         angle = float(rotation_angle_deg(second[1].rotation @ sim.rotation.T))
         raise FacecapError(
             f"automatic binding is ambiguous: two poses {angle:.0f} deg apart fit the markers almost equally well "
@@ -254,4 +283,4 @@ def _cloud_normal(pc):
     return frame[:, 2]
 
 
-__all__ = ["align_automatic", "align_landmarks", "hypotheses", "refine", "rodrigues", "score"]
+__all__ = ["align_automatic", "align_landmarks", "ambiguous", "hypotheses", "refine", "rodrigues", "score", "solve_spd"]

@@ -13,6 +13,8 @@ from ..errors import FacecapError
 
 #: Point-triangle pairs evaluated per block by the exact query (bounds the temporary memory).
 BLOCK_PAIRS = 1 << 18
+#: The approximate query looks at triangles within this share of the mesh's diagonal of the points' box.
+NEAR_MARGIN = 0.1
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,7 +30,7 @@ class Surface:
     vertex_triangles : ndarray (V, k) int
         Triangles around each vertex, padded with -1.
     centroids : ndarray (T, 3)
-        Triangle centroids (the approximate query's candidates), and their squared norms.
+        Triangle centroids (the approximate query's candidates).
     """
 
     vertices: np.ndarray
@@ -36,7 +38,6 @@ class Surface:
     normals: np.ndarray
     vertex_triangles: np.ndarray
     centroids: np.ndarray = None
-    centroid_norms: np.ndarray = None
 
     @property
     def n_triangles(self):
@@ -72,8 +73,7 @@ def make_surface(vertices, triangles):
     length = np.linalg.norm(n, axis=1, keepdims=True)
     normals = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
     centroids = (a + b + c) / 3.0
-    return Surface(vertices, tris, normals, _vertex_triangles(len(vertices), tris), centroids,
-                   np.sum(centroids**2, axis=1))
+    return Surface(vertices, tris, normals, _vertex_triangles(len(vertices), tris), centroids)
 
 
 def _vertex_triangles(n_vertices, tris):
@@ -177,11 +177,24 @@ def closest_points(surface, points, *, candidates=None):
 
 
 def _near_triangles(surface, points, k):
-    """(N, k) ids of the triangles whose centroids are nearest each point."""
+    """(N, k) ids of the triangles whose centroids are nearest each point (among those near the
+    points' bounding box, when there are enough: a face's markers cover a part of a head)."""
     cen = surface.centroids
-    d2 = (np.sum(points**2, axis=1)[:, None] - 2.0 * points @ cen.T) + surface.centroid_norms[None]
+    ids = None
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    margin = NEAR_MARGIN * np.linalg.norm(surface.vertices.max(axis=0) - surface.vertices.min(axis=0))
+    inside = np.flatnonzero(((cen >= lo - margin) & (cen <= hi + margin)).all(axis=1))
+    if len(inside) >= 4 * k:
+        ids, cen = inside, cen[inside]
+    d2 = squared_distances(points, cen)
     k = min(k, len(cen))
-    return np.argpartition(d2, k - 1, axis=1)[:, :k]
+    near = np.argpartition(d2, k - 1, axis=1)[:, :k]
+    return near if ids is None else ids[near]
+
+
+def squared_distances(a, b):
+    """(..., N, P) squared distances between points a (..., N, 3) and b (P, 3) (|a|^2 - 2 a.b + |b|^2)."""
+    return np.sum(a**2, axis=-1)[..., None] - 2.0 * (a @ b.T) + np.sum(b**2, axis=-1)
 
 
 def _all_triangle_pairs(surface, points):
@@ -215,4 +228,5 @@ def interpolate(values, triangles, triangle, barycentric):
     return np.einsum("...ncd,nc->...nd", v, barycentric)
 
 
-__all__ = ["Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface", "triangulate"]
+__all__ = ["Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface", "squared_distances",
+           "triangulate"]
