@@ -15,6 +15,11 @@ format          extensions         notes
 Common options: ``units`` ("m", "cm", "mm", "bu" with ``unit_scale``, "px"; None = from the file
 or guessed), ``fps`` (None = from the file), ``unit_scale`` (metres per unit), ``up_axis``
 ("Z" or "Y"). CSV readers also take ``delimiter`` and ``decimal``.
+
+Readers describe what they found or decided in notes: lines starting ``warning:`` (the data were
+changed or are suspect: repeated labels renamed, a truncated file) are also raised as warnings by
+:func:`read_markers`; ``hint:`` lines suggest a setting (``up_axis``). :func:`capture_kind` tells
+a solved-weights CSV (:func:`read_weights`) from a marker file. See docs/capture-data.md.
 """
 
 import warnings

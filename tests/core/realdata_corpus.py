@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 
 CORPUS = Path(os.environ.get("FACECAP_REALDATA", "/work/shared/data/realdata"))
-#: Seconds a reference reader may take on one file before it counts as failing.
-REFERENCE_SECONDS = 5.0
+#: Seconds a reference reader may take on one file before it counts as failing (ezc3d needs ~20 s to
+#: give up on two files it cannot read; the others take under 1 s on a quiet machine).
+REFERENCE_SECONDS = 15.0
 #: Relative difference allowed for "float32": py-c3d scales integer files in float32.
 FLOAT32 = 2e-7
 #: Vendors for files without a MANUFACTURER group, from their source (SOURCES.md, c3d.org readmes).
@@ -109,7 +110,7 @@ def reference_readings(files):
             why = "crashed the process"
             while child.poll() is None:
                 time.sleep(0.05)
-                if any(time.time() - st.stat().st_mtime > REFERENCE_SECONDS for st in tmp.glob("*.start")):
+                if any(time.time() - started > REFERENCE_SECONDS for started in _start_times(tmp)):
                     child.kill()  # ezc3d takes ~20 s to give up on some files it cannot read
                     child.wait()
                     why = f"gave up after {REFERENCE_SECONDS:g} s"
@@ -121,14 +122,25 @@ def reference_readings(files):
                          else (tmp / f"{p.name}.{r}.err").read_text() for r in refs} for p in files}
 
 
+def _start_times(tmp):
+    """Modification times of the ``.start`` markers (one may vanish while we look: the child finished it)."""
+    out = []
+    for started in tmp.glob("*.start"):
+        try:
+            out.append(started.stat().st_mtime)
+        except FileNotFoundError:
+            pass
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # comparisons
 
 
 def compare(ours, ref):
     """'exact', 'float32 (max <d>)' or a reason they differ, for two (F, M, 3) arrays."""
-    if isinstance(ref, str):
-        return f"fails ({ref[:60]})"
+    if isinstance(ref, str):  # the reason (an exception, a crash, a timeout) depends on the machine's load: not shown
+        return "cannot read it"
     if ref.shape != ours.shape:
         return f"reads {ref.shape[0]} frames x {ref.shape[1]} points"
     gap_a, gap_b = np.isnan(ours), np.isnan(ref)
