@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import FacecapError
-from ..transforms import Similarity, fit_similarity, rotation_angle_deg
+from ..transforms import Similarity, rotation_angle_deg
 from .surface import closest_points, interpolate, make_surface
 
 #: A bound marker farther than this from the surface (mm) stays unbound (the default).
@@ -236,6 +236,9 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
         that are not collinear; None aligns automatically (multi-start, refusing when ambiguous).
     max_distance_mm : float
         Aligned markers farther than this from the surface stay unbound.
+    mm_per_unit, marker_mm_per_unit : float
+        Millimetres per mesh unit (1000: metres) and per marker unit (1: a C3D in mm). The
+        automatic search expects faces of about the same physical size (within 0.7-1.4x).
     allow_scale : bool
         Fit a uniform scale (the actor's face and the character's differ in size).
 

@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from .csv_vector import SlowPath as _SlowPath
 from .csv_vector import vector_numeric as _vector_numeric
-from .timing import check_markerset, finish, finish_arrays, segments_from_labels
+from .timing import check_markerset, finish_arrays, segments_from_labels
 from ..markers import MarkerSet
 # The writers live in csv_write; imported here so `from .csv import write_markers_csv` keeps working.
 from .csv_write import AXES, segment_labels, write_markers_csv, write_weights_csv  # noqa: F401
