@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..transforms import Similarity, rotation_angle_deg
+from .alignment import align_automatic, align_landmarks, refine
 from .surface import closest_points, interpolate, make_surface
 
 #: A bound marker farther than this from the surface (mm) stays unbound (the default).
@@ -247,7 +248,6 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
     Binding
         ``similarity`` maps actor marker units to mesh units.
     """
-    from .alignment import align_automatic, align_landmarks, refine
 
     surface = make_surface(vertices, triangles)
     names = tuple(names)

@@ -19,6 +19,8 @@ import warnings
 from pathlib import Path
 
 from ..errors import FacecapError
+from ..io import write_markers
+from ..io.csv_write import write_weights_csv
 from .inspect import parser as reading_parser
 from .inspect import read_capture
 
@@ -55,8 +57,6 @@ def check_output(src, out, allowed):
 
 def convert(src, out, *, kind, got, out_units=None):
     """Write ``got`` (an ImportResult for "markers", a WeightTrack for "weights") to ``out``; returns the summary line."""
-    from ..io import write_markers
-    from ..io.csv_write import write_weights_csv
 
     if kind == "weights":
         check_output(src, out, (".csv",))

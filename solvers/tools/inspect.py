@@ -13,6 +13,7 @@ import warnings
 import numpy as np
 
 from ..errors import FacecapError
+from ..io import capture_kind, import_markers, read_weights
 from ..markers import MarkerSet
 
 
@@ -133,7 +134,6 @@ def parser(prog="facecap inspect", description="Describe a capture file."):
 
 def read_capture(args):
     """("markers", ImportResult) or ("weights", WeightTrack) for parsed ``args`` (file, units, fps, ...)."""
-    from ..io import capture_kind, import_markers, read_weights
 
     if args.weights or capture_kind(args.file) == "weights":
         if args.units is not None or args.unit_scale is not None or args.up_axis is not None:
