@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..solvers.capture.cleaning import clean
+from ..solvers.character.binding_map import BindingSettings
 from ..solvers.config.strategies import load_strategy_inputs
 from ..solvers.engine.split import run_beside
 from ..solvers.errors import ConfigError, InputFileError
@@ -28,7 +29,6 @@ from ..solvers.tuning.store import load_version, read_corrections_csv, save_vers
 from ..solvers.video.cli import _Progress, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
-from .scene_data import basis_from_object
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
@@ -223,10 +223,17 @@ def _request(config, obj, take, *, tune):
     """The SolveRequest of a take config, and the report's source fields."""
     from .take import character_target  # loads bpy
 
+    from .scene_binding import geometric_character  # loads bpy
+
     settings = config.settings
-    # Only geometric samples the character at bound vertices; the others need its shape names and ranges.
-    character = basis_from_object(obj, take.markers.names) if settings.strategy == "geometric" else \
-        character_target(obj)
+    # Only geometric samples the character at bound points (bound from [binding] every run, stored on
+    # the character for the output .blend); the others need its shape names and ranges.
+    bound = None
+    if settings.strategy == "geometric":
+        bound = geometric_character(obj, take.markers, settings, config.binding or BindingSettings(), rebind=True)
+        character = bound.basis
+    else:
+        character = character_target(obj)
     if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
         import bpy  # bpy: Blender starts on first import
 
@@ -243,7 +250,12 @@ def _request(config, obj, take, *, tune):
                            footage=take.footage, flow=getattr(config.video, "flow", None), version=version,
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
-    return request, _source_fields(config, take)
+    fields = _source_fields(config, take)
+    if bound is not None:
+        fields["binding"] = bound.report()
+        take.notes = tuple(take.notes) + tuple(n.removeprefix("warning: ") for n in bound.notes
+                                               if n.startswith("warning"))
+    return request, fields
 
 
 def _shape_names(character):

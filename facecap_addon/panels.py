@@ -14,6 +14,22 @@ class FACECAP_UL_markers(bpy.types.UIList):
             row.label(text=f"{item.stable_score:.1f}")
         if item.gaps:
             row.label(text=f"{item.gaps} gaps")
+        if item.bind_distance >= 0:
+            row.label(text=f"{item.bind_distance:.1f} mm" if item.bound else "unbound",
+                      icon="NONE" if item.bound else "UNLINKED")
+
+
+class FACECAP_UL_landmarks(bpy.types.UIList):
+    """Landmarks of the nearest binding: a marker of the take and a vertex group of the character."""
+
+    def draw_item(self, context, layout, _data, item, _icon, _active_data, _active_prop, _index):
+        s = context.scene.facecap
+        row = layout.row(align=True)
+        row.prop_search(item, "name", s, "markers", text="")
+        if s.target is not None:
+            row.prop_search(item, "vertex_group", s.target, "vertex_groups", text="")
+        else:
+            row.prop(item, "vertex_group", text="")
 
 
 class FACECAP_UL_shapes(bpy.types.UIList):
@@ -87,6 +103,28 @@ class FACECAP_PT_take(FacecapPanel, bpy.types.Panel):
         col.prop(s, "marker_collection", text="Markers")
         col.prop(s, "fps")
         layout.prop(s, "target")
+        _draw_binding(layout, s)
+
+
+def _draw_binding(layout, s):
+    box = layout.box()
+    box.prop(s, "binding_mode")
+    if s.binding_mode == "map":
+        box.prop(s, "binding_map")
+    if s.binding_mode == "nearest":
+        box.label(text="Landmarks (marker, vertex group): 3 or more, or none")
+        row = box.row()
+        row.template_list("FACECAP_UL_landmarks", "", s, "binding_landmarks", s, "active_binding_landmark", rows=3)
+        col = row.column(align=True)
+        col.operator("facecap.binding_landmark_add", icon="ADD", text="")
+        col.operator("facecap.binding_landmark_remove", icon="REMOVE", text="")
+    if s.binding_mode != "vertex_groups":
+        box.prop(s, "binding_max_distance")
+    row = box.row(align=True)
+    row.operator("facecap.bind_markers", icon="SNAP_FACE")
+    row.operator("facecap.clear_binding", icon="X", text="")
+    if s.binding_summary:
+        box.label(text=s.binding_summary)
 
 
 class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
@@ -278,5 +316,5 @@ def _draw_examples(layout, s):
         col.prop(s, "n_components")
 
 
-CLASSES = (FACECAP_UL_markers, FACECAP_UL_shapes, FACECAP_UL_regions, FACECAP_UL_calib_poses, FACECAP_UL_mapping,
+CLASSES = (FACECAP_UL_markers, FACECAP_UL_landmarks, FACECAP_UL_shapes, FACECAP_UL_regions, FACECAP_UL_calib_poses, FACECAP_UL_mapping,
            FACECAP_PT_take, FACECAP_PT_stabilise, FACECAP_PT_solve)

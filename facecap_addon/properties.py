@@ -46,6 +46,12 @@ PCA_MODE_ITEMS = [
     ("related", "Related Basis", "Regression from the performance's principal components to the posed weights"),
     ("posed", "Posed Basis Frames", "Non-negative blend of the posed basis frames (Chuang & Bregler)"),
 ]
+BINDING_ITEMS = [
+    ("vertex_groups", "Vertex Groups", "Each marker samples the vertex group of the same name"),
+    ("map", "Map", "A marker,target CSV names each marker's vertex group, vertex or point"),
+    ("nearest", "Nearest", "The actor's neutral is aligned to the face (by landmarks, or automatically) and each "
+     "marker bound to the nearest surface point"),
+]
 UNIT_ITEMS = [
     ("mm", "Millimetres", "Marker coordinates are in millimetres"),
     ("cm", "Centimetres", "Marker coordinates are in centimetres"),
@@ -71,6 +77,18 @@ class FACECAP_PG_marker(bpy.types.PropertyGroup):
         description="Motion synchronous with the expression, in noise units (Suggest Stable Markers; "
         "about 1 or less = rigid; -1 = not scored)",
     )
+    bound: BoolProperty(name="Bound", default=False,
+                        description="Bound to a point of the character by the last binding (a read-out)")
+    bind_distance: FloatProperty(name="Binding Distance", default=-1.0, unit="NONE",
+                                 description="The marker's distance to the character's surface when bound, mm "
+                                 "(-1: not measured)")
+
+
+class FACECAP_PG_landmark(bpy.types.PropertyGroup):
+    """A landmark of the nearest binding: ``name`` is the marker, placed at ``vertex_group``'s centroid."""
+
+    vertex_group: StringProperty(name="Vertex Group",
+                                 description="Vertex group of the character (or a vertex index) where the marker sits")
 
 
 class FACECAP_PG_shape(bpy.types.PropertyGroup):
@@ -166,6 +184,13 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     )
     markers: CollectionProperty(type=FACECAP_PG_marker)
     active_marker: IntProperty(default=0)
+    binding_mode: EnumProperty(items=BINDING_ITEMS, **from_option("binding.mode", label="Binding"))
+    binding_map: StringProperty(name="Map", subtype="FILE_PATH",
+                                description="marker,target CSV (target: vertex group, vertex index or x,y,z)")
+    binding_landmarks: CollectionProperty(type=FACECAP_PG_landmark)
+    active_binding_landmark: IntProperty(default=0)
+    binding_max_distance: FloatProperty(**from_option("binding.max_distance_mm", label="Max Distance (mm)"))
+    binding_summary: StringProperty(name="Binding", description="Summary of the last binding (a read-out)")
     neutral_first: IntProperty(name="First", default=1, description="First frame of the neutral / T-pose range")
     neutral_last: IntProperty(name="Last", default=30, description="Last frame of the neutral / T-pose range")
     strategy: EnumProperty(name="Strategy", items=STRATEGY_ITEMS, default="geometric")
@@ -298,6 +323,8 @@ SIDEBAR_ONLY = {
     "worst_last": "state of Next Worst Frame",
     "worst_spread": "an option of Next Worst Frame (an interactive tool)",
     "active_marker": "list selection",
+    "active_binding_landmark": "list selection",
+    "binding_summary": "a read-out: the last binding's summary",
     "active_shape": "list selection",
     "active_region": "list selection",
     "active_calib_pose": "list selection",
@@ -306,7 +333,7 @@ SIDEBAR_ONLY = {
     "video.method": "Track Clip Footage's option (the `track` command has its own config)",
 }
 
-CLASSES = (FACECAP_PG_marker, FACECAP_PG_shape, FACECAP_PG_region, FACECAP_PG_pose, FACECAP_PG_mapping,
+CLASSES = (FACECAP_PG_marker, FACECAP_PG_landmark, FACECAP_PG_shape, FACECAP_PG_region, FACECAP_PG_pose, FACECAP_PG_mapping,
            FACECAP_PG_tuning_frame, FACECAP_PG_library_version, FACECAP_PG_settings)
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from ..solvers.solve import SolveRequest, solve
 from . import anim, layers, take
 from .scene_camera import projection_from_sidebar
-from .scene_data import basis_from_object
+from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
 
 
@@ -27,12 +27,14 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
 
     strategy = settings.strategy if footage is None else settings.video.flow_strategy
     markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
-    if strategy == "geometric":
-        character = basis_from_object(settings.target, markers.names)
+    rsettings = replace(take.retarget_settings(settings), strategy=strategy)
+    if strategy == "geometric":  # a stored binding by position is used as it is; none yet: bound and stored
+        bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
+        show_markers(settings, bound)
+        character = bound.basis
     else:
         character = take.character_target(settings.target)
     inputs = take.strategy_inputs(settings, strategy)
-    rsettings = replace(take.retarget_settings(settings), strategy=strategy)
     if markers is not None:
         rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames))
         if markers.dim == 2:

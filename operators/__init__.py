@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import calibration, importers, mapping, neutral, solve, stabilise, tuning, video
+from . import binding, calibration, importers, mapping, neutral, solve, stabilise, tuning, video
 
-CLASSES = (importers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
+CLASSES = (importers.CLASSES + binding.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
            + mapping.CLASSES + video.CLASSES + tuning.CLASSES)
 
 

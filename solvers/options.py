@@ -181,8 +181,21 @@ OPTIONS = (
       doc="One-Euro filter [min_cutoff_hz, beta, d_cutoff_hz] instead of the low-pass",
       headless="an alternative filter for live-style captures"),
     # -- [binding] ---------------------------------------------------------------------------------
-    O("binding", "vertex_groups", "bool", default=True, doc="Bind markers to vertex groups of the same name",
-      headless="the sidebar always binds by vertex group"),
+    O("binding", "mode", "choice", default="vertex_groups", choices=("vertex_groups", "map", "nearest"),
+      doc="How markers find their place on the character: vertex groups named after them, a `map` file, or "
+          "the `nearest` surface point once the actor's neutral is aligned to the face (docs/binding.md)",
+      ui="facecap.binding_mode"),
+    O("binding", "vertex_groups", "bool",
+      doc="Older configs: true is mode = \"vertex_groups\" (false needs a mode)",
+      headless="kept for older configs; the sidebar sets the binding mode"),
+    O("binding", "map", "path", doc="mode = \"map\": a marker,target CSV (target: vertex group, vertex index or x,y,z)",
+      ui="facecap.binding_map"),
+    O("binding", "landmarks", "table",
+      doc="mode = \"nearest\": {marker = \"vertex group or index\"}, at least 3 pairs (absent: automatic alignment)",
+      ui="facecap.binding_landmarks"),
+    O("binding", "max_distance_mm", "float", default=8.0, above=0.0, high=1000.0,
+      doc="map / nearest: markers farther than this (mm) from the surface stay unbound (head bands, strays)",
+      ui="facecap.binding_max_distance"),
     # -- [stabilise] -------------------------------------------------------------------------------
     O("stabilise", "markers", ("names", "str"),
       doc="Markers that move only with the head, or \"auto\" to suggest them (required for marker takes)",

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..transforms import Similarity, fit_similarity, rotation_angle_deg
-from .surface import closest_points, squared_distances
+from .surface import NearCache, closest_points, squared_distances
 
 #: Cauchy weight scale (times the residuals' robust sigma) and the sigma's floor, mm.
 CAUCHY = 2.385
@@ -129,10 +129,11 @@ def refine(surface, markers, start, *, unit, allow_scale=True, iterations=60, sc
     R, s, t = start.rotation.copy(), float(start.scale), start.apply(c)
     log_s0 = np.log(s)
     lo, hi = log_s0 - np.log(scale_range), log_s0 + np.log(scale_range)
+    near = NearCache(surface, CANDIDATES)  # the markers move a little per iteration
     for it in range(1, iterations + 1):
         srp = s * pc @ R.T
         x = srp + t
-        tri, _, q, _ = closest_points(surface, x, candidates=CANDIDATES)
+        tri, _, q, _ = closest_points(surface, x, cache=near)
         n = surface.normals[tri]
         r = np.sum(n * (x - q), axis=1) / unit
         w = _weights(r)
@@ -147,7 +148,7 @@ def refine(surface, markers, start, *, unit, allow_scale=True, iterations=60, sc
         if np.abs(delta[:3]).max() < 1e-4 and np.abs(delta[3:6]).max() < 1e-2 and abs(delta[6]) < 1e-4:
             break  # every marker moved by less than ~0.01 mm (a face is ~0.1 m across)
     sim = Similarity(scale=s, rotation=R, translation=t - s * R @ c)
-    d = closest_points(surface, sim.apply(markers), candidates=CANDIDATES)[3] / unit
+    d = closest_points(surface, sim.apply(markers), cache=near)[3] / unit
     at_bound = allow_scale and abs(abs(np.log(s) - log_s0) - np.log(scale_range)) < 1e-9
     return sim, (f"ICP: {it} iterations, median distance {np.median(d):.2f} mm, "
                  f"{int(np.sum(d > 3 * max(np.median(d), SIGMA_FLOOR_MM)))} marker(s) off the surface"

@@ -21,12 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import FacecapError
+from ..options import default
 from ..transforms import Similarity, rotation_angle_deg
 from .alignment import align_automatic, align_landmarks, refine
 from .surface import closest_points, interpolate, make_surface
 
 #: A bound marker farther than this from the surface (mm) stays unbound (the default).
-MAX_DISTANCE_MM = 8.0
+MAX_DISTANCE_MM = default("binding.max_distance_mm")
 
 
 @dataclass(frozen=True, eq=False)

@@ -141,7 +141,38 @@ def _dot(u, v):
     return np.einsum("ij,ij->i", u, v)
 
 
-def closest_points(surface, points, *, candidates=None):
+class NearCache:
+    """Each point's ``k`` nearest triangle centroids, reused from call to call (ICP iterations move
+    the points a little each time): ``spare`` x k candidates are kept per point, and a point's are
+    searched again only when it has moved more than half the gap between its k-th and its last
+    candidate's distance -- within that, its k nearest are among the kept ones, so the answer is
+    the one a fresh query gives.
+    """
+
+    def __init__(self, surface, k, spare=16):
+        self.surface, self.k, self.big = surface, int(k), int(k) * int(spare)
+        self.anchor = self.ids = self.slack = None
+
+    def __call__(self, points):
+        """(N, k) triangle ids of the centroids nearest each of ``points`` (N, 3)."""
+        n = len(points)
+        if self.anchor is None or len(self.anchor) != n:
+            self.anchor, self.slack = np.full((n, 3), np.nan), np.full(n, -1.0)
+            self.ids = np.zeros((n, min(self.big, len(self.surface.centroids))), dtype=np.int64)
+        with np.errstate(invalid="ignore"):
+            stale = ~(np.linalg.norm(points - self.anchor, axis=1) <= self.slack)
+        if stale.any():
+            ids, d2 = _near_triangles(self.surface, points[stale], self.ids.shape[1], distances=True)
+            k = min(self.k, ids.shape[1])
+            self.ids[stale], self.anchor[stale] = ids, points[stale]
+            self.slack[stale] = (np.sqrt(d2[:, -1]) - np.sqrt(d2[:, k - 1])) / 2
+        k = min(self.k, self.ids.shape[1])
+        d2 = np.sum((self.surface.centroids[self.ids] - points[:, None]) ** 2, axis=-1)
+        near = np.argpartition(d2, k - 1, axis=1)[:, :k]
+        return np.take_along_axis(self.ids, near, axis=1)
+
+
+def closest_points(surface, points, *, candidates=None, cache=None):
     """Closest surface points to (N, 3) ``points``.
 
     Parameters
@@ -151,6 +182,8 @@ def closest_points(surface, points, *, candidates=None):
     candidates : int or None
         None tests every triangle (exact); k tests the k triangles whose centroids are nearest
         each point (fast; exact unless the mesh mixes very large and small triangles there).
+    cache : NearCache or None
+        Gives the k nearest centroids instead (the same ones; cheaper for points that moved little).
 
     Returns
     -------
@@ -160,7 +193,9 @@ def closest_points(surface, points, *, candidates=None):
     distance : ndarray (N,)
     """
     points = np.asarray(points, dtype=np.float64)
-    if candidates is None:
+    if cache is not None:
+        tri = cache(points)
+    elif candidates is None:
         tri = _all_triangle_pairs(surface, points)
     else:
         tri = _near_triangles(surface, points, candidates)
@@ -176,9 +211,10 @@ def closest_points(surface, points, *, candidates=None):
     return tri[np.arange(n), best], bary[rows], q[rows], np.sqrt(d2[np.arange(n), best])
 
 
-def _near_triangles(surface, points, k):
+def _near_triangles(surface, points, k, *, distances=False):
     """(N, k) ids of the triangles whose centroids are nearest each point (among those near the
-    points' bounding box, when there are enough: a face's markers cover a part of a head)."""
+    points' bounding box, when there are enough: a face's markers cover a part of a head); with
+    ``distances``, sorted nearest first, with their (N, k) squared distances."""
     cen = surface.centroids
     ids = None
     lo, hi = points.min(axis=0), points.max(axis=0)
@@ -189,7 +225,12 @@ def _near_triangles(surface, points, k):
     d2 = squared_distances(points, cen)
     k = min(k, len(cen))
     near = np.argpartition(d2, k - 1, axis=1)[:, :k]
-    return near if ids is None else ids[near]
+    if distances:
+        d2 = np.take_along_axis(d2, near, axis=1)
+        order = np.argsort(d2, axis=1)
+        near, d2 = np.take_along_axis(near, order, axis=1), np.take_along_axis(d2, order, axis=1)
+    found = near if ids is None else ids[near]
+    return (found, d2) if distances else found
 
 
 def squared_distances(a, b):
@@ -228,5 +269,5 @@ def interpolate(values, triangles, triangle, barycentric):
     return np.einsum("...ncd,nc->...nd", v, barycentric)
 
 
-__all__ = ["Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface", "squared_distances",
+__all__ = ["NearCache", "Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface", "squared_distances",
            "triangulate"]

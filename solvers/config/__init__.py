@@ -31,6 +31,7 @@ from ..errors import ConfigError, FacecapError
 from ..options import BY_NAME, OPTIONS, SECTIONS, default
 from ..pipeline import RetargetSettings
 from ..video.flow_config import split_video_sections, video_take
+from .binding import parse_binding
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
 
@@ -68,6 +69,12 @@ class TakeConfig:
     controls: dict = None  # [controls]: {shape or glob: ShapeControl}
     video: object = None  # [source] video + [tracking] / [flow]: VideoTake (solvers.video.flow_config)
     controls_preset: Path | None = None  # [controls] preset
+    binding: object = None  # [binding]: BindingSettings (solvers.character.binding_map)
+
+    @property
+    def binding_map_path(self):
+        """[binding] map, the marker,target CSV (None unless mode = "map")."""
+        return None if self.binding is None else self.binding.map_path
 
 
 def load_take_config(path):
@@ -124,8 +131,7 @@ def load_take_config(path):
     smoothing = get("solve", "smoothing", default("solve.smoothing"))
     shape_options = _shape_options(path, data.get("solve", {}))
     projection, camera_name = _projection(path, data.get("solve", {}))
-    if not get("binding", "vertex_groups", True):
-        raise ConfigError("only vertex-group binding is available (set vertex_groups = true)", path=path, key="binding.vertex_groups")
+    binding = parse_binding(path, data.get("binding"))
     markers_path = resolve(get("source", "markers"))
     weights_path = resolve(get("source", "weights"))
     strategy_options = strategy_settings(path, data, strategy)
@@ -140,7 +146,7 @@ def load_take_config(path):
         fps=None if fps is None else float(fps),
         read_options=read_options,
         clean=clean,
-        bind_vertex_groups=True,
+        bind_vertex_groups=binding.mode == "vertex_groups",
         settings=RetargetSettings(
             stable_markers=tuple(stable),
             neutral_frames=(frames[0], frames[1]),
@@ -171,6 +177,7 @@ def load_take_config(path):
         controls=parse_controls(path, free.get("controls"), base),
         controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
+        binding=binding,
     )
 
 

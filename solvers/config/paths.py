@@ -22,6 +22,7 @@ INPUTS = (
     ("examples_weights_path", "[examples.weights]"),
     ("examples_markers_path", "[examples.markers]"),
     ("training_path", "[refine.training]"),
+    ("binding_map_path", "[binding.map]"),
 )
 #: (TakeConfig attribute, config key) of every file a take writes
 OUTPUTS = (

@@ -89,6 +89,8 @@ def _retarget_markers(markers, character, settings, inputs):
         markers_2d.check_2d(settings, inputs)
     if settings.strategy == "geometric":  # a binding problem is named before any work
         bound_markers(character, markers.names, source=markers.source or "take")
+    markers = stages.usable_markers(markers, settings, notes,
+                                    bound=character.marker_names if settings.strategy == "geometric" else None)
     take, suggestion, norm_info = stages.prepare_take(markers, settings, notes)
     if take.dim == 3 and take.stabilise.flagged.any():
         bridged = any(settings.smoothing)

@@ -121,6 +121,43 @@ def normalised(stab, settings, notes):
     return PreparedTake(pos - neutral[None], neutral, sm.names, sm.frames, stab, offsets), info
 
 
+def neutral_ranges(settings):
+    """The frame ranges the neutral is taken from ((first, last), ...); () when it is detected or read
+    from a file (2D takes: the stabilisation reference, else the whole take)."""
+    if settings.neutral_detect or settings.neutral_file is not None:
+        return ()
+    return tuple(tuple(r) for r in settings.neutral_ranges) or (
+        (tuple(settings.neutral_frames),) if settings.neutral_frames else ())
+
+
+def usable_markers(markers, settings, notes, *, bound=None):
+    """The take without the markers nothing can use, each left out with a note naming it.
+
+    A marker that is not stable is left out when it has no sample over the neutral frames (it has
+    no neutral to measure from) or, given ``bound`` (the markers bound on the character), when it
+    is not bound (nothing is solved from it). Stable markers are always kept (they need no
+    binding); with ``auto_stable`` every marker with a neutral is a candidate and is kept.
+    """
+    stable = set() if settings.auto_stable else set(settings.stable_markers)
+    ranges = neutral_ranges(settings) if markers.dim == 3 else (reference_range(settings) or (),)
+    sel = np.zeros(markers.n_frames, dtype=bool)
+    for first, last in (r for r in ranges if r):
+        sel |= markers.frame_range_mask(first, last)
+    never = []
+    if sel.any():  # no frame in range: the neutral says so itself
+        seen = ~np.isnan(markers.positions[sel, :, 0]).all(axis=0)
+        never = [n for n, ok in zip(markers.names, seen) if not ok and n not in stable]
+    unbound = [] if bound is None or settings.auto_stable else \
+        [n for n in markers.names if n not in set(bound) and n not in stable and n not in never]
+    if never:
+        notes.append(f"{len(never)} marker(s) have no sample over the neutral frames and are left out: {never}")
+    if unbound:
+        notes.append(f"{len(unbound)} marker(s) are neither bound on the character nor stable and are left out: "
+                     f"{unbound}")
+    drop = set(never) | set(unbound)
+    return markers if not drop else markers.subset([n for n in markers.names if n not in drop])
+
+
 def prepare_take(markers, settings, notes):
     """The take as strategies receive it, every stabilisation and neutral option applied.
 

@@ -175,7 +175,7 @@ class GeometricStrategy:
             used = self.basis.marker_names
             warnings.append(f"binding(s) {list(flagged)} are far from their marker after the actor->character "
                             f"alignment ({', '.join(f'{residual[used.index(n)] * 1e3:.1f} mm' for n in flagged)}); "
-                            "check the vertex groups")
+                            "check the binding (vertex groups, [binding] map or landmarks)")
         return StrategyResult(
             weights=res.weights, shape_names=self.basis.shape_names, solved=res.solved, warnings=tuple(warnings),
             residual_rms=rms, clamped=np.zeros(len(deltas), dtype=int),
