@@ -68,7 +68,8 @@ def basis_from_object(obj, marker_names=None):
     if len(bindings) < 3:
         raise FacecapError(
             f"object '{obj.name}': only {len(bindings)} marker vertex group(s) found; "
-            "need at least 3 groups named after markers"
+            "need at least 3 groups named after markers, or a binding by position ([binding] mode = \"nearest\" "
+            "or \"map\"; the Binding box of the Take panel)"
         )
     n = len(obj.data.vertices)
     names = tuple(bindings)

@@ -49,6 +49,11 @@ class LayoutStub:
         assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
         self.calls.append(("template_list", prop))
 
+    def prop_search(self, data, name, search_data, search_name, **_kw):
+        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
+        assert search_name in search_data.bl_rna.properties, f"{type(search_data).__name__} has no '{search_name}'"
+        self.calls.append(("prop_search", name))
+
     def label(self, **_kw):
         self.calls.append(("label", _kw.get("text")))
 
