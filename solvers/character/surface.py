@@ -146,7 +146,7 @@ class NearCache:
     the points a little each time): ``spare`` x k candidates are kept per point, and a point's are
     searched again only when it has moved more than half the gap between its k-th and its last
     candidate's distance -- within that, its k nearest are among the kept ones, so the answer is
-    the one a fresh query gives.
+    the one a fresh query gives (up to rounding between centroids equally near at the k-th place).
     """
 
     def __init__(self, surface, k, spare=16):
@@ -162,7 +162,7 @@ class NearCache:
         with np.errstate(invalid="ignore"):
             stale = ~(np.linalg.norm(points - self.anchor, axis=1) <= self.slack)
         if stale.any():
-            ids, d2 = _near_triangles(self.surface, points[stale], self.ids.shape[1], distances=True)
+            ids, d2 = nearest_triangles(self.surface, points[stale], self.ids.shape[1], distances=True)
             k = min(self.k, ids.shape[1])
             self.ids[stale], self.anchor[stale] = ids, points[stale]
             self.slack[stale] = (np.sqrt(d2[:, -1]) - np.sqrt(d2[:, k - 1])) / 2
@@ -198,7 +198,7 @@ def closest_points(surface, points, *, candidates=None, cache=None):
     elif candidates is None:
         tri = _all_triangle_pairs(surface, points)
     else:
-        tri = _near_triangles(surface, points, candidates)
+        tri = nearest_triangles(surface, points, candidates)
     n, k = tri.shape
     flat = tri.ravel()
     a, b, c = surface.corners(np.where(flat < 0, 0, flat))
@@ -211,7 +211,7 @@ def closest_points(surface, points, *, candidates=None, cache=None):
     return tri[np.arange(n), best], bary[rows], q[rows], np.sqrt(d2[np.arange(n), best])
 
 
-def _near_triangles(surface, points, k, *, distances=False):
+def nearest_triangles(surface, points, k, *, distances=False):
     """(N, k) ids of the triangles whose centroids are nearest each point (among those near the
     points' bounding box, when there are enough: a face's markers cover a part of a head); with
     ``distances``, sorted nearest first, with their (N, k) squared distances."""
@@ -269,5 +269,6 @@ def interpolate(values, triangles, triangle, barycentric):
     return np.einsum("...ncd,nc->...nd", v, barycentric)
 
 
-__all__ = ["NearCache", "Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface", "squared_distances",
+__all__ = ["NearCache", "Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface",
+           "nearest_triangles", "squared_distances",
            "triangulate"]

@@ -10,7 +10,14 @@ import pytest
 
 from facecap.solvers.character.alignment import rodrigues
 from facecap.solvers.character.binding import bind_map, bind_nearest, parse_target, sample_basis
-from facecap.solvers.character.surface import closest_on_triangles, closest_points, make_surface, triangulate
+from facecap.solvers.character.surface import (
+    NearCache,
+    closest_on_triangles,
+    closest_points,
+    make_surface,
+    nearest_triangles,
+    triangulate,
+)
 from facecap.solvers.errors import FacecapError
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_blends"
@@ -216,3 +223,22 @@ def test_real_facial_capture_binds_to_the_sample_character(face):
             assert not b.bound[take.names.index(n)]
     assert results["automatic"].similarity.scale == pytest.approx(results["landmarks"].similarity.scale, rel=0.02)
 
+
+
+def test_kept_candidates_are_those_a_fresh_search_finds(face):
+    """NearCache (ICP iterations): the k nearest centroids of points that move a little each call, as
+    a fresh search finds them, while searching again only for the points that moved far."""
+    vertices, tris, _, truth, _, _ = face
+    surface = make_surface(vertices, tris)
+    rng = np.random.default_rng(0)
+    points = truth + rng.normal(size=truth.shape) * 0.003
+    cache, searched = NearCache(surface, 16), 0
+    for step in range(40):
+        points = points + rng.normal(size=points.shape) * (0.003 if step % 10 == 0 else 0.0003)
+        before = cache.anchor.copy() if cache.anchor is not None else None
+        kept = cache(points)
+        if before is not None:
+            searched += int(np.sum(~np.all(cache.anchor == before, axis=1)))
+        fresh = nearest_triangles(surface, points, 16)
+        assert all(set(a) == set(b) for a, b in zip(kept, fresh))
+    assert searched < 0.5 * 39 * len(points)  # most calls reuse the kept candidates
