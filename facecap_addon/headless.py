@@ -234,6 +234,9 @@ def _request(config, obj, take, *, tune):
         character = bound.basis
     else:
         character = character_target(obj)
+        if config.binding is not None and config.binding.by_position:
+            take.notes = tuple(take.notes) + (f"[binding] mode \"{config.binding.mode}\" applies to the geometric "
+                                              f"strategy; '{settings.strategy}' does not sample the character",)
     if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
         import bpy  # bpy: Blender starts on first import
 

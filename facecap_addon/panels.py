@@ -6,7 +6,7 @@ import bpy
 class FACECAP_UL_markers(bpy.types.UIList):
     """Markers of the take with their stable flag and gap count."""
 
-    def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, _index):
+    def draw_item(self, _context, layout, data, item, _icon, _active_data, _active_prop, _index):
         row = layout.row(align=True)
         row.prop(item, "stable", text="")
         row.label(text=item.name)
@@ -14,9 +14,10 @@ class FACECAP_UL_markers(bpy.types.UIList):
             row.label(text=f"{item.stable_score:.1f}")
         if item.gaps:
             row.label(text=f"{item.gaps} gaps")
-        if item.bind_distance >= 0:
-            row.label(text=f"{item.bind_distance:.1f} mm" if item.bound else "unbound",
-                      icon="NONE" if item.bound else "UNLINKED")
+        if item.bound and item.bind_distance >= 0:  # bound by position: its distance to the surface
+            row.label(text=f"{item.bind_distance:.1f} mm")
+        elif not item.bound and getattr(data, "binding_summary", ""):  # after a binding
+            row.label(text="unbound", icon="UNLINKED")
 
 
 class FACECAP_UL_landmarks(bpy.types.UIList):
