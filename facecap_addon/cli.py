@@ -14,6 +14,8 @@ tune --config take.toml       retune what the strategy learned from [tuning] cor
                               library version ([tuning] out) and write the re-solved take
 bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
+build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
+                              locked scipy/OpenCV wheels (docs/install.md)
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
 stderr naming the file and field; there is no traceback for those.
@@ -58,6 +60,7 @@ from ..solvers.config import load_take_config  # noqa: E402
 from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
@@ -141,6 +144,10 @@ def _cmd_bench(args):
     return 0
 
 
+def _cmd_build_extension(args):
+    return build_extension_main(args.rest)
+
+
 def _bench_line(row):
     ratio = f"{row['ratio']:.0f}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
     return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
@@ -189,6 +196,10 @@ def build_parser():
                    help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
     p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
     p.set_defaults(func=_cmd_docs_images)
+    p = sub.add_parser("build-extension", help="build the Blender extension zips (one per platform, wheels bundled)",
+                       add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_build_extension)
     return parser
 
 
@@ -226,7 +237,7 @@ def _interrupt(signum, frame):
 
 
 #: Commands that pass their own options on to their tool
-FORWARDING = ("compare", "track", "inspect", "convert", "config-docs")
+FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
 BATCH_COMMANDS = ("retarget", "tune", "demo")
