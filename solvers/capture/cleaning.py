@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..deps import require
 from ..errors import FacecapError
 from ..markers import MarkerSet
 from ..options import default
@@ -250,8 +251,7 @@ def fill_gaps_spline(markers, *, max_gap):
     frames on each side; its smoothing weight is chosen once per marker by hiding 5-frame blocks
     of the marker's longest visible run and keeping the weight that predicts them best.
     """
-    # scipy: loaded on first use
-    from scipy.interpolate import make_smoothing_spline
+    make_smoothing_spline = require("scipy.interpolate", "Spline gap filling (Clean Markers)").make_smoothing_spline
 
     pos = markers.positions.copy()
     t = markers.frames
@@ -269,8 +269,7 @@ def fill_gaps_spline(markers, *, max_gap):
             idx = np.concatenate([left, right])
             if idx.size < 5:
                 continue
-            spline = make_smoothing_spline(t[idx], pos[idx, m], lam=lam)
-            pos[a:b, m] = spline(t[a:b])
+            pos[a:b, m] = _spline_per_axis(make_smoothing_spline, t[idx], pos[idx, m], lam, t[a:b])
             filled[m] += b - a
     return markers.with_positions(pos), StepReport("fill_spline", _counts(markers, filled),
                                                    f"gaps of up to {max_gap} frames filled by spline")
@@ -279,10 +278,19 @@ def fill_gaps_spline(markers, *, max_gap):
 _LAMBDAS = 10.0 ** np.arange(-1.0, 3.01, 0.5)
 
 
+def _spline_per_axis(make_smoothing_spline, x, y, lam, at):
+    """A smoothing spline through each column of ``y`` (N, D), evaluated at ``at`` (T,): (T, D).
+
+    One spline per axis because scipy < 1.16 (the 1.15 bundled for Blender's numpy 1.24) takes only
+    1-D ``y``; later scipy fits the columns of a 2-D ``y`` independently too (each its own GCV weight
+    when ``lam`` is None), so the result is the same.
+    """
+    return np.stack([make_smoothing_spline(x, y[:, d], lam=lam)(at) for d in range(y.shape[1])], axis=1)
+
+
 def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
     """Smoothing weight for ``make_smoothing_spline`` by hold-out of 5-frame blocks (None = GCV)."""
-    # scipy: loaded on first use
-    from scipy.interpolate import make_smoothing_spline
+    make_smoothing_spline = require("scipy.interpolate", "Spline gap filling (Clean Markers)").make_smoothing_spline
 
     runs = _visible_runs(vis)
     a, b = max(runs, key=lambda r: r[1] - r[0])
@@ -295,8 +303,8 @@ def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
     fit, test = rows[~hide], rows[hide]
     errors = []
     for lam in _LAMBDAS:
-        spline = make_smoothing_spline(t[fit], track[fit], lam=lam)
-        errors.append(np.mean((spline(t[test]) - track[test]) ** 2))
+        predicted = _spline_per_axis(make_smoothing_spline, t[fit], track[fit], lam, t[test])
+        errors.append(np.mean((predicted - track[test]) ** 2))
     return float(_LAMBDAS[int(np.argmin(errors))])
 
 
@@ -373,10 +381,8 @@ def lowpass(markers, *, cutoff_hz, order=4):
     Returns (markers, removed (F, M, D) = raw - filtered, StepReport). Runs too short for the
     filter's padding are left unfiltered and counted in the message.
     """
-    from scipy.signal import (  # scipy: loaded on first use
-        butter,
-        filtfilt,
-    )
+    signal = require("scipy.signal", "Low-pass filtering (Clean Markers)")
+    butter, filtfilt = signal.butter, signal.filtfilt
 
     nyquist = markers.fps / 2.0
     if not 0 < cutoff_hz < nyquist:

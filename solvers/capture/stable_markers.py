@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..deps import require
 from ..errors import FacecapError
 from .stabilise import stabilise_rigid
 
@@ -36,7 +37,8 @@ class StableSuggestion:
 
 
 def _moving_mean(x, half):
-    from scipy.ndimage import uniform_filter1d  # scipy: loaded on first use
+    ndimage = require("scipy.ndimage", "Stable-marker scoring (Suggest Stable Markers, Detect Neutral)")
+    uniform_filter1d = ndimage.uniform_filter1d
 
     v = np.isfinite(x)
     w = 2 * half + 1

@@ -18,7 +18,11 @@ frame is about ``n_f (n_f + n_(f+1))^2`` instead of ``n_f (worst bandwidth)^2``.
 """
 
 import numpy as np
-from scipy.linalg import lapack
+
+from ..deps import require
+
+# scipy's banded LAPACK; Blender lacks scipy unless the extension zip bundles it
+lapack = require("scipy.linalg.lapack", "The temporal solve (smoothing over time)")
 
 
 class Layout:

@@ -17,9 +17,12 @@ checks it (KKT) and corrects what the coupling between shapes changes, so the op
 """
 
 import numpy as np
-from scipy.linalg import lapack
 
+from ..deps import require
 from .frames import _FREE, _ZERO, classify, fixed_values
+
+# scipy's banded LAPACK; Blender lacks scipy unless the extension zip bundles it
+lapack = require("scipy.linalg.lapack", "The temporal solve (smoothing over time)")
 
 #: Frames of a shape's trajectory around each change that the predictor re-solves.
 PAD = 8

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..deps import require
 from ..errors import FacecapError, InputFileError
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
@@ -52,11 +53,8 @@ class FootageInfo:
 
 
 def _cv2():
-    try:
-        import cv2  # OpenCV: imported on first use
-    except ImportError:  # pragma: no cover - the pinned environment has it
-        raise FacecapError("video input needs OpenCV: pip install opencv-contrib-python-headless") from None
-    return cv2
+    """OpenCV, imported on first use (Blender lacks it unless the extension zip bundles it)."""
+    return require("cv2", "Video input (tracking, flow)")
 
 
 def report_progress(progress, done, total, what="frames"):
