@@ -94,6 +94,8 @@ def workflow(blender, extension_zips, footage, truth, tmp_path_factory):
                           env=blender_env(user), cwd=work)
     assert proc.returncode == 0, f"Blender {blender['bpy']} workflow crashed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
     result = json.loads((work / "result.json").read_text(encoding="utf-8"))
+    steps = ", ".join(f"{k} {v:.1f}" for k, v in result.get("seconds", {}).items())
+    print(f"\nBlender {blender['bpy']} workflow seconds: {steps}")
     return {"result": result, "user": user, "log": proc.stdout + proc.stderr, **blender}
 
 
