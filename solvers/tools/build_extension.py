@@ -207,13 +207,25 @@ def _top_level_excludes(manifest):
     return {p.strip("/") for p in patterns if p.startswith("/") and "*" not in p and p.strip("/").count("/") == 0}
 
 
-def stage_source(stage, wheel_files, platforms, *, source=REPO):
+def _ignore(out_dir):
+    """copytree's ignore: caches, backups, and the output folder (earlier zips must not ship in new ones)."""
+    base = shutil.ignore_patterns("__pycache__", "*.pyc", "*.blend1")
+
+    def ignore(directory, names):
+        return set(base(directory, names)) | {n for n in names if (Path(directory) / n).resolve() == out_dir}
+
+    return ignore
+
+
+def stage_source(stage, wheel_files, platforms, *, source=REPO, out_dir=None):
     """Copy the add-on source into ``stage`` with the wheels in ``./wheels`` and the generated manifest."""
     text = (Path(source) / MANIFEST).read_text(encoding="utf-8")
     skip = _top_level_excludes(tomllib.loads(text)) | {"wheels", MANIFEST}
-    ignore = shutil.ignore_patterns("__pycache__", "*.pyc", "*.blend1")
+    out_dir = None if out_dir is None else Path(out_dir).resolve()
+    ignore = _ignore(out_dir)
     for entry in sorted(Path(source).iterdir()):
-        if entry.name.startswith(".") or entry.name in skip or entry.name.endswith(".egg-info"):
+        if (entry.name.startswith(".") or entry.name in skip or entry.name.endswith(".egg-info")
+                or entry.resolve() == out_dir):
             continue
         if entry.is_dir():
             shutil.copytree(entry, stage / entry.name, ignore=ignore)
@@ -271,7 +283,7 @@ def build(out_dir, *, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_
     with tempfile.TemporaryDirectory(prefix="facecap-extension-") as tmp:
         stage = Path(tmp) / "facecap"
         stage.mkdir()
-        manifest = stage_source(stage, [paths[w.file] for w in chosen], platforms, source=source)
+        manifest = stage_source(stage, [paths[w.file] for w in chosen], platforms, source=source, out_dir=out_dir)
         _run_tool(tool, "build", "--source-dir", stage, "--output-dir", out_dir, "--split-platforms", cwd=tmp)
     built = []
     for p in platforms:

@@ -89,3 +89,21 @@ def test_a_tampered_cached_wheel_is_fetched_again(tmp_path):
     good.write_bytes(b"tampered")
     with pytest.raises(BuildError, match="could not download facecap_no_such_package-1.0-py3-none-any.whl"):
         fetch_wheels([wheel], tmp_path)  # not on PyPI: the download fails, the bad file is not used
+
+
+def test_staging_leaves_out_developer_folders_and_earlier_builds(tmp_path):
+    """An output folder inside the source (``--out zips``) is never staged, so zips never nest."""
+    from facecap.solvers.tools.build_extension import stage_source
+
+    source = tmp_path / "src"
+    for rel in ("__init__.py", "solvers/__init__.py", "zips/facecap-0.1.0-linux_x64.zip", "tests/test_x.py",
+                "sample_blends/character.blend", ".git/HEAD", "solvers/__pycache__/x.pyc"):
+        (source / rel).parent.mkdir(parents=True, exist_ok=True)
+        (source / rel).write_text("x")
+    (source / "blender_manifest.toml").write_text((REPO / "blender_manifest.toml").read_text())
+    stage = tmp_path / "stage"
+    stage.mkdir()
+    stage_source(stage, [], ["linux-x64"], source=source, out_dir=source / "zips")
+    staged = sorted(str(p.relative_to(stage)) for p in stage.rglob("*") if p.is_file())
+    assert staged == ["__init__.py", "blender_manifest.toml", "solvers/__init__.py"]
+    assert tomllib.loads((stage / "blender_manifest.toml").read_text())["platforms"] == ["linux-x64"]
