@@ -23,8 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..deps import require
-from ..errors import FacecapError
+from ..errors import FacecapError, needs
 from ..markers import MarkerSet
 from ..options import default
 
@@ -251,7 +250,8 @@ def fill_gaps_spline(markers, *, max_gap):
     frames on each side; its smoothing weight is chosen once per marker by hiding 5-frame blocks
     of the marker's longest visible run and keeping the weight that predicts them best.
     """
-    make_smoothing_spline = require("scipy.interpolate", "Spline gap filling (Clean Markers)").make_smoothing_spline
+    with needs("scipy", "Spline gap filling (Clean Markers)"):
+        from scipy.interpolate import make_smoothing_spline  # scipy: loaded on first use
 
     pos = markers.positions.copy()
     t = markers.frames
@@ -290,7 +290,8 @@ def _spline_per_axis(make_smoothing_spline, x, y, lam, at):
 
 def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
     """Smoothing weight for ``make_smoothing_spline`` by hold-out of 5-frame blocks (None = GCV)."""
-    make_smoothing_spline = require("scipy.interpolate", "Spline gap filling (Clean Markers)").make_smoothing_spline
+    with needs("scipy", "Spline gap filling (Clean Markers)"):
+        from scipy.interpolate import make_smoothing_spline  # scipy: loaded on first use
 
     runs = _visible_runs(vis)
     a, b = max(runs, key=lambda r: r[1] - r[0])
@@ -381,8 +382,8 @@ def lowpass(markers, *, cutoff_hz, order=4):
     Returns (markers, removed (F, M, D) = raw - filtered, StepReport). Runs too short for the
     filter's padding are left unfiltered and counted in the message.
     """
-    signal = require("scipy.signal", "Low-pass filtering (Clean Markers)")
-    butter, filtfilt = signal.butter, signal.filtfilt
+    with needs("scipy", "Low-pass filtering (Clean Markers)"):
+        from scipy.signal import butter, filtfilt  # scipy: loaded on first use
 
     nyquist = markers.fps / 2.0
     if not 0 < cutoff_hz < nyquist:

@@ -13,8 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..deps import require
-from ..errors import FacecapError
+from ..errors import FacecapError, needs
 from .stabilise import stabilise_rigid
 
 
@@ -37,8 +36,8 @@ class StableSuggestion:
 
 
 def _moving_mean(x, half):
-    ndimage = require("scipy.ndimage", "Stable-marker scoring (Suggest Stable Markers, Detect Neutral)")
-    uniform_filter1d = ndimage.uniform_filter1d
+    with needs("scipy", "Stable-marker scoring (Suggest Stable Markers, Detect Neutral)"):
+        from scipy.ndimage import uniform_filter1d  # scipy: loaded on first use
 
     v = np.isfinite(x)
     w = 2 * half + 1

@@ -19,10 +19,10 @@ frame is about ``n_f (n_f + n_(f+1))^2`` instead of ``n_f (worst bandwidth)^2``.
 
 import numpy as np
 
-from ..deps import require
+from ..errors import needs
 
-# scipy's banded LAPACK; Blender lacks scipy unless the extension zip bundles it
-lapack = require("scipy.linalg.lapack", "The temporal solve (smoothing over time)")
+with needs("scipy", "The temporal solve (smoothing over time)"):  # Blender has scipy only from the zip
+    from scipy.linalg import lapack
 
 
 class Layout:

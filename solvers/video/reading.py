@@ -17,8 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..deps import require
-from ..errors import FacecapError, InputFileError
+from ..errors import FacecapError, InputFileError, needs
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
 PREFETCH = 8  # frames decoded ahead by the reader thread
@@ -53,8 +52,10 @@ class FootageInfo:
 
 
 def _cv2():
-    """OpenCV, imported on first use (Blender lacks it unless the extension zip bundles it)."""
-    return require("cv2", "Video input (tracking, flow)")
+    """OpenCV (Blender has it only from the extension zip)."""
+    with needs("cv2", "Video input (tracking, flow)"):
+        import cv2  # OpenCV: imported on first use
+    return cv2
 
 
 def report_progress(progress, done, total, what="frames"):

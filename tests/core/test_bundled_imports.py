@@ -4,8 +4,8 @@ A real Blender has its own Python with the standard library, Blender's modules a
 packages (numpy, requests, zstandard and their dependencies), and nothing else: scipy and OpenCV come
 only from the wheels bundled in the extension zip (``wheels.lock.toml``). This walks the source that
 ships (``__init__.py``, ``__main__.py``, ``facecap_addon/``, ``operators/``, ``solvers/``) with ``ast``,
-collecting module-level and function-level imports plus the modules named to ``deps.require``,
-``importlib.import_module`` and ``__import__``, and fails on any that is neither.
+collecting module-level and function-level imports plus the modules named to ``importlib.import_module``
+and ``__import__``, and fails on any that is neither.
 """
 
 import ast
@@ -23,7 +23,7 @@ BLENDER_MODULES = {"bpy", "bpy_extras", "bpy_types", "mathutils", "bmesh", "gpu"
 #: Third-party packages in Blender's own site-packages (4.2-5.0); numpy is the one the add-on may use.
 BLENDER_SITE_PACKAGES = {"numpy", "requests", "zstandard", "certifi", "idna", "urllib3", "charset_normalizer"}
 #: Calls whose first argument names a module that is imported at run time.
-IMPORT_CALLS = {"require", "import_module", "__import__"}
+IMPORT_CALLS = {"import_module", "__import__"}
 
 
 def shipped_files():

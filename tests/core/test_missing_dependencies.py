@@ -8,8 +8,8 @@ import types
 
 import pytest
 
-from facecap.solvers import deps
-from facecap.solvers.errors import FacecapError
+from facecap.solvers import errors
+from facecap.solvers.errors import FacecapError, MissingDependencyError, needs
 
 
 @pytest.mark.parametrize("system, machine, expected", [
@@ -17,20 +17,20 @@ from facecap.solvers.errors import FacecapError
     ("Darwin", "arm64", "macos-arm64"), ("Darwin", "x86_64", "macos-x64"), ("Linux", "aarch64", "linux-arm64"),
 ])
 def test_platform_names_follow_blender(monkeypatch, system, machine, expected):
-    monkeypatch.setattr(deps.platform, "system", lambda: system)
-    monkeypatch.setattr(deps.platform, "machine", lambda: machine)
-    assert deps.blender_platform() == expected
-    assert deps.extension_zip_name() == f"facecap-0.1.0-{expected.replace('-', '_')}.zip"
+    monkeypatch.setattr(errors.platform, "system", lambda: system)
+    monkeypatch.setattr(errors.platform, "machine", lambda: machine)
+    assert errors.blender_platform() == expected
+    assert errors.extension_zip_name() == f"facecap-0.1.0-{expected.replace('-', '_')}.zip"
 
 
 def test_inside_blender_the_message_names_the_zip_not_pip(monkeypatch):
     monkeypatch.setitem(sys.modules, "bpy", types.ModuleType("bpy"))
     monkeypatch.setitem(sys.modules, "cv2", None)  # import cv2 -> ImportError
-    with pytest.raises(deps.MissingDependencyError) as info:
-        deps.require("cv2", "Video input")
+    with pytest.raises(MissingDependencyError) as info, needs("cv2", "Video input"):
+        import cv2  # noqa: F401
     message = str(info.value)
     assert message.startswith("Video input needs opencv-contrib-python-headless (cv2), which cannot be imported here")
-    assert f"install the FaceCap build for this computer, {deps.extension_zip_name()}" in message
+    assert f"install the FaceCap build for this computer, {errors.extension_zip_name()}" in message
     assert "Install from Disk" in message and "pip" not in message
     assert isinstance(info.value, FacecapError)  # operators report it as one line
 
@@ -38,8 +38,9 @@ def test_inside_blender_the_message_names_the_zip_not_pip(monkeypatch):
 def test_outside_blender_the_message_gives_the_pip_package(monkeypatch):
     monkeypatch.delitem(sys.modules, "bpy", raising=False)
     monkeypatch.setitem(sys.modules, "scipy.ndimage", None)
-    with pytest.raises(deps.MissingDependencyError, match=r"needs scipy, which cannot.*pip install scipy$"):
-        deps.require("scipy.ndimage", "Stable-marker scoring")
+    with pytest.raises(MissingDependencyError, match=r"needs scipy, which cannot.*pip install scipy$"), \
+            needs("scipy", "Stable-marker scoring"):
+        from scipy.ndimage import uniform_filter1d  # noqa: F401
 
 
 # Each feature that needs scipy or OpenCV, run in a Python where neither can be imported.
