@@ -77,7 +77,8 @@ class MissingDependencyError(FacecapError):
                       "Preferences > Get Extensions > Install from Disk: it bundles scipy and OpenCV")
         else:
             advice = f"install it into this Python: pip install {package}"
-        super().__init__(f"{feature} needs {what}, which cannot be imported here ({one_line(reason, 200)}); {advice}")
+        reason = one_line(reason, 200)
+        super().__init__(f"{feature} needs {what}, which cannot be imported here ({reason}); {advice}")
 
 
 @contextmanager

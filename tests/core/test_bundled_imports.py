@@ -63,7 +63,8 @@ def test_every_runtime_import_is_blenders_or_bundled():
 
 def test_the_addon_never_imports_itself_by_its_development_name():
     """Inside Blender the package is ``bl_ext.<repo>.facecap``: an absolute ``facecap`` import breaks there."""
-    found = [f"{p.relative_to(REPO)}:{line}" for p in shipped_files() for m, line in runtime_imports(p) if m == "facecap"]
+    found = [f"{p.relative_to(REPO)}:{line}" for p in shipped_files()
+             for m, line in runtime_imports(p) if m == "facecap"]
     assert found == []
 
 

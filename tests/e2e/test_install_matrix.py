@@ -92,7 +92,8 @@ def workflow(blender, extension_zips, footage, truth, tmp_path_factory):
     proc = subprocess.run([str(blender["python"]), str(HERE / "matrix_workflow.py"), str(work / "inputs.json"),
                            str(work / "result.json")], capture_output=True, text=True, timeout=TIMEOUT,
                           env=blender_env(user), cwd=work)
-    assert proc.returncode == 0, f"Blender {blender['bpy']} workflow crashed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
+    assert proc.returncode == 0, \
+        f"Blender {blender['bpy']} workflow crashed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
     result = json.loads((work / "result.json").read_text(encoding="utf-8"))
     steps = ", ".join(f"{k} {v:.1f}" for k, v in result.get("seconds", {}).items())
     print(f"\nBlender {blender['bpy']} workflow seconds: {steps}")
