@@ -11,7 +11,7 @@ inspect FILE [options]        describe a capture file; non-zero exit with a one-
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
-bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
+bench [--quick] [--accuracy]  time the solve, the keying and the whole CLI, with ratios to naive baselines
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
 stderr naming the file and field; there is no traceback for those.
@@ -332,6 +332,10 @@ def _cmd_tune(args):
 
 
 def _cmd_bench(args):
+    if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
+        from ..solvers.tools.accuracy_bench import main as accuracy_main
+
+        return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
     from ..solvers.tools.bench import run_benchmarks
 
     frames = 3600 if args.quick else 36000
@@ -374,6 +378,12 @@ def build_parser():
     p.set_defaults(func=_cmd_tune)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
+    p.add_argument("--accuracy", action="store_true", help="accuracy over random scenarios instead (stabilisation, "
+                   "solve, tracking, flow) side by side with plain references")
+    p.add_argument("--draws", default="30", help="--accuracy: random marker takes (default 30)")
+    p.add_argument("--clips", default="3", help="--accuracy: clips per footage kind (default 3)")
+    p.add_argument("--size", default="640x480", help="--accuracy: footage resolution (default 640x480)")
+    p.add_argument("--frames", default="60", help="--accuracy: frames per clip (default 60)")
     p.set_defaults(func=_cmd_bench)
     return parser
 
