@@ -46,15 +46,15 @@ def stable_rows(seeds, *, n_frames=360):
             warnings.simplefilter("ignore", RuntimeWarning)
             r_true = retarget(s.markers, s.character.basis, true)
             row = {"seed": seed, "rmse_true": _rmse(r_true.weights, s.weights), "params": s.params}
-            sug = suggest_stable_markers(s.markers, reference_frames=s.neutral_frames)
-            row.update(ok=sug.ok, chosen=len(sug.names), problems=list(sug.problems),
-                       wrong=sum(n not in set(s.character.rigid) for n in sug.names))
             try:
                 r_auto = retarget(s.markers, s.character.basis,
                                   RetargetSettings(stable_markers=(), neutral_frames=s.neutral_frames, auto_stable=True))
-                row["rmse_auto"] = _rmse(r_auto.weights, s.weights)
+                row["rmse_auto"], sug = _rmse(r_auto.weights, s.weights), r_auto.stable_suggestion
             except FacecapError as exc:  # "auto" declined and named its candidates
                 row["rmse_auto"], row["declined"] = np.nan, str(exc)
+                sug = suggest_stable_markers(s.markers, reference_frames=s.neutral_frames)
+            row.update(ok=sug.ok, chosen=len(sug.names), problems=list(sug.problems),
+                       wrong=sum(n not in set(s.character.rigid) for n in sug.names))
         row["ratio"] = row["rmse_auto"] / row["rmse_true"]
         rows.append(row)
     return rows
@@ -100,8 +100,9 @@ def plain_dis(path, reference=1):
     return np.stack([est.calc(frames[reference - 1], f) for f in frames])
 
 
-def track_row(scenario, *, max_points=48):
-    """Tracking figures of one :class:`~.scenarios_footage.FootageScenario` for ours and the plain LK."""
+def track_row(scenario, *, max_points=48, plain_tracker=None):
+    """Tracking figures of one :class:`~.scenarios_footage.FootageScenario` for ours and the plain LK
+    (``plain_tracker(path, seeds)``, default :func:`plain_lk`)."""
     from ..video.reading import Footage
     from ..video.tracking import auto_seeds, track_points
 
@@ -114,7 +115,7 @@ def track_row(scenario, *, max_points=48):
     t0 = time.perf_counter()
     ours = track_points(footage, points=seeds).markers.positions
     t1 = time.perf_counter()
-    plain = plain_lk(scenario.path, seeds)
+    plain = (plain_tracker or plain_lk)(scenario.path, seeds)
     t2 = time.perf_counter()
     for label, pos, secs in (("ours", ours, t1 - t0), ("plain", plain, t2 - t1)):
         err = np.linalg.norm(pos - truth, axis=2)
