@@ -23,3 +23,15 @@ def plain_lk(path, seeds, reference=1, win=21, levels=3):
         out[t] = np.where(st.reshape(-1, 1) == 1, new.reshape(-1, 2), np.nan)
         prev, pts = frames[t], np.where(st.reshape(-1, 1, 1) == 1, new, cont).astype(np.float32)
     return out
+
+
+def plain_dis(path, reference=1):
+    """Plain DIS (OpenCV's fast preset refined to half resolution, as the project's default) from the
+    reference frame to every frame: (F, H, W, 2)."""
+    cap, frames = cv2.VideoCapture(str(path)), []
+    while (got := cap.read())[0]:
+        frames.append(cv2.cvtColor(got[1], cv2.COLOR_BGR2GRAY))
+    cap.release()
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
+    dis.setFinestScale(1)
+    return np.stack([dis.calc(frames[reference - 1], f, None) for f in frames])

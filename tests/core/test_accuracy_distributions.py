@@ -66,20 +66,21 @@ cv2 = pytest.importorskip("cv2")
 
 
 @pytest.fixture(scope="module")
-def tracks(tmp_path_factory):
-    from reference_trackers import plain_lk
-
-    from facecap.solvers.tools.accuracy_bench import track_row
+def clips(tmp_path_factory):
     from facecap.solvers.tools.scenarios_footage import KINDS, footage_scenario
 
     d = tmp_path_factory.mktemp("kinds")
-    rows = []
-    for kind in KINDS:  # 10 kinds x 3 draws = 30 clips, small so the suite stays quick
-        for seed in range(3):
-            sc = footage_scenario(seed, kind, d, size=(320, 240), n_frames=30)
-            row = track_row(sc, max_points=32, plain_tracker=plain_lk)  # the textbook LK kept in the tests
-            rows.append(row)
-    return rows
+    # 10 kinds x 3 draws = 30 clips, small so the suite stays quick (the benchmark has 480p-1080p)
+    return [footage_scenario(seed, kind, d, size=(320, 240), n_frames=30) for kind in KINDS for seed in range(3)]
+
+
+@pytest.fixture(scope="module")
+def tracks(clips):
+    from reference_trackers import plain_lk
+
+    from facecap.solvers.tools.accuracy_bench import track_row
+
+    return [track_row(sc, max_points=32, plain_tracker=plain_lk) for sc in clips]  # the textbook LK kept here
 
 
 def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
@@ -97,3 +98,17 @@ def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
         assert max(r["ours_median_px"] for r in k) <= max(r["plain_median_px"] for r in k) * 1.05 + 1e-3, kind
         assert lost_ours <= max(1.0, lost_plain), kind  # false losses: at most 1 % where the reference keeps all
         assert sum(r["ours_wrong_hidden"] for r in k) <= sum(r["plain_wrong_hidden"] for r in k), kind
+
+
+def test_dense_flow_matches_or_beats_plain_dis_on_every_footage_kind(clips):
+    from reference_trackers import plain_dis
+
+    from facecap.solvers.tools.accuracy_bench import flow_row
+    from facecap.solvers.tools.scenarios_footage import KINDS
+
+    rows = [flow_row(sc, grid_step=4, plain_flow=plain_dis) for sc in clips if sc.seed == 0]  # one per kind: time
+    for kind in KINDS:
+        k = [r for r in rows if r["kind"] == kind]
+        ours, plain = np.median([r["ours_median_px"] for r in k]), np.median([r["plain_median_px"] for r in k])
+        print(f"{kind:18s} flow end-point error on the face: ours {ours:.4f} px, plain DIS {plain:.4f} px")
+        assert ours <= plain * 1.01 + 1e-3, kind
