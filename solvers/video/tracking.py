@@ -1,4 +1,5 @@
-"""Sparse 2D tracking: pyramidal Lucas-Kanade with a forward-backward check and drift control.
+"""Sparse 2D tracking: pyramidal Lucas-Kanade with forward-backward checks, drift control and
+lighting-robust re-registration (see :class:`LKTracker`).
 
 Per frame and point there are two estimates (the thesis' Alg. 4.3, applied to points):
 
@@ -6,11 +7,12 @@ Per frame and point there are two estimates (the thesis' Alg. 4.3, applied to po
 * **direct** - LK from the neutral *reference* frame's patch straight to this frame, started at
   the continuous estimate (or, for a lost point, at a prediction from the points still held).
 
-Each passes a forward-backward check; where both pass they are fused with weights from their patch
-reconstruction errors against the reference, ``w_cont = E_dir / (E_cont + E_dir)``, so errors no
-longer accumulate (drift stays bounded) while large expressions, which the reference patch matches
-badly, lean on the continuous estimate. A point that fails both is a gap (NaN) until the direct
-registration re-acquires it (``reseed``); losses and recoveries are reported by name.
+Each passes a forward-backward check; the direct estimate is used unless it fails or matches the
+reference patch clearly worse than the continuous one, so errors do not accumulate (drift stays
+bounded) while large expressions, which the reference patch matches badly, lean on the continuous
+estimate. Loss thresholds are relative to each point's own measured noise. A point that fails both
+is a gap (NaN) until the direct registration re-acquires it (``reseed``); losses and recoveries are
+reported by name.
 """
 
 import warnings
@@ -138,21 +140,27 @@ class LKTracker:
     rejected when its forward-backward error exceeds ``fb_threshold`` *and* ``fb_factor`` times the
     point's recent typical one, or its patch error exceeds ``appearance_factor`` times its recent
     typical one (an occluder) - or it leaves the frame.
+
+    ``photometric``: the direct registration is also run on detail images (shading and lighting
+    removed) and kept per point where its contrast-normalised patch match is better (lighting drift;
+    measured in docs/accuracy.md).
     """
 
     HISTORY = 30  # frames of per-point statistics
 
     def __init__(self, ref_image, ref_points, *, win_size=21, levels=3, fb_threshold=1.0, reregister=True,
-                 reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0):
+                 reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0, photometric=True):
         self.cv2 = cv2 = _cv2()
         self.win = (int(win_size), int(win_size))
         self.levels = int(levels)
         self.fb = float(fb_threshold)
         self.fb_factor, self.app_factor = float(fb_factor), float(appearance_factor)
         self.reregister, self.reseed = bool(reregister), bool(reseed)
+        self.photometric = bool(photometric)
         self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 0.001)
         self.ref_pts = np.asarray(ref_points, np.float32).reshape(-1, 2)
         self.ref_pyr = self._pyramid(ref_image)
+        self.ref_hp = self._highpass(ref_image)
         self.prev_pyr = self.ref_pyr
         self.pos = self.ref_pts.copy()
         self.ok = np.ones(len(self.ref_pts), bool)
@@ -165,6 +173,12 @@ class LKTracker:
         self.fb_hist = np.full((self.HISTORY, n), np.nan)  # accepted forward-backward errors
         self.err_hist = np.full((self.HISTORY, n), np.nan)  # accepted patch errors (grey levels)
         self.frame_no = 0
+
+    def _highpass(self, img):
+        """Detail without the slowly varying shading: a lighting change barely alters it."""
+        cv2 = self.cv2
+        f = img.astype(np.float32)
+        return np.clip(128.0 + 2.0 * (f - cv2.GaussianBlur(f, (0, 0), 4.0)), 0, 255).astype(np.uint8)
 
     def _pyramid(self, img):
         # OpenCV's Python binding does not accept prebuilt pyramids here, so LK builds its own.
@@ -186,14 +200,14 @@ class LKTracker:
         return self.cv2.remap(img, grid[..., 0], grid[..., 1], self.cv2.INTER_LINEAR,
                               borderMode=self.cv2.BORDER_REPLICATE).astype(np.float32)
 
-    def _patch_error(self, img, pts):
+    def _patch_error(self, img, pts, rows=slice(None)):
         """Mean absolute difference to the reference patch, both normalised to zero mean and unit
         contrast (lighting drift changes neither), in units of the patch contrast."""
         def z(p):
             p = p - p.mean(axis=1, keepdims=True)
             return p / np.maximum(p.std(axis=1, keepdims=True), 1.0)
 
-        return np.abs(z(self._patches(img, pts)) - z(self.ref_patch)).mean(axis=1)
+        return np.abs(z(self._patches(img, pts)) - z(self.ref_patch[rows])).mean(axis=1)
 
     def _inside(self, pts):
         h, w = self.shape[:2]
@@ -244,6 +258,13 @@ class LKTracker:
             init = np.where(ok_c[:, None], p_c, self._predict() if (~ok_c).any() else p_c)
             idx = np.flatnonzero(want & np.isfinite(init[:, 0]))
             p_d[idx], fb_d[idx] = self._checked(self.ref_pyr, cur, self.ref_pts[idx], init[idx], self.ref_pts[idx])
+            if self.photometric:  # the same registration on detail images; kept where it fits the patch better
+                p_h, fb_h = self._checked(self.ref_hp, self._highpass(img), self.ref_pts[idx], init[idx],
+                                          self.ref_pts[idx])
+                e_raw = np.where(np.isfinite(fb_d[idx]), self._patch_error(img, np.nan_to_num(p_d[idx]), idx), np.inf)
+                e_hp = np.where(np.isfinite(fb_h), self._patch_error(img, np.nan_to_num(p_h), idx), np.inf)
+                better = e_hp < e_raw
+                p_d[idx[better]], fb_d[idx[better]] = p_h[better], fb_h[better]
         ok_d = fb_d < np.where(ok_c | self.reregister, fb_limit, 0.5 * fb_limit)  # re-acquiring: a closer match
         err_typ = self._typical(self.err_hist, np.inf)
         e_c = np.where(ok_c, self._patch_error(img, np.nan_to_num(p_c)), np.inf)
