@@ -20,8 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..video.reading import _cv2
 from ..video.synthetic import face_texture
+
+
+def _cv2():
+    import cv2  # deferred: OpenCV is only needed to render and write footage
+
+    return cv2
 
 #: Footage kinds: texture, head motion, codec (quality for MJPG), lighting drift, blur (shutter as a
 #: fraction of the frame interval), occluder, points leaving the frame, sensor noise (grey levels).

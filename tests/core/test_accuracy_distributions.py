@@ -62,11 +62,9 @@ def test_no_rigid_markers_says_so_and_names_candidates():
 
 
 # -- tracking: the project's LK beside the plain reference on every footage kind --------------------------
-cv2 = pytest.importorskip("cv2")
-
-
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
+    pytest.importorskip("cv2")
     from facecap.solvers.tools.scenarios_footage import KINDS, footage_scenario
 
     d = tmp_path_factory.mktemp("kinds")
