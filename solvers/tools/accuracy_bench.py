@@ -152,17 +152,19 @@ def flow_row(scenario, *, grid_step=1, plain_flow=None):
     return row
 
 
-def footage_rows(kinds, draws, *, size=(640, 480), n_frames=60, what="track", directory=None):
-    """Rows of :func:`track_row` or :func:`flow_row` over ``draws`` seeds of every kind."""
+def footage_rows(kinds, draws, *, size=(640, 480), n_frames=60, directory=None):
+    """{"track": rows of :func:`track_row`, "flow": rows of :func:`flow_row`} over ``draws`` clips of every kind
+    (each clip rendered once)."""
     from .scenarios_footage import footage_scenario
 
+    out = {"track": [], "flow": []}
     with tempfile.TemporaryDirectory(dir=directory) as d:
-        out = []
         for kind in kinds:
             for seed in range(draws):
                 sc = footage_scenario(seed, kind, d, size=size, n_frames=n_frames)
-                out.append(track_row(sc) if what == "track" else flow_row(sc))
-        return out
+                out["track"].append(track_row(sc))
+                out["flow"].append(flow_row(sc, grid_step=2))
+    return out
 
 
 def _fmt(stats, unit=""):
@@ -188,9 +190,11 @@ def main(argv=None):
     print(f"  auto / true rigid set, weights RMSE ratio: {_fmt(summary(r['ratio'] for r in rows), 'x')}")
     print(f"  weights RMSE, true rigid set:              {_fmt(summary(r['rmse_true'] for r in rows))}")
     print(f"  auto declined (named candidates) in {len(declined)} of {len(rows)} draws")
+    footage = footage_rows(list(KINDS), args.clips, size=size, n_frames=args.frames)
     for what in ("track", "flow"):
-        print(f"{what} per footage kind, {args.clips} clips of {args.frames} frames at {size[0]}x{size[1]}:")
-        rows = footage_rows(list(KINDS), args.clips, size=size, n_frames=args.frames, what=what)
+        print(f"{what} per footage kind, {args.clips} clips of {args.frames} frames at {size[0]}x{size[1]} "
+              "(median / p90 / worst over the clips of each clip's median error):")
+        rows = footage[what]
         for kind in KINDS:
             k = [r for r in rows if r["kind"] == kind]
             line = (f"  {kind:18s} ours {_fmt(summary(r['ours_median_px'] for r in k), ' px')}"
