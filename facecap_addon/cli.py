@@ -12,7 +12,7 @@ convert IN OUT [options]      a capture file in another format (.csv .c3d .trc .
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
-bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
+bench [--quick] [--accuracy]  time the solve, the keying and the whole CLI, with ratios to naive baselines
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
@@ -59,6 +59,7 @@ import numpy as np  # noqa: E402
 from ..solvers.config import load_take_config  # noqa: E402
 from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
+from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
@@ -136,6 +137,8 @@ def _cmd_convert(args):
 
 
 def _cmd_bench(args):
+    if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
+        return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
         print(_bench_line(row), flush=True)
@@ -188,6 +191,12 @@ def build_parser():
     p.set_defaults(func=_cmd_config_docs)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
+    p.add_argument("--accuracy", action="store_true", help="accuracy over random scenarios instead (stabilisation, "
+                   "solve, tracking, flow) side by side with plain references")
+    p.add_argument("--draws", default="30", help="--accuracy: random marker takes (default 30)")
+    p.add_argument("--clips", default="3", help="--accuracy: clips per footage kind (default 3)")
+    p.add_argument("--size", default="640x480", help="--accuracy: footage resolution (default 640x480)")
+    p.add_argument("--frames", default="60", help="--accuracy: frames per clip (default 60)")
     p.set_defaults(func=_cmd_bench)
     p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")

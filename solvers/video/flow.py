@@ -215,7 +215,10 @@ class ReferenceFlow:
                 e_cont = self._error(img_f, cont)
                 total = e_cont + e_dir
                 np.maximum(total, 1e-6, out=total)
-                w_c = e_dir / total
+                # The direct registration unless it reconstructs clearly worse (a large expression the
+                # reference matches badly): the continuous estimate carries the drift of every step.
+                w_c = (e_dir - e_cont) / total
+                np.clip(w_c, 0.0, 1.0, out=w_c)
                 cont -= direct  # in place: fused = direct + w_c (cont - direct)
                 cont *= w_c[..., None]
                 cont += direct
