@@ -25,7 +25,7 @@ from ..solvers.config.paths import check_outputs, take_outputs
 from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
-from ..solvers.video.cli import _Progress, sigint_cancels
+from ..solvers.video.cli import ProgressLine, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
 from .scene_data import basis_from_object
@@ -282,7 +282,7 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.footage is None:
         return job.run()
-    shown = None if quiet else _Progress(sys.stderr, f"flow ({request.flow.method})")
+    shown = None if quiet else ProgressLine(sys.stderr, f"flow ({request.flow.method})")
     with sigint_cancels() as stop:
         def progress(done, total):
             if shown is not None:

@@ -79,7 +79,7 @@ class StableSuggestion:
         return (f"no reliable stable set in this take: {'; '.join(self.problems)}; best candidates: {best}")
 
 
-def _moving_mean(x, half):
+def moving_mean(x, half):
     with needs("scipy", "Stable-marker scoring (Suggest Stable Markers, Detect Neutral)"):
         from scipy.ndimage import uniform_filter1d  # scipy: loaded on first use
 
@@ -146,7 +146,7 @@ def _scores(m, core, half, components):
     core = [m.names[i] for i in _with_complete_frame(m.visible, m.index(core))]
     X = _stabilise(m, core)[0]
     D = X - np.nanmedian(X, axis=0)
-    S = _moving_mean(D, half)
+    S = moving_mean(D, half)
     hf = D - S
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -157,7 +157,7 @@ def _scores(m, core, half, components):
     with np.errstate(invalid="ignore"):
         outlier = np.linalg.norm(hf, axis=2) > 6.0 * sigma  # isolated spikes would pass for motion
     D[outlier] = np.nan
-    S = _moving_mean(D, half)
+    S = moving_mean(D, half)
     vis = np.isfinite(D[:, :, 0])
     Sz = np.nan_to_num(S - np.nanmean(S, axis=0)).reshape(F, -1)
     U = np.linalg.svd(Sz, full_matrices=False)[0][:, :components]  # (F, k) temporal components
@@ -190,7 +190,7 @@ def _rigid_clique(m, half, min_common=0.3):
     ignore head motion, so this needs no stable set; a coherent moving group (both brows) forms a
     smaller clique than the head."""
     step = max(1, half // 2)  # smoothed: a few samples per window do
-    P = _moving_mean(m.positions, half)[::step]
+    P = moving_mean(m.positions, half)[::step]
     raw = m.positions
     second = raw[2:] - 2 * raw[1:-1] + raw[:-2]  # head motion is smooth: this is noise (x sqrt 6)
     with warnings.catch_warnings():

@@ -126,7 +126,7 @@ def load_track_config(path):
     }
 
 
-class _Progress:
+class ProgressLine:
     """``label: done/total frames (rate)`` on one self-overwriting stderr line, at most twice a second."""
 
     def __init__(self, stream, label):
@@ -234,7 +234,7 @@ def _main(args, stop):
     shown = None
     try:
         settings = load_track_config(args.config)
-        shown = None if args.quiet else _Progress(sys.stderr, f"track ({settings['method']})")
+        shown = None if args.quiet else ProgressLine(sys.stderr, f"track ({settings['method']})")
 
         def progress(done, total):
             if shown is not None:

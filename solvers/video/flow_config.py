@@ -44,7 +44,7 @@ from pathlib import Path
 
 from ..errors import ConfigError, FacecapError
 from .features import EXAMPLE_STRATEGIES
-from .flow_solve import FlowSolveSettings, _box
+from .flow_solve import FlowSolveSettings, check_box
 
 SOURCE_KEYS = ("video", "first", "last", "step", "scale", "frame_offset")  # fps is shared with marker takes
 #: The one frame-numbering rule, quoted by every message about a frame number.
@@ -199,7 +199,7 @@ def check_against_footage(path, take, info):
                        ("tracking.stable_region", list(flow.stable_region))):
         for box in boxes:
             try:
-                _box(box, key.split(".")[1], size)
+                check_box(box, key.split(".")[1], size)
             except FacecapError as exc:
                 raise ConfigError(str(exc), path=path, key=key) from None
     if flow.reference is not None and flow.reference not in info.frames:

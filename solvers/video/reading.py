@@ -53,7 +53,7 @@ class FootageInfo:
         return len(self.frames)
 
 
-def _cv2():
+def opencv():
     """OpenCV (Blender has it only from the extension zip)."""
     with needs("cv2", "Video input (tracking, flow)"):
         import cv2  # OpenCV: imported on first use
@@ -169,7 +169,7 @@ class Footage:
     """
 
     def __init__(self, source, *, first=None, last=None, step=1, scale=1.0, fps=None, frame_offset=0):
-        self.cv2 = _cv2()
+        self.cv2 = opencv()
         self.path = Path(source)
         if int(step) != step or step < 1:
             raise FacecapError(f"`step` must be a positive integer; got {step}")
@@ -415,7 +415,7 @@ def write_video(path, images, *, fps=30.0, codec=None):
     ``codec`` defaults to lossless FFV1 for .avi/.mkv (falls back to MJPG if the build lacks it)
     and mp4v for .mp4/.mov.
     """
-    cv2 = _cv2()
+    cv2 = opencv()
     path = Path(path)
     images = np.asarray(images)
     if images.ndim not in (3, 4) or images.dtype != np.uint8:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import FacecapError, InputFileError
 from ..markers import MarkerSet
-from .reading import Footage, Job, _cv2
+from .reading import Footage, Job, opencv
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,8 +86,8 @@ def read_seed_points(path):
 
 def auto_seeds(image, region, *, max_points=100, quality=0.01, min_distance=None, prefix="p"):
     """Corner features (Shi-Tomasi) inside ``region`` = [x, y, w, h] of a grayscale image: ``(names, (M, 2))``."""
-    cv2 = _cv2()
-    x, y, w, h = (int(round(v)) for v in _check_region(region, image.shape))
+    cv2 = opencv()
+    x, y, w, h = (int(round(v)) for v in check_region(region, image.shape))
     mask = np.zeros(image.shape[:2], np.uint8)
     mask[y: y + h, x: x + w] = 255
     if min_distance is None:
@@ -102,7 +102,7 @@ def auto_seeds(image, region, *, max_points=100, quality=0.01, min_distance=None
     return names, pts
 
 
-def _check_region(region, shape):
+def check_region(region, shape):
     try:
         x, y, w, h = (float(v) for v in region)
     except (TypeError, ValueError):
@@ -150,7 +150,7 @@ class LKTracker:
 
     def __init__(self, ref_image, ref_points, *, win_size=21, levels=3, fb_threshold=1.0, reregister=True,
                  reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0, photometric=True):
-        self.cv2 = cv2 = _cv2()
+        self.cv2 = cv2 = opencv()
         self.win = (int(win_size), int(win_size))
         self.levels = int(levels)
         self.fb = float(fb_threshold)
@@ -290,16 +290,16 @@ def _to_work(xy, scale):
     return (np.asarray(xy, float) + 0.5) * scale - 0.5
 
 
-def _to_source(xy, scale):
+def to_source_pixels(xy, scale):
     return (np.asarray(xy, float) + 0.5) / scale - 0.5
 
 
-def _seeds(info, ref_img, *, points, names, region, max_points):
+def seed_points(info, ref_img, *, points, names, region, max_points):
     """Seed names and working-pixel positions from ``points`` (array or file) or a ``region``."""
     if (points is None) == (region is None):
         raise FacecapError("give exactly one of `points` (positions or a name,x,y file) and `region`")
     if region is not None:
-        x, y, w, h = _check_region(region, (info.height, info.width))
+        x, y, w, h = check_region(region, (info.height, info.width))
         box = _to_work([x, y], info.scale).tolist() + [w * info.scale, h * info.scale]
         box = [max(0, box[0]), max(0, box[1]), min(box[2], ref_img.shape[1] - max(0, box[0])),
                min(box[3], ref_img.shape[0] - max(0, box[1]))]
@@ -368,7 +368,7 @@ def track_points_job(footage, *, points=None, names=None, region=None, reference
     info = footage.info
     ref_frame = info.frames[0] if reference is None else int(reference)
     ref_img = footage.frame(ref_frame)
-    names, work_pts = _seeds(info, ref_img, points=points, names=names, region=region, max_points=max_points)
+    names, work_pts = seed_points(info, ref_img, points=points, names=names, region=region, max_points=max_points)
     options = dict(win_size=win_size, levels=levels, fb_threshold=fb_threshold, reregister=reregister, reseed=reseed)
     return Job(_track_steps(footage, ref_frame, ref_img, names, work_pts, options), info.n_frames, info=info)
 
@@ -417,7 +417,7 @@ def _track_steps(footage, ref_frame, ref_img, names, work_pts, options):
         f, img = before.pop()
         held = track(f, img, tracker, held)
         yield f
-    out = _to_source(pos, info.scale)
+    out = to_source_pixels(pos, info.scale)
     markers = MarkerSet(names, frames, out, fps=info.fps, units="px", source=info.path)
     return TrackResult(markers, conf, ref_frame, "lk", {k: v for k, v in lost.items() if v},
                        {k: v for k, v in found.items() if v})
