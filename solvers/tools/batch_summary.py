@@ -31,9 +31,9 @@ def new_record(take, *, status="queued", error=None, digest=None):
         "take": take.name, "config": str(take.path),
         "listed_by": None if take.listed_by is None else str(take.listed_by),
         "status": status, "error": error, "frames": None, "shapes": None, "strategy": None,
-        "residual_mm": None, "residual_max_mm": None, "warnings": 0, "warning_messages": [],
+        "residual_mm": None, "residual_max_mm": None, "residual_space": None, "warnings": 0, "warning_messages": [],
         "seconds": {}, "outputs": {}, "worker": None, "started": None, "finished": None,
-        "digest": digest,
+        "note": None, "digest": digest,
     }
 
 
@@ -83,28 +83,29 @@ class Summary:
         self.started = time.time()
         self._written = 0.0
         self.cancelled = False
+        self.dirty = True  # records changed since the last write
 
     def document(self):
         records = list(self.records.values())
         return {
             "facecap_batch": SCHEMA, **self.header,
             "status": overall_status(records, self.cancelled),
-            "started": _iso(self.started), "updated": _iso(time.time()),
+            "started": iso_time(self.started), "updated": iso_time(time.time()),
             "seconds": round(time.time() - self.started, 3),
             "counts": counts(records), "summary_csv": str(self.csv_path),
             "takes": records,
         }
 
     def write(self, *, force=True, every=1.0):
-        """Write JSON and CSV (atomically); without ``force``, at most once every ``every`` seconds.
-        Returns whether it wrote."""
+        """Write JSON and CSV (atomically); without ``force``, only what changed and at most once
+        every ``every`` seconds. Returns whether it wrote."""
         now = time.monotonic()
-        if not force and now - self._written < every:
+        if not force and (not self.dirty or now - self._written < every):
             return False
         document = self.document()
         write_json_atomic(self.path, document)
         write_text_atomic(self.csv_path, to_csv(document["takes"]))
-        self._written = now
+        self._written, self.dirty = now, False
         return True
 
 
@@ -145,7 +146,7 @@ def table(records, width=100):
         head = "  ".join(str(v).ljust(w) if c < 2 else str(v).rjust(w) for c, (v, w) in enumerate(zip(row, widths)))
         room = max(20, width - len(head) - 2)
         lines.append((head + "  " + _clip(row[7], room)).rstrip())
-    c = counts(records)
+    c = {k: v for k, v in counts(records).items() if v or k in ("ok", "failed")}
     lines.append(", ".join(f"{v} {k}" for k, v in c.items()) + f" of {len(records)} takes")
     return "\n".join(lines)
 
@@ -162,5 +163,5 @@ def _number(value, digits):
     return "" if value is None or (isinstance(value, float) and not math.isfinite(value)) else f"{value:.{digits}f}"
 
 
-def _iso(t):
+def iso_time(t):
     return time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(t))
