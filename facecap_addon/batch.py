@@ -21,6 +21,7 @@ from ..solvers.config.batch import InputDigests, collect_takes, config_digest
 from ..solvers.config.paths import check_across_takes, resolved, take_inputs, take_outputs
 from ..solvers.errors import ConfigError, FacecapError
 from ..solvers.tools.batch_summary import Summary, iso_time, new_record, one_line, read_previous, table
+from .batch_farm import FarmPool
 from .batch_pool import LocalPool
 from .batch_progress import Progress
 
@@ -80,8 +81,6 @@ def run_batch(args, *, out=None, err=None):
         shutil.rmtree(logs, ignore_errors=True)
         events = Events(summary, progress)
         if args.scheduler:
-            from .batch_farm import FarmPool  # loads Dask distributed (the optional "farm" extra)
-
             finished = FarmPool(args.scheduler).run(specs, events)
         else:
             finished = LocalPool(min(jobs, len(specs)), logs).run(specs, events)
