@@ -91,7 +91,8 @@ def run_batch(args, *, out=None, err=None):
             if record["status"] in ("queued", "running"):
                 record.update(status="cancelled", error="not started: the batch was cancelled")
     summary.write()
-    print(table(list(records.values())), file=out)
+    width = shutil.get_terminal_size().columns if getattr(out, "isatty", lambda: False)() else None
+    print(table(list(records.values()), width), file=out)
     print(f"summary: {summary.path} (and {summary.csv_path.name})", file=out, flush=True)
     if not finished:
         print("facecap: batch cancelled; finished takes are kept, running ones wrote nothing unfinished", file=err)

@@ -63,7 +63,7 @@ def farm_take(spec, cancel=None):
         while True:
             if w.replies.poll(0.5):
                 kind, payload = w.receive()
-                if kind != "ready":
+                if kind not in ("ready", "started"):
                     break
             elif event is not None and event.is_set():
                 w.interrupt()

@@ -62,6 +62,7 @@ class WorkerProcess:
         self.log_path = Path(log_path)
         self.command = list(command or worker_command())
         self.spec = None
+        self.started = False  # whether the worker began ``spec`` (a take not begun goes back to the queue)
         self.ready = False
         self.proc = None
         self.label = None
@@ -95,14 +96,15 @@ class WorkerProcess:
     def assign(self, spec):
         """Send ``spec`` to the worker (it runs it once Blender is up). A dead worker's broken pipe is
         seen by the next ``receive``."""
-        self.spec = spec
+        self.spec, self.started = spec, False
         try:
             self.requests.send(spec)
         except OSError:
             pass
 
     def receive(self):
-        """The next (kind, payload) from the worker: ("ready", info), ("done", record) or ("cancelled", config).
+        """The next (kind, payload) from the worker: ("ready", info), ("started", config), ("done", record)
+        or ("cancelled", config).
 
         Raises
         ------
@@ -114,6 +116,8 @@ class WorkerProcess:
             raise WorkerDied(f"the worker process ({self.label}) {describe_exit(self._exit_status())}") from None
         if message[0] == "ready":
             self.ready = True
+        elif message[0] == "started":
+            self.started = True
         return message
 
     def _exit_status(self, timeout=10.0):
@@ -174,7 +178,6 @@ class LocalPool:
                 for w in workers:
                     if w.spec is None and queue:
                         w.assign(queue.popleft())
-                        events.started(w.spec, w.label)
                 by_conn = {w.replies: w for w in workers}
                 for conn in wait(list(by_conn), timeout=1.0):
                     w = by_conn[conn]
@@ -183,7 +186,9 @@ class LocalPool:
                     except WorkerDied as death:
                         failures = self._replace(w, death, workers, queue, events, failures)
                         continue
-                    if kind == "done":
+                    if kind == "started":
+                        events.started(w.spec, w.label)
+                    elif kind == "done":
                         w.spec = None
                         events.finished(payload)
                 events.tick()
@@ -196,17 +201,17 @@ class LocalPool:
                 w.stop()
 
     def _replace(self, w, death, workers, queue, events, failures):
-        """A worker died: its take failed (or, before it was ready, goes back to the queue); a new
-        worker takes its place. Returns the count of workers that could not start."""
+        """A worker died: its take failed (or, when it had not begun it, goes back to the queue); a new
+        worker takes its place. Returns the count of workers that died before they were ready."""
         workers.remove(w)
         w.stop(timeout=0.0)
         if not w.ready:
             failures += 1
-            if w.spec is not None:
-                queue.appendleft(w.spec)
             if failures >= START_FAILURES:
                 tail = w.log_tail()
                 raise FacecapError(f"batch workers cannot start: {death}" + (f"; its log ends: {tail}" if tail else ""))
+        if w.spec is not None and not w.started:
+            queue.appendleft(w.spec)
         elif w.spec is not None:
             events.finished(dict(w.spec["record"], status="failed", worker=w.label, finished=iso_time(time.time()),
                                  error=f"{death} while running this take (the other takes go on)"))
@@ -229,15 +234,17 @@ class LocalPool:
                         kind, payload = w.receive()
                     except WorkerDied:
                         kind, payload = "cancelled", None
-                    if kind == "ready":
+                    if kind in ("ready", "started"):
                         continue
                     del busy[conn]
-                    events.finished(payload if kind == "done" else cancelled(w.spec, w.label))
+                    if kind == "done" or w.started:  # a take not begun stays queued: "not started"
+                        events.finished(payload if kind == "done" else cancelled(w.spec, w.label))
         except KeyboardInterrupt:
             pass
         for w in busy.values():
             w.proc.kill()
-            events.finished(cancelled(w.spec, w.label))
+            if w.started:
+                events.finished(cancelled(w.spec, w.label))
 
 
 def cancelled(spec, worker=None):

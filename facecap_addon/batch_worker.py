@@ -110,6 +110,7 @@ def serve(fd_in, fd_out):
                 return 0
             if spec is None:
                 return 0
+            replies.send(("started", spec["config"]))
             replies.send(("done", run_one(spec, characters)))
             spec = None
             sys.stdout.flush()

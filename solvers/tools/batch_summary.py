@@ -133,8 +133,9 @@ def read_previous(path):
     return {r["config"]: r for r in data.get("takes", []) if isinstance(r, dict) and "config" in r}
 
 
-def table(records, width=100):
-    """The printed summary: one line per take and a totals line."""
+def table(records, width=None):
+    """The printed summary: one line per take and a totals line; errors shortened in the middle to
+    fit ``width`` characters (None: whole)."""
     rows = [("take", "status", "frames", "shapes", "resid mm", "warn", "seconds", "error")]
     for r in records:
         total = r["seconds"].get("total") if r["seconds"] else None
@@ -144,7 +145,7 @@ def table(records, width=100):
     lines = []
     for row in rows:
         head = "  ".join(str(v).ljust(w) if c < 2 else str(v).rjust(w) for c, (v, w) in enumerate(zip(row, widths)))
-        room = max(20, width - len(head) - 2)
+        room = None if width is None else max(30, width - len(head) - 2)
         lines.append((head + "  " + _clip(row[7], room)).rstrip())
     c = {k: v for k, v in counts(records).items() if v or k in ("ok", "failed")}
     lines.append(", ".join(f"{v} {k}" for k, v in c.items()) + f" of {len(records)} takes")
@@ -152,7 +153,10 @@ def table(records, width=100):
 
 
 def _clip(text, room):
-    return text if len(text) <= room else text[: room - 3] + "..."
+    if room is None or len(text) <= room:
+        return text
+    tail = (room - 5) // 2
+    return text[: room - 5 - tail] + " ... " + text[-tail:]
 
 
 def _blank(value):
