@@ -12,6 +12,7 @@ on that node. Paths in the take configs must mean the same files on every node (
 Install on every node: ``pip install "facecap[farm,blender]"`` (docs/batch.md).
 """
 
+import os
 import tempfile
 import threading
 import time
@@ -22,8 +23,8 @@ from ..solvers.errors import FacecapError
 from ..solvers.tools.batch_summary import iso_time, one_line
 from .batch_pool import CANCEL_WAIT, WorkerDied, WorkerProcess, cancelled
 
-#: Seconds to reach the scheduler, and to wait for its first worker.
-CONNECT_TIMEOUT = 30.0
+#: Seconds to wait for the scheduler's first worker (reaching the scheduler takes Dask's own
+#: ``distributed.comm.timeouts.connect``, 30 s unless configured).
 WORKERS_TIMEOUT = 120.0
 
 # On a Dask worker: facecap worker processes free for the next take, shared by the worker's threads.
@@ -44,7 +45,30 @@ def _checkout():
             _STATE["logs"] = Path(tempfile.mkdtemp(prefix="facecap-farm-"))
         _STATE["count"] += 1
         path = _STATE["logs"] / f"worker-{_STATE['count']}.log"
-    return WorkerProcess(path).start()
+    return WorkerProcess(path, env=node_environment()).start()
+
+
+def node_environment():
+    """The environment a ``retarget`` started by hand on this node has: without the variables Dask's
+    nanny adds for its worker processes (``distributed.nanny.pre-spawn-environ``: one OpenBLAS / MKL /
+    OpenMP thread, a malloc setting) unless the node was started with them. The BLAS thread count
+    changes the last bits of a solve (measured: the sample take's weights CSV differs), and a farm's
+    result should be the single run's."""
+    import dask  # Dask: only on farm nodes (the "farm" extra)
+    from distributed import get_worker  # Dask: only on farm nodes
+
+    env = dict(os.environ)
+    if getattr(get_worker(), "nanny", None) is None:  # no nanny: nothing was added
+        return env
+    try:  # what the nanny was started with (its environment block at exec; Linux)
+        raw = Path(f"/proc/{os.getppid()}/environ").read_bytes()
+    except OSError:
+        return env
+    launch = {item.partition(b"=")[0].decode(errors="replace") for item in raw.split(b"\0") if item}
+    for key in dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {}:
+        if key not in launch:
+            env.pop(key, None)
+    return env
 
 
 def farm_take(spec, cancel=None):
@@ -94,7 +118,7 @@ class FarmPool:
             raise FacecapError("--scheduler runs on Dask distributed, which is not installed: "
                                "pip install \"facecap[farm]\"") from None
         try:
-            client = Client(self.address, timeout=CONNECT_TIMEOUT, set_as_default=False)
+            client = Client(self.address, set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:
             raise FacecapError(f"cannot reach the Dask scheduler at {self.address}: {one_line(exc)}") from None
         with client:

@@ -58,9 +58,10 @@ def describe_exit(returncode):
 class WorkerProcess:
     """One worker process and its two pipes. ``spec`` is the take it runs (None: idle)."""
 
-    def __init__(self, log_path, command=None):
+    def __init__(self, log_path, command=None, env=None):
         self.log_path = Path(log_path)
         self.command = list(command or worker_command())
+        self.env = env  # None: this process's
         self.spec = None
         self.started = False  # whether the worker began ``spec`` (a take not begun goes back to the queue)
         self.ready = False
@@ -75,7 +76,7 @@ class WorkerProcess:
         try:
             self.proc = subprocess.Popen(self.command + ["--fds", f"{to_r},{from_w}"], stdin=subprocess.DEVNULL,
                                          stdout=log, stderr=subprocess.STDOUT, pass_fds=(to_r, from_w),
-                                         start_new_session=True)
+                                         start_new_session=True, env=self.env)
         except OSError as exc:
             for fd in (to_r, to_w, from_r, from_w):
                 os.close(fd)
