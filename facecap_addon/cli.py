@@ -14,7 +14,8 @@ tune --config take.toml       retune what the strategy learned from [tuning] cor
 batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
   [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
   [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
-bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
+bench [--quick] [--batch]     time the solve, the keying and the whole CLI, with ratios to naive baselines;
+                              --batch: batch --jobs 2 against sequential retarget runs
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
@@ -67,7 +68,7 @@ from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
 from .batch import run_batch  # noqa: E402
 from .batch_worker import serve  # noqa: E402
-from .bench import bench_cli_retarget, bench_keying  # noqa: E402
+from .bench import bench_batch, bench_cli_retarget, bench_keying  # noqa: E402
 from .demo import run_demo  # noqa: E402
 from .headless import progress_line, run_take  # noqa: E402
 
@@ -143,6 +144,9 @@ def _cmd_docs_images(args):
 
 
 def _cmd_bench(args):
+    if args.batch:  # minutes of its own: only when asked
+        print(_bench_line(bench_batch(takes=args.batch_takes, jobs=args.batch_jobs, repeat=args.repeat)), flush=True)
+        return 0
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
         print(_bench_line(row), flush=True)
@@ -202,6 +206,11 @@ def build_parser():
     p.set_defaults(func=_cmd_config_docs)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
+    p.add_argument("--batch", action="store_true",
+                   help="only the batch case: batch --jobs N against sequential retarget runs (minutes)")
+    p.add_argument("--batch-takes", type=int, default=20, help="takes of 720 frames in the batch case (default 20)")
+    p.add_argument("--batch-jobs", type=int, default=2, help="--jobs of the batch case (default 2)")
+    p.add_argument("--repeat", type=int, default=3, help="runs of the batch case, median (default 3)")
     p.set_defaults(func=_cmd_bench)
     p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")

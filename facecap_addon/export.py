@@ -56,7 +56,7 @@ def export_take(obj, path, *, head_target="", fps=None, take_name=None):
         raise FacecapError(f"'{getattr(obj, 'name', obj)}' has no solved take to export (solve it first)")
     names = list(shape_key_names(obj))
     frames = _solve_frames(key, names, solve)
-    final = layers.layer_values(key, names, frames)[1]
+    final = shown_values(key, names, frames)
     head = _head_object(head_target)
     scene = bpy.context.scene
     fps = float(fps) if fps else scene.render.fps / scene.render.fps_base
@@ -67,6 +67,16 @@ def export_take(obj, path, *, head_target="", fps=None, take_name=None):
             copies.write(tmp, fmt)
     return {"path": str(path), "format": fmt, "frames": (int(frames[0]), int(frames[-1])), "shapes": len(names),
             "head": None if head is None else head.name}
+
+
+def shown_values(key, names, frames):
+    """The weights (F, K) Blender shows at ``frames``: solve layer with the animator's layer
+    (``layers.layer_values``), within each shape's slider range (Blender clamps the evaluated value)."""
+    final = layers.layer_values(key, names, frames)[1]
+    blocks = [key.key_blocks[n] for n in names]
+    low = np.array([b.slider_min for b in blocks])
+    high = np.array([b.slider_max for b in blocks])
+    return np.clip(final, low, high)
 
 
 def _solve_frames(key, names, solve):
@@ -108,7 +118,6 @@ class _Copies:
             if original.type == "MESH":
                 copy.data = self._new(original.data.copy())  # its own shape keys
                 if copy.data.shape_keys is not None:
-                    self.made.append(copy.data.shape_keys)
                     copy.data.shape_keys.animation_data_clear()
             if copy.animation_data is not None and original.animation_data.action is not None:
                 anim.ensure_animation_data(copy)  # the head keeps its action; the NLA stack is not exported
@@ -184,7 +193,14 @@ class _Copies:
     def __exit__(self, *exc):
         if self.renamed:
             self._return_names()
-        bpy.data.batch_remove([i for i in self.made if i is not None])
+        # one by one, users first: bpy.data.batch_remove of a scene left Blender to crash on the next
+        # read_factory_settings (5.0.1, measured); a copied mesh takes its shape keys with it
+        kinds = ((bpy.types.Object, bpy.data.objects), (bpy.types.Mesh, bpy.data.meshes),
+                 (bpy.types.Action, bpy.data.actions), (bpy.types.Scene, bpy.data.scenes))
+        groups = [(collection, [i for i in self.made if isinstance(i, kind)]) for kind, collection in kinds]
+        for collection, ids in groups:
+            for id_data in ids:
+                collection.remove(id_data)
         return False
 
 
