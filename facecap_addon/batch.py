@@ -161,7 +161,8 @@ def up_to_date(previous, planned):
     """Whether a take finished in the run that wrote ``previous`` (its record) and nothing it depends
     on changed since: same inputs and effective config (digests), every output still there."""
     digest = previous.get("digest") or {}
-    return (previous.get("status") in ("ok", "skipped") and digest.get("combined") == planned.record["digest"]["combined"]
+    same = digest.get("combined") == planned.record["digest"]["combined"]
+    return (previous.get("status") in ("ok", "skipped") and same
             and all(Path(p).exists() for p in take_outputs(planned.config).values()))
 
 
@@ -188,7 +189,8 @@ def _say_plan(err, records, specs):
     n = len(records)
     failed = sum(r["status"] == "failed" for r in records.values())
     up = sum(r["status"] == "skipped" for r in records.values())
-    parts = [f"{len(specs)} to run"] + ([f"{up} up to date"] if up else []) + ([f"{failed} failed to read"] if failed else [])
+    parts = [f"{len(specs)} to run"] + ([f"{up} up to date"] if up else []) \
+        + ([f"{failed} failed to read"] if failed else [])
     print(f"facecap: batch of {n} take{'s' if n != 1 else ''}: {', '.join(parts)}", file=err, flush=True)
     for r in records.values():
         if r["status"] == "failed":

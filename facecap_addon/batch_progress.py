@@ -34,9 +34,11 @@ class Progress:
             self.bar.update(1)
             self.bar.set_postfix_str(f"{self.failed} failed" if self.failed else "", refresh=True)
             if failed:
-                self.bar.write(f"facecap: {record['status'].upper()} {record['take']}: {record['error']}", file=self.stream)
+                self.bar.write(f"facecap: {record['status'].upper()} {record['take']}: {record['error']}",
+                               file=self.stream)
             return
-        print(f"facecap: [{self.done}/{self.total}] {self.describe(record)}; {self.eta()}", file=self.stream, flush=True)
+        print(f"facecap: [{self.done}/{self.total}] {self.describe(record)}; {self.eta()}", file=self.stream,
+              flush=True)
 
     @staticmethod
     def describe(record):
@@ -51,7 +53,9 @@ class Progress:
         """Elapsed and the estimated time left (takes finish at the rate seen so far)."""
         elapsed = time.monotonic() - self.t0
         left = elapsed / self.done * (self.total - self.done) if self.done else float("nan")
-        return f"elapsed {_clock(elapsed)}, eta {_clock(left)}" if self.done < self.total else f"elapsed {_clock(elapsed)}"
+        if self.done >= self.total:
+            return f"elapsed {_clock(elapsed)}"
+        return f"elapsed {_clock(elapsed)}, eta {_clock(left)}"
 
     def close(self):
         if self.bar is not None:

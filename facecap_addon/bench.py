@@ -129,7 +129,8 @@ def bench_batch(takes=20, frames=720, jobs=2, repeat=3):
         tmp = Path(tmp)
         for i in range(takes):
             weights = performance_weights(basis.shape_names, frames, seed=100 + i)
-            write_markers_csv(tmp / f"take{i:02d}.csv", synthesize_take(basis, weights, stable=stable, seed=200 + i).markers)
+            take = synthesize_take(basis, weights, stable=stable, seed=200 + i)
+            write_markers_csv(tmp / f"take{i:02d}.csv", take.markers)
             (tmp / f"take{i:02d}.toml").write_text(
                 f'[target]\nblend = "{samples / "character.blend"}"\nobject = "Face"\n'
                 f'[source]\nmarkers = "take{i:02d}.csv"\nunits = "mm"\nfps = 60\n'
@@ -165,8 +166,9 @@ def bench_batch(takes=20, frames=720, jobs=2, repeat=3):
     return dict(
         name=f"batch --jobs {jobs}: {takes} takes x {frames} frames (process start to last saved .blend)",
         seconds=par, baseline_seconds=seq, ratio=seq / par, goal=">= 3x vs sequential retarget runs",
-        note=(f"median of {repeat} interleaved runs; sequential {seq:.1f} s, --jobs 1 {wall['jobs1']:.1f} s "
-              f"({seq / wall['jobs1']:.1f}x), --jobs {jobs} {par:.1f} s; CPU s (children) sequential {cpu['sequential']:.1f}, "
+        note=(f"{seq / par:.2f}x; median of {repeat} interleaved runs; sequential {seq:.1f} s, --jobs 1 {wall['jobs1']:.1f} s "
+              f"({seq / wall['jobs1']:.1f}x), --jobs {jobs} {par:.1f} s; "
+              f"CPU s (children) sequential {cpu['sequential']:.1f}, "
               f"--jobs 1 {cpu['jobs1']:.1f}, --jobs {jobs} {cpu[f'jobs{jobs}']:.1f}; "
               f"{len(os.sched_getaffinity(0))} cores, 1-min load {load[0]:.1f} before, {load[1]:.1f} after"),
     )

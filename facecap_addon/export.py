@@ -149,8 +149,9 @@ class _Copies:
     def bake_shapes(self, names, frames, values):
         """One action on the copied shape keys: the final weights (F, K) at ``frames``."""
         key = self.copies[self.obj].data.shape_keys
-        action = anim.new_action_with_curves(key, name=self.take_name, curves=[(layers.shape_path(n), 0) for n in names],
-                                             frames=frames, values=values, group="FaceCap Weights")
+        curves = [(layers.shape_path(n), 0) for n in names]
+        action = anim.new_action_with_curves(key, name=self.take_name, curves=curves, frames=frames, values=values,
+                                             group="FaceCap Weights")
         self.made.append(action)
 
     def write(self, path, fmt):
@@ -160,11 +161,12 @@ class _Copies:
                 if fmt == "GLTF":
                     _call(bpy.ops.export_scene.gltf, filepath=str(path), export_format="GLB", use_active_scene=True,
                           export_animations=True, export_morph=True, export_morph_animation=True,
-                          export_animation_mode="ACTIVE_ACTIONS", export_nla_strips_merged_animation_name=self.take_name,
+                          export_animation_mode="ACTIVE_ACTIONS",
+                          export_nla_strips_merged_animation_name=self.take_name,
                           export_force_sampling=True, export_optimize_animation_size=False, export_apply=False)
                 else:
-                    _call(bpy.ops.export_scene.fbx, filepath=str(path), use_selection=False, use_active_collection=False,
-                          bake_anim=True, bake_anim_use_all_actions=False, bake_anim_use_nla_strips=False,
+                    _call(bpy.ops.export_scene.fbx, filepath=str(path), use_selection=False,
+                          use_active_collection=False, bake_anim=True, bake_anim_use_all_actions=False, bake_anim_use_nla_strips=False,
                           bake_anim_step=1.0, bake_anim_simplify_factor=0.0, use_mesh_modifiers=False,
                           add_leaf_bones=False)
         finally:

@@ -99,8 +99,8 @@ def preflight(config, *, tune=False, replace=False):
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     if not tune and not take_outputs(config):
-        raise ConfigError("nothing would be written: give [output] blend, weights, report, gltf or fbx", path=config.path,
-                          key="output")
+        raise ConfigError("nothing would be written: give [output] blend, weights, report, gltf or fbx",
+                          path=config.path, key="output")
     check_outputs(config, library=versions_folder(config) if tune else None)
     for path in take_outputs(config).values():
         remove_stale_temporaries(path.parent)

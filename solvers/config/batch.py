@@ -250,7 +250,8 @@ class InputDigests:
 
     def of_config(self, config):
         """{config key: digest} of every input of a parsed take config (``take_inputs``)."""
-        return {key: self.of_path(path) for key, path in sorted(take_inputs(config).items()) if key != "the config itself"}
+        inputs = sorted(take_inputs(config).items())
+        return {key: self.of_path(path) for key, path in inputs if key != "the config itself"}
 
     def of_path(self, path):
         path = Path(os.path.expanduser(str(path)))

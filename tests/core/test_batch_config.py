@@ -57,7 +57,8 @@ report = "out/{{take}}/report.json"
 def shoot(tmp_path):
     write(tmp_path / "batch.toml", BATCH)
     write(tmp_path / "takes" / "take01.toml", take_text())
-    write(tmp_path / "takes" / "take02.toml", take_text(extra="[solve]\nregularisation = 0.01\n[neutral]\nframes = [5, 20]\n"))
+    own = "[solve]\nregularisation = 0.01\n[neutral]\nframes = [5, 20]\n"
+    write(tmp_path / "takes" / "take02.toml", take_text(extra=own))
     return tmp_path
 
 

@@ -48,7 +48,8 @@ def test_a_shoot_with_broken_takes_runs_the_good_ones_and_names_the_broken(ran):
         assert t["warnings"] == len(t["warning_messages"]) > 0 and t["seconds"]["total"] > 0
     assert takes["take_missing"]["status"] == "failed"
     assert takes["take_missing"]["error"].endswith("captures/not_there.csv: file not found")
-    assert takes["take_badvalue"]["error"].endswith("[solve.regularisation] expected a number >= 0 and <= 100; got -1.0")
+    assert takes["take_badvalue"]["error"].endswith(
+        "[solve.regularisation] expected a number >= 0 and <= 100; got -1.0")
     assert not (folder / "out" / "take_missing.csv").exists()
     # both workers ran takes; the table and the plain progress lines name the failures
     assert len({t["worker"] for t in takes.values() if t["status"] == "ok"}) == 2
@@ -175,7 +176,8 @@ def test_ctrl_c_keeps_finished_takes_and_leaves_nothing_half_written(tmp_path):
     assert "batch cancelled" in text and "Traceback" not in text
     data, takes = summary(tmp_path / "facecap-batch.json")
     assert data["status"] == "cancelled"
-    assert takes["take_long"]["status"] == "cancelled" and "not finished were not written" in takes["take_long"]["error"]
+    assert takes["take_long"]["status"] == "cancelled"
+    assert "not finished were not written" in takes["take_long"]["error"]
     done = [n for n, t in takes.items() if t["status"] == "ok"]
     assert done and all((tmp_path / "out" / f"{n}.blend").is_file() for n in done)
     assert {t["status"] for t in takes.values()} <= {"ok", "cancelled"}
