@@ -52,6 +52,8 @@ def run_batch(args, *, out=None, err=None):
     """Run the batch ``args`` (``takes``, ``jobs``, ``scheduler``, ``summary``, ``resume``, ``replace``);
     returns the exit status: 0 all ok (or up to date), 1 any failed, 130 cancelled."""
     out, err = out or sys.stdout, err or sys.stderr
+    if args.jobs is not None and args.jobs < 1:
+        raise FacecapError(f"--jobs must be at least 1; got {args.jobs}")
     takes = collect_takes(args.takes)
     if not takes:
         raise ConfigError("no take configs found in " + ", ".join(map(str, args.takes)))

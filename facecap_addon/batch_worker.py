@@ -16,6 +16,7 @@ what both the local pool and a Dask farm (``batch_farm``) call.
 import collections
 import copy
 import os
+import socket
 import sys
 import time
 import traceback
@@ -40,6 +41,9 @@ class CharacterCache:
         self.size = size
         self._items = collections.OrderedDict()
         self.hits = self.misses = 0
+
+    def __len__(self):
+        return len(self._items)
 
     def get(self, blend, object_name, marker_names, sample):
         """The character of ``object_name`` in ``blend`` bound to ``marker_names`` (None: not bound);
@@ -76,7 +80,7 @@ def run_one(spec, characters=None):
             warnings.append(message[len("warning: "):])
 
     t0 = time.perf_counter()
-    record.update(status="running", started=iso_time(time.time()), worker=f"{os.uname().nodename} pid {os.getpid()}")
+    record.update(status="running", started=iso_time(time.time()), worker=f"{socket.gethostname()} pid {os.getpid()}")
     try:
         config = load_take_config(spec["config"], data=spec["data"])
         result, outputs = run_take(config, replace=spec.get("replace", False), say=say, characters=characters)
