@@ -79,8 +79,8 @@ def farm_take(spec, cancel=None):
 
     where = get_worker().address
     event = None if cancel is None else Event(cancel)
-    if event is not None and event.is_set():
-        return cancelled(spec, where)
+    if event is not None and event.is_set():  # the batch was cancelled before this take began
+        return dict(cancelled(spec, where), error="not started: the batch was cancelled")
     w = _checkout()
     w.assign(spec)
     try:
