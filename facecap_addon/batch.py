@@ -60,23 +60,14 @@ def run_batch(args, *, out=None, err=None):
     summary_path = Path(os.path.expanduser(args.summary or DEFAULT_SUMMARY)).resolve()
     records, planned = plan(takes, open_blend=_open_blend())
     check_summary_path(summary_path, planned)
-    previous = read_previous(summary_path) if args.resume else {}
-    specs = []
-    for p in planned:
-        prev = previous.get(str(p.take.path))
-        if prev is not None and up_to_date(prev, p):
-            records[str(p.take.path)] = skipped(prev, p.record)
-        else:
-            specs.append({"config": str(p.take.path), "data": p.take.data, "replace": bool(args.replace),
-                          "record": p.record, "length": _length(p.config)})
-    specs.sort(key=lambda s: -s["length"])  # the longest first: the last take to finish is a short one
+    specs = to_run(planned, records, read_previous(summary_path) if args.resume else {}, replace=args.replace)
     jobs = args.jobs or default_jobs()
     header = {"command": ["facecap", "batch", *map(str, getattr(args, "argv", []))], "cwd": os.getcwd(),
               "jobs": None if args.scheduler else jobs, "scheduler": args.scheduler, "resume": bool(args.resume)}
     summary = Summary(summary_path, header, records)
     summary.write()
-    progress = Progress(len(specs), err)
     _say_plan(err, records, specs)
+    progress = Progress(len(specs), err)
     finished = True
     if specs:
         logs = summary_path.parent / f"{summary_path.stem}-logs"
@@ -87,6 +78,27 @@ def run_batch(args, *, out=None, err=None):
         else:
             finished = LocalPool(min(jobs, len(specs)), logs).run(specs, events)
     progress.close()
+    return _finish(summary, finished, out, err)
+
+
+def to_run(planned, records, previous, *, replace=False):
+    """The specs of the takes to run, longest first; the up-to-date ones (``previous``: the earlier
+    summary's records, ``--resume``) are recorded as skipped in ``records`` instead."""
+    specs = []
+    for p in planned:
+        prev = previous.get(str(p.take.path))
+        if prev is not None and up_to_date(prev, p):
+            records[str(p.take.path)] = skipped(prev, p.record)
+        else:
+            specs.append({"config": str(p.take.path), "data": p.take.data, "replace": bool(replace),
+                          "record": p.record, "length": _length(p.config)})
+    specs.sort(key=lambda s: -s["length"])  # the longest first: the last take to finish is a short one
+    return specs
+
+
+def _finish(summary, finished, out, err):
+    """The last summary, the table; the exit status."""
+    records = summary.records
     if not finished:
         summary.cancelled = True
         for record in records.values():
