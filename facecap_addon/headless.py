@@ -41,23 +41,25 @@ def progress_line(message):
     print(f"facecap: {message}", file=sys.stderr, flush=True)
 
 
-def run_take(config, *, quiet=False, tune=False, replace=False):
+def run_take(config, *, quiet=False, tune=False, replace=False, say=None, characters=None):
     """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
 
     ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
     are retuned from and the new library version stored (``[tuning] out``). An existing output
     .blend is added to (everything in it kept, the new solve the active layer) unless ``replace``:
     then the run starts from ``[target] blend``. Nothing is read or solved before every output path
-    is checked (``preflight``).
+    is checked (``preflight``). ``say``: where progress and warning lines go (default: stderr unless
+    ``quiet``); ``characters``: a cache of sampled characters kept across takes (a batch worker's
+    ``CharacterCache``).
     """
-    say = (lambda _m: None) if quiet else progress_line
+    say = say or ((lambda _m: None) if quiet else progress_line)
     t0 = time.perf_counter()
     timings = {}
     base = preflight(config, tune=tune, replace=replace)
     take, obj, timings["read"], t_open = _read_and_open(config, say, base)
     check_against_take(config, take.markers, take.inputs)
     t1 = time.perf_counter()
-    request, source_info = _request(config, obj, take, tune=tune)
+    request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
     timings["load_character"] = time.perf_counter() - t1 + t_open
     say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
         f"(strategy: {request.settings.strategy})")
@@ -97,8 +99,8 @@ def preflight(config, *, tune=False, replace=False):
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     if not tune and not take_outputs(config):
-        raise ConfigError("nothing would be written: give [output] blend, weights or report", path=config.path,
-                          key="output")
+        raise ConfigError("nothing would be written: give [output] blend, weights, report, gltf or fbx",
+                          path=config.path, key="output")
     check_outputs(config, library=versions_folder(config) if tune else None)
     for path in take_outputs(config).values():
         remove_stale_temporaries(path.parent)
@@ -219,14 +221,19 @@ def open_target(config, say, base=None):
     return obj
 
 
-def _request(config, obj, take, *, tune):
+def _request(config, obj, take, *, tune, characters=None, base=None):
     """The SolveRequest of a take config, and the report's source fields."""
     from .take import character_target  # loads bpy
 
     settings = config.settings
     # Only geometric samples the character at bound vertices; the others need its shape names and ranges.
-    character = basis_from_object(obj, take.markers.names) if settings.strategy == "geometric" else \
-        character_target(obj)
+    names = take.markers.names if settings.strategy == "geometric" else None
+
+    def sample():
+        return character_target(obj) if names is None else basis_from_object(obj, names)
+
+    character = sample() if characters is None or base is None else \
+        characters.get(base.path, config.target_object, names, sample)
     if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
         import bpy  # bpy: Blender starts on first import
 
@@ -351,6 +358,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         say("[5/5] writing outputs")
         if config.output_blend is not None:
             _save_blend_atomic(config.output_blend)
+        _export(config, obj, fps)
         return action
 
     def write_weights():
@@ -370,6 +378,9 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         outputs["weights"] = str(config.output_weights)
     if config.output_blend is not None:
         outputs["blend"] = str(config.output_blend)
+    for key in ("gltf", "fbx"):
+        if getattr(config, f"output_{key}") is not None:
+            outputs[key] = str(getattr(config, f"output_{key}"))
     timings["total"] = time.perf_counter() - t0
     if config.output_report is not None:
         report = result.report()
@@ -383,6 +394,15 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     for note in list(notes) + list(result.warnings):
         say(f"warning: {note}")
     return outputs
+
+
+def _export(config, obj, fps):
+    """[output] gltf / fbx: the character and the keyed take through Blender's exporters."""
+    from .export import export_take  # loads bpy
+
+    for path in (config.output_gltf, config.output_fbx):
+        if path is not None:
+            export_take(obj, path, head_target=config.settings.head_target, fps=fps, take_name=config.action_name)
 
 
 def _save_blend_atomic(path):

@@ -244,6 +244,12 @@ OPTIONS = (
     O("output", "weights", "path", doc="Weights CSV frame,<shape>,...", headless=OUTPUT_FILE),
     O("output", "report", "path", doc="JSON report (accuracy, warnings, timings)", headless=OUTPUT_FILE),
     O("output", "actor_basis", "path", doc="The actor library used (refine: refined), as .npz", headless=OUTPUT_FILE),
+    O("output", "gltf", "path",
+      doc="Binary glTF (.glb) for game engines: the character with its shape keys as morph targets and the "
+          "take's animation (solve and animator layers baked into one action, plus the head motion when keyed)",
+      ui="op:facecap.export_take.filepath"),
+    O("output", "fbx", "path", doc="FBX (.fbx) of the same: the character, its shape keys and the baked take",
+      ui="op:facecap.export_take.filepath"),
     O("output", "action", "str", doc="Name of the new action (default: the take file's name)", ui="facecap.take_name"),
     O("output", "head", "str", doc="Key the removed head motion on \"Object\" or \"Armature:bone\"",
       ui="facecap.head_target, facecap.head_bone"),
