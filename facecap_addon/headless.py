@@ -28,6 +28,7 @@ from ..solvers.tuning.store import load_version, read_corrections_csv, save_vers
 from ..solvers.video.cli import _Progress, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
+from .review import read_review_truth, write_take_review
 from .scene_data import basis_from_object
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -41,19 +42,21 @@ def progress_line(message):
     print(f"facecap: {message}", file=sys.stderr, flush=True)
 
 
-def run_take(config, *, quiet=False, tune=False, replace=False):
+def run_take(config, *, quiet=False, tune=False, replace=False, review=None):
     """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
 
     ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
     are retuned from and the new library version stored (``[tuning] out``). An existing output
     .blend is added to (everything in it kept, the new solve the active layer) unless ``replace``:
     then the run starts from ``[target] blend``. Nothing is read or solved before every output path
-    is checked (``preflight``).
+    is checked (``preflight``). ``[output] html`` writes the review page last (``review``: its
+    ``facecap_addon.review.ReviewOptions``; ``config.truth_path`` the known weights it overlays).
     """
     say = (lambda _m: None) if quiet else progress_line
     t0 = time.perf_counter()
     timings = {}
     base = preflight(config, tune=tune, replace=replace)
+    truth = read_review_truth(config)  # a bad --truth file fails before the solve
     take, obj, timings["read"], t_open = _read_and_open(config, say, base)
     check_against_take(config, take.markers, take.inputs)
     t1 = time.perf_counter()
@@ -76,6 +79,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False):
         extra["output_blend"] = base.report()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
                             report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=take.fps())
+    if config.output_html is not None:
+        outputs["html"] = str(write_take_review(config, obj, request.settings, result, notes=take.notes,
+                                                timings=timings, truth=truth, options=review, say=say))
     return result, outputs
 
 
@@ -97,7 +103,7 @@ def preflight(config, *, tune=False, replace=False):
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     if not tune and not take_outputs(config):
-        raise ConfigError("nothing would be written: give [output] blend, weights or report", path=config.path,
+        raise ConfigError("nothing would be written: give [output] blend, weights, report or html", path=config.path,
                           key="output")
     check_outputs(config, library=versions_folder(config) if tune else None)
     for path in take_outputs(config).values():

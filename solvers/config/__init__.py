@@ -68,6 +68,8 @@ class TakeConfig:
     controls: dict = None  # [controls]: {shape or glob: ShapeControl}
     video: object = None  # [source] video + [tracking] / [flow]: VideoTake (solvers.video.flow_config)
     controls_preset: Path | None = None  # [controls] preset
+    output_html: Path | None = None  # [output] html: the review page (solvers.tools.report)
+    truth_path: Path | None = None  # retarget --truth: known weights the review page overlays (no config key)
 
 
 def load_take_config(path):
@@ -165,6 +167,7 @@ def load_take_config(path):
         examples_markers_path=resolve(get("examples", "markers")),
         training_path=resolve(get("refine", "training")),
         output_actor_basis=resolve(get("output", "actor_basis")),
+        output_html=resolve(get("output", "html")),
         projection=projection,
         camera_name=camera_name,
         tuning=parse_tuning(path, free.get("tuning"), base),
