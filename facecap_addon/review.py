@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..solvers.errors import ConfigError, FacecapError
+from ..solvers.solve import solve
 from ..solvers.tools.report import (
     ContactSheet,
     Review,
@@ -341,3 +342,27 @@ def review_flags(config, html=None, truth=None):
             raise ConfigError("--truth is shown on the review page: give --html or [output] html", path=config.path)
         config = dataclasses.replace(config, truth_path=Path(truth).expanduser().resolve())
     return config
+
+
+def export_scene_review(settings, scene, path, *, truth=None, render=True):
+    """*Export Review Report*: solve the sidebar's take (the request *Solve and Key* makes, nothing keyed)
+    and write its review page to ``path``. Returns {"path", "bytes", "seconds", "note"}."""
+    import bpy  # bpy: Blender starts on first import
+
+    from .scene_solve import request_from_scene  # loads bpy
+
+    path = Path(bpy.path.abspath(str(path)))
+    truth_data = None
+    if truth:
+        truth_file = Path(bpy.path.abspath(str(truth)))
+        if truth_file.resolve() == path.resolve():
+            raise ConfigError(f"the review page {path} would overwrite the truth weights it shows")
+        truth_data = read_truth(truth_file)
+    request = request_from_scene(settings, scene)
+    result = solve(request)
+    blend = Path(bpy.data.filepath).name or "unsaved .blend"
+    review = build_review(settings.target, result, request.settings, take=settings.take_name or "take",
+                          character=f"{blend}: {settings.target.name}", source=bpy.path.abspath(settings.markers_path),
+                          fps=settings.fps, truth=truth_data, render=render)
+    written = write_review_page(path, review)
+    return {**written, "note": "" if review.sheet is not None else review.sheet_note}
