@@ -8,6 +8,7 @@ machine without OpenGL (EGL) makes Blender abort, which then costs the contact s
 """
 
 import dataclasses
+import faulthandler
 import multiprocessing as mp
 import os
 import sys
@@ -35,8 +36,12 @@ from .scene_data import basis_from_object, vertex_group_bindings
 TILE_HEIGHT, ASPECT = 280, 0.8
 #: The view: the bound points' extent times this (room for the forehead, chin and ears).
 MARGIN = 1.5
-#: Seconds a forked render may take in all (then it is stopped and the page has no contact sheet).
-RENDER_TIMEOUT = 300.0
+#: Seconds a forked render may take in all (then it is stopped and the page has no contact sheet);
+#: the sample's nine tiles take 2-4 s with software OpenGL.
+RENDER_TIMEOUT = 120.0
+#: Whether this process has rendered (has an OpenGL context): a child forked from it could not render
+#: (its copy of the context is unusable and hangs), so it renders here.
+_state = {"rendered_here": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,6 +114,7 @@ class _Stage:
         scene.display.render_aa = "5"  # 5 samples: 40 % faster than 8, edges as smooth at this size
         self.world = np.array(obj.matrix_world, dtype=np.float64)
         self.front, self.points = front, np.asarray(points, dtype=np.float64)
+        self.images = set(bpy.data.images)  # rendering adds "Render Result" if it is not there yet
 
     def frame(self, cam):
         """Point ``cam`` at the bound points from the face's front, framing them with a margin."""
@@ -178,6 +184,8 @@ class _Stage:
             bpy.data.batch_remove([left])
         bpy.data.scenes.remove(self.scene)
         bpy.data.worlds.remove(self.world_data)
+        for image in set(bpy.data.images) - self.images:
+            bpy.data.images.remove(image)
 
 
 def _front(obj, names, world):
@@ -199,6 +207,7 @@ def render_sheet(obj, result, geometry, picks, *, height=TILE_HEIGHT):
     (MarkerGeometry), the markers projected into the same view and a tile of the binding on the neutral.
     Returns ContactSheet."""
     t0 = time.perf_counter()
+    _state["rendered_here"] = True  # in a forked child this marks the child only
     world = np.array(obj.matrix_world, dtype=np.float64)
     if geometry is not None:
         points, names = geometry.bound, geometry.names
@@ -235,10 +244,11 @@ def _tile(stage, cam, result, geometry, row, kind, label):
 
 def render_guarded(work, *, timeout=RENDER_TIMEOUT):
     """``(work(), "")``, or ``(None, why)`` when rendering failed. Headless on Linux ``work`` runs in a
-    forked child with its output silenced, so an abort (no OpenGL) cannot end the run."""
+    forked child with its output silenced, so an abort (no OpenGL) cannot end the run; in a Blender
+    with a window, or a process that has rendered before, it runs here."""
     import bpy  # bpy: Blender starts on first import
 
-    if not (bpy.app.background and sys.platform.startswith("linux")):
+    if not (bpy.app.background and sys.platform.startswith("linux")) or _state["rendered_here"]:
         try:
             return work(), ""
         except RuntimeError as exc:  # Blender's render errors
@@ -248,6 +258,7 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
 
     def child():
         _quiet()
+        faulthandler.disable()  # an abort here is expected to be reported by the parent, not dumped
         try:
             send.send(("ok", work()))
         except BaseException as exc:
