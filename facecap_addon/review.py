@@ -326,7 +326,9 @@ def write_take_review(config, obj, settings, result, *, notes=(), timings=None, 
                           render=options.render)
     if review.sheet is None and review.sheet_note and options.render:
         say(f"warning: review page without a contact sheet: {review.sheet_note}")
-    write_review_page(config.output_html, review, plotly_js=options.plotly_js)
+    written = write_review_page(config.output_html, review, plotly_js=options.plotly_js)
+    renders = f"renders {review.sheet.seconds:.1f} s, " if review.sheet is not None else ""
+    say(f"review page: {written['bytes'] / 1e6:.1f} MB ({renders}page {written['seconds']:.1f} s)")
     return config.output_html
 
 

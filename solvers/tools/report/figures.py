@@ -36,7 +36,8 @@ def _layout(height, yaxis, **extra):
     return {**BASE_LAYOUT, "height": height, "xaxis": dict(AXIS), "yaxis": yaxis, **extra}
 
 
-def _line(name, y, *, x="frames", colour_=None, dash=None, width=1.5, visible=True, group=None, hover=".3f"):
+def _line(name, y, *, x="frames", colour_=None, dash=None, width=1.5, visible=True, group=None, hover=".3f",
+          rank=None, legend=True):
     line = {"width": width}
     if colour_:
         line["color"] = colour_
@@ -48,6 +49,10 @@ def _line(name, y, *, x="frames", colour_=None, dash=None, width=1.5, visible=Tr
         trace["visible"] = visible
     if group:
         trace["legendgroup"] = group
+    if rank is not None:  # the shapes shown first come first in the legend
+        trace["legendrank"] = rank
+    if not legend:
+        trace["showlegend"] = False
     return {"trace": trace, "x": x, "y": y}
 
 
@@ -77,18 +82,21 @@ def _weights(review, blob):
     blob.add("weights", np.asarray(result.weights, dtype=np.float64).T, 1e-3)
     shown = shown_shapes(np.asarray(result.weights, dtype=np.float64))
     traces = [{**_line(name, ["weights", k], colour_=colour(k), visible=True if k in shown else "legendonly",
-                       group=name), "shown": k in shown} for k, name in enumerate(result.shape_names)]
+                       group=name, rank=k if k in shown else 1000 + k), "shown": k in shown}
+              for k, name in enumerate(result.shape_names)]
     truth = review.truth_values
     if truth is not None:
         have = np.isfinite(truth).any(axis=0)
         blob.add("truth", truth.T, 1e-3)
+        # no legend entry of their own: a shape's entry shows and hides its truth too (one legend group)
         traces += [{**_line(f"{name} (truth)", ["truth", k], colour_=colour(k), dash="dot", width=1.2,
-                            visible=True if k in shown else "legendonly", group=name), "shown": k in shown}
-                   for k, name in enumerate(result.shape_names) if have[k]]
+                            visible=True if k in shown else "legendonly", group=name, legend=False),
+                    "shown": k in shown} for k, name in enumerate(result.shape_names) if have[k]]
     layout = _layout(460, {"title": {"text": "weight"}, "zeroline": False},
                      legend={"font": {"size": 11}, "itemclick": "toggle", "itemdoubleclick": "toggleothers"})
     layout["xaxis"]["rangeslider"] = {"visible": True, "thickness": 0.07}
-    return {"id": "weights", "title": "Weights", "time": True, "layout": layout, "traces": traces}
+    layout["margin"] = {**layout["margin"], "t": 34}  # the mode bar above the legend, not over it
+    return {"id": "weights", "title": "", "time": True, "layout": layout, "traces": traces}
 
 
 def worst_rows(residual, count=WORST_MARKED, spacing=1):

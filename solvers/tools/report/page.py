@@ -101,8 +101,8 @@ def build_page(review, *, path="review.html", plotly_js="embed"):
     by_id = {f["id"]: f for f in figures}
 
     def plots(*ids):
-        return "".join(f'<h3>{esc(by_id[i]["title"])}</h3><div class="plot" id="plot-{i}"></div>'
-                       for i in ids if i in by_id)
+        return "".join((f'<h3>{esc(by_id[i]["title"])}</h3>' if by_id[i]["title"] else "")
+                       + f'<div class="plot" id="plot-{i}"></div>' for i in ids if i in by_id)
 
     css = (ASSETS / "review.css").read_text(encoding="utf-8")
     js = (ASSETS / "review.js").read_text(encoding="utf-8")

@@ -5,6 +5,7 @@ the contact sheet and the binding. Plots are placeholders (``<div id="plot-...">
 import base64
 import dataclasses
 from html import escape
+from pathlib import Path
 
 import numpy as np
 
@@ -90,7 +91,8 @@ def summary_rows(review):
     """The header's key figures."""
     r = review.result
     frames = r.frames
-    rows = [("take", review.take), ("source", review.source or "-"), ("character", review.character or "-")]
+    source = Path(review.source).name if review.source else "-"  # the full paths are in the JSON report
+    rows = [("take", review.take), ("source", source), ("character", review.character or "-")]
     span = f"{frames.size} ({frames[0]:g} to {frames[-1]:g})"
     if review.fps:
         span += f", {frames.size / review.fps:.1f} s at {review.fps:g} fps"
@@ -108,7 +110,8 @@ def summary_rows(review):
     unsolved = int((~np.isfinite(r.weights).all(axis=1)).sum()) if r.weights.size else 0
     if unsolved:
         rows.append(("unsolved frames", f"{unsolved}"))
-    rows.append(("weights at a bound", f"{float(np.mean(r.at_bound)):.2f} per frame on average"))
+    rows.append(("weights at a limit", f"{float(np.mean(r.at_bound)):.1f} of {len(r.shape_names)} shapes per frame on "
+                 "average (at a slider's end, mostly 0: off)"))
     if review.truth is not None:
         rows.append(("against the truth", truth_text(review)))
     return rows
@@ -125,7 +128,7 @@ def truth_text(review):
     k = int(np.argmax(worst))
     common = int(np.isfinite(truth).any(axis=0).sum())
     return (f"weights RMSE {rmse:.4f}, worst |error| {worst[k]:.3f} ({r.shape_names[k]}) over {common} shapes "
-            f"({review.truth.source})")
+            f"({Path(review.truth.source).name})")
 
 
 def timing_rows(review):
