@@ -213,7 +213,6 @@ def render_sheet(obj, result, geometry, picks, *, height=TILE_HEIGHT):
         points, names = geometry.bound, geometry.names
     else:  # no markers on the character: frame the whole mesh
         points, names = np.array([tuple(c) for c in obj.bound_box], dtype=np.float64), ()
-    rows = np.array([row for row, _, _ in picks], dtype=int)
     with tempfile.TemporaryDirectory(prefix="facecap-review-") as tmp:
         stage = _Stage(obj, points, _front(obj, names, world), tmp, height)
         try:

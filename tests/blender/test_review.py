@@ -114,6 +114,17 @@ def test_tiles_show_the_solved_pose_with_the_markers_on_the_face(solved, tmp_pat
     assert np.nanmedian(gap) < 3.0
 
 
+def test_without_bound_markers_the_whole_face_is_rendered_alone(solved, tmp_path):
+    result, _ = solved
+    picks = pick_frames(result, worst=0, peaks=2)
+    sheet = rv.render_sheet(bpy.data.objects["Face"], result, None, picks)
+    assert sheet.binding is None and sheet.marker_names == () and len(sheet.tiles) == 2
+    for tile in sheet.tiles:
+        assert tile.captured is None and tile.kind == "peak"
+        px = _pixels(tile.png, tmp_path)
+        assert 0.1 < float((px.min(axis=2) < WHITE).mean()) < 0.8
+
+
 def test_export_review_report_from_the_sidebar(tmp_path):
     bpy.ops.wm.open_mainfile(filepath=str(SAMPLES / "character.blend"))
     assert bpy.ops.facecap.import_markers(filepath=str(SAMPLES / "sample_take.csv"), units="mm", fps=60.0) == {"FINISHED"}

@@ -240,3 +240,25 @@ def test_page_text_cannot_end_its_scripts_early(solved):
     html, _ = build_page(Review(result=result, take="</script>"))
     assert html.count("<script") == html.count("</script>")
     assert "&lt;/script&gt;" in html
+
+
+def test_a_2d_tracks_page_plots_the_in_plane_head_motion():
+    from review_takes import sample_basis, stable_markers
+    from test_pipeline_2d import tracks_2d
+
+    from facecap.solvers import RetargetSettings, retarget
+    from facecap.solvers.tools.synth import performance_weights
+
+    basis = sample_basis()
+    truth = performance_weights(basis.shape_names, 240, seed=0)
+    result = retarget(tracks_2d(basis, truth, stable_markers()), basis, RetargetSettings(stable_markers(), (1, 50)))
+    head = head_motion(result.stabilise)
+    assert head["units"] == "px" and head["rotation"].shape == (240, 1) and head["translation"].shape == (240, 2)
+    assert 4.0 < np.nanmax(np.abs(head["rotation"])) < 9.0  # the synthetic roll: up to 8 degrees
+    geometry, why = marker_geometry(result, basis, RetargetSettings(stable_markers(), (1, 50)))
+    assert geometry is None and "2D" in why
+    html, figures = build_page(Review(result=result, take="2d"))
+    counts = {f["id"]: len(f["traces"]) for f in figures}
+    assert counts["head_rotation"] == 1 and counts["head_translation"] == 2
+    for figure in figures:
+        _validate(figure)
