@@ -176,12 +176,15 @@
       fail("This browser cannot unpack the page's data (DecompressionStream: Chrome 80, Firefox 113, Safari 16.4 or later).");
       return;
     }
+    const t0 = performance.now();
     const arrays = await unpack(document.getElementById("facecap-blob").textContent, meta.arrays);
+    const t1 = performance.now();
     const timePlots = [];
     for (const fig of meta.figures) {
       const el = await draw(fig, arrays);
       if (fig.time) timePlots.push(el);
     }
+    window.facecapTimings = { unpack_ms: t1 - t0, draw_ms: performance.now() - t1, since_start_ms: performance.now() };
     linkTime(timePlots);
     wireButtons(meta, timePlots);
   }
