@@ -8,7 +8,8 @@ retarget --config take.toml   solve a take onto its character with its [solve] s
                               --html PATH [--truth CSV]: the review page (docs/review.md)
 compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
-inspect FILE [options]        describe a capture file; non-zero exit with a one-line reason if it is bad
+inspect FILE [options]        describe a capture file (--json: as JSON); non-zero exit with a one-line reason if it is bad
+convert IN OUT [options]      a capture file in another format (.csv .c3d .trc .json; weights to a weights CSV)
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
@@ -19,6 +20,8 @@ Every expected failure (bad config, missing or malformed file) exits with status
 stderr naming the file and field; there is no traceback for those.
 """
 
+import importlib
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -27,8 +30,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _script_package():
     """The package this file belongs to, when run as a script (``blender -b -P .../cli.py``)."""
-    import importlib.util
-
     for name, module in list(sys.modules.items()):
         if name.startswith("bl_ext.") and name.endswith(".facecap") and Path(module.__file__).parent == ROOT:
             return module
@@ -42,8 +43,6 @@ def _script_package():
 if __name__ == "__main__" and not __package__:
     # Run as a script: import the package, then its own copy of this module (relative imports need it).
     # Blender passes its own arguments; ours follow "--".
-    import importlib
-
     argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
     cli = importlib.import_module(_script_package().__name__ + ".facecap_addon.cli")
     sys.exit(cli.main(argv))
@@ -60,6 +59,7 @@ from ..solvers.config import load_take_config  # noqa: E402
 from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
@@ -130,6 +130,10 @@ def _cmd_docs_images(args):
     return 0
 
 
+def _cmd_convert(args):
+    return convert_main(args.rest)
+
+
 def _cmd_bench(args):
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
@@ -161,6 +165,10 @@ def build_parser():
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_inspect)
+    p = sub.add_parser("convert", help="convert a capture to CSV, C3D, TRC or JSON (weights: to a weights CSV)",
+                       add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_convert)
     p = sub.add_parser("compare", help="accuracy and time of every strategy on the same synthetic takes (Markdown)",
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -194,7 +202,7 @@ def main(argv=None):
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:
-        if args.command not in ("compare", "track", "inspect", "config-docs"):  # these forward their options
+        if args.command not in FORWARDING:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         args.rest = extra + list(args.rest)
     if args.command in BATCH_COMMANDS:
@@ -220,6 +228,9 @@ def main(argv=None):
 def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
+
+#: Commands that pass their own options on to their tool
+FORWARDING = ("compare", "track", "inspect", "convert", "config-docs")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
 BATCH_COMMANDS = ("retarget", "tune", "demo")

@@ -15,6 +15,11 @@ format          extensions         notes
 Common options: ``units`` ("m", "cm", "mm", "bu" with ``unit_scale``, "px"; None = from the file
 or guessed), ``fps`` (None = from the file), ``unit_scale`` (metres per unit), ``up_axis``
 ("Z" or "Y"). CSV readers also take ``delimiter`` and ``decimal``.
+
+Readers describe what they found or decided in notes: lines starting ``warning:`` (the data were
+changed or are suspect: repeated labels renamed, a truncated file) are also raised as warnings by
+:func:`read_markers`; ``hint:`` lines suggest a setting (``up_axis``). :func:`capture_kind` tells
+a solved-weights CSV (:func:`read_weights`) from a marker file. See docs/capture-data.md.
 """
 
 import warnings
@@ -23,9 +28,13 @@ from pathlib import Path
 
 from ..errors import FacecapError, InputFileError
 from ..markers import MarkerSet
-from .c3d import read_c3d, write_c3d
-from .csv import is_long_header, read_long_csv, read_wide_csv, sniff, write_markers_csv
+from .c3d import read_c3d
+from .c3d_write import write_c3d
+from .csv import read_wide_csv, sniff, time_column
+from .csv_long import is_long_header, read_long_csv
+from .csv_write import write_markers_csv
 from .json import read_json, write_json
+from .timing import FPS_ASSUMED, UNITS_GUESSED
 from .trc import read_trc, write_trc
 from .weights import WeightTrack, read_weights
 
@@ -38,17 +47,22 @@ _OPTIONS = {
     "csv": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
     "csv-long": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
 }
-#: Notes that mean the data were changed, not just described: also raised as warnings.
-_CHANGED = ("resampled",)
+#: Notes that mean the data were changed or are suspect, not just described: also raised as warnings.
+_CHANGED = ("resampled", "warning:")
 
 
 @dataclass(frozen=True, eq=False)
 class ImportResult:
-    """A MarkerSet and what the reader found or did (``notes``), and the detected ``format``."""
+    """A MarkerSet and what the reader found or did (``notes``), and the detected ``format``.
+
+    ``decided`` says where the units and the frame rate came from: ``{"units": "given" | "file" |
+    "guessed" | "2D (pixels)", "fps": "given" | "file" | "timestamps" | "assumed"}``.
+    """
 
     markers: MarkerSet
     format: str
     notes: tuple = field(default_factory=tuple)
+    decided: dict = field(default_factory=dict)
 
 
 def detect_format(path):
@@ -98,7 +112,35 @@ def import_markers(path, *, format=None, units=None, fps=None, **options):
     reader = {"c3d": read_c3d, "trc": read_trc, "json": read_json, "csv": read_wide_csv,
               "csv-long": read_long_csv}[fmt]
     markers = reader(path, units=units, fps=fps, notes=notes, **options)
-    return ImportResult(markers=markers, format=fmt, notes=tuple(notes))
+    return ImportResult(markers=markers, format=fmt, notes=tuple(notes), decided=_decided(notes, units, fps))
+
+
+def _decided(notes, units, fps):
+    """Where units and frame rate came from, from what was given and the readers' notes."""
+    def said(text):
+        return any(n.startswith(text) for n in notes)
+
+    unit_from = ("given" if units is not None else "guessed" if said(UNITS_GUESSED)
+                 else "2D (pixels)" if said("2D data: units taken as pixels") else "file")
+    fps_from = ("given" if fps is not None else "assumed" if said(FPS_ASSUMED)
+                else "timestamps" if any("timestamps" in n for n in notes) else "file")
+    return {"units": unit_from, "fps": fps_from}
+
+
+def capture_kind(path):
+    """"weights" for a solved-weights CSV (Live Link Face, MediaPipe, ``frame,<shape>,...``),
+    otherwise "markers" (including files that cannot be read: the marker readers say why)."""
+    if detect_format(path) != "csv":
+        return "markers"
+    try:
+        header = [h.lower() for h in sniff(path).header]
+    except FacecapError:
+        return "markers"
+    if {"timecode", "blendshapecount", "_neutral"} & set(header):
+        return "weights"
+    key, _ = time_column(header)
+    coords = [h for h in header if h.rpartition("_")[2] in ("x", "y", "z") and h.rpartition("_")[0]]
+    return "weights" if key is not None and len(header) > 1 and not coords else "markers"
 
 
 def read_markers(path, *, units=None, fps=None, **options):
@@ -122,5 +164,5 @@ def write_markers(path, markers):
     writers[fmt](path, markers)
 
 
-__all__ = ["EXTENSIONS", "FORMATS", "ImportResult", "WeightTrack", "detect_format", "import_markers",
+__all__ = ["EXTENSIONS", "FORMATS", "ImportResult", "WeightTrack", "capture_kind", "detect_format", "import_markers",
            "read_markers", "read_weights", "write_markers"]

@@ -6,7 +6,7 @@ block, frame rate). The parameter section (processor type in its 4th byte: 84 In
 86 MIPS big-endian) holds groups and typed parameters (POINT:LABELS, POINT:UNITS, POINT:RATE,
 POINT:SCALE, ...). Point data follow as frames of ``[x, y, z, residual]`` per point, int16
 scaled by POINT:SCALE (> 0) or float32 (scale < 0), then the frame's analog samples, which are
-skipped. A negative residual word marks a gap.
+skipped. A negative residual word marks a gap. The writer is :mod:`~facecap.solvers.io.c3d_write`.
 
 Why not the ``c3d`` package: this reader is vectorised (one ``np.fromfile`` for the whole take,
 no per-frame Python loop), checks every size against the file so a corrupt file fails with a
@@ -20,9 +20,8 @@ import struct
 
 import numpy as np
 
-from ..errors import FacecapError, InputFileError
-from .files import atomic_path
-from .timing import UNIT_ALIASES, check_markerset, finish_arrays
+from ..errors import InputFileError
+from .timing import UNIT_ALIASES, check_markerset, finish_arrays, unique_names
 
 BLOCK = 512
 INTEL, DEC, MIPS = 84, 85, 86
@@ -110,7 +109,13 @@ def _parse(path, fh, size):
         raise _fail(path, f"unknown processor type {proc}; expected 84 (Intel), 85 (DEC) or 86 (MIPS)")
     endian = ">" if proc == MIPS else "<"
     n_blocks = first4[2]
-    limit = size if n_blocks == 0 else min(size, (param_block - 1 + n_blocks) * BLOCK)
+    # Some writers count too few parameter blocks (BTK's parameterOverflow, c3d.org sample 13): the
+    # section then runs on to the data, whose start block the header gives.
+    data_block = int(np.frombuffer(head[16:18], dtype=endian + "u2")[0])
+    end_block = param_block - 1 + n_blocks
+    if data_block > param_block:
+        end_block = max(end_block, data_block - 1)
+    limit = size if n_blocks == 0 else min(size, end_block * BLOCK)
     fh.seek((param_block - 1) * BLOCK)
     buf = fh.read(limit - (param_block - 1) * BLOCK)
     params, groups = {}, {}
@@ -157,6 +162,11 @@ def _parse(path, fh, size):
 def read_c3d(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes=None):
     """Read the 3D points of a C3D file as a MarkerSet; analog channels are ignored.
 
+    Where the header and the parameters disagree on the frame layout (point count, analog samples
+    per frame), the layout that the file's size fits is read and a note says so; a file shorter
+    than its declared frames gives the frames it holds (noted). Repeated labels are kept, the
+    repeats suffixed ``_2``, ``_3``, ... (noted).
+
     Parameters
     ----------
     path : path-like
@@ -186,69 +196,17 @@ def read_c3d(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
         fh.seek(0, 2)
         size = fh.tell()
         fh.seek(0)
+        if size == 0:
+            raise _fail(path, "empty file (0 bytes); expected a C3D file")
         c = _parse(path, fh, size)
-        hw = np.frombuffer(c.head[:24], dtype=c.endian + "u2")
-        n_points = c.number("POINT", "USED", unsigned=True)
-        n_points = int(hw[1]) if n_points is None else int(n_points)
-        scale = c.number("POINT", "SCALE")
-        if scale is None or not np.isfinite(scale):
-            scale = float(c._floats(c.head[12:16])[0])
-        rate = c.number("POINT", "RATE")
-        if rate is None or not np.isfinite(rate) or rate <= 0:
-            rate = float(c._floats(c.head[20:24])[0])
-        start_block = c.number("POINT", "DATA_START", unsigned=True)
-        start_block = int(hw[8]) if not start_block else int(start_block)
-        first = c.words("TRIAL", "ACTUAL_START_FIELD")
-        first = int(hw[3]) if first is None else first
-        last = _last_frame(c, int(hw[4]))
-        n_frames = last - first + 1
-        if n_points <= 0:
-            raise _fail(path, f"no 3D points (POINT:USED = {n_points})", field="POINT:USED")
-        if n_frames <= 0:
-            raise _fail(path, f"zero frames (first frame {first}, last frame {last})", field="POINT:FRAMES")
-        if not np.isfinite(scale) or scale == 0:
-            raise _fail(path, f"invalid point scale {scale}", field="POINT:SCALE")
-        is_float = scale < 0
-        word = 4 if is_float else 2
-        analog_words = int(hw[2])
-        if analog_words == 0:
-            used = c.number("ANALOG", "USED", unsigned=True) or 0
-            arate = c.number("ANALOG", "RATE") or 0
-            if used and arate and np.isfinite(arate):
-                analog_words = int(used * round(arate / rate))
-        frame_words = 4 * n_points + analog_words
-        data_start = (start_block - 1) * BLOCK
-        if start_block < 2 or data_start >= size:
-            raise _fail(path, f"data start block {start_block} lies outside the file ({size} bytes)",
-                        field="POINT:DATA_START")
-        available = (size - data_start) // (frame_words * word)
-        if available < n_frames:
-            raise _fail(path, f"truncated point data: {n_frames} frames declared, the file holds {available}",
-                        field="POINT:FRAMES")
-        fh.seek(data_start)
-        dtype = c.endian + ("f4" if is_float else "i2")
-        if c.proc == DEC and is_float:
-            dtype = "<u4"
-        raw = np.fromfile(fh, dtype=dtype, count=n_frames * frame_words)
-    if raw.size != n_frames * frame_words:
+        lay = _layout(c, size, notes)
+        fh.seek(lay.data_start)
+        raw = np.fromfile(fh, dtype=lay.dtype, count=lay.n_frames * lay.frame_words)
+    if raw.size != lay.n_frames * lay.frame_words:
         raise _fail(path, "truncated point data", field="POINT:FRAMES")
-    raw = raw.reshape(n_frames, frame_words)[:, : 4 * n_points].reshape(n_frames, n_points, 4)
-    if c.proc == DEC and is_float:
-        u = raw.astype(np.uint32)
-        raw = (((u >> 16) | (u << 16)).astype("<u4").view("<f4") / 4.0)
-    with np.errstate(invalid="ignore"):
-        if is_float:
-            resid = raw[:, :, 3]
-            gap = ~(resid > -0.5) | ~np.isfinite(raw[:, :, :3]).all(axis=2)
-            positions = raw[:, :, :3].astype(np.float64)
-        else:
-            gap = raw[:, :, 3] < 0
-            positions = raw[:, :, :3].astype(np.float64)
-            positions *= scale
+    positions = _positions(c, lay, raw)
     del raw
-    positions[gap] = np.nan
-    np.nan_to_num(positions, copy=False, nan=np.nan, posinf=np.nan, neginf=np.nan)
-    names = _labels(c, n_points, notes)
+    names = _labels(c, lay.n_points, notes)
     file_units = None
     unit_text = (c.strings("POINT", "UNITS") or [""])[0].lower()
     if unit_text:
@@ -257,10 +215,175 @@ def read_c3d(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
         else:
             notes.append(f"POINT:UNITS {unit_text!r} not understood")
     segments = _segments(c)
-    frames = np.arange(first, first + n_frames, dtype=np.float64)
+    frames = np.arange(lay.first, lay.first + lay.n_frames, dtype=np.float64)
+    screen = (c.strings("POINT", "Y_SCREEN") or [None])[0]
+    up_hint = None if not screen else (f"POINT:Y_SCREEN is {screen!r} (Y is up in the capture software)"
+                                       if screen.upper() in ("+Y", "Y") else "")
     return check_markerset(lambda: finish_arrays(
-        names, frames, positions, source=path, file_fps=rate, segments=segments, units=units,
-        file_units=file_units, unit_scale=unit_scale, up_axis=up_axis, fps=fps, notes=notes), path)
+        names, frames, positions, source=path, file_fps=lay.rate, segments=segments, units=units,
+        file_units=file_units, unit_scale=unit_scale, up_axis=up_axis, fps=fps, notes=notes, up_hint=up_hint), path)
+
+
+class _Layout:
+    """Where the points are: first frame, frame count, points, words per frame, dtype, scale."""
+
+    __slots__ = ("first", "n_frames", "n_points", "frame_words", "data_start", "dtype", "scale", "rate")
+
+    def __init__(self, **kw):
+        for k, v in kw.items():
+            setattr(self, k, v)
+
+    @property
+    def is_float(self):
+        return self.scale < 0
+
+
+def _layout(c, size, notes):
+    """Decide the point layout from the header, the parameters and the file's size."""
+    hw = np.frombuffer(c.head[:24], dtype=c.endian + "u2")
+    scale, rate = _scale_rate(c)
+    data_start = _data_start(c, hw, size, notes)
+    first, n_frames = _frame_range(c, hw)
+    word = 4 if scale < 0 else 2
+    points, analog = _count_choices(c, hw, rate, notes)
+    if not points:
+        raise _fail(c.path, f"no 3D points (POINT:USED 0): {_holds_instead(c)}", field="POINT:USED")
+    avail = size - data_start
+
+    def fits(choice, exact):
+        need = n_frames * (4 * choice[0] + choice[1]) * word
+        return need <= avail and (not exact or avail - need < BLOCK)  # files are padded to whole blocks
+
+    choices = [(p, a) for p in points for a in analog]
+    pick = choices[0]
+    if not fits(pick, True):  # the usual reading leaves the size unexplained: does another explain it?
+        exact = [ch for ch in choices if fits(ch, True)]
+        if len(exact) == 1:
+            pick = exact[0]
+        elif not fits(pick, False):
+            pick = next((ch for ch in choices if fits(ch, False)), pick)
+    _note_choice(pick, points, analog, n_frames, notes)
+    n_points, analog_words = pick
+    frame_words = 4 * n_points + analog_words
+    n_frames = _frames_held(c, hw, first, n_frames, avail // (frame_words * word), notes)
+    dtype = c.endian + ("f4" if scale < 0 else "i2")
+    if c.proc == DEC and scale < 0:
+        dtype = "<u4"
+    return _Layout(first=first, n_frames=n_frames, n_points=n_points, frame_words=frame_words,
+                   data_start=data_start, dtype=dtype, scale=scale, rate=rate)
+
+
+def _scale_rate(c):
+    scale = c.number("POINT", "SCALE")
+    if scale is None or not np.isfinite(scale) or scale == 0:
+        scale = float(c._floats(c.head[12:16])[0])
+    if not np.isfinite(scale) or scale == 0:
+        raise _fail(c.path, f"invalid point scale {scale}", field="POINT:SCALE")
+    rate = c.number("POINT", "RATE")
+    if rate is None or not np.isfinite(rate) or rate <= 0:
+        rate = float(c._floats(c.head[20:24])[0])
+    if not np.isfinite(rate) or rate <= 0:
+        raise _fail(c.path, f"frame rate must be positive; got {rate:g} (header and POINT:RATE)",
+                    field="POINT:RATE")
+    return scale, rate
+
+
+def _data_start(c, hw, size, notes):
+    """Byte offset of the point data: POINT:DATA_START, or the header's block when that one is not valid."""
+    starts = [int(b) for b in (c.number("POINT", "DATA_START", unsigned=True), hw[8]) if b]
+    valid = [b for b in starts if 2 <= b and (b - 1) * BLOCK < size]
+    if not valid:
+        raise _fail(c.path, f"data start block {starts[0] if starts else 0} lies outside the file ({size} bytes)",
+                    field="POINT:DATA_START")
+    if valid[0] != starts[0]:
+        notes.append(f"POINT:DATA_START {starts[0]} is not a data block; the header's {valid[0]} is used")
+    return (valid[0] - 1) * BLOCK
+
+
+def _frame_range(c, hw):
+    first = c.words("TRIAL", "ACTUAL_START_FIELD")
+    first = int(hw[3]) if first is None else first
+    last = _last_frame(c, int(hw[4]))
+    if last < first:
+        raise _fail(c.path, f"zero frames (first frame {first}, last frame {last})", field="POINT:FRAMES")
+    return first, last - first + 1
+
+
+def _frames_held(c, hw, first, n_frames, held, notes):
+    """The frame count to read when the file holds ``held`` whole frames of the chosen layout."""
+    header_frames = int(hw[4]) - first + 1
+    if 0 < header_frames <= held < n_frames:  # the parameters overstate it; the header fits
+        notes.append(f"the parameters declare {n_frames} frames, the header {header_frames}; "
+                     f"the file holds {held}: read {header_frames}")
+        return header_frames
+    if held >= n_frames:
+        return n_frames
+    if held == 0:
+        raise _fail(c.path, f"truncated point data: {n_frames} frames declared, the file holds none",
+                    field="POINT:FRAMES")
+    notes.append(f"warning: {n_frames} frames declared, the file holds {held} (truncated): read {held}")
+    return held
+
+
+def _count_choices(c, hw, rate, notes):
+    """Candidate point counts and analog samples per frame, the usual reading first."""
+    used = c.number("POINT", "USED", unsigned=True)
+    points = [int(used)] if used is not None else []
+    if int(hw[1]) not in points:
+        points.append(int(hw[1]))
+    points = [p for p in points if p > 0]
+    analog = [int(hw[2])]
+    a_used = c.number("ANALOG", "USED", unsigned=True) or 0
+    a_rate = c.number("ANALOG", "RATE")
+    if a_used and a_rate is not None:
+        ratio = a_rate / rate
+        if np.isfinite(ratio) and 0 < ratio < 1e6:
+            per_frame = int(a_used) * max(int(round(ratio)), 1)
+            if per_frame not in analog:
+                analog.append(per_frame)
+                if analog[0] == 0:  # the header leaves it out: the parameters' count comes first
+                    analog.reverse()
+        else:
+            notes.append(f"ANALOG:RATE {a_rate:g} ignored (not a positive rate)")
+    return points, analog
+
+
+def _note_choice(pick, points, analog, n_frames, notes):
+    if len(points) > 1 and pick[0] != points[0]:
+        notes.append(f"warning: POINT:USED says {points[0]} points, the header {pick[0]}; the file's size fits "
+                     f"{pick[0]} ({n_frames} frames): read {pick[0]}")
+    if len(analog) > 1 and pick[1] != analog[0]:
+        notes.append(f"warning: the header says {analog[0]} analog samples per frame, the ANALOG parameters "
+                     f"{pick[1]}; the file's size fits {pick[1]}: read with {pick[1]}")
+
+
+def _holds_instead(c):
+    rotations = c.number("ROTATION", "USED", unsigned=True)
+    channels = c.number("ANALOG", "USED", unsigned=True)
+    if rotations:
+        return f"the file holds {int(rotations)} rotation matrices (ROTATION group), no markers"
+    if channels:
+        return f"the file holds only {int(channels)} analog channels (force plates, EMG), no markers"
+    return "the file holds no marker data"
+
+
+def _positions(c, lay, raw):
+    """(F, M, 3) float64 positions from the raw frames; NaN where the residual marks a gap."""
+    raw = raw.reshape(lay.n_frames, lay.frame_words)[:, : 4 * lay.n_points].reshape(lay.n_frames, lay.n_points, 4)
+    if c.proc == DEC and lay.is_float:
+        u = raw.astype(np.uint32)
+        raw = (((u >> 16) | (u << 16)).astype("<u4").view("<f4") / 4.0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        if lay.is_float:
+            gap = ~(raw[:, :, 3] > -0.5) | ~np.isfinite(raw[:, :, :3]).all(axis=2)
+            positions = raw[:, :, :3].astype(np.float64)
+        else:
+            gap = raw[:, :, 3] < 0
+            positions = raw[:, :, :3].astype(np.float64)
+            positions *= lay.scale
+    positions[gap] = np.nan
+    np.nan_to_num(positions, copy=False, nan=np.nan, posinf=np.nan, neginf=np.nan)
+    return positions
 
 
 def _last_frame(c, header_last):
@@ -285,13 +408,11 @@ def _labels(c, n_points, notes):
         labels.extend(more)
     labels = labels[:n_points]
     if len(labels) < n_points:
-        notes.append(f"{n_points - len(labels)} point(s) without a label named by number")
+        notes.append(f"POINT:LABELS names {len(labels)} of {n_points} points: the others are named "
+                     f"point{len(labels) + 1}..point{n_points}")
     names = [lab if lab else f"point{i + 1}" for i, lab in enumerate(labels)]
     names += [f"point{i + 1}" for i in range(len(names), n_points)]
-    if len(set(names)) != len(names):
-        dup = sorted({n for n in names if names.count(n) > 1})
-        raise InputFileError(c.path, f"duplicate marker names {dup}", field="POINT:LABELS")
-    return tuple(names)
+    return unique_names(names, notes, where="POINT:LABELS")
 
 
 def _segments(c):
@@ -304,101 +425,3 @@ def _segments(c):
         if np.isfinite(a) and np.isfinite(b) and a <= b:
             out.setdefault(label, []).append((float(a), float(b)))
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# writer
-
-
-def _param(group_id, name, etype, dims, data):
-    name_b = name.encode("ascii")
-    body = struct.pack("<bB", etype, len(dims)) + bytes(dims) + data + b"\x00"
-    return struct.pack("<bb", len(name_b), group_id) + name_b + struct.pack("<h", len(body) + 2) + body
-
-
-def _group(group_id, name):
-    name_b = name.encode("ascii")
-    body = b"\x00"
-    return struct.pack("<bb", len(name_b), -group_id) + name_b + struct.pack("<h", len(body) + 2) + body
-
-
-def _chars(strings, width):
-    return b"".join(s.encode("latin-1", "replace")[:width].ljust(width) for s in strings)
-
-
-def write_c3d(path, markers):
-    """Write a 3D MarkerSet as an Intel float C3D (gaps: residual -1), atomically.
-
-    Frames must be whole numbers >= 0; missing frames between first and last are written as gaps.
-    Labels are cut to 30 characters, which must keep them unique.
-    """
-    if markers.dim != 3:
-        raise FacecapError(f"{path}: C3D holds 3D points; got {markers.dim}D markers")
-    frames = markers.frames
-    if not np.all(frames == np.round(frames)) or frames[0] < 0:
-        raise FacecapError(f"{path}: C3D needs whole, non-negative frame numbers")
-    first, last = int(frames[0]), int(frames[-1])
-    n_frames, n_points = last - first + 1, markers.n_markers
-    names = [n[:30] for n in markers.names]
-    if len(set(names)) != len(names):
-        raise FacecapError(f"{path}: marker names are not unique in their first 30 characters")
-    if n_points > 65535:
-        raise FacecapError(f"{path}: C3D holds at most 65535 points")
-    if len(markers.segments) and sum(len(v) for v in markers.segments.values()) > 255:
-        raise FacecapError(f"{path}: at most 255 segments can be stored in a C3D file")
-    data = np.zeros((n_frames, n_points, 4), dtype="<f4")
-    rows = (frames - first).astype(np.intp)
-    pos = markers.positions
-    gap = np.isnan(pos[:, :, 0])
-    data[rows, :, :3] = np.where(gap[:, :, None], 0.0, pos)
-    data[:, :, 3] = -1.0
-    data[rows, :, 3] = np.where(gap, -1.0, 0.0)
-    rate = float(markers.fps)
-    units = markers.units if markers.units in ("m", "cm", "mm") else "m"
-
-    def build(data_start):
-        p = [_group(1, "POINT"), _group(2, "ANALOG"), _group(3, "TRIAL")]
-        p.append(_param(1, "USED", 2, (), struct.pack("<H", n_points)))
-        p.append(_param(1, "FRAMES", 2, (), struct.pack("<H", min(n_frames, 65535))))
-        if n_frames > 65535:
-            p.append(_param(1, "LONG_FRAMES", 4, (), struct.pack("<f", n_frames)))
-        p.append(_param(1, "DATA_START", 2, (), struct.pack("<H", data_start)))
-        p.append(_param(1, "SCALE", 4, (), struct.pack("<f", -1.0)))
-        p.append(_param(1, "RATE", 4, (), struct.pack("<f", rate)))
-        p.append(_param(1, "UNITS", -1, (4,), _chars([units], 4)))
-        for k in range(0, max(n_points, 1), 255):
-            chunk = names[k:k + 255]
-            label = "LABELS" if k == 0 else f"LABELS{k // 255 + 1}"
-            p.append(_param(1, label, -1, (30, len(chunk)), _chars(chunk, 30)))
-        p.append(_param(2, "USED", 2, (), struct.pack("<H", 0)))
-        p.append(_param(2, "RATE", 4, (), struct.pack("<f", rate)))
-        p.append(_param(3, "ACTUAL_START_FIELD", 2, (2,), struct.pack("<HH", first & 0xFFFF, first >> 16)))
-        p.append(_param(3, "ACTUAL_END_FIELD", 2, (2,), struct.pack("<HH", last & 0xFFFF, last >> 16)))
-        spans = [(lab, a, b) for lab, v in markers.segments.items() for a, b in v]
-        if spans:
-            width = max(1, min(255, max(len(s[0].encode("latin-1", "replace")) for s in spans)))
-            p.append(_group(4, "FACECAP"))
-            p.append(_param(4, "SEGMENTS", -1, (width, len(spans)), _chars([s[0] for s in spans], width)))
-            p.append(_param(4, "RANGES", 4, (2, len(spans)),
-                            np.array([[a, b] for _, a, b in spans], dtype="<f4").tobytes()))
-        blob = bytearray(b"".join(p))
-        # The last entry's offset 0 ends the section.
-        return bytes(blob)
-
-    blob = build(0)
-    n_param_blocks = (4 + len(blob) + BLOCK - 1) // BLOCK
-    data_start = 2 + n_param_blocks
-    blob = build(data_start)
-    section = bytearray(struct.pack("<BBBB", 1, 0x50, n_param_blocks, INTEL) + blob)
-    section += b"\x00" * (n_param_blocks * BLOCK - len(section))
-    header = bytearray(BLOCK)
-    struct.pack_into("<BB", header, 0, 2, 0x50)
-    struct.pack_into("<HHHHH", header, 2, n_points, 0, min(first, 65535), min(last, 65535), 0)
-    struct.pack_into("<f", header, 12, -1.0)
-    struct.pack_into("<HH", header, 16, data_start, 1)  # 1 analog sample per frame, 0 channels
-    struct.pack_into("<f", header, 20, rate)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            fh.write(header)
-            fh.write(section)
-            data.tofile(fh)

@@ -8,19 +8,20 @@
   ``MarkerSet.segments``: each run of equal non-empty labels is a segment ``(first, last)``.
   Extra numeric columns are ignored (noted).
 * **Long** markers: one row per sample, ``frame,marker,x,y[,z]`` (column names ``marker``,
-  ``name`` or ``label``; ``time`` instead of ``frame`` allowed), see :func:`read_long_csv`.
-* **Weights**: ``frame,<shape>,...`` (:func:`read_weights_csv`, :func:`write_weights_csv`).
+  ``name`` or ``label``; ``time`` instead of ``frame`` allowed), read by
+  :func:`facecap.solvers.io.csv_long.read_long_csv`.
+* **Weights**: ``frame,<shape>,...`` (:func:`read_weights_csv`; the writers are in
+  :mod:`~facecap.solvers.io.csv_write`, the long reader in :mod:`~facecap.solvers.io.csv_long`).
 
 Purely numeric files (numbers and empty cells) are parsed by a vectorised reader (about 0.1 us a
 cell); files with anything else (gap words, text columns, quotes, ragged rows) by numpy's text
 parser; anything that refuses is re-read cell by cell so that the error names the line and field.
-All three give bit-identical arrays. Writers format blocks of rows at once (``%.9g``, empty for
-NaN) and replace their output atomically.
+All three give bit-identical arrays. Header lines are read whole, however long.
 """
 
+import collections
 import csv
 import io
-import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,8 +32,10 @@ from ..errors import FacecapError, InputFileError
 from ..markers import MarkerSet
 from .csv_vector import SlowPath as _SlowPath
 from .csv_vector import vector_numeric as _vector_numeric
-from .files import atomic_path
-from .timing import check_markerset, finish, finish_arrays, segments_from_labels
+
+# The writers live in csv_write; imported here so `from .csv import write_markers_csv` keeps working.
+from .csv_write import AXES, segment_labels, write_markers_csv, write_weights_csv  # noqa: F401
+from .timing import check_markerset, finish_arrays, segments_from_labels
 
 GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
 _GAP_SPELLINGS = ("", "NA", "na", "N/A", "n/a", "null", "NULL", "None", "none")  # nan: parsed by numpy
@@ -43,7 +46,6 @@ TIME_HEADERS = {
     "time_ms": 1e-3, "time (ms)": 1e-3, "timestamp_ms": 1e-3, "ms": 1e-3,
     "time_us": 1e-6, "timestamp_us": 1e-6,
 }
-AXES = ("x", "y", "z")
 DELIMITERS = (",", ";", "\t", "|")
 SNIFF_BYTES = 1 << 16
 
@@ -75,20 +77,19 @@ def _decode_error(path, exc):
 
 
 def sniff(path, *, delimiter=None, decimal=None):
-    """Find the header line, delimiter and decimal separator of a delimited text file."""
+    """Find the header line, delimiter and decimal separator of a delimited text file.
+
+    The header line is read whole, however long (a 1,000-marker header is ~190 KB); the decimal
+    separator is detected from the next 49 lines (their first SNIFF_BYTES characters each).
+    """
     path = Path(path)
     with _open_text(path) as fh:
         try:
-            head = fh.read(SNIFF_BYTES)
+            header_text, header_line, sample = _head_lines(fh)
         except UnicodeDecodeError as exc:
             raise _decode_error(path, exc) from None
-    if "\x00" in head:
-        raise InputFileError(path, "not a text file (contains NUL bytes)")
-    lines = re.split(r"\r\n|\r|\n", head)
-    header_line = next((i for i, line in enumerate(lines) if line.strip()), None)
-    if header_line is None:
+    if header_text is None:
         raise InputFileError(path, "empty file; expected a header line", line=1)
-    header_text = lines[header_line]
     if delimiter is None:
         counts = [header_text.count(d) for d in DELIMITERS]
         delimiter = DELIMITERS[int(np.argmax(counts))] if max(counts) else ","
@@ -97,19 +98,56 @@ def sniff(path, *, delimiter=None, decimal=None):
     if decimal is None:
         decimal = "."
         if delimiter != ",":
-            sample = [c.strip() for line in lines[header_line + 1:header_line + 50]
-                      for c in line.split(delimiter)]
-            commas = sum(1 for c in sample if _is_comma_number(c))
-            dots = sum(1 for c in sample if "." in c and _is_float(c))
+            cells = [c.strip() for line in sample for c in line.split(delimiter)]
+            commas = sum(1 for c in cells if _is_comma_number(c))
+            dots = sum(1 for c in cells if "." in c and _is_float(c))
             if commas > dots:
                 decimal = ","
     elif decimal not in (".", ","):
         raise FacecapError(f"`decimal` must be '.' or ','; got {decimal!r}")
     if decimal == "," and delimiter == ",":
         raise FacecapError("`decimal` ',' needs a delimiter other than ','")
-    header = next(csv.reader([header_text], delimiter=delimiter))
+    header = next(csv.reader([header_text], delimiter=delimiter), [])
     header = tuple(h.strip() for h in header)
-    return Sniffed(path, delimiter, decimal, header, header_line + 1)
+    return Sniffed(path, delimiter, decimal, header, header_line)
+
+
+def _head_lines(fh):
+    """(header text, its 1-based line number, up to 49 following lines); header None when all blank.
+
+    ``fh`` is opened with ``newline=""``, so readline splits at ``\r\n``, ``\r`` and ``\n`` alike.
+    """
+    number = 0
+    for line in iter(fh.readline, ""):
+        number += 1
+        if "\x00" in line:
+            raise InputFileError(fh.name, "not a text file (contains NUL bytes)", line=number)
+        if line.strip():
+            break
+    else:
+        return None, number, []
+    sample = []
+    for _ in range(49):
+        more = fh.readline(SNIFF_BYTES)
+        if not more:
+            break
+        if "\x00" in more:
+            raise InputFileError(fh.name, "not a text file (contains NUL bytes)", line=number + len(sample) + 1)
+        sample.append(more.rstrip("\r\n"))
+    return line.rstrip("\r\n"), number, sample
+
+
+def duplicate_names(names, *, key=None):
+    """Sorted names that occur more than once (compared by ``key(name)`` when given); linear time."""
+    keys = [key(n) for n in names] if key is not None else list(names)
+    counts = collections.Counter(keys)
+    return sorted({n for n, k in zip(names, keys) if counts[k] > 1})
+
+
+def _shorten(names, limit=10):
+    """A list of names for a message: the first ``limit`` and how many more."""
+    names = list(names)
+    return str(names) if len(names) <= limit else f"{names[:limit]} and {len(names) - limit} more"
 
 
 def _is_float(text):
@@ -124,7 +162,7 @@ def _is_comma_number(text):
     return text.count(",") == 1 and _is_float(text.replace(",", "."))
 
 
-def _rows(sn):
+def data_rows(sn):
     """Yield (line_number, cells) for every non-blank data row, with decoding/CSV errors as InputFileError."""
     fh = _open_text(sn.path)
     with fh:
@@ -141,7 +179,7 @@ def _rows(sn):
             raise InputFileError(sn.path, f"malformed CSV ({exc})", line=reader.line_num + 1) from None
 
 
-def _to_float(text, decimal):
+def cell_float(text, decimal):
     cell = text.strip()
     if cell.lower() in GAP_TOKENS:
         return np.nan
@@ -157,13 +195,13 @@ def _slow_numeric(sn, columns):
     """Cell-by-cell reading of ``columns``: exact errors with line and field. Returns (lines, values)."""
     width = len(sn.header)
     lines, values = [], []
-    for line, row in _rows(sn):
+    for line, row in data_rows(sn):
         if len(row) != width:
             raise InputFileError(sn.path, f"{len(row)} fields but the header has {width}", line=line)
         out = []
         for c in columns:
             try:
-                out.append(_to_float(row[c], sn.decimal))
+                out.append(cell_float(row[c], sn.decimal))
             except ValueError:
                 raise InputFileError(sn.path, f"expected a number, got {row[c].strip()!r}",
                                      line=line, field=sn.header[c]) from None
@@ -247,13 +285,13 @@ def read_numeric_columns(sn, columns):
 def read_text_columns(sn, columns):
     """List (one per column) of per-row stripped strings."""
     out = [[] for _ in columns]
-    for _, row in _rows(sn):
+    for _, row in data_rows(sn):
         for j, c in enumerate(columns):
             out[j].append(row[c].strip() if c < len(row) else "")
     return out
 
 
-def _time_column(header):
+def time_column(header):
     for i, h in enumerate(header):
         low = h.strip().lower()
         if low in FRAME_HEADERS:
@@ -279,10 +317,10 @@ def wide_layout(sn):
     """Column roles of a wide marker CSV; InputFileError for a header that cannot be one."""
     header = list(sn.header)
     path = sn.path
-    if len(set(header)) != len(header):
-        dup = sorted({h for h in header if header.count(h) > 1})
-        raise InputFileError(path, f"duplicate columns {dup}", line=sn.header_line)
-    key_col, time_scale = _time_column(header)
+    dup = duplicate_names(header)
+    if dup:
+        raise InputFileError(path, f"duplicate columns {_shorten(dup)}", line=sn.header_line)
+    key_col, time_scale = time_column(header)
     if key_col is None:
         raise InputFileError(path, "no frame column; expected a 'frame' or 'time' column, "
                              f"got {header[0]!r} first", line=sn.header_line)
@@ -350,7 +388,7 @@ def _parse_wide(path, *, delimiter=None, decimal=None):
 
 
 def _data_line_numbers(sn):
-    return [line for line, _ in _rows(sn)]
+    return [line for line, _ in data_rows(sn)]
 
 
 def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, delimiter=None,
@@ -414,120 +452,12 @@ def read_markers_csv(path, *, units="m", fps=60.0):
     return check_markerset(lambda: MarkerSet(lay.names, key, positions, fps=float(fps), units=units,
                                              source=str(sn.path), segments=segments), sn.path)
 
-
-LONG_MARKER_HEADERS = ("marker", "name", "label", "marker_name")
-
-
-def is_long_header(header):
-    low = [h.strip().lower() for h in header]
-    return any(h in LONG_MARKER_HEADERS for h in low) and "x" in low and "y" in low
-
-
-def read_long_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, delimiter=None,
-                  decimal=None, notes=None):
-    """Read a long marker CSV: one row per sample, ``frame,marker,x,y[,z]``.
-
-    Columns are found by name (any order): ``frame`` (or a time column as for the wide
-    format), ``marker`` / ``name`` / ``label``, ``x``, ``y`` and optionally ``z``. Markers keep
-    the order of first appearance; a (frame, marker) pair missing from the file is a gap, and
-    one that appears twice is an error. Options as for :func:`read_wide_csv`.
-    """
-    notes = [] if notes is None else notes
-    sn = sniff(path, delimiter=delimiter, decimal=decimal)
-    low = [h.lower() for h in sn.header]
-    if len(set(low)) != len(low):
-        dup = sorted({h for h in sn.header if low.count(h.lower()) > 1})
-        raise InputFileError(sn.path, f"duplicate columns {dup}", line=sn.header_line)
-    key_col, time_scale = _time_column(sn.header)
-    name_col = next((i for i, h in enumerate(low) if h in LONG_MARKER_HEADERS), None)
-    if key_col is None or name_col is None or "x" not in low or "y" not in low:
-        raise InputFileError(sn.path, "expected columns frame (or time), marker, x, y[, z]",
-                             line=sn.header_line)
-    axis_cols = [low.index(a) for a in AXES if a in low]
-    dim = len(axis_cols)
-    width = len(sn.header)
-    keys, names, coords = [], [], []
-    lines = []
-    for line, row in _rows(sn):
-        if len(row) != width:
-            raise InputFileError(sn.path, f"{len(row)} fields but the header has {width}", line=line)
-        name = row[name_col].strip()
-        if not name:
-            raise InputFileError(sn.path, "empty marker name", line=line, field=sn.header[name_col])
-        vals = []
-        for c in [key_col] + axis_cols:
-            try:
-                vals.append(_to_float(row[c], sn.decimal))
-            except ValueError:
-                raise InputFileError(sn.path, f"expected a number, got {row[c].strip()!r}",
-                                     line=line, field=sn.header[c]) from None
-        if np.isnan(vals[0]):
-            raise InputFileError(sn.path, "missing frame number", line=line, field=sn.header[key_col])
-        keys.append(vals[0])
-        names.append(name)
-        coords.append(vals[1:])
-        lines.append(line)
-    if not keys:
-        raise InputFileError(sn.path, "no data rows after the header", line=sn.header_line)
-    order = list(dict.fromkeys(names))
-    keys = np.asarray(keys)
-    uniq, frame_idx = np.unique(keys, return_inverse=True)
-    lookup = {n: i for i, n in enumerate(order)}
-    marker_idx = np.array([lookup[n] for n in names])
-    flat = frame_idx * len(order) + marker_idx
-    seen, first = np.unique(flat, return_index=True)
-    if seen.size != flat.size:
-        dup_rows = np.setdiff1d(np.arange(flat.size), first)
-        r = int(dup_rows[0])
-        raise InputFileError(sn.path, f"marker {names[r]!r} appears twice at {sn.header[key_col]} {keys[r]:g}",
-                             line=lines[r])
-    positions = np.full((uniq.size, len(order), dim), np.nan)
-    positions[frame_idx, marker_idx] = np.asarray(coords)
-    times = None if time_scale is None else uniq * time_scale
-    raw = check_markerset(lambda: MarkerSet(tuple(order), uniq if times is None else np.arange(uniq.size),
-                                            positions, fps=60.0 if fps is None else fps, units="m",
-                                            source=str(sn.path)), sn.path)
-    return check_markerset(lambda: finish(raw, units=units, unit_scale=unit_scale, up_axis=up_axis,
-                                          times=times, fps=fps, notes=notes), sn.path)
-
-
-def write_markers_csv(path, markers, *, delimiter=","):
-    """Write a MarkerSet as a wide CSV (gaps as empty cells), atomically.
-
-    Non-overlapping ``segments`` are written as a last ``segment`` text column.
-    """
-    axes = AXES[: markers.dim]
-    header = ["frame"] + [f"{n}_{a}" for n in markers.names for a in axes]
-    flat = markers.positions.reshape(markers.n_frames, -1)
-    labels = segment_labels(markers)
-    _write_table(path, header, markers.frames, flat, delimiter, labels=labels)
-
-
-def segment_labels(markers):
-    """One label per frame from ``markers.segments``, or None if there are none or they overlap."""
-    if not markers.segments:
-        return None
-    labels = [""] * markers.n_frames
-    for label, spans in markers.segments.items():
-        for first, last in spans:
-            for i in np.flatnonzero(markers.frame_range_mask(first, last)):
-                if labels[i]:
-                    return None
-                labels[i] = label
-    return labels
-
-
-def write_weights_csv(path, frames, names, weights, *, delimiter=","):
-    """Write ``frame,<shape>,...`` with one row per frame, atomically."""
-    _write_table(path, ["frame", *names], np.asarray(frames), np.asarray(weights), delimiter)
-
-
 def read_weights_csv(path):
     """Read ``frame,<shape>,...``. Returns (frames (F,), names tuple, weights (F, K))."""
     sn = sniff(path)
     header = list(sn.header)
-    key_col, _ = _time_column(header)
-    if key_col is None or _time_column(header)[1] is not None:
+    key_col, _ = time_column(header)
+    if key_col is None or time_column(header)[1] is not None:
         raise InputFileError(sn.path, f"no frame column; expected the first header to be 'frame', "
                              f"got {header[0]!r}", line=sn.header_line)
     cols = [i for i in range(len(header)) if i != key_col]
@@ -537,64 +467,5 @@ def read_weights_csv(path):
     return values[:, 0], tuple(header[i] for i in cols), values[:, 1:]
 
 
-def _format_frames(frames):
-    if np.all(frames == np.round(frames)):
-        return [str(int(f)) for f in frames]
-    return [repr(float(f)) for f in frames]
-
-
-def _write_table(path, header, frames, values, delimiter, *, labels=None):
-    if values.ndim != 2 or values.shape != (len(frames), len(header) - 1):
-        raise FacecapError(
-            f"{path}: values must have shape ({len(frames)}, {len(header) - 1}); got {values.shape}"
-        )
-    frame_text = _format_frames(np.asarray(frames, dtype=np.float64))
-    if labels is not None:
-        header = header + ["segment"]
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
-        fh.write(delimiter.join(header) + "\n")
-        for text in _data_lines(frame_text, values, delimiter, labels):
-            fh.write(text)
-
-
-WRITE_BLOCK_CELLS = 1 << 18
-
-
-def _data_lines(frame_text, values, delimiter, labels):
-    """Blocks of data lines: the frame, ``f"{v:.9g}"`` per value (empty for NaN), the label.
-
-    Numeric arrays are formatted a block of rows at a time by one ``%`` over a repeated row
-    format (the same conversion as the f-string); the NaN cells, which ``%.9g`` writes as
-    ``nan``, are then emptied. Other arrays, and labels that contain ``nan``, go cell by cell.
-    """
-    n, k = values.shape
-    if k == 0 or values.dtype.kind not in "fiu" or (labels is not None and any("nan" in x for x in labels)):
-        yield from _data_lines_per_cell(frame_text, values, delimiter, labels)
-        return
-    d = delimiter
-    row = "%s" + (d + "%.9g") * k + ("" if labels is None else d + "%s") + "\n"
-    step = max(1, WRITE_BLOCK_CELLS // k)
-    for start in range(0, n, step):
-        block = values[start:start + step]
-        cells = np.empty((len(block), k + 1 + (labels is not None)), dtype=object)
-        cells[:, 0] = frame_text[start:start + step]
-        cells[:, 1:k + 1] = block
-        if labels is not None:
-            cells[:, -1] = labels[start:start + step]
-        text = (row * len(block)) % tuple(cells.ravel().tolist())
-        if np.isnan(block).any():
-            gap = d + "nan"  # a value cell; frames start a line and labels have no "nan"
-            text = text.replace(gap + d, d + d).replace(gap + d, d + d).replace(gap + "\n", d + "\n")
-        yield text
-
-
-def _data_lines_per_cell(frame_text, values, delimiter, labels):
-    for i, (f, row) in enumerate(zip(frame_text, values)):
-        cells = ["" if np.isnan(v) else f"{v:.9g}" for v in row]
-        if labels is not None:
-            cells.append(labels[i])
-        yield f + delimiter + delimiter.join(cells) + "\n"
-
-
-__all__ = ["read_long_csv", "read_markers_csv", "read_weights_csv", "read_wide_csv", "sniff",
-           "write_markers_csv", "write_weights_csv"]
+__all__ = ["cell_float", "data_rows", "duplicate_names", "read_markers_csv", "read_weights_csv", "read_wide_csv",
+           "sniff", "time_column", "write_markers_csv", "write_weights_csv"]

@@ -34,10 +34,19 @@ from .timing import check_markerset, finish
 SCHEMA_VERSION = 1
 
 
+#: Integers with more digits than this are read as floats (so beyond 1e308, infinite, and refused
+#: where a finite number is needed) instead of raising Python's int-digit-limit ValueError.
+MAX_INT_DIGITS = 300
+
+
+def _parse_int(text):
+    return int(text) if len(text) <= MAX_INT_DIGITS else float(text)
+
+
 def _load(path):
     try:
         with open(path, encoding="utf-8-sig") as fh:
-            return json.load(fh)
+            return json.load(fh, parse_int=_parse_int)
     except FileNotFoundError:
         raise InputFileError(path, "file not found") from None
     except IsADirectoryError:

@@ -15,10 +15,9 @@ Empty cells (and ``NaN``) are gaps; a row may stop early when its last markers a
 import numpy as np
 
 from ..errors import FacecapError, InputFileError
-from ..markers import MarkerSet
 from .csv import GAP_TOKENS
 from .files import atomic_path
-from .timing import UNIT_ALIASES, check_markerset, finish
+from .timing import UNIT_ALIASES, check_markerset, finish_arrays, unique_names
 
 
 def _cells(line):
@@ -59,60 +58,31 @@ def _number(path, text, line, field):
 def read_trc(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes=None):
     """Read a TRC file as a MarkerSet (units and rate from its header unless given).
 
-    Options as for :func:`facecap.solvers.io.timing.finish`.
+    Header values may be separated by several tabs (OpenSim). Data columns beyond the named
+    markers (unlabelled trajectories) are read as markers ``unnamed_<n>`` (n: the column's marker
+    number), with a warning note. Options as for :func:`facecap.solvers.io.timing.finish`.
     """
     notes = [] if notes is None else notes
     path = str(path)
     lines = _read_lines(path)
-    if len(lines) < 5 or not lines[0].startswith("PathFileType"):
+    if not any(line.strip() for line in lines):
+        raise InputFileError(path, "empty file; expected a TRC header ('PathFileType' on line 1)", line=1)
+    if not lines[0].startswith("PathFileType"):
         raise InputFileError(path, "not a TRC file; expected 'PathFileType' on line 1", line=1)
-    keys = [k.strip() for k in _cells(lines[1])]
-    values = [v.strip() for v in _cells(lines[2])]
-    meta = dict(zip(keys, values))
-    rate = meta.get("DataRate") or meta.get("CameraRate")
-    try:
-        rate = float(rate) if rate is not None else None
-    except ValueError:
-        raise InputFileError(path, f"expected a number, got {rate!r}", line=3, field="DataRate") from None
-    if rate is not None and (not np.isfinite(rate) or rate <= 0):
-        raise InputFileError(path, f"frame rate must be positive; got {rate}", line=3, field="DataRate")
+    if len(lines) < 5 or not lines[3].strip():
+        held = sum(1 for line in lines[:4] if line.strip())
+        raise InputFileError(path, f"truncated TRC header: {held} of 5 header lines", line=held + 1)
+    meta = _header_values(lines[1], lines[2])
+    rate = _header_rate(path, meta)
     names_row = _cells(lines[3])
-    if len(names_row) < 3 or names_row[0].strip().lower() not in ("frame#", "frame"):
+    if len(names_row) < 2 or names_row[0].strip().lower() not in ("frame#", "frame"):
         raise InputFileError(path, "expected 'Frame#', 'Time' and marker names", line=4)
     names = [n.strip() for n in names_row[2:] if n.strip()]
-    if not names:
-        raise InputFileError(path, "no marker names", line=4)
-    if len(set(names)) != len(names):
-        dup = sorted({n for n in names if names.count(n) > 1})
-        raise InputFileError(path, f"duplicate marker names {dup}", line=4)
-    declared = meta.get("NumMarkers")
-    if declared is not None and declared.strip().isdigit() and int(declared) != len(names):
-        raise InputFileError(path, f"NumMarkers says {declared} but line 4 names {len(names)} markers",
-                             line=3, field="NumMarkers")
-    width = 2 + 3 * len(names)
-    frames, rows, line_numbers = [], [], []
-    for number, line in enumerate(lines[5:], start=6):
-        if not line.strip():
-            continue
-        cells = _cells(line)
-        if len(cells) > width:
-            extra = cells[width:]
-            if any(c.strip() for c in extra):
-                raise InputFileError(path, f"{len(cells)} fields but {len(names)} markers need {width}", line=number)
-            cells = cells[:width]
-        if len(cells) < 2:
-            raise InputFileError(path, "expected frame number and time", line=number)
-        frame = _number(path, cells[0], number, "Frame#")
-        if np.isnan(frame):
-            raise InputFileError(path, "missing frame number", line=number, field="Frame#")
-        row = [_number(path, c, number, names[(j) // 3] + "XYZ"[j % 3]) for j, c in enumerate(cells[2:])]
-        row += [np.nan] * (width - 2 - len(row))
-        frames.append(frame)
-        rows.append(row)
-        line_numbers.append(number)
-    if not rows:
-        raise InputFileError(path, "zero frames: no data rows after the header", line=5)
-    frames = np.asarray(frames)
+    frames, rows, line_numbers = _data_rows(path, lines, names)
+    width = max(len(names), max((len(r) + 2) // 3 for r in rows))
+    if width == 0:
+        raise InputFileError(path, "no markers: line 4 names none and the rows hold no coordinates", line=4)
+    names = _all_names(names, width, meta, notes)
     bad = np.flatnonzero(np.diff(frames) <= 0)
     if bad.size:
         raise InputFileError(path, "frame numbers must increase from row to row",
@@ -120,22 +90,94 @@ def read_trc(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
     declared_frames = meta.get("NumFrames", "").strip()
     if declared_frames.isdigit() and int(declared_frames) != len(rows):
         notes.append(f"NumFrames says {declared_frames}, the file holds {len(rows)} rows")
-    positions = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(names), 3)
+    positions = np.full((len(rows), 3 * width), np.nan)
+    for i, row in enumerate(rows):
+        positions[i, :len(row)] = row
+    positions = positions.reshape(len(rows), width, 3)
     file_units = UNIT_ALIASES.get(meta.get("Units", "").strip().lower())
     if meta.get("Units") and file_units is None:
         notes.append(f"Units {meta.get('Units')!r} not understood")
-    raw = check_markerset(lambda: MarkerSet(tuple(names), frames, positions,
-                                            fps=(rate or 60.0) if fps is None else fps, units="m", source=path), path)
-    return check_markerset(lambda: finish(raw, units=units, file_units=file_units, unit_scale=unit_scale,
-                                          up_axis=up_axis, fps=fps, notes=notes), path)
+    return check_markerset(lambda: finish_arrays(
+        names, np.asarray(frames), positions, source=path, file_fps=rate, units=units,
+        file_units=file_units, unit_scale=unit_scale, up_axis=up_axis, fps=fps, notes=notes), path)
+
+
+def _header_values(keys_line, values_line):
+    """{key: value} of header lines 2-3; values separated by several tabs (OpenSim) are realigned."""
+    keys = [k.strip() for k in _cells(keys_line) if k.strip()]
+    values = [v.strip() for v in _cells(values_line)]
+    if len(values) != len(keys):
+        values = [v for v in values if v]
+    return dict(zip(keys, values))
+
+
+def _header_rate(path, meta):
+    rate = meta.get("DataRate") or meta.get("CameraRate")
+    try:
+        rate = float(rate) if rate else None
+    except ValueError:
+        raise InputFileError(path, f"expected a number, got {rate!r}", line=3, field="DataRate") from None
+    if rate is not None and (not np.isfinite(rate) or rate <= 0):
+        raise InputFileError(path, f"frame rate must be positive; got {rate}", line=3, field="DataRate")
+    return rate
+
+
+def _data_rows(path, lines, names):
+    """(frame numbers, coordinate rows without trailing empty cells, line numbers) of the data lines."""
+    frames, rows, line_numbers = [], [], []
+    for number, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        cells = _cells(line)
+        if len(cells) < 2:
+            raise InputFileError(path, "expected frame number and time", line=number)
+        frame = _number(path, cells[0], number, "Frame#")
+        if np.isnan(frame):
+            raise InputFileError(path, "missing frame number", line=number, field="Frame#")
+        coords = cells[2:]
+        while coords and not coords[-1].strip():
+            coords.pop()
+        rows.append([_number(path, c, number, _field(names, j)) for j, c in enumerate(coords)])
+        frames.append(frame)
+        line_numbers.append(number)
+    if not rows:
+        raise InputFileError(path, "zero frames: no data rows after the header", line=5)
+    return frames, rows, line_numbers
+
+
+def _field(names, j):
+    """Error field of coordinate ``j`` of a row: ``<marker>X`` or, beyond the named markers, its column."""
+    return names[j // 3] + "XYZ"[j % 3] if j // 3 < len(names) else f"column {j + 3}"
+
+
+def _all_names(names, width, meta, notes):
+    """``width`` unique names: line 4's, then ``unnamed_<n>`` for data columns beyond them."""
+    declared = meta.get("NumMarkers", "").strip()
+    if len(names) < width:
+        extra = width - len(names)
+        notes.append(f"warning: the rows hold {width} markers, line 4 names {len(names)}"
+                     + (f" (NumMarkers {declared})" if declared else "")
+                     + f": the other {extra} are read as unnamed_{len(names) + 1}..unnamed_{width}")
+        taken = set(names)
+        names = names + [_free(f"unnamed_{k + 1}", taken) for k in range(len(names), width)]
+    elif declared.isdigit() and int(declared) != len(names):
+        notes.append(f"NumMarkers says {declared}, line 4 names {len(names)} markers")
+    return unique_names(names, notes, where="line 4")
+
+
+def _free(name, taken):
+    while name in taken:
+        name += "_"
+    taken.add(name)
+    return name
 
 
 def write_trc(path, markers):
     """Write a 3D MarkerSet as a TRC file (gaps as empty cells), atomically."""
     if markers.dim != 3:
         raise FacecapError(f"{path}: TRC holds 3D points; got {markers.dim}D markers")
-    if any(("\t" in n or " " in n or not n) for n in markers.names):
-        raise FacecapError(f"{path}: TRC marker names cannot contain tabs or spaces")
+    if any(("\t" in n or "\n" in n or "\r" in n or not n.strip()) for n in markers.names):
+        raise FacecapError(f"{path}: TRC marker names cannot be empty or contain tabs or line breaks")
     units = markers.units if markers.units in ("m", "cm", "mm") else "m"
     f, m = markers.n_frames, markers.n_markers
     first = markers.frames[0]

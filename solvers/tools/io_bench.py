@@ -15,13 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.c3d import read_c3d, write_c3d
-from ..io.csv import (
-    read_weights_csv,
-    read_wide_csv,
-    write_markers_csv,
-    write_weights_csv,
-)
+from ..io.c3d import read_c3d
+from ..io.c3d_write import write_c3d
+from ..io.csv import read_weights_csv, read_wide_csv, write_markers_csv, write_weights_csv
 from ..markers import MarkerSet
 from .bench import median_time
 

@@ -188,7 +188,9 @@ def load_version(path):
         raise InputFileError(path, f"not a library version (.npz): {reason}") from None
     try:
         return LibraryVersion.from_arrays(arrays)
-    except (FacecapError, KeyError, ValueError, TypeError, IndexError) as exc:
+    except FacecapError as exc:
+        raise InputFileError(path, str(exc)) from None
+    except (KeyError, ValueError, TypeError, IndexError) as exc:
         raise InputFileError(path, f"not a library version: {exc}") from None
 
 

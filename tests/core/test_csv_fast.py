@@ -8,7 +8,7 @@ bit for bit (``view(np.uint64)``: -0.0, NaN and the last ulp all count).
 import numpy as np
 import pytest
 
-from facecap.solvers.io import csv as io_csv, csv_vector as io_csv_vector
+from facecap.solvers.io import csv as io_csv, csv_vector as io_csv_vector, csv_write as io_csv_write
 from facecap.solvers.errors import InputFileError
 from facecap.solvers.io.csv import read_numeric_columns, read_weights_csv, sniff, write_weights_csv
 
@@ -193,7 +193,7 @@ def test_only_the_requested_columns_in_their_order(tmp_path):
 def legacy_lines(frames, values, delimiter, labels=None):
     """The data lines as the per-cell writer wrote them before the block writer."""
     out = []
-    for i, (f, row) in enumerate(zip(io_csv._format_frames(np.asarray(frames, dtype=np.float64)), values)):
+    for i, (f, row) in enumerate(zip(io_csv_write._format_frames(np.asarray(frames, dtype=np.float64)), values)):
         cells = ["" if np.isnan(v) else f"{v:.9g}" for v in row]
         if labels is not None:
             cells.append(labels[i])
@@ -218,9 +218,9 @@ def test_block_writer_writes_the_same_text_as_the_per_cell_writer(tmp_path, monk
         frames = np.arange(1, n + 1) if case % 3 else np.arange(n) * 0.5
         labels = [str(rng.choice(["", "posed_happy", "nan", "a nan"])) for _ in range(n)] if case % 4 == 0 else None
         delimiter = [",", ";", "\t"][case % 3]
-        monkeypatch.setattr(io_csv, "WRITE_BLOCK_CELLS", int(rng.integers(1, 40)) if case % 2 else 1 << 18)
+        monkeypatch.setattr(io_csv_write, "WRITE_BLOCK_CELLS", int(rng.integers(1, 40)) if case % 2 else 1 << 18)
         header = ["frame"] + [f"s{i}" for i in range(k)]
-        io_csv._write_table(tmp_path / "w.csv", header, frames, v, delimiter, labels=labels)
+        io_csv_write._write_table(tmp_path / "w.csv", header, frames, v, delimiter, labels=labels)
         head = delimiter.join(header + (["segment"] if labels is not None else [])) + "\n"
         expected = head + legacy_lines(frames, v, delimiter, labels)
         assert (tmp_path / "w.csv").read_bytes() == expected.encode(), case

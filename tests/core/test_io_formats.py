@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from facecap.solvers import InputFileError, MarkerSet
-from facecap.solvers.io.c3d import read_c3d, write_c3d
+from facecap.solvers.io.c3d import read_c3d
+from facecap.solvers.io.c3d_write import write_c3d
 from facecap.solvers.io import detect_format, import_markers, read_markers, read_weights, write_markers
 
 BLENDERFACE = Path(__file__).resolve().parents[3] / "shared" / "data" / "blenderface"
@@ -127,8 +128,6 @@ def test_c3d_int16_data_with_scale_and_analog_is_read(tmp_path):
 
 
 @pytest.mark.parametrize("name, text, match", [
-    ("dup.trc", "PathFileType\t4\t(X/Y/Z)\tx\nDataRate\tNumMarkers\n60\t2\nFrame#\tTime\ta\t\t\ta\n\n1\t0\t1\t2\t3\t4\t5\t6\n",
-     r"dup\.trc, line 4: duplicate marker names \['a'\]"),
     ("bad.trc", "PathFileType\t4\t(X/Y/Z)\tx\nDataRate\n60\nFrame#\tTime\ta\n\n1\t0\t1\tq\t3\n",
      r"bad\.trc, line 6, field 'aY': expected a number, got 'q'"),
     ("zero.trc", "PathFileType\t4\t(X/Y/Z)\tx\nDataRate\n60\nFrame#\tTime\ta\n\n", r"zero\.trc, line 5: zero frames"),
@@ -148,11 +147,29 @@ def test_bad_files_name_file_line_or_field(tmp_path, name, text, match):
         read_markers(path)
 
 
-def test_truncated_c3d_names_the_frames_field(tmp_path):
-    write_c3d(tmp_path / "t.c3d", take())
+def test_trc_repeated_names_are_kept_suffixed_with_a_warning(tmp_path):
+    path = tmp_path / "dup.trc"
+    path.write_text("PathFileType\t4\t(X/Y/Z)\tx\nDataRate\tNumMarkers\n60\t2\nFrame#\tTime\ta\t\t\ta\n\n"
+                    "1\t0\t1\t2\t3\t4\t5\t6\n")
+    with pytest.warns(UserWarning, match=r"line 4 repeats 1 name\(s\); the repeats are kept as 'a' -> 'a_2'"):
+        got = read_markers(path, units="mm")
+    assert got.names == ("a", "a_2")
+    np.testing.assert_array_equal(got.positions[0], [[1, 2, 3], [4, 5, 6]])
+
+
+def test_truncated_c3d_gives_the_frames_it_holds_with_a_warning(tmp_path):
+    m = take()
+    write_c3d(tmp_path / "t.c3d", m)
     data = (tmp_path / "t.c3d").read_bytes()
     (tmp_path / "t.c3d").write_bytes(data[:-100])
-    with pytest.raises(InputFileError, match=r"field 'POINT:FRAMES': truncated point data: 40 frames declared"):
+    with pytest.warns(UserWarning, match=r"40 frames declared, the file holds 38 \(truncated\): read 38"):
+        got = read_markers(tmp_path / "t.c3d")
+    assert got.n_frames == 38  # 100 bytes cut: 1.25 frames of 80 bytes
+    np.testing.assert_allclose(got.positions, m.positions[:38], rtol=1e-6, atol=1e-9)
+    header_and_params = 512 * (data[512 + 2] + 1)
+    (tmp_path / "t.c3d").write_bytes(data[:header_and_params + 10])
+    with pytest.raises(InputFileError, match=r"field 'POINT:FRAMES': truncated point data: 40 frames declared, "
+                                             r"the file holds none"):
         read_markers(tmp_path / "t.c3d")
 
 

@@ -1,0 +1,106 @@
+"""Writers of marker and weight CSV files (the readers are in :mod:`facecap.solvers.io.csv`).
+
+Writers format blocks of rows at once (``%.9g``, empty for NaN) and replace their output
+atomically: a wide marker CSV ``frame,<m>_x,<m>_y[,<m>_z]`` (plus a ``segment`` column when the
+take has non-overlapping segments) and a weights CSV ``frame,<shape>,...``.
+"""
+
+import numpy as np
+
+from ..errors import FacecapError
+from .files import atomic_path
+
+AXES = ("x", "y", "z")
+
+
+def write_markers_csv(path, markers, *, delimiter=","):
+    """Write a MarkerSet as a wide CSV (gaps as empty cells), atomically.
+
+    Non-overlapping ``segments`` are written as a last ``segment`` text column.
+    """
+    axes = AXES[: markers.dim]
+    header = ["frame"] + [f"{n}_{a}" for n in markers.names for a in axes]
+    flat = markers.positions.reshape(markers.n_frames, -1)
+    labels = segment_labels(markers)
+    _write_table(path, header, markers.frames, flat, delimiter, labels=labels)
+
+
+def segment_labels(markers):
+    """One label per frame from ``markers.segments``, or None if there are none or they overlap."""
+    if not markers.segments:
+        return None
+    labels = [""] * markers.n_frames
+    for label, spans in markers.segments.items():
+        for first, last in spans:
+            for i in np.flatnonzero(markers.frame_range_mask(first, last)):
+                if labels[i]:
+                    return None
+                labels[i] = label
+    return labels
+
+
+def write_weights_csv(path, frames, names, weights, *, delimiter=","):
+    """Write ``frame,<shape>,...`` with one row per frame, atomically."""
+    _write_table(path, ["frame", *names], np.asarray(frames), np.asarray(weights), delimiter)
+
+
+def _format_frames(frames):
+    if np.all(frames == np.round(frames)):
+        return [str(int(f)) for f in frames]
+    return [repr(float(f)) for f in frames]
+
+
+def _write_table(path, header, frames, values, delimiter, *, labels=None):
+    if values.ndim != 2 or values.shape != (len(frames), len(header) - 1):
+        raise FacecapError(
+            f"{path}: values must have shape ({len(frames)}, {len(header) - 1}); got {values.shape}"
+        )
+    frame_text = _format_frames(np.asarray(frames, dtype=np.float64))
+    if labels is not None:
+        header = header + ["segment"]
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+        fh.write(delimiter.join(header) + "\n")
+        for text in _data_lines(frame_text, values, delimiter, labels):
+            fh.write(text)
+
+
+WRITE_BLOCK_CELLS = 1 << 18
+
+
+def _data_lines(frame_text, values, delimiter, labels):
+    """Blocks of data lines: the frame, ``f"{v:.9g}"`` per value (empty for NaN), the label.
+
+    Numeric arrays are formatted a block of rows at a time by one ``%`` over a repeated row
+    format (the same conversion as the f-string); the NaN cells, which ``%.9g`` writes as
+    ``nan``, are then emptied. Other arrays, and labels that contain ``nan``, go cell by cell.
+    """
+    n, k = values.shape
+    if k == 0 or values.dtype.kind not in "fiu" or (labels is not None and any("nan" in x for x in labels)):
+        yield from _data_lines_per_cell(frame_text, values, delimiter, labels)
+        return
+    d = delimiter
+    row = "%s" + (d + "%.9g") * k + ("" if labels is None else d + "%s") + "\n"
+    step = max(1, WRITE_BLOCK_CELLS // k)
+    for start in range(0, n, step):
+        block = values[start:start + step]
+        cells = np.empty((len(block), k + 1 + (labels is not None)), dtype=object)
+        cells[:, 0] = frame_text[start:start + step]
+        cells[:, 1:k + 1] = block
+        if labels is not None:
+            cells[:, -1] = labels[start:start + step]
+        text = (row * len(block)) % tuple(cells.ravel().tolist())
+        if np.isnan(block).any():
+            gap = d + "nan"  # a value cell; frames start a line and labels have no "nan"
+            text = text.replace(gap + d, d + d).replace(gap + d, d + d).replace(gap + "\n", d + "\n")
+        yield text
+
+
+def _data_lines_per_cell(frame_text, values, delimiter, labels):
+    for i, (f, row) in enumerate(zip(frame_text, values)):
+        cells = ["" if np.isnan(v) else f"{v:.9g}" for v in row]
+        if labels is not None:
+            cells.append(labels[i])
+        yield f + delimiter + delimiter.join(cells) + "\n"
+
+
+__all__ = ["AXES", "segment_labels", "write_markers_csv", "write_weights_csv"]
