@@ -46,10 +46,10 @@ _state = {"rendered_here": False}
 
 @dataclasses.dataclass(frozen=True)
 class ReviewOptions:
-    """How a headless run writes its review page: ``truth`` (a weights CSV path) overlays the known
-    weights; ``plotly_js`` is "embed" or the path of a shared plotly.min.js (a batch's reports)."""
+    """How a headless run writes its review page (``run_take(config, review=...)``): ``plotly_js`` is
+    "embed" or the path of a shared plotly.min.js (a batch's pages: ``shared_plotly_js``); ``render``
+    the contact sheet. The known weights it overlays are the config's ``truth_path`` (``--truth``)."""
 
-    truth: object = None
     plotly_js: object = "embed"
     render: bool = True
 
