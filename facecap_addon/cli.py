@@ -4,7 +4,8 @@ Commands
 --------
 retarget --config take.toml   solve a take onto its character with its [solve] strategy and write
                               .blend / weights CSV / report (/ the actor basis, [output] actor_basis);
-                              a [source] video take solves from flow-PCA features (Ctrl-C cancels)
+                              a [source] video take solves from flow-PCA features (Ctrl-C cancels);
+                              --html PATH [--truth CSV]: the review page (docs/review.md)
 compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
 inspect FILE [options]        describe a capture file (--json: as JSON); non-zero exit with a one-line reason if it is bad
@@ -77,10 +78,11 @@ from .batch_worker import serve  # noqa: E402
 from .bench import bench_batch, bench_cli_retarget, bench_keying  # noqa: E402
 from .demo import run_demo  # noqa: E402
 from .headless import progress_line, run_take  # noqa: E402
+from .review import review_flags  # noqa: E402
 
 
 def _cmd_retarget(args):
-    config = load_take_config(args.config)
+    config = review_flags(load_take_config(args.config), args.html, args.truth)
     result, outputs = run_take(config, replace=args.replace)
 
     ok = np.isfinite(result.residual_rms)
@@ -183,6 +185,8 @@ def build_parser():
     p.add_argument("--config", required=True, help="take config (.toml)")
     p.add_argument("--replace", action="store_true",
                    help="start from [target] blend even when the output .blend exists (default: add the solve to it)")
+    p.add_argument("--html", default=None, help="write the review page here (overrides [output] html)")
+    p.add_argument("--truth", default=None, help="known weights CSV (frame,<shape>,...) the review page overlays")
     p.set_defaults(func=_cmd_retarget)
     p = sub.add_parser("batch", help="run many takes, each isolated, here (--jobs) or on a Dask farm (--scheduler)")
     p.add_argument("takes", nargs="+", metavar="TAKES",

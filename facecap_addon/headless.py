@@ -28,6 +28,7 @@ from ..solvers.tuning.store import load_version, read_corrections_csv, save_vers
 from ..solvers.video.cli import ProgressLine, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
+from .review import read_review_truth, write_take_review
 from .scene_data import basis_from_object
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -41,7 +42,7 @@ def progress_line(message):
     print(f"facecap: {message}", file=sys.stderr, flush=True)
 
 
-def run_take(config, *, quiet=False, tune=False, replace=False, say=None, characters=None):
+def run_take(config, *, quiet=False, tune=False, replace=False, say=None, characters=None, review=None):
     """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
 
     ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
@@ -51,11 +52,14 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     is checked (``preflight``). ``say``: where progress and warning lines go (default: stderr unless
     ``quiet``); ``characters``: a cache of sampled characters kept across takes (a batch worker's
     ``CharacterCache``).
+    ``[output] html`` writes the review page last (``review``: its ``facecap_addon.review.ReviewOptions``;
+    ``config.truth_path`` the known weights it overlays).
     """
     say = say or ((lambda _m: None) if quiet else progress_line)
     t0 = time.perf_counter()
     timings = {}
     base = preflight(config, tune=tune, replace=replace)
+    truth = read_review_truth(config)  # a bad --truth file fails before the solve
     take, obj, timings["read"], t_open = _read_and_open(config, say, base)
     check_against_take(config, take.markers, take.inputs)
     t1 = time.perf_counter()
@@ -78,6 +82,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
         extra["output_blend"] = base.report()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
                             report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=take.fps())
+    if config.output_html is not None:
+        outputs["html"] = str(write_take_review(config, obj, request.settings, result, notes=take.notes,
+                                                timings=timings, truth=truth, options=review, say=say))
     return result, outputs
 
 
@@ -99,7 +106,7 @@ def preflight(config, *, tune=False, replace=False):
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     if not tune and not take_outputs(config):
-        raise ConfigError("nothing would be written: give [output] blend, weights, report, gltf or fbx",
+        raise ConfigError("nothing would be written: give [output] blend, weights, report, html, gltf or fbx",
                           path=config.path, key="output")
     check_outputs(config, library=versions_folder(config) if tune else None)
     for path in take_outputs(config).values():

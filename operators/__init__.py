@@ -2,10 +2,10 @@
 
 import bpy
 
-from . import calibration, export, importers, mapping, neutral, solve, stabilise, tuning, video
+from . import calibration, export, importers, mapping, neutral, report, solve, stabilise, tuning, video
 
 CLASSES = (importers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
-           + mapping.CLASSES + video.CLASSES + tuning.CLASSES + export.CLASSES)
+           + mapping.CLASSES + video.CLASSES + tuning.CLASSES + export.CLASSES + report.CLASSES)
 
 
 def register():

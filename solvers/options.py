@@ -243,6 +243,8 @@ OPTIONS = (
     O("output", "blend", "path", doc="The .blend written with the solve layer", headless=OUTPUT_FILE),
     O("output", "weights", "path", doc="Weights CSV frame,<shape>,...", headless=OUTPUT_FILE),
     O("output", "report", "path", doc="JSON report (accuracy, warnings, timings)", headless=OUTPUT_FILE),
+    O("output", "html", "path", doc="Review page: the solve's plots and renders, one HTML file (docs/review.md)",
+      ui="op:facecap.export_review.filepath"),
     O("output", "actor_basis", "path", doc="The actor library used (refine: refined), as .npz", headless=OUTPUT_FILE),
     O("output", "gltf", "path",
       doc="Binary glTF (.glb) for game engines: the character with its shape keys as morph targets and the "

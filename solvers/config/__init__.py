@@ -70,6 +70,8 @@ class TakeConfig:
     controls_preset: Path | None = None  # [controls] preset
     output_gltf: Path | None = None  # [output] gltf: binary glTF (.glb) of the character and the take
     output_fbx: Path | None = None  # [output] fbx: the same as FBX
+    output_html: Path | None = None  # [output] html: the review page (solvers.tools.report)
+    truth_path: Path | None = None  # retarget --truth: known weights the review page overlays (no config key)
 
 
 #: [output] key -> the file name ending its exporter writes
@@ -200,6 +202,7 @@ def load_take_config(path, data=None):
         output_actor_basis=resolve(get("output", "actor_basis")),
         output_gltf=_export_path(path, "gltf", resolve(get("output", "gltf"))),
         output_fbx=_export_path(path, "fbx", resolve(get("output", "fbx"))),
+        output_html=resolve(get("output", "html")),
         projection=projection,
         camera_name=camera_name,
         tuning=parse_tuning(path, free.get("tuning"), base),

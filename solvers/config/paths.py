@@ -22,6 +22,7 @@ INPUTS = (
     ("examples_weights_path", "[examples.weights]"),
     ("examples_markers_path", "[examples.markers]"),
     ("training_path", "[refine.training]"),
+    ("truth_path", "--truth"),
 )
 #: (TakeConfig attribute, config key) of every file a take writes
 OUTPUTS = (
@@ -31,6 +32,7 @@ OUTPUTS = (
     ("output_actor_basis", "[output.actor_basis]"),
     ("output_gltf", "[output.gltf]"),
     ("output_fbx", "[output.fbx]"),
+    ("output_html", "[output.html]"),
 )
 
 
