@@ -21,6 +21,7 @@ from ..solvers.config.batch import InputDigests, collect_takes, config_digest
 from ..solvers.config.paths import check_across_takes, resolved, take_inputs, take_outputs
 from ..solvers.errors import ConfigError, FacecapError
 from ..solvers.tools.batch_summary import Summary, iso_time, new_record, one_line, read_previous, table
+from ..solvers.tools.report.index import TakeSummary, write_batch_index
 from .batch_farm import FarmPool
 from .batch_pool import LocalPool
 from .batch_progress import Progress
@@ -81,6 +82,30 @@ def run_batch(args, *, out=None, err=None):
     return _finish(summary, finished, out, err)
 
 
+def write_index(summary):
+    """The batch's index page beside its summary (``<summary>.html``) when a take wrote a review page:
+    each take's status, frames, residual sparkline and a link to its page. Returns its path or None."""
+    records = list(summary.records.values())
+    if not any(r.get("outputs", {}).get("html") for r in records):
+        return None
+    rows = []
+    for r in records:
+        outputs, status = r.get("outputs") or {}, "ok" if r["status"] == "ok" else r["status"]
+        row = {"take": r["take"], "status": status, "frames": r.get("frames"), "report": outputs.get("html"),
+               "message": r.get("error") or r.get("note") or "", "strategy": r.get("strategy") or "",
+               "seconds": (r.get("seconds") or {}).get("total"), "warnings": r.get("warnings") or 0}
+        if outputs.get("report") and Path(outputs["report"]).is_file():  # the per-frame residual for the line
+            try:
+                report = TakeSummary.from_report(r["take"], status, outputs["report"], html=outputs.get("html"))
+                row["residual_mm"] = report.residual_mm
+            except FacecapError:
+                pass
+        rows.append(row)
+    path = summary.path.with_suffix(".html")
+    write_batch_index(path, rows)
+    return path
+
+
 def to_run(planned, records, previous, *, replace=False):
     """The specs of the takes to run, longest first; the up-to-date ones (``previous``: the earlier
     summary's records, ``--resume``) are recorded as skipped in ``records`` instead."""
@@ -108,6 +133,9 @@ def _finish(summary, finished, out, err):
     width = shutil.get_terminal_size().columns if getattr(out, "isatty", lambda: False)() else None
     print(table(list(records.values()), width), file=out)
     print(f"summary: {summary.path} (and {summary.csv_path.name})", file=out, flush=True)
+    index = write_index(summary)
+    if index is not None:
+        print(f"review pages: {index}", file=out, flush=True)
     if not finished:
         print("facecap: batch cancelled; finished takes are kept, running ones wrote nothing unfinished", file=err)
         return 130
@@ -162,8 +190,8 @@ def _open_blend():
 
 
 def check_summary_path(path, planned):
-    """The summary (JSON and CSV) must not be a take's input or output."""
-    mine = {resolved(path), resolved(path.with_suffix(".csv"))}
+    """The summary (JSON, CSV and the index page) must not be a take's input or output."""
+    mine = {resolved(path.with_suffix(suffix)) for suffix in (".json", ".csv", ".html")} | {resolved(path)}
     for p in planned:
         for key, file in {**take_inputs(p.config), **take_outputs(p.config)}.items():
             if resolved(file) in mine:

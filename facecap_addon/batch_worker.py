@@ -25,7 +25,9 @@ from multiprocessing.connection import Connection
 from ..solvers.config import load_take_config
 from ..solvers.errors import FacecapError
 from ..solvers.tools.batch_summary import iso_time, one_line, result_fields
+from ..solvers.tools.report.page import shared_plotly_js
 from .headless import run_take
+from .review import ReviewOptions
 
 
 class CharacterCache:
@@ -83,7 +85,11 @@ def run_one(spec, characters=None):
     record.update(status="running", started=iso_time(time.time()), worker=f"{socket.gethostname()} pid {os.getpid()}")
     try:
         config = load_take_config(spec["config"], data=spec["data"])
-        result, outputs = run_take(config, replace=spec.get("replace", False), say=say, characters=characters)
+        # a batch's review pages share one plotly.min.js beside them instead of embedding 4.8 MB each
+        review = None if config.output_html is None else \
+            ReviewOptions(plotly_js=shared_plotly_js(config.output_html.parent))
+        result, outputs = run_take(config, replace=spec.get("replace", False), say=say, characters=characters,
+                                   review=review)
     except FacecapError as exc:
         record.update(status="failed", error=one_line(exc))
     except Exception as exc:  # a bug or a broken file deep inside one take must not stop the others

@@ -218,3 +218,26 @@ def test_the_blender_script_entry_runs_a_batch(tmp_path):
     assert proc.returncode == 0, proc.stderr
     _, takes = summary(tmp_path / "s.json")
     assert takes["take_a"]["status"] == "ok" and (tmp_path / "out" / "take_a.blend").is_file()
+
+
+def test_review_pages_share_one_plotly_and_the_index_links_them(tmp_path):
+    """Takes with [output] html: one plotly.min.js beside their pages, and the index page beside the
+    summary lists every take (the failed one with its error) and links each page."""
+    good = {k: GOOD[k] for k in ("take_a", "take_c")}
+    shoot(tmp_path, good)
+    batch = tmp_path / "batch.toml"
+    text = batch.read_text().replace('report = "out/{take}.json"\n', 'report = "out/{take}.json"\nhtml = "out/{take}.html"\n')
+    batch.write_text(text)
+    proc = facecap("batch", batch, "--jobs", "2", "--summary", tmp_path / "summary.json", cwd=tmp_path)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    out = tmp_path / "out"
+    pages = sorted(p.name for p in out.glob("*.html"))
+    assert pages == ["take_a.html", "take_c.html"]
+    assert (out / "plotly.min.js").stat().st_size > 1_000_000
+    for page in pages:  # loaded from beside the page, not embedded
+        text = (out / page).read_text()
+        assert 'src="plotly.min.js"' in text and len(text) < 3_000_000
+    index = (tmp_path / "summary.html").read_text()
+    assert 'href="out/take_a.html"' in index and 'href="out/take_c.html"' in index
+    assert "take_missing" in index and "not_there.csv: file not found" in index
+    assert "review pages:" in proc.stdout
