@@ -1,4 +1,5 @@
-"""Blender-side benchmarks: bulk keying vs a keyframe_insert loop, and the whole CLI retarget.
+"""Blender-side benchmarks: bulk keying vs a keyframe_insert loop, the whole CLI retarget, and batch
+throughput against sequential retarget runs (``bench --batch``).
 
 Run through ``python -m facecap bench`` (with the solver cases). Times are medians; baselines
 timed on a subset are scaled per key or per frame.
@@ -6,9 +7,11 @@ timed on a subset are scaled per key or per frame.
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -102,4 +105,69 @@ def bench_cli_retarget(frames=36000, repeat=3):
         name=f"CLI retarget {frames} frames x {basis.n_shapes} shapes x {basis.n_markers} markers (process start to saved .blend)",
         seconds=seconds, baseline_seconds=None, ratio=None, goal="< 15 s",
         note=f"median of {repeat} runs; stages of the last: {detail}",
+    )
+
+
+def bench_batch(takes=20, frames=720, jobs=2, repeat=3):
+    """``batch --jobs N`` on ``takes`` synthetic takes of ``frames`` frames against the same takes run by
+    ``takes`` sequential ``python -m facecap retarget`` processes, process start to last saved .blend.
+    Runs are interleaved (sequential, batch, batch --jobs 1, ...) so that a busy spell of a shared
+    machine hits all of them; medians of ``repeat``. Also reports the CPU seconds used (children's)."""
+    from ..solvers.tools.synth import (  # loads scipy
+        performance_weights,
+        synthesize_take,
+    )
+
+    samples = ROOT / "sample_blends"
+    basis = Basis.load_npz(samples / "character_basis.npz")
+    layout = json.loads((samples / "marker_layout.json").read_text())
+    stable = [m["name"] for m in layout["markers"] if m["stable"]]
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    with tempfile.TemporaryDirectory(prefix="facecap-bench-batch-") as tmp:
+        tmp = Path(tmp)
+        for i in range(takes):
+            weights = performance_weights(basis.shape_names, frames, seed=100 + i)
+            take = synthesize_take(basis, weights, stable=stable, seed=200 + i)
+            write_markers_csv(tmp / f"take{i:02d}.csv", take.markers)
+            (tmp / f"take{i:02d}.toml").write_text(
+                f'[target]\nblend = "{samples / "character.blend"}"\nobject = "Face"\n'
+                f'[source]\nmarkers = "take{i:02d}.csv"\nunits = "mm"\nfps = 60\n'
+                f"[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = [1, 50]\n"
+                f'[output]\nblend = "out/take{i:02d}.blend"\nweights = "out/take{i:02d}.csv"\n'
+                f'report = "out/take{i:02d}.json"\n')
+        configs = sorted(tmp.glob("take*.toml"))
+
+        def timed(commands):
+            shutil.rmtree(tmp / "out", ignore_errors=True)  # every run writes new outputs (no adding)
+            c0 = os.times()  # children's CPU: the retarget processes, the batch and its workers
+            t0 = time.perf_counter()
+            for command in commands:
+                proc = subprocess.run([sys.executable, "-m", "facecap", *command], capture_output=True, text=True,
+                                      env=env, cwd=tmp)
+                if proc.returncode != 0:
+                    raise RuntimeError((proc.stderr.strip().splitlines() or ["no output"])[-1])
+            c1 = os.times()
+            cpu = (c1.children_user - c0.children_user) + (c1.children_system - c0.children_system)
+            return time.perf_counter() - t0, cpu
+
+        cases = {"sequential": [["retarget", "--config", str(c)] for c in configs],
+                 f"jobs{jobs}": [["batch", *map(str, configs), "--jobs", str(jobs), "--summary", "s.json"]],
+                 "jobs1": [["batch", *map(str, configs), "--jobs", "1", "--summary", "s.json"]]}
+        load = [os.getloadavg()[0]]
+        runs = {name: [] for name in cases}
+        for _ in range(repeat):
+            for name, commands in cases.items():
+                runs[name].append(timed(commands))
+        load.append(os.getloadavg()[0])
+    wall = {name: float(np.median([w for w, _ in r])) for name, r in runs.items()}
+    cpu = {name: float(np.median([c for _, c in r])) for name, r in runs.items()}
+    seq, par = wall["sequential"], wall[f"jobs{jobs}"]
+    return dict(
+        name=f"batch --jobs {jobs}: {takes} takes x {frames} frames (process start to last saved .blend)",
+        seconds=par, baseline_seconds=seq, ratio=seq / par, goal=">= 3x vs sequential retarget runs",
+        note=(f"{seq / par:.2f}x; median of {repeat} interleaved runs; sequential {seq:.1f} s, "
+              f"--jobs 1 {wall['jobs1']:.1f} s ({seq / wall['jobs1']:.1f}x), --jobs {jobs} {par:.1f} s; "
+              f"CPU s (children) sequential {cpu['sequential']:.1f}, "
+              f"--jobs 1 {cpu['jobs1']:.1f}, --jobs {jobs} {cpu[f'jobs{jobs}']:.1f}; "
+              f"{len(os.sched_getaffinity(0))} cores, 1-min load {load[0]:.1f} before, {load[1]:.1f} after"),
     )

@@ -4,7 +4,8 @@ Commands
 --------
 retarget --config take.toml   solve a take onto its character with its [solve] strategy and write
                               .blend / weights CSV / report (/ the actor basis, [output] actor_basis);
-                              a [source] video take solves from flow-PCA features (Ctrl-C cancels)
+                              a [source] video take solves from flow-PCA features (Ctrl-C cancels);
+                              --html PATH [--truth CSV]: the review page (docs/review.md)
 compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
 inspect FILE [options]        describe a capture file (--json: as JSON); non-zero exit with a one-line reason if it is bad
@@ -12,8 +13,16 @@ convert IN OUT [options]      a capture file in another format (.csv .c3d .trc .
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
-bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
+batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
+  [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
+  [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
+bench [--quick] [--accuracy] [--batch]
+                              time the solve, the keying and the whole CLI, with ratios to naive baselines;
+                              --accuracy: accuracy over random scenarios; --batch: batch --jobs 2 against
+                              sequential retarget runs
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
+build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
+                              locked scipy/OpenCV wheels (docs/install.md)
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
 stderr naming the file and field; there is no traceback for those.
@@ -57,18 +66,23 @@ import numpy as np  # noqa: E402
 from ..solvers.config import load_take_config  # noqa: E402
 from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
+from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
-from .bench import bench_cli_retarget, bench_keying  # noqa: E402
+from .batch import run_batch  # noqa: E402
+from .batch_worker import serve  # noqa: E402
+from .bench import bench_batch, bench_cli_retarget, bench_keying  # noqa: E402
 from .demo import run_demo  # noqa: E402
 from .headless import progress_line, run_take  # noqa: E402
+from .review import review_flags  # noqa: E402
 
 
 def _cmd_retarget(args):
-    config = load_take_config(args.config)
+    config = review_flags(load_take_config(args.config), args.html, args.truth)
     result, outputs = run_take(config, replace=args.replace)
 
     ok = np.isfinite(result.residual_rms)
@@ -78,6 +92,15 @@ def _cmd_retarget(args):
     for key, value in outputs.items():
         print(f"  {key}: {value}")
     return 0
+
+
+def _cmd_batch(args):
+    return run_batch(args)
+
+
+def _cmd_batch_worker(args):
+    fd_in, fd_out = (int(v) for v in args.fds.split(","))
+    return serve(fd_in, fd_out)
 
 
 def _cmd_demo(args):
@@ -133,12 +156,21 @@ def _cmd_convert(args):
 
 
 def _cmd_bench(args):
+    if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
+        return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
+    if args.batch:  # minutes of its own: only when asked
+        print(_bench_line(bench_batch(takes=args.batch_takes, jobs=args.batch_jobs, repeat=args.repeat)), flush=True)
+        return 0
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
         print(_bench_line(row), flush=True)
     print(_bench_line(bench_keying(frames=frames)), flush=True)
     print(_bench_line(bench_cli_retarget(frames=frames)), flush=True)
     return 0
+
+
+def _cmd_build_extension(args):
+    return build_extension_main(args.rest)
 
 
 def _bench_line(row):
@@ -153,7 +185,24 @@ def build_parser():
     p.add_argument("--config", required=True, help="take config (.toml)")
     p.add_argument("--replace", action="store_true",
                    help="start from [target] blend even when the output .blend exists (default: add the solve to it)")
+    p.add_argument("--html", default=None, help="write the review page here (overrides [output] html)")
+    p.add_argument("--truth", default=None, help="known weights CSV (frame,<shape>,...) the review page overlays")
     p.set_defaults(func=_cmd_retarget)
+    p = sub.add_parser("batch", help="run many takes, each isolated, here (--jobs) or on a Dask farm (--scheduler)")
+    p.add_argument("takes", nargs="+", metavar="TAKES",
+                   help="take configs, folders of them, or batch files (a [batch] table and shared [defaults])")
+    p.add_argument("--jobs", type=int, default=None, help="takes at once on this machine (default: its cores)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on a Dask cluster, e.g. tcp://farm:8786 (pip install 'facecap[farm]')")
+    p.add_argument("--summary", default=None, metavar="PATH",
+                   help="summary JSON (and .csv beside it); default ./facecap-batch.json")
+    p.add_argument("--resume", action="store_true",
+                   help="skip takes the summary records as done with the same inputs and config, outputs present")
+    p.add_argument("--replace", action="store_true", help="as retarget --replace, for every take")
+    p.set_defaults(func=_cmd_batch)
+    p = sub.add_parser("batch-worker")  # started by batch, not by hand: no help line
+    p.add_argument("--fds", required=True)
+    p.set_defaults(func=_cmd_batch_worker)
     p = sub.add_parser("demo", help="retarget the bundled sample take and print its accuracy")
     p.add_argument("--out", default="facecap-demo", help="output folder (default: ./facecap-demo)")
     p.set_defaults(func=_cmd_demo)
@@ -181,6 +230,17 @@ def build_parser():
     p.set_defaults(func=_cmd_config_docs)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
+    p.add_argument("--accuracy", action="store_true", help="accuracy over random scenarios instead (stabilisation, "
+                   "solve, tracking, flow) side by side with plain references")
+    p.add_argument("--draws", default="30", help="--accuracy: random marker takes (default 30)")
+    p.add_argument("--clips", default="3", help="--accuracy: clips per footage kind (default 3)")
+    p.add_argument("--size", default="640x480", help="--accuracy: footage resolution (default 640x480)")
+    p.add_argument("--frames", default="60", help="--accuracy: frames per clip (default 60)")
+    p.add_argument("--batch", action="store_true",
+                   help="only the batch case: batch --jobs N against sequential retarget runs (minutes)")
+    p.add_argument("--batch-takes", type=int, default=20, help="takes of 720 frames in the batch case (default 20)")
+    p.add_argument("--batch-jobs", type=int, default=2, help="--jobs of the batch case (default 2)")
+    p.add_argument("--repeat", type=int, default=3, help="runs of the batch case, median (default 3)")
     p.set_defaults(func=_cmd_bench)
     p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
@@ -189,6 +249,10 @@ def build_parser():
                    help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
     p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
     p.set_defaults(func=_cmd_docs_images)
+    p = sub.add_parser("build-extension", help="build the Blender extension zips (one per platform, wheels bundled)",
+                       add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_build_extension)
     return parser
 
 
@@ -197,6 +261,7 @@ def main(argv=None):
 
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)[1:]
     if extra:
         if args.command not in FORWARDING:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
@@ -226,10 +291,10 @@ def _interrupt(signum, frame):
 
 
 #: Commands that pass their own options on to their tool
-FORWARDING = ("compare", "track", "inspect", "convert", "config-docs")
+FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
-BATCH_COMMANDS = ("retarget", "tune", "demo")
+BATCH_COMMANDS = ("retarget", "tune", "demo", "batch-worker")
 
 
 def keep_freed_memory():

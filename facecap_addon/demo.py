@@ -24,6 +24,8 @@ def run_demo(out):
         output_blend=out / "sample_take_retargeted.blend",
         output_weights=out / "sample_take_weights_solved.csv",
         output_report=out / "sample_take_report.json",
+        output_html=out / "sample_take_review.html",
+        truth_path=ROOT / "sample_blends" / "sample_take_weights.csv",
     )
     result, outputs = run_take(config)
 

@@ -26,9 +26,10 @@ from ..solvers.config.paths import check_outputs, take_outputs
 from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
-from ..solvers.video.cli import _Progress, sigint_cancels
+from ..solvers.video.cli import ProgressLine, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
+from .review import read_review_truth, write_take_review
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
@@ -41,23 +42,28 @@ def progress_line(message):
     print(f"facecap: {message}", file=sys.stderr, flush=True)
 
 
-def run_take(config, *, quiet=False, tune=False, replace=False):
+def run_take(config, *, quiet=False, tune=False, replace=False, say=None, characters=None, review=None):
     """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
 
     ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
     are retuned from and the new library version stored (``[tuning] out``). An existing output
     .blend is added to (everything in it kept, the new solve the active layer) unless ``replace``:
     then the run starts from ``[target] blend``. Nothing is read or solved before every output path
-    is checked (``preflight``).
+    is checked (``preflight``). ``say``: where progress and warning lines go (default: stderr unless
+    ``quiet``); ``characters``: a cache of sampled characters kept across takes (a batch worker's
+    ``CharacterCache``).
+    ``[output] html`` writes the review page last (``review``: its ``facecap_addon.review.ReviewOptions``;
+    ``config.truth_path`` the known weights it overlays).
     """
-    say = (lambda _m: None) if quiet else progress_line
+    say = say or ((lambda _m: None) if quiet else progress_line)
     t0 = time.perf_counter()
     timings = {}
     base = preflight(config, tune=tune, replace=replace)
+    truth = read_review_truth(config)  # a bad --truth file fails before the solve
     take, obj, timings["read"], t_open = _read_and_open(config, say, base)
     check_against_take(config, take.markers, take.inputs)
     t1 = time.perf_counter()
-    request, source_info = _request(config, obj, take, tune=tune)
+    request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
     timings["load_character"] = time.perf_counter() - t1 + t_open
     say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
         f"(strategy: {request.settings.strategy})")
@@ -76,6 +82,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False):
         extra["output_blend"] = base.report()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
                             report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=take.fps())
+    if config.output_html is not None:
+        outputs["html"] = str(write_take_review(config, obj, request.settings, result, notes=take.notes,
+                                                timings=timings, truth=truth, options=review, say=say))
     return result, outputs
 
 
@@ -97,8 +106,8 @@ def preflight(config, *, tune=False, replace=False):
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     if not tune and not take_outputs(config):
-        raise ConfigError("nothing would be written: give [output] blend, weights or report", path=config.path,
-                          key="output")
+        raise ConfigError("nothing would be written: give [output] blend, weights, report, html, gltf or fbx",
+                          path=config.path, key="output")
     check_outputs(config, library=versions_folder(config) if tune else None)
     for path in take_outputs(config).values():
         remove_stale_temporaries(path.parent)
@@ -219,24 +228,31 @@ def open_target(config, say, base=None):
     return obj
 
 
-def _request(config, obj, take, *, tune):
+def _request(config, obj, take, *, tune, characters=None, base=None):
     """The SolveRequest of a take config, and the report's source fields."""
     from .take import character_target  # loads bpy
 
     from .scene_binding import geometric_character  # loads bpy
 
     settings = config.settings
-    # Only geometric samples the character at bound points (bound from [binding] every run, stored on
-    # the character for the output .blend); the others need its shape names and ranges.
-    bound = None
-    if settings.strategy == "geometric":
-        bound = geometric_character(obj, take.markers, settings, config.binding or BindingSettings(), rebind=True)
-        character = bound.basis
-    else:
-        character = character_target(obj)
-        if config.binding is not None and config.binding.by_position:
-            take.notes = tuple(take.notes) + (f"[binding] mode \"{config.binding.mode}\" applies to the geometric "
-                                              f"strategy; '{settings.strategy}' does not sample the character",)
+    binding = config.binding or BindingSettings()
+    # Only geometric samples the character at bound points; the others need its shape names and ranges.
+    # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
+    # on the take (its neutral): bound every run, and stored on the character for the output .blend.
+    names = take.markers.names if settings.strategy == "geometric" else None
+
+    def sample():
+        if names is None:
+            return character_target(obj)
+        return geometric_character(obj, take.markers, settings, binding, rebind=True)
+
+    keep = characters is not None and base is not None and not (names is not None and binding.by_position)
+    made = characters.get(base.path, config.target_object, names, sample) if keep else sample()
+    bound = None if names is None else made
+    character = made if names is None else made.basis
+    if names is None and binding.by_position:
+        take.notes = tuple(take.notes) + (f"[binding] mode \"{binding.mode}\" applies to the geometric strategy; "
+                                          f"'{settings.strategy}' does not sample the character",)
     if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
         import bpy  # bpy: Blender starts on first import
 
@@ -297,7 +313,7 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.footage is None:
         return job.run()
-    shown = None if quiet else _Progress(sys.stderr, f"flow ({request.flow.method})")
+    shown = None if quiet else ProgressLine(sys.stderr, f"flow ({request.flow.method})")
     with sigint_cancels() as stop:
         def progress(done, total):
             if shown is not None:
@@ -366,6 +382,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         say("[5/5] writing outputs")
         if config.output_blend is not None:
             _save_blend_atomic(config.output_blend)
+        _export(config, obj, fps)
         return action
 
     def write_weights():
@@ -385,6 +402,9 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         outputs["weights"] = str(config.output_weights)
     if config.output_blend is not None:
         outputs["blend"] = str(config.output_blend)
+    for key in ("gltf", "fbx"):
+        if getattr(config, f"output_{key}") is not None:
+            outputs[key] = str(getattr(config, f"output_{key}"))
     timings["total"] = time.perf_counter() - t0
     if config.output_report is not None:
         report = result.report()
@@ -398,6 +418,15 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     for note in list(notes) + list(result.warnings):
         say(f"warning: {note}")
     return outputs
+
+
+def _export(config, obj, fps):
+    """[output] gltf / fbx: the character and the keyed take through Blender's exporters."""
+    from .export import export_take  # loads bpy
+
+    for path in (config.output_gltf, config.output_fbx):
+        if path is not None:
+            export_take(obj, path, head_target=config.settings.head_target, fps=fps, take_name=config.action_name)
 
 
 def _save_blend_atomic(path):

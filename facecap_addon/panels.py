@@ -232,6 +232,8 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
             col.operator("facecap.region_add", icon="ADD", text="")
             col.operator("facecap.region_remove", icon="REMOVE", text="")
         layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
+        layout.operator("facecap.export_take", icon="EXPORT")
+        layout.operator("facecap.export_review", icon="DOCUMENTS")
         if s.last_report:
             box = layout.box()
             for line in s.last_report.split(", "):

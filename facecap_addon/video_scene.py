@@ -18,18 +18,22 @@ from .scene_solve import key_solve, request_from_scene
 def clip_footage(clip):
     """(source, frame_offset) for solvers.video.Footage so that its frame numbers are scene frames.
 
-    Videos number frames from 0 in the file; image sequences by the number in the file name. The
-    clip starts at ``clip.frame_start`` in the scene.
+    Footage numbers frames from 1 (the first frame of the video, the first file of a sequence);
+    Blender shows a movie's first frame, or the sequence file named in ``clip.filepath``, at the
+    scene frame ``clip.frame_start``.
     """
     path = Path(bpy.path.abspath(clip.filepath))
     if clip.source == "SEQUENCE":
         match = re.search(r"(\d+)(\.[^.]+)$", path.name)
         if not match:
             raise FacecapError(f"movie clip '{clip.name}': cannot find the frame number in '{path.name}'")
-        first = int(match.group(1))
+        shown = int(match.group(1))
         pattern = str(path.parent / (path.name[: match.start(1)] + "*" + match.group(2)))
-        return pattern, clip.frame_start - first
-    return str(path), clip.frame_start
+        numbers = [int(m.group(1)) for p in path.parent.glob(path.name[: match.start(1)] + "*" + match.group(2))
+                   if (m := re.search(r"(\d+)(\.[^.]+)$", p.name))]
+        first = min(numbers, default=shown)  # Footage's frame 1
+        return pattern, clip.frame_start - 1 - (shown - first)
+    return str(path), clip.frame_start - 1
 
 
 def clip_seeds(clip, frame):

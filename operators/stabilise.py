@@ -71,16 +71,23 @@ class FACECAP_OT_suggest_stable(bpy.types.Operator):
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        chosen = set(suggestion.names)
+        # No reliable set: tick the best candidates for the user to check, and say so.
+        chosen = set(suggestion.names if suggestion.ok else suggestion.candidates)
         for m in settings.markers:
             m.stable = m.name in chosen
             m.stable_score = suggestion.scores.get(m.name, -1.0)
         settings.stable_gap = suggestion.gap
+        if not suggestion.ok:
+            self.report({"WARNING"}, f"{suggestion.message()[0].upper()}{suggestion.message()[1:]}: ticked them; "
+                                     "check them before stabilising")
+            return {"FINISHED"}
         top = ", ".join(f"{n} {suggestion.scores[n]:.2f}" for n in suggestion.names)
+        warning = suggestion.conditioning.get("warning")
         self.report(
-            {"INFO" if suggestion.clear else "WARNING"},
-            f"Suggested {len(chosen)} stable markers (score gap x{suggestion.gap:.1f}"
-            f"{'' if suggestion.clear else ', not a clear split: check them'}): {top}",
+            {"INFO" if warning is None else "WARNING"},
+            f"Suggested {len(chosen)} stable markers (head-fit error at the face "
+            f"{suggestion.conditioning.get('face_error_mm', float('nan')):.2f} mm"
+            f"{'' if warning is None else '; ' + warning}): {top}",
         )
         return {"FINISHED"}
 

@@ -1,8 +1,11 @@
 """Build and save the deterministic sample character ``sample_blends/character.blend``.
 
-Run headless with the bpy wheel::
+Run headless with the bpy wheel of the **oldest supported Blender** (4.2), so that the committed file
+opens in every supported version (a file saved by 5.0 has a new header that 4.2 cannot read; newer
+versions read older files)::
 
-    python sample_blends/generate_character.py [--output PATH] [--layout PATH]
+    python3.11 -m venv /tmp/bpy42 && /tmp/bpy42/bin/pip install bpy==4.2.23 numpy==1.24.3
+    /tmp/bpy42/bin/python sample_blends/generate_character.py [--output PATH] [--layout PATH]
 
 The geometry (mesh, 52 ARKit shape keys, marker patches) comes from the numpy-only
 ``character_geometry.build_character()``; this script only writes it into Blender
@@ -21,6 +24,25 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+
+
+def _import_repo_as_facecap():
+    """Make this checkout importable as ``facecap`` when it is not installed (e.g. in a bare bpy 4.2 venv)."""
+    import importlib.util
+
+    try:
+        import facecap  # noqa: F401
+        return
+    except ImportError:
+        pass
+    spec = importlib.util.spec_from_file_location("facecap", HERE.parent / "__init__.py",
+                                                  submodule_search_locations=[str(HERE.parent)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["facecap"] = module
+    spec.loader.exec_module(module)
+
+
+_import_repo_as_facecap()
 
 from character_geometry import MATERIALS, build_character  # noqa: E402
 

@@ -1,5 +1,11 @@
 """Project error classes: every bad input raises one of these with a message a user can act on."""
 
+import platform
+import sys
+import tomllib
+from contextlib import contextmanager
+from pathlib import Path
+
 
 #: A message quoting what it found (a header, a value) is cut to this many characters in the middle:
 #: one readable line, however long the file's line was.
@@ -46,3 +52,64 @@ class ConfigError(FacecapError):
         if key is not None:
             where += f"[{key}] "
         super().__init__(where + one_line(message))
+
+
+#: Top-level module -> the PyPI package that provides it (bundled in the extension zips: wheels.lock.toml).
+PACKAGES = {"scipy": "scipy", "cv2": "opencv-contrib-python-headless"}
+_MANIFEST = Path(__file__).resolve().parents[1] / "blender_manifest.toml"
+
+
+class MissingDependencyError(FacecapError):
+    """A feature needs scipy or OpenCV and it cannot be imported; the message says what to install.
+
+    Blender ships numpy but neither scipy nor OpenCV; the extension zip for each platform bundles them
+    (docs/install.md). They are missing only in a source checkout linked into Blender, a zip without
+    wheels or a damaged install. Inside Blender the advice is the zip built for this computer (an artist
+    cannot pip-install into Blender's Python); elsewhere it is the pip package.
+    """
+
+    def __init__(self, module, feature, reason):
+        self.module, self.feature = module, feature
+        package = PACKAGES.get(module, module)
+        what = package if package == module else f"{package} ({module})"
+        if "bpy" in sys.modules:
+            advice = (f"install the FaceCap build for this computer, {extension_zip_name()}, with Edit > "
+                      "Preferences > Get Extensions > Install from Disk: it bundles scipy and OpenCV")
+        else:
+            advice = f"install it into this Python: pip install {package}"
+        reason = one_line(reason, 200)
+        super().__init__(f"{feature} needs {what}, which cannot be imported here ({reason}); {advice}")
+
+
+@contextmanager
+def needs(module, feature):
+    """Turn an ImportError of the imports in the block into a ``MissingDependencyError``.
+
+    Parameters
+    ----------
+    module : str
+        The top-level module imported in the block (``"scipy"`` or ``"cv2"``).
+    feature : str
+        What needs it, as the user knows it (``"Clean Markers"``), starting with a capital.
+    """
+    try:
+        yield
+    except ImportError as exc:
+        raise MissingDependencyError(module, feature, str(exc) or type(exc).__name__) from exc
+
+
+def blender_platform():
+    """This computer's platform in Blender's naming (``linux-x64``, ``windows-x64``, ``macos-arm64``, ...)."""
+    system = {"darwin": "macos"}.get(platform.system().lower(), platform.system().lower())
+    machine = platform.machine().lower()
+    machine = {"x86_64": "x64", "amd64": "x64", "aarch64": "arm64"}.get(machine, machine)
+    return f"{system}-{machine}"
+
+
+def extension_zip_name():
+    """The name of the extension zip built for this platform, e.g. ``facecap-0.1.0-linux_x64.zip``."""
+    try:
+        version = tomllib.loads(_MANIFEST.read_text(encoding="utf-8"))["version"]
+    except (OSError, ValueError, KeyError):
+        version = "<version>"  # the name without a version is still the right advice
+    return f"facecap-{version}-{blender_platform().replace('-', '_')}.zip"

@@ -50,13 +50,13 @@ def fit_rigid_batch(source, target, weights):
     target = np.asarray(target, dtype=np.float64)
     # A point with a non-finite coordinate in either set does not take part: weight 0, coordinates 0.
     # A shared (N, 3) target stays (N, 3): no (F, N, 3) copies of it.
-    gap_src, gap_tgt = _gaps(source), _gaps(target)
+    gap_src, gap_tgt = gap_mask(source), gap_mask(target)
     w = np.where(gap_src | gap_tgt, 0.0, w)
-    src = _zero_rows(source, gap_src)
-    return _fit_rigid(src, _zero_rows(target, gap_tgt), w, overwrite=src is not source)
+    src = zero_rows(source, gap_src)
+    return fit_rigid_masked(src, zero_rows(target, gap_tgt), w, overwrite=src is not source)
 
 
-def _fit_rigid(src, tgt, w, *, overwrite=False):
+def fit_rigid_masked(src, tgt, w, *, overwrite=False):
     """:func:`fit_rigid_batch` for finite ``src``/``tgt`` and weights already 0 at their gaps.
 
     ``overwrite``: ``src`` is a scratch copy the caller gives up; centring it in place saves an
@@ -81,14 +81,14 @@ def _fit_rigid(src, tgt, w, *, overwrite=False):
     return R, t, rank_ok
 
 
-def _gaps(points):
+def gap_mask(points):
     """(..., N) bool: points with a NaN or infinite coordinate (one pass: a NaN or inf poisons the sum)."""
     total = points[..., 0] + points[..., 1]
     total += points[..., 2]
     return ~np.isfinite(total)
 
 
-def _zero_rows(points, gap):
+def zero_rows(points, gap):
     """``points`` with the ``gap`` rows set to 0 (a copy only when there is a gap)."""
     if not gap.any():
         return points

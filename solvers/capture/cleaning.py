@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import FacecapError
+from ..errors import FacecapError, needs
 from ..markers import MarkerSet
 from ..options import default
 
@@ -250,8 +250,8 @@ def fill_gaps_spline(markers, *, max_gap):
     frames on each side; its smoothing weight is chosen once per marker by hiding 5-frame blocks
     of the marker's longest visible run and keeping the weight that predicts them best.
     """
-    # scipy: loaded on first use
-    from scipy.interpolate import make_smoothing_spline
+    with needs("scipy", "Spline gap filling (Clean Markers)"):
+        from scipy.interpolate import make_smoothing_spline  # scipy: loaded on first use
 
     pos = markers.positions.copy()
     t = markers.frames
@@ -269,8 +269,7 @@ def fill_gaps_spline(markers, *, max_gap):
             idx = np.concatenate([left, right])
             if idx.size < 5:
                 continue
-            spline = make_smoothing_spline(t[idx], pos[idx, m], lam=lam)
-            pos[a:b, m] = spline(t[a:b])
+            pos[a:b, m] = _spline_per_axis(make_smoothing_spline, t[idx], pos[idx, m], lam, t[a:b])
             filled[m] += b - a
     return markers.with_positions(pos), StepReport("fill_spline", _counts(markers, filled),
                                                    f"gaps of up to {max_gap} frames filled by spline")
@@ -279,10 +278,20 @@ def fill_gaps_spline(markers, *, max_gap):
 _LAMBDAS = 10.0 ** np.arange(-1.0, 3.01, 0.5)
 
 
+def _spline_per_axis(make_smoothing_spline, x, y, lam, at):
+    """A smoothing spline through each column of ``y`` (N, D), evaluated at ``at`` (T,): (T, D).
+
+    One spline per axis because scipy < 1.16 (the 1.15 bundled for Blender's numpy 1.24) takes only
+    1-D ``y``; later scipy fits the columns of a 2-D ``y`` independently too (each its own GCV weight
+    when ``lam`` is None), so the result is the same.
+    """
+    return np.stack([make_smoothing_spline(x, y[:, d], lam=lam)(at) for d in range(y.shape[1])], axis=1)
+
+
 def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
     """Smoothing weight for ``make_smoothing_spline`` by hold-out of 5-frame blocks (None = GCV)."""
-    # scipy: loaded on first use
-    from scipy.interpolate import make_smoothing_spline
+    with needs("scipy", "Spline gap filling (Clean Markers)"):
+        from scipy.interpolate import make_smoothing_spline  # scipy: loaded on first use
 
     runs = _visible_runs(vis)
     a, b = max(runs, key=lambda r: r[1] - r[0])
@@ -295,8 +304,8 @@ def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
     fit, test = rows[~hide], rows[hide]
     errors = []
     for lam in _LAMBDAS:
-        spline = make_smoothing_spline(t[fit], track[fit], lam=lam)
-        errors.append(np.mean((spline(t[test]) - track[test]) ** 2))
+        predicted = _spline_per_axis(make_smoothing_spline, t[fit], track[fit], lam, t[test])
+        errors.append(np.mean((predicted - track[test]) ** 2))
     return float(_LAMBDAS[int(np.argmin(errors))])
 
 
@@ -373,10 +382,8 @@ def lowpass(markers, *, cutoff_hz, order=4):
     Returns (markers, removed (F, M, D) = raw - filtered, StepReport). Runs too short for the
     filter's padding are left unfiltered and counted in the message.
     """
-    from scipy.signal import (  # scipy: loaded on first use
-        butter,
-        filtfilt,
-    )
+    with needs("scipy", "Low-pass filtering (Clean Markers)"):
+        from scipy.signal import butter, filtfilt  # scipy: loaded on first use
 
     nyquist = markers.fps / 2.0
     if not 0 < cutoff_hz < nyquist:

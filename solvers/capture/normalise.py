@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import FacecapError
 from ..transforms import fit_rigid_batch, fit_similarity
 from .neutral import neutral_from_frames
-from .stable_markers import _moving_mean
+from .stable_markers import moving_mean
 
 #: default landmark patterns: eye corners and mouth corners (case-insensitive globs)
 DEFAULT_LANDMARKS = ("*eye*outer*", "*eye*inner*", "*eye_corner*", "*canthus*", "*mouth_corner*", "*lip_corner*")
@@ -60,7 +60,7 @@ def detect_neutral_frames(markers, *, count=None, fraction=0.05, max_compare=150
     """
 
     # Compare poses smoothed over ~0.15 s: frame-to-frame noise would hide a held pose otherwise.
-    P = _moving_mean(markers.positions, max(1, int(round(0.075 * markers.fps))))
+    P = moving_mean(markers.positions, max(1, int(round(0.075 * markers.fps))))
     F = markers.n_frames
     n = max(3, int(round(fraction * F))) if count is None else int(count)
     n = min(n, F)

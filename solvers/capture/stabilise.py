@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..markers import MarkerSet
-from ..transforms import _fit_rigid, _gaps, _zero_rows, best_rotation, fit_rigid_batch
+from ..transforms import fit_rigid_masked, gap_mask, zero_rows, best_rotation, fit_rigid_batch
 from .smoothing import local_polynomial
 
 
@@ -357,16 +357,16 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     idx = markers.index(names)
     raw = _columns(markers.positions, idx)  # a copy of our own: fit_rigid_batch's cleaning is done here in place
     predicted = np.asarray(predicted, dtype=np.float64)
-    gap_raw, gap_pred = _gaps(raw), _gaps(predicted)
+    gap_raw, gap_pred = gap_mask(raw), gap_mask(predicted)
     w = np.where(gap_raw | gap_pred, 0.0, np.asarray(weights, dtype=np.float64)[None])
     raw[gap_raw] = 0.0
-    predicted = _zero_rows(predicted, gap_pred)
+    predicted = zero_rows(predicted, gap_pred)
     # keep the gross fit's scale; refit rotation/translation on scaled points (then only the
     # unscaled fit's rank test is used)
     scaled = None if stab.scales is None else raw * stab.scales[:, None, None]
-    R, t, rank_ok = _fit_rigid(raw, predicted, w, overwrite=True)
+    R, t, rank_ok = fit_rigid_masked(raw, predicted, w, overwrite=True)
     if scaled is not None:
-        R, t, _ = _fit_rigid(scaled, predicted, w, overwrite=True)
+        R, t, _ = fit_rigid_masked(scaled, predicted, w, overwrite=True)
     flagged = stab.flagged | ~rank_ok
     R = np.where(flagged[:, None, None], stab.rotations, R)
     t = np.where(flagged[:, None], stab.translations, t)

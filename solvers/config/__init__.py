@@ -69,6 +69,10 @@ class TakeConfig:
     controls: dict = None  # [controls]: {shape or glob: ShapeControl}
     video: object = None  # [source] video + [tracking] / [flow]: VideoTake (solvers.video.flow_config)
     controls_preset: Path | None = None  # [controls] preset
+    output_gltf: Path | None = None  # [output] gltf: binary glTF (.glb) of the character and the take
+    output_fbx: Path | None = None  # [output] fbx: the same as FBX
+    output_html: Path | None = None  # [output] html: the review page (solvers.tools.report)
+    truth_path: Path | None = None  # retarget --truth: known weights the review page overlays (no config key)
     binding: object = None  # [binding]: BindingSettings (solvers.character.binding_map)
 
     @property
@@ -77,16 +81,29 @@ class TakeConfig:
         return None if self.binding is None else self.binding.map_path
 
 
-def load_take_config(path):
-    """Parse and validate a take config.
+#: [output] key -> the file name ending its exporter writes
+EXPORT_SUFFIXES = {"gltf": ".glb", "fbx": ".fbx"}
+
+
+def _export_path(path, key, value):
+    """``value`` ([output] gltf / fbx) when it ends in the format's suffix, else ConfigError."""
+    suffix = EXPORT_SUFFIXES[key]
+    if value is not None and value.suffix.lower() != suffix:
+        raise ConfigError(f"expected a file name ending in {suffix}; got '{value.name}'", path=path,
+                          key=f"output.{key}")
+    return value
+
+
+def read_config_toml(path):
+    """(absolute path, the TOML tables) of a config file.
 
     Raises
     ------
-    ConfigError naming the file and the offending [section] key.
+    ConfigError naming the file when it cannot be read or is not valid TOML.
     """
     path = Path(os.path.expanduser(str(path))).resolve()
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a UTF-8 BOM is fine
+        return path, tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a UTF-8 BOM is fine
     except FileNotFoundError:
         raise ConfigError("config file not found", path=path) from None
     except tomllib.TOMLDecodeError as exc:
@@ -97,6 +114,24 @@ def load_take_config(path):
         raise ConfigError(f"not valid TOML: {exc}", path=path) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read: {exc}", path=path) from None
+
+
+def load_take_config(path, data=None):
+    """Parse and validate a take config.
+
+    ``data``: the config's TOML tables when they are already read (a batch take with its batch
+    file's defaults merged in: ``solvers.config.batch``); relative paths still resolve against
+    ``path``'s folder.
+
+    Raises
+    ------
+    ConfigError naming the file and the offending [section] key.
+    """
+    if data is None:
+        path, data = read_config_toml(path)
+    else:
+        path = Path(os.path.expanduser(str(path))).resolve()
+        data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}  # popped below: a copy
     _check_schema(path, data)
     free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by config.tuning
 
@@ -171,6 +206,9 @@ def load_take_config(path):
         examples_markers_path=resolve(get("examples", "markers")),
         training_path=resolve(get("refine", "training")),
         output_actor_basis=resolve(get("output", "actor_basis")),
+        output_gltf=_export_path(path, "gltf", resolve(get("output", "gltf"))),
+        output_fbx=_export_path(path, "fbx", resolve(get("output", "fbx"))),
+        output_html=resolve(get("output", "html")),
         projection=projection,
         camera_name=camera_name,
         tuning=parse_tuning(path, free.get("tuning"), base),

@@ -23,6 +23,7 @@ INPUTS = (
     ("examples_markers_path", "[examples.markers]"),
     ("training_path", "[refine.training]"),
     ("binding_map_path", "[binding.map]"),
+    ("truth_path", "--truth"),
 )
 #: (TakeConfig attribute, config key) of every file a take writes
 OUTPUTS = (
@@ -30,6 +31,9 @@ OUTPUTS = (
     ("output_weights", "[output.weights]"),
     ("output_report", "[output.report]"),
     ("output_actor_basis", "[output.actor_basis]"),
+    ("output_gltf", "[output.gltf]"),
+    ("output_fbx", "[output.fbx]"),
+    ("output_html", "[output.html]"),
 )
 
 
@@ -147,3 +151,40 @@ def check_writable(path, key, config_path, *, folder=False):
              "temporary file beside it needs)")
     if len(os.fsencode(str(path.resolve()))) > path_max - 40:
         fail(f"the path is longer than this file system allows ({path_max} bytes)")
+
+
+def check_across_takes(configs, names=None):
+    """Raise ConfigError before any work when takes of one batch would write the same file, or one
+    take would write a file another reads (takes run in any order, at the same time).
+
+    configs : sequence of TakeConfig
+    names : the takes' names for the message (default: their config files)
+    """
+    names = [str(c.path) for c in configs] if names is None else list(names)
+    writers = {}  # path key -> (take index, output key)
+    by_inode = {}  # (device, inode) of an existing output -> (take index, output key)
+    for i, config in enumerate(configs):
+        for key, path in take_outputs(config).items():
+            for known, table in ((_key(path), writers), (_identity(path), by_inode)):
+                if known is None:
+                    continue
+                j, other = table.setdefault(known, (i, key))
+                if j != i:
+                    raise ConfigError(f"takes '{names[j]}' {other} and '{names[i]}' {key} write the same file "
+                                      f"({resolved(path)}): one would be lost", path=config.path)
+    for i, config in enumerate(configs):
+        for key, path in take_inputs(config).items():
+            for known, table in ((_key(path), writers), (_identity(path), by_inode)):
+                j, other = table.get(known, (i, None)) if known is not None else (i, None)
+                if j != i:
+                    raise ConfigError(f"take '{names[i]}' reads {key} ({resolved(path)}), which take '{names[j]}' "
+                                      f"writes as {other}: takes of a batch run in any order", path=config.path)
+
+
+def _identity(path):
+    """(device, inode) of an existing file, else None (hard links and other spellings of one file)."""
+    try:
+        st = os.stat(os.path.expanduser(str(path)))
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino

@@ -18,7 +18,11 @@ frame is about ``n_f (n_f + n_(f+1))^2`` instead of ``n_f (worst bandwidth)^2``.
 """
 
 import numpy as np
-from scipy.linalg import lapack
+
+from ..errors import needs
+
+with needs("scipy", "The temporal solve (smoothing over time)"):  # Blender has scipy only from the zip
+    from scipy.linalg import lapack
 
 
 class Layout:

@@ -17,9 +17,12 @@ checks it (KKT) and corrects what the coupling between shapes changes, so the op
 """
 
 import numpy as np
-from scipy.linalg import lapack
 
+from ..errors import needs
 from .frames import _FREE, _ZERO, classify, fixed_values
+
+with needs("scipy", "The temporal solve (smoothing over time)"):  # Blender has scipy only from the zip
+    from scipy.linalg import lapack
 
 #: Frames of a shape's trajectory around each change that the predictor re-solves.
 PAD = 8

@@ -40,10 +40,14 @@ def stabilise_take(markers, settings, notes):
     suggestion = None
     stable = tuple(settings.stable_markers)
     if settings.auto_stable:
-        suggestion = suggest_stable_markers(markers)
+        suggestion = suggest_stable_markers(markers, reference_frames=reference_range(settings))
+        if not suggestion.ok:  # never a silent bad set: name the candidates instead
+            raise FacecapError(f'[stabilise] markers = "auto": {suggestion.message()}; name the stable markers '
+                               "in [stabilise] markers")
         stable = suggestion.names
-        notes.append(f"stable markers suggested from the take ({len(stable)}, score gap x{suggestion.gap:.1f}"
-                     f"{'' if suggestion.clear else ', NOT a clear split: check them'}): {list(stable)}")
+        notes.append(suggestion.message())
+        if "warning" in suggestion.conditioning:
+            notes.append(f"suggested stable markers: {suggestion.conditioning['warning']}")
     stab = stabilise_rigid(markers, stable, reference_frames=reference_range(settings), mode=settings.stabilise_mode)
     stab = smooth_head_motion(markers, stab, half_window=head_half_window(settings, markers.fps))
     moving = [n for n, w in stab.marker_trust.items() if w < 0.5]

@@ -10,13 +10,15 @@ are flagged (RBF extrapolation is poor).
 """
 
 import numpy as np
-from scipy.interpolate import RBFInterpolator
 
-from ..errors import FacecapError
+from ..errors import FacecapError, needs
 from .base import StrategyResult, as_target
 from .linear import align_source, as_source
 from .lowrank import fill_gaps, gap_subspace, pca_gappy
 from .sources import check_pairs, clamp_to, flat, reorder
+
+with needs("scipy", "The rbf strategy"):  # Blender has scipy only from the zip
+    from scipy.interpolate import RBFInterpolator
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
            "inverse_multiquadric", "inverse_quadratic")

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from .flow import FlowEstimator, ReferenceFlow
-from .reading import Footage, _cv2, write_video
+from .reading import Footage, opencv, write_video
 from .synthetic import face_texture, make_motion, render
 from .tracking import LKTracker, auto_seeds, track_points
 
@@ -95,7 +95,7 @@ def main(argv=None):
     parser.add_argument("--frames", type=int, default=120, help="frames per tracking run (default 120)")
     parser.add_argument("--repeats", type=int, default=3, help="interleaved runs per row; medians (default 3)")
     args = parser.parse_args(argv)
-    cv2 = _cv2()
+    cv2 = opencv()
     print(f"OpenCV {cv2.__version__}, {cv2.getNumThreads()} threads, {os.cpu_count()} CPUs", flush=True)
     for name, fps in bench_tracking(args.frames, repeats=args.repeats):
         print(f"{name}: {fps:.0f} frames/s median (goal >= 60)", flush=True)

@@ -4,18 +4,17 @@ Config (paths relative to the config file)::
 
     [source]
     video = "clip.mp4"          # video file, image folder, glob or printf pattern
-    first = 0                   # optional frame range / step / downscale / rate
-    last = 599
+    first = 1                   # optional frame range / step / downscale / rate
+    last = 600
     step = 1
     scale = 1.0
     fps = 30.0                  # override (image sequences default to 24)
-    frame_offset = 0            # added to frame numbers (1 for Blender-style numbering)
 
     [tracking]
     points = "points2d.csv"     # name,x,y at the reference frame (source pixels) ...
     region = [x, y, w, h]       # ... or automatic features in this box
     method = "lk"               # "lk" | "dis" | "farneback" | "tvl1"
-    reference = 0               # neutral reference frame (default: first frame read)
+    reference = 1               # neutral reference frame (default: first frame read)
     max_points = 100            # automatic features
     reregister = true           # lk: drift control by re-registration to the reference
     reseed = true               # lk: re-acquire lost points
@@ -24,9 +23,13 @@ Config (paths relative to the config file)::
     fb_threshold = 1.0          # lk forward-backward threshold (working pixels)
 
     [output]
-    markers = "tracks.csv"      # frame,<name>_x,<name>_y (pixels, origin top-left)
+    markers = "tracks.csv"      # frame,<name>_x,<name>_y (pixels, origin top-left; frame 1 = first frame)
     confidence = "conf.csv"     # optional: frame,<name> per-sample confidence in [0, 1]
     report = "track.json"       # optional: summary, losses, re-acquisitions, footage info
+
+Frame numbers (``first``, ``last``, ``reference`` and the frames written) follow the project's one
+convention: frame 1 is the first frame of the footage, as in Blender and in marker files; frame 0 and
+the removed ``frame_offset`` key are errors that say so.
 """
 
 import argparse
@@ -44,6 +47,7 @@ from ..io.files import write_json_atomic
 from .flow import track_with_flow_job
 from .reading import Cancelled, Footage
 from .tracking import track_points_job
+from .flow_config import frame_number_error
 
 SCHEMA = {
     "source": {"video", "first", "last", "step", "scale", "fps", "frame_offset"},
@@ -96,7 +100,13 @@ def load_track_config(path):
         p = Path(value)
         return str(p if p.is_absolute() else base / p)
 
-    footage = {k: src[k] for k in ("first", "last", "step", "scale", "fps", "frame_offset") if k in src}
+
+    for section, key in (("source", "first"), ("source", "last"), ("source", "frame_offset"),
+                         ("tracking", "reference")):
+        table = src if section == "source" else trk
+        if key in table and (problem := frame_number_error(f"{section}.{key}", table[key])):
+            raise ConfigError(problem, path=path, key=f"{section}.{key}")
+    footage = {k: src[k] for k in ("first", "last", "step", "scale", "fps") if k in src}
     options = {k: trk[k] for k in trk if k not in ("points", "region", "method", "reference")}
     lk_only, dense_only = {"reregister", "reseed", "win_size", "fb_threshold", "levels"}, {"drift", "preset"}
     wrong = sorted(set(options) & (dense_only if method == "lk" else lk_only))
@@ -116,7 +126,7 @@ def load_track_config(path):
     }
 
 
-class _Progress:
+class ProgressLine:
     """``label: done/total frames (rate)`` on one self-overwriting stderr line, at most twice a second."""
 
     def __init__(self, stream, label):
@@ -161,6 +171,7 @@ def write_outputs(settings, result, info):
     if settings["report"]:
         write_json_atomic(settings["report"], {
             "summary": result.summary(), "method": result.method, "reference": result.reference,
+            "frame_numbering": "frame 1 is the first frame of the footage",
             "footage": {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
                         "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames},
             "markers": list(result.markers.names), "lost": result.lost, "reseeded": result.reseeded,
@@ -223,7 +234,7 @@ def _main(args, stop):
     shown = None
     try:
         settings = load_track_config(args.config)
-        shown = None if args.quiet else _Progress(sys.stderr, f"track ({settings['method']})")
+        shown = None if args.quiet else ProgressLine(sys.stderr, f"track ({settings['method']})")
 
         def progress(done, total):
             if shown is not None:

@@ -19,8 +19,8 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..markers import MarkerSet
-from .reading import Footage, Job, _cv2
-from .tracking import TrackResult, _check_region, _seeds, _to_source
+from .reading import Footage, Job, opencv
+from .tracking import TrackResult, check_region, seed_points, to_source_pixels
 
 METHODS = ("dis", "farneback", "tvl1")
 
@@ -47,7 +47,7 @@ def _grid2(h, w):
 
 def warp(image, flow, *, interpolation=None, border=None):
     """Backward warp: ``out(x) = image(x + flow(x))`` (bilinear). ``image`` may be a flow field."""
-    cv2 = _cv2()
+    cv2 = opencv()
     h, w = flow.shape[:2]
     where = _grid2(h, w) + np.asarray(flow, np.float32)
     return cv2.remap(np.asarray(image, np.float32), where, None,
@@ -67,7 +67,7 @@ def reverse(f_ab, *, max_fill_passes=12):
     Every a-pixel x sends ``-f_ab(x)`` to ``x + f_ab(x)`` in b with bilinear weights; b-pixels that
     receive nothing (disocclusions, borders) are filled by normalised convolution at growing scales.
     """
-    cv2 = _cv2()
+    cv2 = opencv()
     f_ab = np.asarray(f_ab, np.float32)
     h, w = f_ab.shape[:2]
     gx, gy = _grid(h, w)
@@ -107,7 +107,7 @@ def reverse(f_ab, *, max_fill_passes=12):
 
 def sample_flow(flow, points):
     """Bilinear flow values at ``points`` (M, 2) (x, y pixels): (M, 2)."""
-    cv2 = _cv2()
+    cv2 = opencv()
     pts = np.asarray(points, np.float32).reshape(1, -1, 2)
     vals = cv2.remap(np.asarray(flow, np.float32), pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE)
@@ -130,7 +130,7 @@ class FlowEstimator:
     """
 
     def __init__(self, method="dis", *, preset="balanced", finest_scale=None):
-        cv2 = self.cv2 = _cv2()
+        cv2 = self.cv2 = opencv()
         method = str(method).lower()
         if method not in METHODS:
             raise FacecapError(f"`method` must be one of {', '.join(METHODS)}; got {method!r}")
@@ -179,7 +179,7 @@ class ReferenceFlow:
     def __init__(self, ref_image, *, method="dis", drift="fuse", error_sigma=3.0, preset="balanced", **options):
         if drift not in ("fuse", "direct", "none"):
             raise FacecapError(f"`drift` must be 'fuse', 'direct' or 'none'; got {drift!r}")
-        self.cv2 = _cv2()
+        self.cv2 = opencv()
         self.est = FlowEstimator(method, preset=preset, **options)
         self.ref = np.asarray(ref_image)
         self.ref_f = self.ref.astype(np.float32)
@@ -215,7 +215,10 @@ class ReferenceFlow:
                 e_cont = self._error(img_f, cont)
                 total = e_cont + e_dir
                 np.maximum(total, 1e-6, out=total)
-                w_c = e_dir / total
+                # The direct registration unless it reconstructs clearly worse (a large expression the
+                # reference matches badly): the continuous estimate carries the drift of every step.
+                w_c = (e_dir - e_cont) / total
+                np.clip(w_c, 0.0, 1.0, out=w_c)
                 cont -= direct  # in place: fused = direct + w_c (cont - direct)
                 cont *= w_c[..., None]
                 cont += direct
@@ -299,7 +302,7 @@ def dense_flow_job(footage, *, method="dis", reference=None, region=None, grid_s
     if region is None:
         x0, y0, x1, y1 = 0, 0, W, H
     else:
-        x, y, w, h = _check_region(region, (info.height, info.width))
+        x, y, w, h = check_region(region, (info.height, info.width))
         s = info.scale
         x0, y0 = int(np.floor(x * s)), int(np.floor(y * s))
         x1, y1 = min(W, int(np.ceil((x + w) * s))), min(H, int(np.ceil((y + h) * s)))
@@ -340,7 +343,7 @@ def track_with_flow_job(footage, *, points=None, names=None, region=None, refere
 
     footage, ref_frame, ref_img = _open(footage, reference)
     info = footage.info
-    names, work_pts = _seeds(info, ref_img, points=points, names=names, region=region, max_points=max_points)
+    names, work_pts = seed_points(info, ref_img, points=points, names=names, region=region, max_points=max_points)
     _check_flow_options(method, options)
     row = {f: i for i, f in enumerate(info.frames)}
     F_, M = info.n_frames, len(names)
@@ -348,7 +351,7 @@ def track_with_flow_job(footage, *, points=None, names=None, region=None, refere
     conf = np.zeros((F_, M))
     H, W = ref_img.shape
     pts32 = np.asarray(work_pts, np.float32)
-    cv2 = _cv2()
+    cv2 = opencv()
 
     def visit(f, F, err):
         p = work_pts + sample_flow(F, pts32)
@@ -360,7 +363,7 @@ def track_with_flow_job(footage, *, points=None, names=None, region=None, refere
 
     def steps():
         yield from _reference_steps(footage, ref_frame, ref_img, dict(method=method, drift=drift, **options), visit)
-        markers = MarkerSet(names, np.asarray(info.frames, float), _to_source(pos, info.scale), fps=info.fps,
+        markers = MarkerSet(names, np.asarray(info.frames, float), to_source_pixels(pos, info.scale), fps=info.fps,
                             units="px", source=info.path)
         return TrackResult(markers, conf, ref_frame, method)
 

@@ -4,17 +4,16 @@
 
     [source]
     video = "clip.mp4"              # video file, image folder, glob or printf pattern
-    first = 0                       # optional: frame range / step / downscale / rate / numbering
-    last = 149
+    first = 1                       # optional: frame range / step / downscale / rate
+    last = 150
     step = 1
     scale = 1.0
     fps = 30.0
-    frame_offset = 0                # added to frame numbers (the [examples] weights use these)
 
     [tracking]
     method = "dis"                  # dense flow: "dis" (default) | "farneback" | "tvl1"
     region = [x, y, w, h]           # the face, source pixels (default: the whole frame)
-    reference = 0                   # the neutral frame (default: the first frame read)
+    reference = 1                   # the neutral frame (default: the first frame read)
     stable_region = [x, y, w, h]    # or [[x, y, w, h], ...]: moves with the head only (optional)
     grid_step = 4                   # flow sample spacing, working pixels (default: ~4,000 samples)
     drift = "fuse"                  # "fuse" | "direct" | "none"
@@ -30,6 +29,11 @@
     [examples]
     weights = "posed.csv"           # frame,<shape>,... character weights posed at footage frames
 
+Frame numbers (``first``, ``last``, ``reference``, the ``[examples]`` weights) follow the project's
+one convention: frame 1 is the first frame of the footage, as in Blender and in marker files. Frame 0
+and the removed ``frame_offset`` key are errors that say so (see :data:`FRAME_CONVENTION`), never a
+silent one-frame shift.
+
 ``split_video_sections`` takes these keys out of the parsed TOML before the marker-take schema
 check; ``video_take`` validates them (errors name ``[section.key]``); ``check_against_footage``
 checks what needs the footage's size and frames.
@@ -40,9 +44,25 @@ from pathlib import Path
 
 from ..errors import ConfigError, FacecapError
 from .features import EXAMPLE_STRATEGIES
-from .flow_solve import FlowSolveSettings, _box
+from .flow_solve import FlowSolveSettings, check_box
 
 SOURCE_KEYS = ("video", "first", "last", "step", "scale", "frame_offset")  # fps is shared with marker takes
+#: The one frame-numbering rule, quoted by every message about a frame number.
+FRAME_CONVENTION = ("frames count from 1: frame 1 is the first frame of the footage, as in Blender and in marker "
+                    "files (configs written for the earlier 0-based video numbering: add 1 to [source] first/last "
+                    "and [tracking] reference)")
+
+
+def frame_number_error(key, value):
+    """The message for a bad frame number ``value`` of config key ``key``, or None when it is fine."""
+    if key == "source.frame_offset":
+        return (f"`frame_offset` was removed: {FRAME_CONVENTION}; frame numbers are those of the footage "
+                "itself, so delete the key")
+    if not _int(value):
+        return f"expected a frame number (an integer >= 1); got {value!r}"
+    if value < 1:
+        return f"frame {value} does not exist: {FRAME_CONVENTION}"
+    return None
 TRACKING_KEYS = ("method", "region", "reference", "stable_region", "grid_step", "drift", "preset")
 FLOW_KEYS = ("components", "variance")
 METHODS = ("dis", "farneback", "tvl1")
@@ -118,11 +138,15 @@ def video_take(path, raw, data, strategy):
         fail("solve.strategy", f"a [source] video take solves with {', '.join(EXAMPLE_STRATEGIES)} from flow features; "
                                f"got '{strategy}'")
     footage = {}
-    for key in ("first", "last", "step", "frame_offset"):
+    for key in ("first", "last", "frame_offset"):
+        if key in src and (problem := frame_number_error(f"source.{key}", src[key])):
+            fail(f"source.{key}", problem)
         if key in src:
-            if not _int(src[key]) or (key == "step" and src[key] < 1):
-                fail(f"source.{key}", f"expected {'a positive' if key == 'step' else 'an'} integer; got {src[key]!r}")
             footage[key] = src[key]
+    if "step" in src:
+        if not _int(src["step"]) or src["step"] < 1:
+            fail("source.step", f"expected a positive integer; got {src['step']!r}")
+        footage["step"] = src["step"]
     if "scale" in src:
         if not _number(src["scale"]) or not 0 < src["scale"] <= 1:
             fail("source.scale", f"must be in (0, 1]; got {src['scale']!r}")
@@ -139,10 +163,10 @@ def video_take(path, raw, data, strategy):
     boxes = [stable] if stable and _number(stable[0]) else stable
     if not isinstance(boxes, list) or not all(_is_box(b) for b in boxes):
         fail("tracking.stable_region", f"expected [x, y, w, h] or [[x, y, w, h], ...] in pixels; got {stable!r}")
-    for key, check, expect in (("reference", _int, "a frame number"),
-                               ("grid_step", lambda v: _int(v) and v >= 1, "a positive integer")):
-        if key in trk and not check(trk[key]):
-            fail(f"tracking.{key}", f"expected {expect}; got {trk[key]!r}")
+    if "reference" in trk and (problem := frame_number_error("tracking.reference", trk["reference"])):
+        fail("tracking.reference", problem)
+    if "grid_step" in trk and not (_int(trk["grid_step"]) and trk["grid_step"] >= 1):
+        fail("tracking.grid_step", f"expected a positive integer; got {trk['grid_step']!r}")
     drift = trk.get("drift", "fuse")
     if drift not in ("fuse", "direct", "none"):
         fail("tracking.drift", f"expected \"fuse\", \"direct\" or \"none\"; got {drift!r}")
@@ -175,9 +199,9 @@ def check_against_footage(path, take, info):
                        ("tracking.stable_region", list(flow.stable_region))):
         for box in boxes:
             try:
-                _box(box, key.split(".")[1], size)
+                check_box(box, key.split(".")[1], size)
             except FacecapError as exc:
                 raise ConfigError(str(exc), path=path, key=key) from None
     if flow.reference is not None and flow.reference not in info.frames:
-        raise ConfigError(f"frame {flow.reference} is not in the footage ({info.frames[0]}-{info.frames[-1]})",
-                          path=path, key="tracking.reference")
+        raise ConfigError(f"frame {flow.reference} is not in the footage ({info.frames[0]}-{info.frames[-1]}; "
+                          "frame 1 is the first)", path=path, key="tracking.reference")

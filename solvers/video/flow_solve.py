@@ -57,7 +57,7 @@ class FlowSolveSettings:
     variance: float = None
 
 
-def _box(value, what, size):
+def check_box(value, what, size):
     """(x, y, w, h) floats inside a ``size`` = (W, H) frame, else a FacecapError naming ``what``."""
     try:
         x, y, w, h = (float(v) for v in value)
@@ -73,8 +73,8 @@ def check_flow_settings(flow, info):
     """Validate ``flow`` (FlowSolveSettings) against footage ``info``; returns (region, stable boxes)."""
     size = (info.width, info.height)
     region = (0.0, 0.0, float(info.width), float(info.height)) if flow.region is None else \
-        _box(flow.region, "region", size)
-    stable = tuple(_box(b, "stable_region", size) for b in flow.stable_region)
+        check_box(flow.region, "region", size)
+    stable = tuple(check_box(b, "stable_region", size) for b in flow.stable_region)
     if flow.reference is not None and int(flow.reference) not in info.frames:
         raise FacecapError(f"`reference` frame {flow.reference} is not in the footage "
                            f"({info.frames[0]}-{info.frames[-1]})")

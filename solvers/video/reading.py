@@ -1,8 +1,10 @@
 """Reading footage through OpenCV: video files (mp4, mov, avi, mkv) and image sequences.
 
-Frames come out as 8-bit grayscale arrays (tracking and flow work on luminance). Frame numbers are
-the 0-based index in the file (video) or the number in the file name (image sequence), plus
-``frame_offset``. ``scale`` < 1 downsamples for speed; :class:`FootageInfo` keeps both the source
+Frames come out as 8-bit grayscale arrays (tracking and flow work on luminance). Frame numbers
+follow the project's one convention: **frame 1 is the first frame of the footage**, as in Blender
+and in marker files (video: position in the file + 1; image sequence: number in the file name minus
+the first file's number + 1, so a missing file stays a missing frame), plus ``frame_offset``.
+``scale`` < 1 downsamples for speed; :class:`FootageInfo` keeps both the source
 and the working resolution so results can be reported in source pixels.
 """
 
@@ -17,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FacecapError, InputFileError
+from ..errors import FacecapError, InputFileError, needs
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
 PREFETCH = 8  # frames decoded ahead by the reader thread
@@ -51,11 +53,10 @@ class FootageInfo:
         return len(self.frames)
 
 
-def _cv2():
-    try:
+def opencv():
+    """OpenCV (Blender has it only from the extension zip)."""
+    with needs("cv2", "Video input (tracking, flow)"):
         import cv2  # OpenCV: imported on first use
-    except ImportError:  # pragma: no cover - the pinned environment has it
-        raise FacecapError("video input needs OpenCV: pip install opencv-contrib-python-headless") from None
     return cv2
 
 
@@ -163,11 +164,12 @@ class Footage:
     fps : float, optional
         Frame rate for image sequences (default 24), or to override a video's.
     frame_offset : int
-        Added to every frame number (e.g. 1 for Blender's 1-based movie clips).
+        Added to every frame number (default 0: the first frame is frame 1). The add-on passes
+        ``clip.frame_start - 1`` so frame numbers are scene frames.
     """
 
     def __init__(self, source, *, first=None, last=None, step=1, scale=1.0, fps=None, frame_offset=0):
-        self.cv2 = _cv2()
+        self.cv2 = opencv()
         self.path = Path(source)
         if int(step) != step or step < 1:
             raise FacecapError(f"`step` must be a positive integer; got {step}")
@@ -224,7 +226,8 @@ class Footage:
         if None in numbers or len(set(numbers)) != len(numbers):
             numbers = list(range(len(files)))
         order = np.argsort(numbers, kind="stable")
-        self._images = {numbers[i] + self.frame_offset: files[i] for i in order}
+        base = 1 - min(numbers) + self.frame_offset  # the first file is frame 1
+        self._images = {numbers[i] + base: files[i] for i in order}
         first = self._read_image(files[order[0]])
         self._height, self._width = first.shape[:2]
 
@@ -257,7 +260,7 @@ class Footage:
     def _all_frames(self):
         if self._images is not None:
             return sorted(self._images)
-        return [i + self.frame_offset for i in range(self._count)]
+        return [i + 1 + self.frame_offset for i in range(self._count)]
 
     def _read_image(self, path):
         img = self.cv2.imread(str(path), self.cv2.IMREAD_UNCHANGED)
@@ -339,7 +342,7 @@ class Footage:
         last = self.info.frames[-1]
         cap = cv2.VideoCapture(str(self.path))
         try:
-            first_index = self.info.frames[0] - self.frame_offset
+            first_index = self.info.frames[0] - 1 - self.frame_offset  # 0-based position in the file
             if first_index > 0:
                 cap.set(cv2.CAP_PROP_POS_FRAMES, first_index)
                 pos = int(cap.get(cv2.CAP_PROP_POS_FRAMES))
@@ -347,7 +350,7 @@ class Footage:
                     cap.release()
                     cap = cv2.VideoCapture(str(self.path))
                     first_index = 0
-            f = first_index + self.frame_offset
+            f = first_index + 1 + self.frame_offset
             while f <= last:
                 if f in wanted:
                     ok, img = cap.read()
@@ -366,10 +369,10 @@ class Footage:
             if number not in self._images:
                 raise FacecapError(f"{self.path}: no frame {number}")
             return self._prepare(self._read_image(self._images[number]), self._images[number])
-        index = int(number) - self.frame_offset
+        index = int(number) - 1 - self.frame_offset  # 0-based position in the file
         if not 0 <= index < self._count:
-            raise FacecapError(f"{self.path}: no frame {number} (the video has "
-                               f"{self.frame_offset}..{self._count - 1 + self.frame_offset})")
+            raise FacecapError(f"{self.path}: no frame {number} (the video has frames "
+                               f"{1 + self.frame_offset}..{self._count + self.frame_offset}; frame 1 is the first)")
         cap = self.cv2.VideoCapture(str(self.path))
         try:
             cap.set(self.cv2.CAP_PROP_POS_FRAMES, index)
@@ -412,7 +415,7 @@ def write_video(path, images, *, fps=30.0, codec=None):
     ``codec`` defaults to lossless FFV1 for .avi/.mkv (falls back to MJPG if the build lacks it)
     and mp4v for .mp4/.mov.
     """
-    cv2 = _cv2()
+    cv2 = opencv()
     path = Path(path)
     images = np.asarray(images)
     if images.ndim not in (3, 4) or images.dtype != np.uint8:

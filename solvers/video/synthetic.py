@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .reading import _cv2, write_video
+from .reading import opencv, write_video
 
 
 def face_texture(width=320, height=240, *, seed=0):
     """A band-limited, well-textured face-like grayscale image (float32, 0..255)."""
-    cv2 = _cv2()
+    cv2 = opencv()
     rng = np.random.default_rng(seed)
     img = np.zeros((height, width), np.float32)
     for sigma, amp in ((12.0, 40.0), (5.0, 30.0), (2.0, 22.0), (1.0, 12.0)):
@@ -137,7 +137,7 @@ def make_motion(n_frames, width=320, height=240, *, amplitude=3.0, similarity=Tr
 
 def render(texture, motion, t, *, noise=0.0, rng=None):
     """Frame t as uint8: ``I_t(x) = R(inverse_t(x))``."""
-    cv2 = _cv2()
+    cv2 = opencv()
     h, w = texture.shape
     grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), axis=-1)
     R, c, tr = motion._sim(t)

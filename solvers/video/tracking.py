@@ -1,4 +1,5 @@
-"""Sparse 2D tracking: pyramidal Lucas-Kanade with a forward-backward check and drift control.
+"""Sparse 2D tracking: pyramidal Lucas-Kanade with forward-backward checks, drift control and
+lighting-robust re-registration (see :class:`LKTracker`).
 
 Per frame and point there are two estimates (the thesis' Alg. 4.3, applied to points):
 
@@ -6,20 +7,22 @@ Per frame and point there are two estimates (the thesis' Alg. 4.3, applied to po
 * **direct** - LK from the neutral *reference* frame's patch straight to this frame, started at
   the continuous estimate (or, for a lost point, at a prediction from the points still held).
 
-Each passes a forward-backward check; where both pass they are fused with weights from their patch
-reconstruction errors against the reference, ``w_cont = E_dir / (E_cont + E_dir)``, so errors no
-longer accumulate (drift stays bounded) while large expressions, which the reference patch matches
-badly, lean on the continuous estimate. A point that fails both is a gap (NaN) until the direct
-registration re-acquires it (``reseed``); losses and recoveries are reported by name.
+Each passes a forward-backward check; the direct estimate is used unless it fails or matches the
+reference patch clearly worse than the continuous one, so errors do not accumulate (drift stays
+bounded) while large expressions, which the reference patch matches badly, lean on the continuous
+estimate. Loss thresholds are relative to each point's own measured noise. A point that fails both
+is a gap (NaN) until the direct registration re-acquires it (``reseed``); losses and recoveries are
+reported by name.
 """
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import FacecapError, InputFileError
 from ..markers import MarkerSet
-from .reading import Footage, Job, _cv2
+from .reading import Footage, Job, opencv
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,8 +86,8 @@ def read_seed_points(path):
 
 def auto_seeds(image, region, *, max_points=100, quality=0.01, min_distance=None, prefix="p"):
     """Corner features (Shi-Tomasi) inside ``region`` = [x, y, w, h] of a grayscale image: ``(names, (M, 2))``."""
-    cv2 = _cv2()
-    x, y, w, h = (int(round(v)) for v in _check_region(region, image.shape))
+    cv2 = opencv()
+    x, y, w, h = (int(round(v)) for v in check_region(region, image.shape))
     mask = np.zeros(image.shape[:2], np.uint8)
     mask[y: y + h, x: x + w] = 255
     if min_distance is None:
@@ -99,7 +102,7 @@ def auto_seeds(image, region, *, max_points=100, quality=0.01, min_distance=None
     return names, pts
 
 
-def _check_region(region, shape):
+def check_region(region, shape):
     try:
         x, y, w, h = (float(v) for v in region)
     except (TypeError, ValueError):
@@ -124,18 +127,40 @@ def fit_similarity_2d(src, dst, weights=None):
 
 
 class LKTracker:
-    """Frame-by-frame LK tracker of reference points (working-resolution pixels)."""
+    """Frame-by-frame LK tracker of reference points (working-resolution pixels).
+
+    Per frame and point: a *continuous* estimate (LK from the previous frame) and a *direct* one
+    (LK from the reference patch, started at the continuous estimate or, for a lost point, at a
+    similarity prediction from the held points), each checked forward-backward (the backward pass
+    starts where the point came from, so large head motion does not fail the check). The direct
+    estimate is used unless it fails or matches the reference patch clearly worse than the
+    continuous one (a large expression), so errors do not accumulate.
+
+    Losses are judged against each point's own measured noise, not fixed thresholds: a sample is
+    rejected when its forward-backward error exceeds ``fb_threshold`` *and* ``fb_factor`` times the
+    point's recent typical one, or its patch error exceeds ``appearance_factor`` times its recent
+    typical one (an occluder) - or it leaves the frame.
+
+    ``photometric``: the direct registration is also run on detail images (shading and lighting
+    removed) and kept per point where its contrast-normalised patch match is better (lighting drift;
+    measured in docs/accuracy.md).
+    """
+
+    HISTORY = 30  # frames of per-point statistics
 
     def __init__(self, ref_image, ref_points, *, win_size=21, levels=3, fb_threshold=1.0, reregister=True,
-                 reseed=True, patch_radius=6):
-        self.cv2 = cv2 = _cv2()
+                 reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0, photometric=True):
+        self.cv2 = cv2 = opencv()
         self.win = (int(win_size), int(win_size))
         self.levels = int(levels)
         self.fb = float(fb_threshold)
+        self.fb_factor, self.app_factor = float(fb_factor), float(appearance_factor)
         self.reregister, self.reseed = bool(reregister), bool(reseed)
-        self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        self.photometric = bool(photometric)
+        self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 0.001)
         self.ref_pts = np.asarray(ref_points, np.float32).reshape(-1, 2)
         self.ref_pyr = self._pyramid(ref_image)
+        self.ref_hp = self._highpass(ref_image)
         self.prev_pyr = self.ref_pyr
         self.pos = self.ref_pts.copy()
         self.ok = np.ones(len(self.ref_pts), bool)
@@ -144,6 +169,16 @@ class LKTracker:
         off = np.stack(np.meshgrid(np.arange(-r, r + 1), np.arange(-r, r + 1)), -1).reshape(-1, 2)
         self.offsets = off.astype(np.float32)
         self.ref_patch = self._patches(ref_image, self.ref_pts)
+        n = len(self.ref_pts)
+        self.fb_hist = np.full((self.HISTORY, n), np.nan)  # accepted forward-backward errors
+        self.err_hist = np.full((self.HISTORY, n), np.nan)  # accepted patch errors (grey levels)
+        self.frame_no = 0
+
+    def _highpass(self, img):
+        """Detail without the slowly varying shading: a lighting change barely alters it."""
+        cv2 = self.cv2
+        f = img.astype(np.float32)
+        return np.clip(128.0 + 2.0 * (f - cv2.GaussianBlur(f, (0, 0), 4.0)), 0, 255).astype(np.uint8)
 
     def _pyramid(self, img):
         # OpenCV's Python binding does not accept prebuilt pyramids here, so LK builds its own.
@@ -155,8 +190,8 @@ class LKTracker:
             out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, None, winSize=self.win, maxLevel=self.levels,
                                                   criteria=self.criteria)
         else:
-            out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, init.copy(), winSize=self.win,
-                                                  maxLevel=self.levels, criteria=self.criteria,
+            out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, np.ascontiguousarray(init, np.float32).copy(),
+                                                  winSize=self.win, maxLevel=self.levels, criteria=self.criteria,
                                                   flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         return out.reshape(-1, 2), st.reshape(-1).astype(bool)
 
@@ -164,6 +199,15 @@ class LKTracker:
         grid = pts[:, None, :] + self.offsets[None]
         return self.cv2.remap(img, grid[..., 0], grid[..., 1], self.cv2.INTER_LINEAR,
                               borderMode=self.cv2.BORDER_REPLICATE).astype(np.float32)
+
+    def _patch_error(self, img, pts, rows=slice(None)):
+        """Mean absolute difference to the reference patch, both normalised to zero mean and unit
+        contrast (lighting drift changes neither), in units of the patch contrast."""
+        def z(p):
+            p = p - p.mean(axis=1, keepdims=True)
+            return p / np.maximum(p.std(axis=1, keepdims=True), 1.0)
+
+        return np.abs(z(self._patches(img, pts)) - z(self.ref_patch[rows])).mean(axis=1)
 
     def _inside(self, pts):
         h, w = self.shape[:2]
@@ -178,47 +222,64 @@ class LKTracker:
             pred[~self.ok] = (self.ref_pts[~self.ok] @ M[:, :2].T + M[:, 2]).astype(np.float32)
         return pred
 
+    def _typical(self, hist, fallback):
+        """(M,) each point's recent median (the frame's median over points until it has a history)."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            own = np.nanmedian(hist, axis=0)
+            pooled = np.nanmedian(hist) if np.isfinite(hist).any() else fallback
+        return np.where(np.isfinite(own) & (np.isfinite(hist).sum(axis=0) >= 5), own, pooled)
+
+    def _checked(self, a, b, src, init, back_init):
+        """LK a -> b from ``src`` (started at ``init``) and back; (positions, forward-backward error)."""
+        fwd, st = self._lk(a, b, src, init)
+        back, st2 = self._lk(b, a, fwd, back_init)
+        fb = np.linalg.norm(back - src, axis=1)
+        fb[~(st & st2 & self._inside(fwd))] = np.inf
+        return fwd, fb
+
     def step(self, img):
         """Track into ``img``; returns positions (M, 2) (NaN = lost), confidence (M,), re-acquired mask."""
         n = len(self.ref_pts)
         cur = self._pyramid(img)
         was_ok = self.ok.copy()
+        fb_typ = self._typical(self.fb_hist, 0.05)
+        fb_limit = np.maximum(self.fb, self.fb_factor * fb_typ)
         p_c = np.full((n, 2), np.nan, np.float32)
-        q_c = np.zeros(n)
+        fb_c = np.full(n, np.inf)
         if was_ok.any():
             idx = np.flatnonzero(was_ok)
-            fwd, st = self._lk(self.prev_pyr, cur, self.pos[idx])
-            back, st2 = self._lk(cur, self.prev_pyr, fwd)
-            fb = np.linalg.norm(back - self.pos[idx], axis=1)
-            good = st & st2 & (fb < self.fb) & self._inside(fwd)
-            p_c[idx[good]] = fwd[good]
-            q_c[idx[good]] = 1.0 - fb[good] / self.fb
-        ok_c = q_c > 0
-        want_direct = np.ones(n, bool) if self.reregister else (~ok_c & self.reseed)
+            p_c[idx], fb_c[idx] = self._checked(self.prev_pyr, cur, self.pos[idx], None, self.pos[idx])
+        ok_c = fb_c < fb_limit
         p_d = np.full((n, 2), np.nan, np.float32)
-        q_d = np.zeros(n)
-        if want_direct.any():
+        fb_d = np.full(n, np.inf)
+        want = np.ones(n, bool) if self.reregister else (~ok_c & self.reseed)
+        if want.any():
             init = np.where(ok_c[:, None], p_c, self._predict() if (~ok_c).any() else p_c)
-            idx = np.flatnonzero(want_direct & np.isfinite(init[:, 0]))
-            fwd, st = self._lk(self.ref_pyr, cur, self.ref_pts[idx], init[idx])
-            back, st2 = self._lk(cur, self.ref_pyr, fwd)
-            fb = np.linalg.norm(back - self.ref_pts[idx], axis=1)
-            good = st & st2 & (fb < self.fb) & self._inside(fwd)
-            if not self.reregister:  # re-acquisition only: demand a close match to the reference
-                good &= fb < 0.5 * self.fb
-            p_d[idx[good]] = fwd[good]
-            q_d[idx[good]] = 1.0 - fb[good] / self.fb
-        ok_d = q_d > 0
-        both = ok_c & ok_d
-        w_c = ok_c.astype(float)
-        if both.any():
-            e_c = np.abs(self._patches(img, p_c[both]) - self.ref_patch[both]).mean(axis=1)
-            e_d = np.abs(self._patches(img, p_d[both]) - self.ref_patch[both]).mean(axis=1)
-            w_c[both] = e_d / np.maximum(e_c + e_d, 1e-6)
-        pos = np.where(ok_c[:, None], p_c, 0) * w_c[:, None] + np.where(ok_d[:, None], p_d, 0) * (1 - w_c)[:, None]
-        ok = ok_c | ok_d
-        conf = np.where(ok, w_c * q_c + (1 - w_c) * q_d, 0.0)
+            idx = np.flatnonzero(want & np.isfinite(init[:, 0]))
+            p_d[idx], fb_d[idx] = self._checked(self.ref_pyr, cur, self.ref_pts[idx], init[idx], self.ref_pts[idx])
+            if self.photometric:  # the same registration on detail images; kept where it fits the patch better
+                p_h, fb_h = self._checked(self.ref_hp, self._highpass(img), self.ref_pts[idx], init[idx],
+                                          self.ref_pts[idx])
+                e_raw = np.where(np.isfinite(fb_d[idx]), self._patch_error(img, np.nan_to_num(p_d[idx]), idx), np.inf)
+                e_hp = np.where(np.isfinite(fb_h), self._patch_error(img, np.nan_to_num(p_h), idx), np.inf)
+                better = e_hp < e_raw
+                p_d[idx[better]], fb_d[idx[better]] = p_h[better], fb_h[better]
+        ok_d = fb_d < np.where(ok_c | self.reregister, fb_limit, 0.5 * fb_limit)  # re-acquiring: a closer match
+        err_typ = self._typical(self.err_hist, np.inf)
+        e_c = np.where(ok_c, self._patch_error(img, np.nan_to_num(p_c)), np.inf)
+        e_d = np.where(ok_d, self._patch_error(img, np.nan_to_num(p_d)), np.inf)
+        use_c = ok_c & (~ok_d | (e_d > 1.5 * e_c + 0.05))  # the reference matches clearly worse: big expression
+        pos = np.where(use_c[:, None], p_c, p_d)
+        fb = np.where(use_c, fb_c, fb_d)
+        err = np.where(use_c, e_c, e_d)
+        ok = (ok_c | ok_d) & (err <= np.maximum(self.app_factor * err_typ, 0.5))  # occluded: unlike itself
+        conf = np.where(ok, np.clip(1.0 - fb / (2.0 * fb_limit), 0.0, 1.0), 0.0)
         pos[~ok] = np.nan
+        row = self.frame_no % self.HISTORY
+        self.fb_hist[row] = np.where(ok, fb, np.nan)
+        self.err_hist[row] = np.where(ok, err, np.nan)
+        self.frame_no += 1
         self.pos = np.where(ok[:, None], pos, self.pos).astype(np.float32)
         self.ok = ok
         self.prev_pyr = cur
@@ -229,16 +290,16 @@ def _to_work(xy, scale):
     return (np.asarray(xy, float) + 0.5) * scale - 0.5
 
 
-def _to_source(xy, scale):
+def to_source_pixels(xy, scale):
     return (np.asarray(xy, float) + 0.5) / scale - 0.5
 
 
-def _seeds(info, ref_img, *, points, names, region, max_points):
+def seed_points(info, ref_img, *, points, names, region, max_points):
     """Seed names and working-pixel positions from ``points`` (array or file) or a ``region``."""
     if (points is None) == (region is None):
         raise FacecapError("give exactly one of `points` (positions or a name,x,y file) and `region`")
     if region is not None:
-        x, y, w, h = _check_region(region, (info.height, info.width))
+        x, y, w, h = check_region(region, (info.height, info.width))
         box = _to_work([x, y], info.scale).tolist() + [w * info.scale, h * info.scale]
         box = [max(0, box[0]), max(0, box[1]), min(box[2], ref_img.shape[1] - max(0, box[0])),
                min(box[3], ref_img.shape[0] - max(0, box[1]))]
@@ -307,7 +368,7 @@ def track_points_job(footage, *, points=None, names=None, region=None, reference
     info = footage.info
     ref_frame = info.frames[0] if reference is None else int(reference)
     ref_img = footage.frame(ref_frame)
-    names, work_pts = _seeds(info, ref_img, points=points, names=names, region=region, max_points=max_points)
+    names, work_pts = seed_points(info, ref_img, points=points, names=names, region=region, max_points=max_points)
     options = dict(win_size=win_size, levels=levels, fb_threshold=fb_threshold, reregister=reregister, reseed=reseed)
     return Job(_track_steps(footage, ref_frame, ref_img, names, work_pts, options), info.n_frames, info=info)
 
@@ -356,7 +417,7 @@ def _track_steps(footage, ref_frame, ref_img, names, work_pts, options):
         f, img = before.pop()
         held = track(f, img, tracker, held)
         yield f
-    out = _to_source(pos, info.scale)
+    out = to_source_pixels(pos, info.scale)
     markers = MarkerSet(names, frames, out, fps=info.fps, units="px", source=info.path)
     return TrackResult(markers, conf, ref_frame, "lk", {k: v for k, v in lost.items() if v},
                        {k: v for k, v in found.items() if v})

@@ -255,3 +255,13 @@ def test_blend_matches_the_generator(char):
     np.testing.assert_allclose(char.basis, geo.vertices, atol=1e-7)
     for name in ARKIT:
         np.testing.assert_allclose(char.deltas[name], geo.shape_keys[name], atol=1e-6, err_msg=name)
+
+
+def test_blend_is_saved_by_the_oldest_supported_blender():
+    """Saved by 4.2 so it opens in 4.2-5.0 (a 5.0 file has a new header that 4.2 cannot read)."""
+    import zstandard  # a dependency of the bpy wheel; the sample is saved compressed
+
+    with open(BLEND, "rb") as fh:
+        header = zstandard.ZstdDecompressor().stream_reader(fh).read(12)
+    assert header == b"BLENDER-v402", f"{BLEND.name} was saved by {header!r}; regenerate it with bpy 4.2 " \
+        "(see sample_blends/generate_character.py)"

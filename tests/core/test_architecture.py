@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-HEAVY = {"scipy", "cv2", "bpy", "bpy_extras", "mathutils", "bmesh"}
+HEAVY = {"scipy", "cv2", "bpy", "bpy_extras", "mathutils", "bmesh", "dask", "distributed"}  # dask: optional
 MAX_LINES = 500
 LONG_FILES = {"sample_blends/character_geometry.py"}  # the generated character's geometry tables
 

@@ -48,6 +48,30 @@ def test_short_gaps_filled_by_spline_within_two_sigma():
         assert np.sqrt(np.mean(err ** 2)) < 2 * SIGMA, length
 
 
+def test_spline_fill_needs_only_one_dimensional_splines(monkeypatch):
+    """scipy 1.15 (bundled for Blender's numpy 1.24) fits 1-D ``y`` only; the fill gives the same result
+    through such a make_smoothing_spline as through the installed one (regression: Clean Markers failed)."""
+    import scipy.interpolate
+
+    _, noisy, rng = face_take(frames=600, markers=6)
+    pos = noisy.copy()
+    for m, a in ((0, 100), (1, 300), (2, 450), (3, 50), (5, 500)):
+        pos[a:a + 6, m] = np.nan
+    pos[:, 4][(np.arange(600) % 70) < 5] = np.nan  # visible runs < 80 frames: GCV picks the weight
+    expected, _ = fill_gaps_spline(as_set(pos), max_gap=8)
+    real = scipy.interpolate.make_smoothing_spline
+
+    def one_dimensional(x, y, w=None, lam=None):
+        if np.ndim(y) != 1:
+            raise ValueError("``x`` and ``y`` should be one dimensional and the same size")
+        return real(x, y, w=w, lam=lam)
+
+    monkeypatch.setattr(scipy.interpolate, "make_smoothing_spline", one_dimensional)
+    out, report = fill_gaps_spline(as_set(pos), max_gap=8)
+    assert report.total == 5 * 6 + 8 * 5  # the 5-frame gap at frame 0 is an edge gap: left alone
+    np.testing.assert_array_equal(out.positions, expected.positions)
+
+
 def test_long_gaps_reconstructed_from_other_markers_within_three_sigma():
     truth, noisy, rng = face_take()
     pos = noisy.copy()

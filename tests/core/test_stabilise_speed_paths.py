@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from facecap.solvers import MarkerSet, fit_rigid_batch, stabilise_rigid
 from facecap.solvers.capture import smoothing
 from facecap.solvers.capture.stabilise import _apply, _norm3, refine_rigid, smooth_head_motion
-from facecap.solvers.transforms import _zero_rows
+from facecap.solvers.transforms import zero_rows
 
 RNG = np.random.default_rng(5)
 STABLE = ("s0", "s1", "s2", "s3", "s4")
@@ -154,4 +154,4 @@ def test_scaling_units_down_skips_nothing_that_matters():
 
 def test_zero_rows_leaves_a_gapless_array_alone():
     x = RNG.normal(size=(5, 4, 3))
-    assert _zero_rows(x, np.zeros((5, 4), dtype=bool)) is x
+    assert zero_rows(x, np.zeros((5, 4), dtype=bool)) is x

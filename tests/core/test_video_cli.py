@@ -1,6 +1,7 @@
 """`track --config take.toml`: footage -> wide marker CSV (pixels), progress on stderr, one-line errors."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -32,13 +33,14 @@ def write_config(d, tracking, extra=""):
 @pytest.mark.parametrize("method", ["lk", "dis"])
 def test_track_writes_wide_csv_in_pixels(take, method, capsys):
     d, clip = take
-    cfg = write_config(d, f'points = "points2d.csv"\nmethod = "{method}"\nreference = 0')
+    cfg = write_config(d, f'points = "points2d.csv"\nmethod = "{method}"\nreference = 1')
     assert main(["track", "--config", str(cfg)]) == 0
     err = capsys.readouterr().err
     assert f"track ({method}): 24/24 frames" in err and "tracked 3 points over 24 frames" in err
     header = (d / "out/tracks.csv").read_text().splitlines()[0]
     assert header == "frame,brow_L_x,brow_L_y,brow_R_x,brow_R_y,mouth_x,mouth_y"
     mk = read_markers_csv(d / "out/tracks.csv", units="px", fps=30.0)
+    assert mk.frames[0] == 1 and mk.frames[-1] == 24  # frame 1 = the first frame, as in Blender
     np.testing.assert_allclose(mk.positions[0], [[80, 50], [120, 50], [100, 110]], atol=1e-6)
     truth = np.stack([clip.motion.forward(t, mk.positions[0]) for t in range(24)])
     assert np.median(np.linalg.norm(mk.positions - truth, axis=2)) <= 0.5
@@ -46,6 +48,25 @@ def test_track_writes_wide_csv_in_pixels(take, method, capsys):
     assert names == mk.names and conf.shape == (24, 3) and (conf <= 1).all()
     report = json.loads((d / "out/track.json").read_text())
     assert report["footage"]["fps"] == 30.0 and report["footage"]["width"] == 200 and report["method"] == method
+    assert report["reference"] == 1 and report["footage"]["frames"] == [1, 24]
+
+
+@pytest.mark.parametrize("section,key,message", [
+    ("tracking", "reference = 0", r"\[tracking.reference\] frame 0 does not exist: frames count from 1"),
+    ("source", "first = 0", r"\[source.first\] frame 0 does not exist: frames count from 1"),
+    ("source", "frame_offset = 1", r"\[source.frame_offset\] `frame_offset` was removed: frames count from 1"),
+])
+def test_old_zero_based_frame_numbers_are_told_not_shifted(take, capsys, section, key, message):
+    d, _ = take
+    if section == "tracking":
+        cfg = write_config(d, f'points = "points2d.csv"\n{key}')
+    else:
+        cfg = d / "take.toml"
+        cfg.write_text(f'[source]\nvideo = "clip.avi"\n{key}\n[tracking]\npoints = "points2d.csv"\n'
+                       '[output]\nmarkers = "out/tracks.csv"\n')
+    assert main(["track", "--config", str(cfg)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert re.search(message, err) and "add 1 to" in err and len(err.splitlines()) == 1
 
 
 def test_track_region_from_a_subprocess(take):
@@ -93,7 +114,7 @@ def test_progress_false_cancels_before_anything_is_written(take, capsys):
     cfg = write_config(d, 'points = "points2d.csv"').read_text().replace("out/", "stopped/")
     (d / "stopped.toml").write_text(cfg)
     settings = load_track_config(d / "stopped.toml")
-    with pytest.raises(Cancelled, match=r"cancelled at frame 4 \(5 of 24 frames done\)"):
+    with pytest.raises(Cancelled, match=r"cancelled at frame 5 \(5 of 24 frames done\)"):
         run_track(settings, progress=lambda done, total: done < 5)
     assert not (d / "stopped").exists()
 

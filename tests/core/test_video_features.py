@@ -28,8 +28,9 @@ def footage(tmp_path_factory):
 
 
 def examples(clip, n=16):
-    frames = np.linspace(0, clip.motion.n_frames - 1, n).round().astype(int)
-    return frames, clip.motion.amplitudes[frames] / AMP
+    """Posed frame numbers (frame 1 = motion time 0) and their weights."""
+    rows = np.linspace(0, clip.motion.n_frames - 1, n).round().astype(int)
+    return rows + 1, clip.motion.amplitudes[rows] / AMP
 
 
 def test_removing_the_head_similarity_leaves_the_face_motion(footage):
@@ -53,7 +54,7 @@ def test_example_strategies_from_flow_features(footage, strategy, options):
     frames, weights = examples(clip)
     r = solve_from_flow(feats, SHAPES, strategy=strategy, example_frames=frames, example_weights=weights, **options)
     truth = clip.motion.amplitudes / AMP
-    rest = np.setdiff1d(np.arange(len(truth)), frames)  # judged on frames that were not examples
+    rest = np.setdiff1d(np.arange(len(truth)), frames - 1)  # judged on frames that were not examples
     rmse = float(np.sqrt(np.mean((r.weights[rest] - truth[rest]) ** 2)))
     print(f"flow-PCA -> {strategy}: weights RMSE {rmse:.4f} on {rest.size} unposed frames")
     assert rmse <= 0.06
@@ -72,8 +73,8 @@ def test_head_motion_left_in_the_features_hurts(footage):
     print(f"linear from flow features: {errors}")
     assert errors["stabilised"] < errors["raw"]
     with pytest.raises(FacecapError, match=r"frame\(s\) \[500.0\] are not in the footage"):
-        solve_from_flow(flow_features(dense, n_components=4), SHAPES, example_frames=[0, 500],
+        solve_from_flow(flow_features(dense, n_components=4), SHAPES, example_frames=[1, 500],
                         example_weights=np.zeros((2, 6)))
     with pytest.raises(FacecapError, match="flow features drive linear, rbf, pca"):
-        solve_from_flow(flow_features(dense, n_components=4), SHAPES, strategy="calibrated", example_frames=[0],
+        solve_from_flow(flow_features(dense, n_components=4), SHAPES, strategy="calibrated", example_frames=[1],
                         example_weights=np.zeros((1, 6)))

@@ -29,7 +29,7 @@ def clip(tmp_path_factory):
 
 
 def posed(clip, frames=POSED):
-    return ExamplePairs(frames.astype(float), clip.motion.amplitudes[frames] / AMP, SHAPES)
+    return ExamplePairs(frames + 1.0, clip.motion.amplitudes[frames] / AMP, SHAPES)  # frame 1 = motion time 0
 
 
 def unposed_rmse(result, clip, shapes=SHAPES):
@@ -73,8 +73,8 @@ def test_examples_frames_choose_the_posed_frames_used(clip):
     from facecap.solvers.strategies.options import ExampleSettings
 
     flow = FlowSolveSettings(region=REGION, stable_region=STABLE, n_components=6, grid_step=8)
-    some = RetargetSettings((), (1, 1), strategy="linear", examples=ExampleSettings(frames=(0.0, 20.0, 40.0, 59.0,
-                                                                                             79.0, 99.0, 13.0, 33.0)))
+    some = RetargetSettings((), (1, 1), strategy="linear", examples=ExampleSettings(frames=(1.0, 21.0, 41.0, 60.0,
+                                                                                             80.0, 100.0, 14.0, 34.0)))
     r = retarget_flow(clip.path, SHAPES, posed(clip), settings=some, flow=flow)
     assert r.info["flow"]["example_frames"] == 8
     with pytest.raises(FacecapError, match=r"frame\(s\) \[5.0\] have no posed weights"):
@@ -86,9 +86,9 @@ def test_cancelling_between_frames_produces_nothing(clip):
     job = retarget_flow_job(clip.path, SHAPES, posed(clip), flow=FlowSolveSettings(region=REGION, grid_step=8))
     assert job.step(5) is False and job.done == 5 and job.result is None
     job.cancel()
-    with pytest.raises(Cancelled, match="cancelled at frame 4"):
+    with pytest.raises(Cancelled, match="cancelled at frame 5"):
         job.step()
-    with pytest.raises(Cancelled, match=r"cancelled at frame 6 \(7 of 100 frames done\)"):
+    with pytest.raises(Cancelled, match=r"cancelled at frame 7 \(7 of 100 frames done\)"):
         retarget_flow(clip.path, SHAPES, posed(clip), flow=FlowSolveSettings(region=REGION, grid_step=8),
                       progress=lambda done, total: done < 7)
 
@@ -99,7 +99,7 @@ def test_cancelling_between_frames_produces_nothing(clip):
     (dict(stable_region=((-5, 0, 10, 10),)), None, "`stable_region`"),
     (dict(reference=500), None, "`reference` frame 500 is not in the footage"),
     ({}, ExamplePairs(np.array([3.0, 900.0]), np.zeros((2, 6)), SHAPES),
-     r"posed frame\(s\) \[900.0\] are not in the footage \(0-99\)"),
+     r"posed frame\(s\) \[900.0\] are not in the footage \(1-100\)"),
     ({}, ExamplePairs(np.array([3.0, 9.0]), np.zeros((2, 6)), ("nope",) + SHAPES[1:]),
      r"name shape\(s\) the character does not have: \['nope'\]"),
 ])

@@ -42,7 +42,7 @@ def level(img):
 def test_video_files_carry_fps_resolution_and_frames(clips, name):
     fo = Footage(clips[name])
     assert (fo.info.fps, fo.info.width, fo.info.height, fo.info.kind) == (25.0, 64, 48, "video")
-    assert fo.info.frames == tuple(range(12))
+    assert fo.info.frames == tuple(range(1, 13))  # frame 1 is the first frame, as in Blender
     frames, imgs = fo.read_all()
     assert imgs.shape == (12, 48, 64) and imgs.dtype == np.uint8
     assert [round(level(i)) for i in imgs] == list(range(12))
@@ -50,19 +50,22 @@ def test_video_files_carry_fps_resolution_and_frames(clips, name):
 
 def test_range_step_scale_and_seek(clips):
     fo = Footage(clips["lossless.avi"], first=3, last=10, step=3, scale=0.5, frame_offset=1)
-    assert fo.info.frames == (3, 6, 9)  # frame numbers = file index + offset
+    assert fo.info.frames == (3, 6, 9)  # frame numbers = position in the file + 1 + offset
     assert (fo.info.work_width, fo.info.work_height) == (32, 24)
     got = [(f, round(level(img))) for f, img in fo]
-    assert got == [(3, 2), (6, 5), (9, 8)]
-    assert round(level(fo.frame(11))) == 10
+    assert got == [(3, 1), (6, 4), (9, 7)]
+    assert round(level(fo.frame(11))) == 9
+    plain = Footage(clips["lossless.avi"], first=3, last=3)
+    assert [(f, round(level(img))) for f, img in plain] == [(3, 2)]  # the third frame
+    assert round(level(plain.frame(1))) == 0 and round(level(plain.frame(12))) == 11
 
 
 @pytest.mark.parametrize("pattern", ["seq", "seq/img_%04d.png", "seq/img_*.png"])
 def test_image_sequences_by_folder_printf_or_glob(clips, pattern):
     src = clips["seq"].parent / pattern
-    fo = Footage(src, fps=30, first=105)
+    fo = Footage(src, fps=30, first=5)
     assert fo.info.kind == "images" and fo.info.fps == 30.0
-    assert fo.info.frames == tuple(range(105, 113))  # numbers from the file names
+    assert fo.info.frames == tuple(range(5, 13))  # img_0101.png is frame 1: the first file, as in Blender
     assert [round(level(img)) for _, img in fo] == list(range(4, 12))
 
 
@@ -88,5 +91,7 @@ def test_unreadable_inputs_raise_input_file_errors(tmp_path, clips):
         Footage(clips["lossless.avi"], first=50, last=60)
     with pytest.raises(FacecapError, match="`scale` must be in"):
         Footage(clips["lossless.avi"], scale=2)
-    with pytest.raises(FacecapError, match="no frame 99"):
+    with pytest.raises(FacecapError, match=r"no frame 99 \(the video has frames 1\.\.12; frame 1 is the first\)"):
         Footage(clips["lossless.avi"]).frame(99)
+    with pytest.raises(FacecapError, match="no frame 0"):
+        Footage(clips["lossless.avi"]).frame(0)

@@ -24,11 +24,12 @@ def mjpg_clip(tmp_path_factory):
     return write_synthetic_clip(tmp_path_factory.mktemp("trk") / "face_mjpg.avi", 40, W, H, codec="MJPG", seed=3)
 
 
-def errors(result, clip, reference=0):
-    """Per-sample distance (px) between tracks and the truth of the same reference points."""
+def errors(result, clip, reference=1):
+    """Per-sample distance (px) between tracks and the truth of the same reference points (frame 1 =
+    the clip's first frame = motion time 0)."""
     m = clip.motion
-    ref_pts = m.inverse(reference, result.markers.positions[list(result.markers.frames).index(reference)])
-    rows = result.markers.frames.astype(int)
+    ref_pts = m.inverse(reference - 1, result.markers.positions[list(result.markers.frames).index(reference)])
+    rows = result.markers.frames.astype(int) - 1
     truth = np.stack([m.forward(t, ref_pts) for t in rows])
     return np.linalg.norm(result.markers.positions - truth, axis=2)
 
@@ -46,6 +47,7 @@ def test_named_points_from_file_track_within_half_a_pixel(tmp_path, clip):
     mk = res.markers
     assert mk.names[:2] == ("pt0", "pt1") and mk.units == "px" and mk.fps == 30.0 and mk.dim == 2
     assert mk.visible.all() and res.confidence.shape == (60, 25)
+    assert mk.frames[0] == 1 and mk.frames[-1] == 60 and res.reference == 1  # frame 1 = the first frame
     assert ((res.confidence >= 0) & (res.confidence <= 1)).all() and res.confidence.mean() > 0.8
     err = errors(res, clip)
     assert np.median(err) <= 0.5, np.median(err)  # measured ~0.07 px
@@ -56,7 +58,7 @@ def test_auto_features_in_a_region_from_a_middle_reference(clip):
     res = track_points(Footage(clip.path), region=FACE, reference=25, max_points=60)
     mk = res.markers
     assert 30 <= mk.n_markers <= 60 and mk.names[0] == "p000"
-    x, y = mk.positions[25, :, 0], mk.positions[25, :, 1]
+    x, y = mk.positions[24, :, 0], mk.positions[24, :, 1]  # frame 25 = row 24
     assert ((x >= 70) & (x < 250) & (y >= 40) & (y < 210)).all()
     err = errors(res, clip, reference=25)
     assert np.median(err) <= 0.5  # tracked backward to frame 0 and forward to 59

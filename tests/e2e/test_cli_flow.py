@@ -34,7 +34,7 @@ pytestmark = pytest.mark.slow
 def footage(tmp_path_factory):
     d = tmp_path_factory.mktemp("cliflow")
     clip = write_synthetic_clip(d / "face.mp4", N, W, H, amplitude=AMP, noise=1.0, seed=11, period=24.0)
-    write_weights_csv(d / "posed.csv", POSED.astype(float), SHAPES, clip.motion.amplitudes[POSED] / AMP)
+    write_weights_csv(d / "posed.csv", POSED + 1.0, SHAPES, clip.motion.amplitudes[POSED] / AMP)
     return d, clip.motion.amplitudes / AMP
 
 
@@ -76,7 +76,7 @@ def test_retarget_a_video_take_from_posed_frames(footage):
     assert done.returncode == 0, done.stderr
     assert "retargeted 100 frames, 52 shapes (strategy: linear)" in done.stdout
     frames, names, solved = read_weights_csv(d / "linear" / "weights.csv")
-    assert frames.tolist() == list(range(N)) and len(names) == 52
+    assert frames.tolist() == list(range(1, N + 1)) and len(names) == 52
     rest = np.setdiff1d(np.arange(N), POSED)
     cols = [names.index(s) for s in SHAPES]
     rmse = float(np.sqrt(np.mean((solved[rest][:, cols] - truth[rest]) ** 2)))

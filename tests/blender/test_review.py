@@ -1,0 +1,147 @@
+"""The review page's renders and the sidebar's *Export Review Report*: the character is rendered in the
+pose the solve gave each picked frame, the markers drawn beside it land on the face where the solve put
+them, and the user's scene is left exactly as it was."""
+
+import dataclasses
+import json
+import re
+from pathlib import Path
+
+import bpy
+import numpy as np
+import pytest
+
+from facecap.facecap_addon import review as rv
+from facecap.facecap_addon.demo import SAMPLE_CONFIG
+from facecap.facecap_addon.headless import run_take
+from facecap.solvers.config import load_take_config
+from facecap.solvers.tools.report import marker_geometry, pick_frames
+
+SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
+#: Blender aborts (SIGABRT) when it finds no OpenGL context for Workbench (no Mesa EGL); the forked
+#: render then reports it and the tests below that need pixels cannot run.
+WHITE = 250
+
+
+def _pixels(png, tmp_path, name="tile.png"):
+    """(H, W, 3) 0..255 floats, top row first, decoded by Blender's own PNG reader."""
+    path = tmp_path / name
+    path.write_bytes(png)
+    img = bpy.data.images.load(str(path))
+    try:
+        w, h = img.size
+        px = np.empty(w * h * 4, dtype=np.float32)
+        img.pixels.foreach_get(px)
+    finally:
+        bpy.data.images.remove(img)
+    return np.round(px.reshape(h, w, 4)[::-1, :, :3] * 255.0)
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    """The sample take solved headless (weights only): the character stays open in this process."""
+    out = tmp_path_factory.mktemp("review")
+    config = dataclasses.replace(load_take_config(SAMPLE_CONFIG), output_blend=None, output_report=None,
+                                 output_weights=out / "w.csv")
+    result, _ = run_take(config, quiet=True)
+    return result, config
+
+
+def _counts():
+    return {kind: len(getattr(bpy.data, kind)) for kind in ("scenes", "objects", "meshes", "cameras", "worlds",
+                                                             "shape_keys", "actions", "images")}
+
+
+def test_build_review_renders_in_a_forked_child_and_leaves_the_scene(solved):
+    """First in this file: a process that has rendered itself renders in-process from then on."""
+    result, config = solved
+    assert not rv._state["rendered_here"]
+    before = _counts()
+    review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c",
+                             fps=60.0)
+    assert review.sheet is not None, review.sheet_note
+    assert review.timings["render"] > 0 and len(review.sheet.tiles) >= 6
+    assert review.geometry is not None and review.geometry.names == result.marker_names
+    assert _counts() == before
+    assert not rv._state["rendered_here"], "the renders ran in a child"
+
+
+def test_a_failed_render_is_a_note_not_an_error(solved, monkeypatch):
+    result, config = solved
+
+    def abort(*_a, **_k):  # what Blender does without OpenGL: the process dies
+        import os
+
+        os.abort()
+
+    monkeypatch.setattr(rv, "render_sheet", abort)
+    monkeypatch.setitem(rv._state, "rendered_here", False)  # fork, as a headless run that never rendered does
+    review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c")
+    assert review.sheet is None and "Blender stopped while rendering" in review.sheet_note
+    assert review.geometry is not None  # the binding plot does not need renders
+
+
+def test_tiles_show_the_solved_pose_with_the_markers_on_the_face(solved, tmp_path):
+    result, config = solved
+    obj = bpy.data.objects["Face"]
+    key = obj.data.shape_keys
+    bpy.context.view_layer.update()  # the keyed solve poses the face at the current frame (as any redraw would)
+    before, values = _counts(), [b.value for b in key.key_blocks]
+    geometry, why = marker_geometry(result, rv.basis_from_object(obj, result.marker_names), config.settings)
+    assert why == ""
+    picks = pick_frames(result, fps=60)
+    sheet = rv.render_sheet(obj, result, geometry, picks)
+    assert _counts() == before and [b.value for b in key.key_blocks] == values, "the user's scene is untouched"
+    assert len(sheet.tiles) == len(picks) >= 6 and sheet.binding is not None
+    neutral = _pixels(sheet.binding.png, tmp_path, "neutral.png")
+    for tile, (row, kind, _) in zip(sheet.tiles, picks):
+        px = _pixels(tile.png, tmp_path)
+        assert px.shape == (rv.TILE_HEIGHT, round(rv.TILE_HEIGHT * rv.ASPECT), 3)
+        assert 0.2 < float((px.min(axis=2) < WHITE).mean()) < 0.8, "the face fills the tile, with room around it"
+        # the character's bound points, projected, land on the face (not on the white background)
+        inside = np.all((tile.model >= 0) & (tile.model < [px.shape[1], px.shape[0]]), axis=1)
+        assert inside.all()
+        cols, rows_ = tile.model[:, 0].astype(int), tile.model[:, 1].astype(int)
+        assert (px[rows_, cols].min(axis=1) < WHITE).mean() > 0.95
+        # the distances drawn are the solve's per-marker residual at that frame
+        np.testing.assert_allclose(tile.distance_mm, result.frame_marker_residual[row] * 1e3, atol=1e-9,
+                                   equal_nan=True)
+        assert tile.frame == result.frames[row] and tile.kind == kind
+        if kind == "peak":  # an expression at its peak is not the neutral face
+            assert np.abs(px - neutral).mean() > 0.3
+    # sub-millimetre errors: the take's markers sit within a few pixels of the bound points
+    gap = np.linalg.norm(sheet.tiles[0].captured - sheet.tiles[0].model, axis=1)
+    assert np.nanmedian(gap) < 3.0
+
+
+def test_without_bound_markers_the_whole_face_is_rendered_alone(solved, tmp_path):
+    result, _ = solved
+    picks = pick_frames(result, worst=0, peaks=2)
+    sheet = rv.render_sheet(bpy.data.objects["Face"], result, None, picks)
+    assert sheet.binding is None and sheet.marker_names == () and len(sheet.tiles) == 2
+    for tile in sheet.tiles:
+        assert tile.captured is None and tile.kind == "peak"
+        px = _pixels(tile.png, tmp_path)
+        assert 0.1 < float((px.min(axis=2) < WHITE).mean()) < 0.8
+
+
+def test_export_review_report_from_the_sidebar(tmp_path):
+    bpy.ops.wm.open_mainfile(filepath=str(SAMPLES / "character.blend"))
+    assert bpy.ops.facecap.import_markers(filepath=str(SAMPLES / "sample_take.csv"), units="mm", fps=60.0) == {"FINISHED"}
+    s = bpy.context.scene.facecap
+    s.target = bpy.data.objects["Face"]
+    stable = {m["name"] for m in json.loads((SAMPLES / "marker_layout.json").read_text())["markers"] if m["stable"]}
+    for item in s.markers:
+        item.stable = item.name in stable
+    assert bpy.ops.facecap.set_neutral(first=1, last=50) == {"FINISHED"}
+    before = _counts()
+    out = tmp_path / "review.html"
+    truth = SAMPLES / "sample_take_weights.csv"
+    assert bpy.ops.facecap.export_review(filepath=str(out), truth_path=str(truth)) == {"FINISHED"}
+    assert _counts() == before, "exporting keys nothing and leaves no data behind"
+    html = out.read_text(encoding="utf-8")
+    assert len(re.findall(r'<img id="tile-\d+"', html)) >= 6 and 'id="tile-binding"' in html
+    assert "weights RMSE 0.0" in html  # the truth overlay's summary (the sample solves to RMSE ~0.018)
+    assert "character.blend: Face" in html
+    with pytest.raises(RuntimeError, match="overwrite the truth"):
+        bpy.ops.facecap.export_review(filepath=str(truth), truth_path=str(truth))

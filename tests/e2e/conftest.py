@@ -1,0 +1,36 @@
+"""Shared fixtures for the end-to-end tests: the built extension zips and the cached Blender venvs.
+
+A prerequisite that cannot be made (no network on a cold cache) skips the tests that need it, with the
+reason, on a developer's machine; in CI (``FACECAP_CI=1``, set by ``.ci/run``) it fails them.
+"""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from matrix_env import missing_prerequisite
+
+from facecap.solvers.tools.build_extension import default_cache_dir
+
+
+@pytest.fixture(scope="session")
+def cache_dir():
+    return default_cache_dir()
+
+
+@pytest.fixture(scope="session")
+def extension_zips(tmp_path_factory):
+    """``python -m facecap build-extension`` run once: {platform: zip path} for all four platforms."""
+    out = tmp_path_factory.mktemp("dist")
+    proc = subprocess.run([sys.executable, "-m", "facecap", "build-extension", "--out", str(out)],
+                          capture_output=True, text=True, timeout=1800, cwd=out)
+    if proc.returncode != 0 and "could not download" in proc.stderr:
+        missing_prerequisite(proc.stderr.strip().splitlines()[-1])
+    assert proc.returncode == 0, f"build-extension failed:\n{proc.stdout}\n{proc.stderr}"
+    zips = {}
+    for line in proc.stdout.splitlines():
+        platform, _, rest = line.partition(": ")
+        if ", validated)" in rest:
+            zips[platform] = Path(rest.split(" (")[0])
+    return {"zips": zips, "stdout": proc.stdout}
