@@ -26,6 +26,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import zipfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -107,6 +108,51 @@ def read_lock(path=LOCK_FILE):
     return wheels, imports
 
 
+@dataclass(frozen=True)
+class LockedAsset:
+    """One file taken from a locked universal wheel and bundled at ``target`` in the add-on."""
+
+    name: str
+    version: str
+    file: str
+    sha256: str
+    size: int
+    member: str
+    target: str
+
+
+def read_assets(path=LOCK_FILE):
+    """The locked assets (``[[asset]]`` tables) of ``wheels.lock.toml``."""
+    path = Path(path)
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    assets = []
+    for i, a in enumerate(data.get("asset", [])):
+        try:
+            assets.append(LockedAsset(a["name"], a["version"], a["file"], a["sha256"].lower(), int(a["size"]),
+                                      a["member"], a["target"]))
+        except KeyError as exc:
+            raise BuildError(f"{path}: asset {i + 1} has no `{exc.args[0]}`") from None
+    return assets
+
+
+def fetch_assets(assets, cache_dir=None, *, log=print):
+    """{asset: bytes of its member} from the locked wheels (downloaded once, hash checked)."""
+    store = Path(cache_dir or default_cache_dir())
+    store.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for a in assets:
+        path = store / a.file
+        if not (path.is_file() and sha256_of(path) == a.sha256):
+            log(f"downloading {a.file} ({a.size / 1e6:.1f} MB)")
+            _download(LockedWheel(a.name, a.version, "any", a.file, a.sha256, a.size), store)
+        with zipfile.ZipFile(path) as z:
+            try:
+                out[a] = z.read(a.member)
+            except KeyError:
+                raise BuildError(f"{a.file} has no {a.member}") from None
+    return out
+
+
 def sha256_of(path):
     """Hex sha256 of a file, read in 1 MB blocks."""
     digest = hashlib.sha256()
@@ -141,8 +187,9 @@ def _download(wheel, store):
     _name, _version, _python, abi, platform_tags = wheel.file[:-4].split("-")
     with tempfile.TemporaryDirectory(dir=store, prefix=".download-") as tmp:
         cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
-               "--platform", platform_tags.split(".")[0], "--python-version", BLENDER_PYTHON,
-               "--implementation", "cp", "--abi", abi, "--dest", tmp, f"{wheel.name}=={wheel.version}"]
+               "--python-version", BLENDER_PYTHON, "--dest", tmp, f"{wheel.name}=={wheel.version}"]
+        if platform_tags != "any":  # a universal wheel needs no platform or ABI
+            cmd[-3:-3] = ["--platform", platform_tags.split(".")[0], "--implementation", "cp", "--abi", abi]
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=TOOL_TIMEOUT)
         got = Path(tmp) / wheel.file
         if proc.returncode != 0 or not got.is_file():
@@ -217,8 +264,9 @@ def _ignore(out_dir):
     return ignore
 
 
-def stage_source(stage, wheel_files, platforms, *, source=REPO, out_dir=None):
-    """Copy the add-on source into ``stage`` with the wheels in ``./wheels`` and the generated manifest."""
+def stage_source(stage, wheel_files, platforms, *, source=REPO, out_dir=None, assets=None):
+    """Copy the add-on source into ``stage`` with the wheels in ``./wheels``, the ``assets``
+    ({LockedAsset: bytes}) at their targets and the generated manifest."""
     text = (Path(source) / MANIFEST).read_text(encoding="utf-8")
     skip = _top_level_excludes(tomllib.loads(text)) | {"wheels", MANIFEST}
     out_dir = None if out_dir is None else Path(out_dir).resolve()
@@ -234,6 +282,10 @@ def stage_source(stage, wheel_files, platforms, *, source=REPO, out_dir=None):
     (stage / "wheels").mkdir()
     for path in wheel_files:
         shutil.copy2(path, stage / "wheels" / Path(path).name)
+    for asset, data in (assets or {}).items():
+        target = stage / asset.target
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
     rel = [f"./wheels/{Path(p).name}" for p in wheel_files]
     (stage / MANIFEST).write_text(generated_manifest(text, rel, platforms), encoding="utf-8")
     return tomllib.loads(text)
@@ -278,12 +330,14 @@ def build(out_dir, *, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_
             raise BuildError(f"{Path(lock).name}: no {p} wheel for {', '.join(sorted(missing))}")
     tool = Path(tool) if tool else find_extension_tool()
     paths = fetch_wheels(chosen, cache_dir, log=log)
+    assets = fetch_assets(read_assets(lock), cache_dir, log=log)
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="facecap-extension-") as tmp:
         stage = Path(tmp) / "facecap"
         stage.mkdir()
-        manifest = stage_source(stage, [paths[w.file] for w in chosen], platforms, source=source, out_dir=out_dir)
+        manifest = stage_source(stage, [paths[w.file] for w in chosen], platforms, source=source, out_dir=out_dir,
+                                assets=assets)
         _run_tool(tool, "build", "--source-dir", stage, "--output-dir", out_dir, "--split-platforms", cwd=tmp)
     built = []
     for p in platforms:

@@ -13,6 +13,7 @@ add-on's helpers come from the installed extension (``bl_ext.user_default.faceca
 import importlib
 import importlib.util
 import json
+import os
 import sys
 import time
 import traceback
@@ -206,6 +207,14 @@ class Workflow:
                 "solve_layer_max_change": float(np.nanmax(np.abs(after - before))),
                 "actions": sorted(bpy.data.actions.keys())}
 
+    def export_review(self):
+        """Export Review Report with the extension's own plotly.js (no plotly package in this Blender)."""
+        path = self.inp["review_html"]
+        r = bpy.ops.facecap.export_review(filepath=path, render=False)
+        text = open(path, encoding="utf-8").read() if os.path.isfile(path) else ""
+        return {"result": sorted(r), "bytes": len(text), "plotly_package": importlib.util.find_spec("plotly") is not None,
+                "has_plotly_js": "plotly.js v" in text}
+
     def bundled_modules(self):
         import cv2
         import scipy
@@ -216,8 +225,8 @@ class Workflow:
         self.step("environment", self.environment)
         self.step("install", self.install)
         for name in ("open_sample", "import_markers", "suggest_stable", "detect_neutral", "set_neutral", "stabilise",
-                     "clean_markers", "solve", "retune", "track_clip", "solve_clip_flow", "save_and_reopen",
-                     "bundled_modules"):
+                     "clean_markers", "solve", "export_review", "retune", "track_clip", "solve_clip_flow",
+                     "save_and_reopen", "bundled_modules"):
             self.step(name, getattr(self, name))
         return self.out
 

@@ -107,3 +107,17 @@ def test_staging_leaves_out_developer_folders_and_earlier_builds(tmp_path):
     staged = sorted(str(p.relative_to(stage)) for p in stage.rglob("*") if p.is_file())
     assert staged == ["__init__.py", "blender_manifest.toml", "solvers/__init__.py"]
     assert tomllib.loads((stage / "blender_manifest.toml").read_text())["platforms"] == ["linux-x64"]
+
+
+@pytest.mark.parametrize("platform", PLATFORMS)
+def test_each_zip_carries_plotly_js_for_the_review_page(extension_zips, platform):
+    """The sidebar's Export Review Report works in a real Blender: plotly.js is in the add-on itself,
+    byte for byte the file of the locked plotly wheel (no plotly package installed)."""
+    from facecap.solvers.tools.build_extension import fetch_assets, read_assets
+
+    (asset,) = [a for a in read_assets() if a.name == "plotly"]
+    expected = fetch_assets([asset])[asset]
+    with zipfile.ZipFile(extension_zips["zips"][platform]) as z:
+        assert z.read(asset.target) == expected
+        assert not [n for n in z.namelist() if n.startswith("wheels/plotly")]
+    assert expected.startswith(b"/**") and len(expected) > 3_000_000

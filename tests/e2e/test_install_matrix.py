@@ -80,6 +80,7 @@ def workflow(blender, extension_zips, footage, truth, tmp_path_factory):
         "blend": str(SAMPLE / "character.blend"),
         "work_blend": str(work / "character.blend"),
         "saved_blend": str(work / "saved.blend"),
+        "review_html": str(work / "review.html"),
         "take": str(SAMPLE / "sample_take.csv"),
         "truth_names": names,
         "truth": weights.tolist(),
@@ -215,6 +216,13 @@ def test_save_and_reopen_keeps_the_work(workflow):
     assert saved["solve_layer_max_change"] <= 1e-6
     r = workflow["result"]
     assert {r["solve"]["action"], r["solve_clip_flow"]["action"], "posed"} <= set(saved["actions"])
+
+
+def test_export_review_report_works_with_the_bundled_plotly(workflow):
+    _ok(workflow, "export_review")
+    review = workflow["result"]["export_review"]
+    assert review["result"] == ["FINISHED"] and not review["plotly_package"]
+    assert review["has_plotly_js"] and review["bytes"] > 3_000_000  # plotly.js embedded from the add-on
 
 
 def test_enabling_is_instant_and_lazy(workflow):

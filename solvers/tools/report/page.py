@@ -31,7 +31,12 @@ class MissingPlotlyError(FacecapError):
 
 
 def plotly_js_source():
-    """Path of ``plotly.min.js`` inside the installed plotly package (its Python code is never imported)."""
+    """Path of ``plotly.min.js``: bundled beside this module in the extension zip (``build-extension``
+    takes it from the locked plotly wheel), else inside the installed plotly package (whose Python code
+    is never imported)."""
+    bundled = Path(__file__).resolve().parent / "assets" / PLOTLY_JS
+    if bundled.is_file():
+        return bundled
     spec = importlib.util.find_spec("plotly")
     if spec is not None and spec.submodule_search_locations:
         path = Path(list(spec.submodule_search_locations)[0]) / "package_data" / PLOTLY_JS
