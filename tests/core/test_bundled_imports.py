@@ -22,6 +22,12 @@ BLENDER_MODULES = {"bpy", "bpy_extras", "bpy_types", "mathutils", "bmesh", "gpu"
                    "bl_ui", "bl_operators", "addon_utils", "aud", "idprop", "imbuf", "freestyle", "rna_prop_ui"}
 #: Third-party packages in Blender's own site-packages (4.2-5.0); numpy is the one the add-on may use.
 BLENDER_SITE_PACKAGES = {"numpy", "requests", "zstandard", "certifi", "idna", "urllib3", "charset_normalizer"}
+#: Optional packages of headless features, never reached from the sidebar, each absent-safe: the reason.
+OPTIONAL = {
+    "tqdm": "batch's progress bar; without it (as in Blender's Python) batch prints plain lines",
+    "dask": "batch --scheduler only (the 'farm' extra); without it that option is one line naming the extra",
+    "distributed": "as dask",
+}
 #: Calls whose first argument names a module that is imported at run time.
 IMPORT_CALLS = {"import_module", "__import__"}
 
@@ -49,7 +55,7 @@ def runtime_imports(path):
 
 def test_every_runtime_import_is_blenders_or_bundled():
     _, wheel_imports = read_lock()
-    allowed = set(sys.stdlib_module_names) | BLENDER_MODULES | BLENDER_SITE_PACKAGES | set(wheel_imports)
+    allowed = set(sys.stdlib_module_names) | BLENDER_MODULES | BLENDER_SITE_PACKAGES | set(wheel_imports) | set(OPTIONAL)
     seen, unknown = set(), []
     for path in shipped_files():
         for module, line in runtime_imports(path):
@@ -59,6 +65,35 @@ def test_every_runtime_import_is_blenders_or_bundled():
     assert unknown == [], "imports that a real Blender with the extension zip cannot satisfy:\n" + "\n".join(unknown)
     # The walk does see what it is meant to police (it would pass vacuously otherwise).
     assert {"bpy", "numpy", "scipy", "cv2"} <= seen, sorted(seen)
+
+
+def test_optional_packages_are_absent_safe(monkeypatch):
+    """Without tqdm batch still shows progress (plain lines); without Dask --scheduler is one line."""
+    import builtins
+
+    import pytest
+
+    real = builtins.__import__
+
+    def no_optional(name, *args, **kwargs):
+        if name.split(".")[0] in OPTIONAL:
+            raise ImportError(f"No module named '{name}'")
+        return real(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_optional)
+    import importlib
+
+    import facecap.facecap_addon.batch_progress as progress
+
+    progress = importlib.reload(progress)
+    assert progress.tqdm is None
+    from facecap.facecap_addon.batch_farm import FarmPool
+    from facecap.solvers.errors import FacecapError
+
+    with pytest.raises(FacecapError, match=r'Dask distributed, which is not installed: pip install "facecap\[farm\]"'):
+        FarmPool("tcp://127.0.0.1:1").run([], None)
+    monkeypatch.setattr(builtins, "__import__", real)
+    importlib.reload(progress)
 
 
 def test_the_addon_never_imports_itself_by_its_development_name():
