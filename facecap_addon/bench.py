@@ -59,32 +59,70 @@ def bench_keying(frames=36000, shapes=52, baseline_frames=300, repeat=3):
     )
 
 
-def bench_cli_retarget(frames=36000, repeat=3):
-    """``python -m facecap retarget`` on a long synthetic take of the sample character, process start to
-    saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
+#: Frames per synthetic piece of a long take: longer takes are pieces like it, one after the other.
+PIECE_FRAMES = 36000
+
+
+def write_long_take(folder, frames):
+    """A long synthetic take of the sample character in ``folder``: ``long_take.csv`` and the take
+    config ``long_take.toml`` (outputs beside them). Takes longer than ``PIECE_FRAMES`` are pieces of
+    that length with their own head motion, noise and gaps (seeds 6, 7, ...) on the same performance
+    (it starts and ends at rest, so the pieces join smoothly; the head jumps back to rest between
+    pieces). Written piece by piece: the bench's own memory stays that of one piece.
+    Returns the config path."""
+    import dataclasses
     import json
 
     from ..solvers.character.basis import Basis
     from ..solvers.io.csv import write_markers_csv
     from ..solvers.tools.synth import performance_weights, synthesize_take
 
+    folder = Path(folder)
     samples = ROOT / "sample_blends"
     basis = Basis.load_npz(samples / "character_basis.npz")
     layout = json.loads((samples / "marker_layout.json").read_text())
     stable = [m["name"] for m in layout["markers"] if m["stable"]]
-    weights = performance_weights(basis.shape_names, frames, seed=5)
-    take = synthesize_take(basis, weights, stable=stable, seed=6)
+    weights = performance_weights(basis.shape_names, min(frames, PIECE_FRAMES), seed=5)
+    csv = folder / "long_take.csv"
+    piece_csv = folder / "piece.csv"
+    with open(csv, "w", encoding="utf-8") as out:
+        for i, first in enumerate(range(0, frames, PIECE_FRAMES)):
+            n = min(PIECE_FRAMES, frames - first)
+            take = synthesize_take(basis, weights[:n], stable=stable, seed=6 + i)
+            write_markers_csv(piece_csv, dataclasses.replace(take.markers, frames=take.markers.frames + first))
+            with open(piece_csv, encoding="utf-8") as fh:
+                header = fh.readline()
+                if i == 0:
+                    out.write(header)
+                for block in iter(lambda: fh.read(1 << 24), ""):
+                    out.write(block)
+    piece_csv.unlink()
+    config = folder / "long_take.toml"
+    config.write_text(
+        f'[target]\nblend = "{samples / "character.blend"}"\nobject = "Face"\n'
+        f'[source]\nmarkers = "long_take.csv"\nunits = "mm"\nfps = 60\n'
+        f"[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = [1, 50]\n"
+        f'[output]\nblend = "out.blend"\nweights = "out.csv"\nreport = "report.json"\n'
+    )
+    return config
+
+
+def _cli_env():
+    return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+
+
+def bench_cli_retarget(frames=36000, repeat=3):
+    """``python -m facecap retarget`` on a long synthetic take of the sample character, process start to
+    saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
+    import json
+
+    from ..solvers.character.basis import Basis
+
+    basis = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz")
     with tempfile.TemporaryDirectory(prefix="facecap-bench-") as tmp:
         tmp = Path(tmp)
-        write_markers_csv(tmp / "long_take.csv", take.markers)
-        config = tmp / "long_take.toml"
-        config.write_text(
-            f'[target]\nblend = "{samples / "character.blend"}"\nobject = "Face"\n'
-            f'[source]\nmarkers = "long_take.csv"\nunits = "mm"\nfps = 60\n'
-            f"[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = [1, 50]\n"
-            f'[output]\nblend = "out.blend"\nweights = "out.csv"\nreport = "report.json"\n'
-        )
-        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        config = write_long_take(tmp, frames)
+        env = _cli_env()
 
         def once():
             proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config)],
@@ -100,3 +138,49 @@ def bench_cli_retarget(frames=36000, repeat=3):
         seconds=seconds, baseline_seconds=None, ratio=None, goal="< 15 s",
         note=f"median of {repeat} runs; stages of the last: {detail}",
     )
+
+
+#: Takes of the memory case (frames): 10 and 100 minutes at 60 fps.
+MEMORY_FRAMES = (36000, 360000)
+#: Goal for the process tree's peak on the longest take (bytes, summed RSS).
+MEMORY_GOAL = 3 << 30
+
+
+def bench_memory(frames=MEMORY_FRAMES):
+    """Peak memory of ``python -m facecap retarget`` (the whole process tree) on long takes of the
+    sample character, one run per length: the summed RSS and PSS of the tree (see
+    ``solvers.tools.peak_memory``), the main process's own peak, and the growth per frame between
+    the shortest and longest take. Returns a list of rows (one per take, then the growth)."""
+    from ..solvers.tools.peak_memory import available, run_measured
+
+    if not available():
+        return [dict(name="memory", seconds=0.0, baseline_seconds=None, ratio=None, goal="",
+                     note="skipped: needs Linux /proc")]
+    rows, peaks = [], []
+    for n in frames:
+        with tempfile.TemporaryDirectory(prefix="facecap-bench-mem-") as tmp:
+            config = write_long_take(tmp, n)
+            size = (Path(tmp) / "long_take.csv").stat().st_size
+            m = run_measured([sys.executable, "-m", "facecap", "retarget", "--config", str(config)], env=_cli_env())
+        if m["returncode"] != 0:
+            raise RuntimeError(f"retarget of {n} frames failed: {m['stderr'][-1] if m['stderr'] else m['returncode']}")
+        peaks.append((n, m))
+        stages = ", ".join(f"{k.split(' ')[0]} {v['rss'] / 2**30:.2f}" for k, v in m["stages"].items() if k != "start")
+        rows.append(dict(
+            name=f"memory: CLI retarget {n} frames ({size / 2**20:.0f} MB CSV), peak of the process tree",
+            seconds=m["seconds"], baseline_seconds=None, ratio=None,
+            goal=f"<= {MEMORY_GOAL / 2**30:.0f} GiB at {max(frames)} frames",
+            note=(f"tree RSS {m['tree_rss'] / 2**30:.2f} GiB ({m['procs']} processes), tree PSS "
+                  f"{m['tree_pss'] / 2**30:.2f} GiB, main process {m['main_rss'] / 2**30:.2f} GiB; "
+                  f"tree RSS per stage (GiB): {stages}"),
+            tree_rss=m["tree_rss"], tree_pss=m["tree_pss"], main_rss=m["main_rss"], stages=m["stages"],
+        ))
+    if len(peaks) > 1:
+        (n0, a), (n1, b) = peaks[0], peaks[-1]
+        per = {k: (b[k] - a[k]) / (n1 - n0) for k in ("tree_rss", "tree_pss", "main_rss")}
+        rows.append(dict(
+            name=f"memory growth {n0} -> {n1} frames", seconds=0.0, baseline_seconds=None, ratio=None,
+            goal="linear in frames",
+            note=", ".join(f"{k} {v / 1024:.2f} KiB/frame" for k, v in per.items()),
+        ))
+    return rows

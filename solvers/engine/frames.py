@@ -14,9 +14,9 @@ fewer shapes are fixed than free, the fixed ones solve for their multipliers wit
 (``Hinv_BB m = x_B - u_B``, u the unconstrained optimum). Frames only re-solve while their state
 changes; the systems are gathered by size and solved in batches of exactly that size, so a frame
 costs O(min(free, fixed)^3), not O(K^3). Frames that have not settled after ``max_iter``
-iterations go to an exact per-frame fallback (``box_qp``, a BVLS-style primal active set in plain
-numpy, with a finite sign search for L1 on shapes whose range contains 0): per-frame solves need
-no scipy, which Blender does not ship.
+iterations go to an exact per-frame fallback (``engine.exact``: a BVLS-style primal active set in
+plain numpy, with a finite sign search for L1 on shapes whose range contains 0): per-frame solves
+need no scipy, which Blender does not ship. The state codes and classification are ``engine.states``.
 
 Inputs are trusted (validated by ``engine.solve_bounded``). Locked shapes arrive as lo == hi.
 """
@@ -27,10 +27,9 @@ from contextvars import ContextVar
 
 import numpy as np
 
+from .exact import box_qp, exact_frame  # noqa: F401  (box_qp re-exported: the fallback's kernel)
+from .states import FREE, classify, fixed_values, start_state
 from .threads import single_blas_thread
-
-# state codes
-_FREE, _LO, _HI, _ZERO = 0, 1, 2, 3
 
 
 def patterns(C):
@@ -316,36 +315,6 @@ def hmul_by_pattern(Hp, inv, x):
     return y
 
 
-def classify(v, step, lo, hi, lam):
-    """State of each variable from the proximal point v (see module docstring); ``step`` per frame
-    (F,) or per variable (F, K)."""
-    state = np.full(v.shape, _FREE, dtype=np.int8)
-    if not lam.any():  # no L1: the shrunk point is v itself (the same states, fewer passes)
-        t = v
-        state[v == 0] = _ZERO
-    else:
-        tau = (step if step.ndim == 2 else step[:, None]) * lam
-        t = np.sign(v) * np.maximum(np.abs(v) - tau, 0.0)
-        state[np.abs(v) <= tau] = _ZERO
-    state[t >= hi] = _HI
-    state[t <= lo] = _LO
-    sign = np.sign(v)
-    return state, sign
-
-
-def start_state(w, lo, hi, lam):
-    """(state, sign) of the weights ``w`` (e.g. an earlier solve's), read as an active set."""
-    state = np.full(w.shape, _FREE, dtype=np.int8)
-    state[(w == 0) & (lam > 0) & (lo < 0) & (hi > 0)] = _ZERO
-    state[w <= lo] = _LO
-    state[w >= hi] = _HI
-    return state, np.sign(w)
-
-
-def fixed_values(state, lo, hi):
-    return np.where(state == _LO, lo, np.where(state == _HI, hi, 0.0))
-
-
 def solve_free(Hp, inv, free, rhs):
     """x with x_F = H_FF^{-1} rhs_F per frame (0 elsewhere), batched by free-set size."""
     n, K = free.shape
@@ -459,7 +428,7 @@ def _pdas(Hp, inv, g, lo, hi, lam, max_iter, state=None, inverses=None):
         else:
             st, sg = classify(w[active] - step[active, None] * grad, step[active], lo[active], hi[active], lam)
         if prev is not None:
-            keep = ((st != prev) | ((st == _FREE) & (sg != prev_sg) & (lam > 0))).any(axis=1)
+            keep = ((st != prev) | ((st == FREE) & (sg != prev_sg) & (lam > 0))).any(axis=1)
             if not keep.all():
                 last_drop = it
             active, st, sg, ia = active[keep], st[keep], sg[keep], ia[keep]
@@ -469,7 +438,7 @@ def _pdas(Hp, inv, g, lo, hi, lam, max_iter, state=None, inverses=None):
                 # a few frames cycling between states (measured: 2-8 of 4000 for 30 iterations on
                 # the sample character): the exact fallback is cheaper than waiting for max_iter
                 return w, it, active, sign
-        free = st == _FREE
+        free = st == FREE
         xf = fixed_values(st, lo[active], hi[active])
         lin = lam * np.where(free, sg, 0.0) if has_l1 else None
         wa, grad = _equality_solve(Hp, Hinv, ia, free, xf, g[active], u0[active], lin, dual_ok[active])
@@ -509,85 +478,3 @@ def _equality_solve(Hp, Hinv, ia, free, xf, g, u0, lin, dual_ok):
         w[Dn] = np.where(fixed, xf[Dn], u + hmul(Hinv, iD, m))
         grad[Dn] = m if lin is None else m - lin[Dn]
     return w, grad
-
-
-def exact_frame(H, g, lo, hi, lam, sign0=None):
-    """Exact solve of one frame's box/L1 QP.
-
-    Fixed variables (lo == hi) are eliminated; shapes whose range excludes 0 carry their L1 term as
-    a linear term; shapes whose range straddles 0 (with lam > 0) are solved orthant by orthant with
-    ``box_qp``, flipping the sign of any variable stuck at 0 whose subgradient condition fails. Each flip
-    strictly lowers the objective, so the search ends.
-    """
-    K = g.size
-    w = np.where(lo == hi, lo, 0.0).astype(float)
-    fr = np.flatnonzero(lo < hi)
-    if fr.size == 0:
-        return w
-    fx = np.flatnonzero(lo == hi)
-    Hr = H[np.ix_(fr, fr)]
-    gr = g[fr] - H[np.ix_(fr, fx)] @ w[fx]
-    l, h, lm = lo[fr], hi[fr], lam[fr]
-    straddle = (l < 0) & (h > 0) & (lm > 0)
-    s = np.where(l >= 0, 1.0, np.where(h <= 0, -1.0, 0.0))
-    if sign0 is not None:
-        s0 = np.sign(sign0[fr])
-        s[straddle] = np.where(s0[straddle] < 0, -1.0, 1.0)
-    else:
-        s[straddle] = 1.0
-    x = None
-    for _ in range(4 * K + 8):
-        lb = np.where(straddle & (s > 0), 0.0, l)
-        ub = np.where(straddle & (s < 0), 0.0, h)
-        x = box_qp(Hr, gr - lm * s, lb, ub, x)
-        grad = Hr @ x - gr
-        at0 = straddle & (np.abs(x) <= 1e-14)
-        flip = at0 & (((s > 0) & (grad > lm)) | ((s < 0) & (grad < -lm)))
-        if not flip.any():
-            break
-        s[flip] = -s[flip]
-    w[fr] = x
-    return w
-
-
-def box_qp(H, q, lb, ub, x0=None):
-    """Exact minimiser of ``1/2 x'Hx - q'x`` on ``lb <= x <= ub`` (H SPD; bounds may be infinite).
-
-    Primal active set in the manner of Lawson-Hanson / BVLS: keep a feasible point and a set of
-    variables held at a bound; solve for the others; if that point leaves the box, step to the
-    first bound hit and hold that variable too; otherwise release the held variable whose
-    multiplier has the wrong sign (the worst one), or stop when none has. Each release strictly
-    lowers the objective and each step holds one more variable, so it ends; a generous iteration
-    cap guards against rounding-induced cycling.
-    """
-    n = q.size
-    x = np.clip(np.zeros(n) if x0 is None else x0, lb, ub)
-    held = (x <= lb) | (x >= ub)
-    movable = lb < ub
-    scale = max(float(np.abs(np.diag(H)).max(initial=0.0)), 1e-300)
-    tol = 1e-13 * scale * max(1.0, float(np.abs(x).max(initial=0.0)))
-    for _ in range(20 * n + 40):
-        fr = ~held
-        z = x.copy()
-        if fr.any():
-            z[fr] = np.linalg.solve(H[np.ix_(fr, fr)], q[fr] - H[np.ix_(fr, held)] @ x[held])
-        out = fr & ((z < lb) | (z > ub))
-        if not out.any():
-            x = z
-            grad = H @ x - q
-            wrong = np.where(held & movable & (x <= lb), -grad, 0.0)  # wants to rise off lb
-            wrong = np.maximum(wrong, np.where(held & movable & (x >= ub), grad, 0.0))
-            k = int(np.argmax(wrong))
-            if wrong[k] <= tol:
-                return x
-            held[k] = False
-            continue
-        d = z - x
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(out & (z < lb), (lb - x) / d, np.where(out & (z > ub), (ub - x) / d, np.inf))
-        k = int(np.argmin(t))
-        x = x + np.clip(t[k], 0.0, 1.0) * d
-        x[k] = lb[k] if z[k] < lb[k] else ub[k]
-        x = np.clip(x, lb, ub)
-        held[k] = True
-    return x
