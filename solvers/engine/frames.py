@@ -27,6 +27,7 @@ from contextvars import ContextVar
 
 import numpy as np
 
+from .batched import hmul, solve_free
 from .exact import box_qp, exact_frame  # noqa: F401  (box_qp re-exported: the fallback's kernel)
 from .states import FREE, classify, fixed_values, start_state
 from .threads import single_blas_thread
@@ -124,12 +125,27 @@ def pattern_inverses(Hp, pats=None, full=None):
 _REUSE = ContextVar("facecap_pattern_setup", default=None)
 
 
-class PatternSetup:
-    """Products kept by ``reuse_pattern_setup``: one ``_Products`` per exact (A, R)."""
+#: Bytes of pattern products a ``PatternSetup`` keeps by default (Hessian and inverse: 2 K^2 floats a
+#: pattern): every pattern of a 10-minute take of the sample character (8,519 patterns, 368 MB),
+#: a bounded part of longer ones (patterns beyond it are computed per chunk, as without reuse).
+REUSE_BYTES = 400 << 20
 
-    def __init__(self):
+
+class PatternSetup:
+    """Products kept by ``reuse_pattern_setup``: one ``_Products`` per exact (A, R), at most
+    ``max_bytes`` of them in all (each kept pattern books room for its Hessian and its inverse)."""
+
+    def __init__(self, max_bytes=REUSE_BYTES):
         self.lock = threading.Lock()
         self.problems = {}
+        self.room = int(max_bytes)
+
+    def book(self, n, K):
+        """Room for up to ``n`` more patterns of K shapes; returns how many fit."""
+        with self.lock:
+            fit = max(0, min(int(n), self.room // (2 * K * K * 8)))
+            self.room -= fit * 2 * K * K * 8
+            return fit
 
 
 @contextmanager
@@ -144,9 +160,10 @@ def reuse_pattern_setup(setup=None):
     15.6 -> 14.1 s CPU; the temporal solve takes its Hessians without a copy.
 
     Scoped, not global: the products (two K x K floats per pattern: 2 x 184 MB there; the Hessians
-    replace the temporal solve's own, so +180 MB peak) live as long as ``setup`` (a
-    ``PatternSetup``; default: a new one, dropped on exit; pass one to share it across several
-    ``with`` blocks). Without ``setup``, a nested use shares the outer one. Per thread/task (a
+    replace the temporal solve's own) live as long as ``setup`` (a ``PatternSetup``; default: a new
+    one, dropped on exit; pass one to share it across several ``with`` blocks), and are bounded by
+    its ``max_bytes``: on longer takes the patterns beyond it are computed where needed, as
+    without reuse (the same bits either way). Without ``setup``, a nested use shares the outer one. Per thread/task (a
     context variable): solves elsewhere in the same process do not see it. Yields the setup.
     """
     if setup is None and _REUSE.get() is not None:
@@ -169,7 +186,7 @@ def reusable(A, R, C):
     # exact bytes (and layout) rather than a hash: equal keys then mean bit-identical products
     key = (A.shape, A.strides, R.shape, R.strides, np.dtype(C.dtype).str, A.tobytes(), R.tobytes())
     with setup.lock:
-        return setup.problems.setdefault(key, _Products())
+        return setup.problems.setdefault(key, _Products(setup))
 
 
 class _Blocks:
@@ -221,25 +238,25 @@ def _spans(n, size=512):
 class _Products:
     """Per-pattern setup products of one (A, R): each pattern's H, and its inverse and ``ok`` flag
     once a per-frame solve asked, found by the pattern's bytes. Each is computed on its own, so it
-    is bit-identical to a per-chunk computation, and never changes once stored."""
+    is bit-identical to a per-chunk computation, and never changes once stored. Patterns are kept
+    while the ``PatternSetup``'s room lasts."""
 
-    def __init__(self):
+    def __init__(self, setup=None):
         self.lock = threading.Lock()
+        self.setup = PatternSetup() if setup is None else setup
         self.index = {}  # pattern bytes -> row
         self.H, self.Hinv = _Blocks(), _Blocks()
         self.ok = np.zeros(0, bool)
 
-    def prepare(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None):
-        """Snapshots of the products of ``pats`` for ``_Blocks.gather``: (H, (Hinv, ok) or None).
-        Missing ones are computed in slices mapped by ``map_`` (e.g. a thread pool's); inverses are
-        updated from ``full`` (a ``FullInverse`` of this A, R; default: made here)."""
+    def keep(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None):
+        """Compute and keep the products of ``pats`` not kept yet, while there is room; in slices
+        mapped by ``map_`` (e.g. a thread pool's); inverses are updated from ``full`` (a
+        ``FullInverse`` of this A, R; default: made here). Returns the ``full`` used (or None)."""
         K = A.shape[1]
-        if pats.shape[0] == 0:
-            none = ([np.empty((0, K, K))], np.zeros((0, 2), np.intp))
-            return none, ((none, np.zeros(0, bool)) if inverses else None)
         with self.lock:
             keys = [p.tobytes() for p in pats]
             new = np.array([i for i, k in enumerate(keys) if k not in self.index], dtype=np.intp)
+            new = new[: self.setup.book(new.size, K)]
             if inverses and full is None and (new.size or (self.Hinv.where[:, 0] < 0).any()):
                 full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
             if new.size:
@@ -263,81 +280,52 @@ class _Products:
                     if inv is not None:
                         self.Hinv.add(np.arange(n0 + a, n0 + b), inv[0])
                         self.ok[n0 + a : n0 + b] = inv[1]
-            rows = np.fromiter((self.index[k] for k in keys), dtype=np.intp, count=len(keys))
-            H = self.H.snapshot(rows)
-            if not inverses:
-                return H, None
-            need = self.Hinv.where[rows, 0] < 0  # kept by a solve that needed no inverses (a temporal one)
-            if need.any():
-                todo, pt = rows[need], pats[need]
-                Ht = _Blocks.gather(self.H.snapshot(todo))
-                spans = _spans(todo.size)
+            if inverses:
+                rows = np.fromiter((self.index.get(k, -1) for k in keys), dtype=np.intp, count=len(keys))
+                need = rows >= 0
+                need[need] = self.Hinv.where[rows[need], 0] < 0  # kept by a solve that needed no inverses (a temporal one)
+                if need.any():
+                    todo, pt = rows[need], pats[need]
+                    Ht = _Blocks.gather(self.H.snapshot(todo))
+                    spans = _spans(todo.size)
 
-                def invert(span):
-                    return pattern_inverses(Ht[span[0] : span[1]], pt[span[0] : span[1]], full)
+                    def invert(span):
+                        return pattern_inverses(Ht[span[0] : span[1]], pt[span[0] : span[1]], full)
 
-                for (a, b), (Hi, ok) in zip(spans, map_(invert, spans)):
-                    self.Hinv.add(todo[a:b], Hi)
-                    self.ok[todo[a:b]] = ok
-            return H, (self.Hinv.snapshot(rows), self.ok[rows])
+                    for (a, b), (Hi, ok) in zip(spans, map_(invert, spans)):
+                        self.Hinv.add(todo[a:b], Hi)
+                        self.ok[todo[a:b]] = ok
+        return full
+
+    def prepare(self, A, pats, R, H_full=None, inverses=False, full=None):
+        """The products of ``pats`` in their order: (H (n, K, K), (Hinv, ok) or None); kept ones
+        taken (without a copy when they are one kept block in order), new ones kept while there is
+        room, the others computed here."""
+        K = A.shape[1]
+        full = self.keep(A, pats, R, H_full, inverses, full=full)
+        with self.lock:
+            rows = np.fromiter((self.index.get(p.tobytes(), -1) for p in pats), dtype=np.intp, count=pats.shape[0])
+            kept = rows >= 0
+            H = self.H.snapshot(rows[kept])
+            Hi = (self.Hinv.snapshot(rows[kept]), self.ok[rows[kept]]) if inverses else None
+        if kept.all():
+            return _Blocks.gather(H), (None if Hi is None else (_Blocks.gather(Hi[0]), Hi[1]))
+        Hp = np.empty((pats.shape[0], K, K))
+        if kept.any():
+            Hp[kept] = _Blocks.gather(H)
+        Hp[~kept] = pattern_hessians(A, pats[~kept], R, H_full)
+        if not inverses:
+            return Hp, None
+        if full is None:
+            full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
+        Hinv, ok = np.empty_like(Hp), np.empty(pats.shape[0], bool)
+        if kept.any():
+            Hinv[kept], ok[kept] = _Blocks.gather(Hi[0]), Hi[1]
+        Hinv[~kept], ok[~kept] = pattern_inverses(Hp[~kept], pats[~kept], full)
+        return Hp, (Hinv, ok)
 
     def hessians(self, A, pats, R, H_full=None):
-        return _Blocks.gather(self.prepare(A, pats, R, H_full)[0])
-
-
-def hmul(Hp, inv, x):
-    """y_f = H_{inv[f]} x_f for every row of x."""
-    n_pat = Hp.shape[0]
-    if n_pat == 1:
-        return x @ Hp[0]
-    if n_pat * 2 > x.shape[0]:  # few rows per pattern: one gathered einsum (GIL-free in threads)
-        return np.einsum("nkl,nl->nk", Hp[inv], x)
-    return hmul_by_pattern(Hp, inv, x)
-
-
-def hmul_by_pattern(Hp, inv, x):
-    """``hmul`` as one product per pattern present: rows sorted by pattern, slices, no gather of
-    the matrices. Faster single-threaded for many rows (the temporal kernel); its Python loop makes
-    it slower than the einsum in the threaded per-frame kernel (measured)."""
-    n = x.shape[0]
-    if n <= 256:  # few rows: gathering their matrices is cheap
-        return np.einsum("nkl,nl->nk", Hp[inv], x)
-    order = np.argsort(inv, kind="stable")
-    si = inv[order]
-    starts = np.flatnonzero(np.concatenate([[True], si[1:] != si[:-1]]))
-    ends = np.append(starts[1:], n)
-    xs = x[order]
-    ys = np.empty_like(xs)
-    for a, b, p in zip(starts.tolist(), ends.tolist(), si[starts].tolist()):
-        ys[a:b] = xs[a:b] @ Hp[p]
-    y = np.empty_like(x)
-    y[order] = ys
-    return y
-
-
-def solve_free(Hp, inv, free, rhs):
-    """x with x_F = H_FF^{-1} rhs_F per frame (0 elsewhere), batched by free-set size."""
-    n, K = free.shape
-    x = np.zeros((n, K))
-    cnt = free.sum(axis=1)
-    itype = np.int32 if Hp.size < 2**31 else np.int64  # smaller index arrays gather faster
-    idx_all = np.argsort(~free, axis=1, kind="stable").astype(itype)  # free indices first, in order
-    inv_k = inv.astype(itype) * K
-    flat_H = Hp.reshape(-1)
-    order = np.lexsort((inv, cnt))  # by size, then by pattern (cache-friendly gathers)
-    sizes = cnt[order]
-    starts = np.searchsorted(sizes, np.arange(K + 2))
-    for s in range(1, K + 1):
-        sel = order[starts[s] : starts[s + 1]]
-        if sel.size == 0:
-            continue
-        idx = idx_all[sel, :s]
-        rows = inv_k[sel][:, None] + idx  # row of H_p, flattened over patterns
-        M = np.take(flat_H, (rows * K)[:, :, None] + idx[:, None, :])
-        b = np.take_along_axis(rhs[sel], idx, axis=1)
-        sol = np.linalg.solve(M, b[:, :, None])[:, :, 0]
-        x[sel[:, None], idx] = sol
-    return x
+        return self.prepare(A, pats, R, H_full)[0]
 
 
 def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None, exact=True, start=None):
@@ -373,8 +361,7 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
             Hp = pattern_hessians(A, pats, R, H_full)
             inverses = pattern_inverses(Hp, pats, full)
         else:  # this chunk's patterns, in its own order (the kernels' shapes and code paths as without)
-            H, (Hinv, ok) = products.prepare(A, pats, R, H_full, inverses=True, full=full)
-            Hp, inverses = _Blocks.gather(H), (_Blocks.gather(Hinv), ok)
+            Hp, inverses = products.prepare(A, pats, R, H_full, inverses=True, full=full)
         state = None if start is None else start_state(start[sl], lo[sl], hi[sl], lam)
         w, it, bad, sign = _pdas(Hp, inv, G[sl], lo[sl], hi[sl], lam, max_iter, state, inverses)
         if bad.size and not exact:  # a starting guess is enough: clip the last iterate
@@ -391,7 +378,7 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
         if workers > 1 and n_chunks > 1:
             with ThreadPoolExecutor(workers) as pool:
                 if products is not None:  # the take's patterns once, on the threads (chunks repeat them)
-                    products.prepare(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full)
+                    products.keep(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full)
                 out = list(pool.map(one, range(0, F, chunk)))
         else:
             out = [one(s) for s in range(0, F, chunk)]

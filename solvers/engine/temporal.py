@@ -41,7 +41,8 @@ import numpy as np
 
 from .banded import context, frame_band, solve_window
 from . import windows
-from .frames import hmul_by_pattern, pattern_hessians, patterns, reusable, solve_frames
+from .batched import hmul_by_pattern
+from .frames import pattern_hessians, patterns, reusable, solve_frames
 from .split import run_beside
 from .states import FREE, ZERO, classify, fixed_values
 from .threads import single_blas_thread

@@ -153,3 +153,25 @@ def test_threads_share_one_setup():
         for workers in (4, 1, 2):
             got = engine_frames.solve_frames(A, C, G, R, lo, hi, lam, chunk=50, workers=workers)
             assert np.array_equal(ref[0], got[0]) and ref[1:] == got[1:]
+
+
+@pytest.mark.parametrize("room", [0, 10, 10**9])  # patterns that fit: none, some, all
+def test_a_bounded_setup_keeps_what_fits_and_gives_the_same_bits(monkeypatch, room):
+    """``PatternSetup(max_bytes)`` keeps at most that many bytes of products (Hessian and inverse
+    per pattern); the patterns beyond are computed where needed: the same bits in every case."""
+    A = localised_basis(K=12, seed=13)
+    D1, D2 = gappy_take(A, F=600, seed=14)
+    K = A.shape[1]
+    outside = pipeline_like(A, D1, D2, **KW)
+    setup = PatternSetup(max_bytes=room * 2 * K * K * 8)
+    with reuse_pattern_setup(setup):
+        inside = pipeline_like(A, D1, D2, **KW)
+    monkeypatch.setattr(engine_temporal, "SPLIT_FRAMES", 200)  # and the windowed temporal solve
+    split_out = solve_bounded(A, D2, smoothing=(0.0, 0.3), **KW)
+    with reuse_pattern_setup(setup):
+        split_in = solve_bounded(A, D2, smoothing=(0.0, 0.3), **KW)
+    n_pat = engine_frames.patterns(np.isfinite(D1))[0].shape[0]
+    (products,) = setup.problems.values()
+    assert len(products.index) == min(room, n_pat) and n_pat > 10
+    for a, b in zip(outside + (split_out,), inside + (split_in,)):
+        identical(a, b)
