@@ -1,0 +1,65 @@
+"""The result of a stabilisation (3D rigid/similarity or 2D image tracks): stabilised markers and
+the head motion removed."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..markers import MarkerSet
+
+
+class LazyMarkers:
+    """Descriptor of the ``markers`` field: accepts an object with a ``compute()`` method (the
+    stabilised markers not computed yet, e.g. ``stabilise._MovedMarkers``) and computes it once."""
+
+    def __set_name__(self, owner, name):
+        self.slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            raise AttributeError(self.slot)  # tells dataclass the field has no default
+        value = obj.__dict__[self.slot]
+        if not isinstance(value, MarkerSet):
+            value = value.compute()
+            obj.__dict__[self.slot] = value
+        return value
+
+    def __set__(self, obj, value):
+        obj.__dict__[self.slot] = value
+
+
+@dataclass(frozen=True, eq=False)
+class StabiliseResult:
+    """Stabilised markers plus the head motion that was removed.
+
+    ``markers`` holds every marker in the reference head frame; frames whose fit is not
+    determined (``flagged``) are all gaps there, never silently wrong.
+    The head pose of frame f is ``x_raw = R_f^T (x_stab - t_f)``, i.e. the inverse of
+    (``rotations[f]``, ``translations[f]``).
+    """
+
+    markers: MarkerSet = LazyMarkers()  # computed on first access when given as a deferred computation
+    stable_names: tuple
+    reference: np.ndarray  # (S, 3) stable markers in the reference head frame
+    rotations: np.ndarray  # (F, 3, 3) raw -> stabilised
+    translations: np.ndarray  # (F, 3)
+    rms: np.ndarray  # (F,) residual of the stable markers after the fit (NaN where flagged)
+    flagged: np.ndarray  # (F,) bool
+    flag_reasons: dict = field(default_factory=dict)  # frame number -> reason
+    unreliable: np.ndarray = None  # (F,) bool: fitted, but too few stable markers agreed (robust fit)
+    marker_trust: dict = field(default_factory=dict)  # stable marker -> mean robust weight (1 = rigid)
+    scales: np.ndarray = None  # (F,) uniform scale raw -> stabilised (mode "similarity"); None = 1
+    mode: str = "rigid"
+
+    def scale_array(self):
+        """(F,) per-frame scale raw -> stabilised (ones for a rigid fit)."""
+        return np.ones(len(self.rotations)) if self.scales is None else self.scales
+
+    def head_rotations(self):
+        """Head rotation per frame relative to the reference (raw = R_head @ stabilised + ...)."""
+        return self.rotations.transpose(0, 2, 1)
+
+
+def frame_label(frame):
+    """A frame number as a report key: an int when whole."""
+    return int(frame) if float(frame).is_integer() else float(frame)
