@@ -52,6 +52,7 @@ def run_retarget(config, *, quiet=False, solve=None):
 
     from ..solvers.capture.cleaning import clean
     from ..solvers.engine.split import run_beside
+    from ..solvers.markers import UNIT_SCALE
     from ..solvers.errors import ConfigError
     from ..solvers.pipeline import retarget
     from ..solvers.io import import_markers
@@ -81,9 +82,12 @@ def run_retarget(config, *, quiet=False, solve=None):
                                           **config.read_options)
             notes = list(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
             cleaned = clean(imported.markers, config.clean)
+            markers = cleaned.markers
+            if markers.dim == 3 and markers.units in UNIT_SCALE:  # in metres here, as the solve reads it:
+                markers = markers.to_units("m")  # one (F, M, 3) copy of the take for the whole run
             # one memory layout whichever process reads the take (a pickled array comes back
             # C-ordered, and sums over another layout round differently in the last bits)
-            markers = dataclasses.replace(cleaned.markers, positions=np.ascontiguousarray(cleaned.markers.positions))
+            markers = dataclasses.replace(markers, positions=np.ascontiguousarray(markers.positions))
             cleaning = cleaned.report.summary().splitlines()
             source = {"format": imported.format, "units": imported.markers.units}  # not the raw take (a second copy)
         return markers, source, notes, cleaning, load_strategy_inputs(config), time.perf_counter() - t
@@ -150,6 +154,11 @@ def run_retarget(config, *, quiet=False, solve=None):
         track = inputs.weights
         source = {"weights_file": str(config.weights_path),
                   "source": {"format": track.format, "fps": track.fps, "timecode": track.timecode}}
+    # The take's (F, M, 3) arrays are not needed for keying, whose F-curves are a long take's largest
+    # memory (issue 18): freed before it (the stabilisation keeps its head poses).
+    markers = None
+    if getattr(result, "stabilise", None) is not None:
+        result = dataclasses.replace(result, stabilise=result.stabilise.without_markers())
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=notes, say=say,
                             report_fields={**source, "cleaning": cleaning, **tuning_info, **extra})
     return result, outputs

@@ -1,7 +1,7 @@
 """The result of a stabilisation (3D rigid/similarity or 2D image tracks): stabilised markers and
 the head motion removed."""
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -58,6 +58,19 @@ class StabiliseResult:
     def head_rotations(self):
         """Head rotation per frame relative to the reference (raw = R_head @ stabilised + ...)."""
         return self.rotations.transpose(0, 2, 1)
+
+    def without_markers(self):
+        """This result without its stabilised markers (their (F, M, 3) floats, or the raw take a
+        deferred computation of them holds, can then be freed): the head poses, flags and
+        diagnostics only. Reading ``markers`` afterwards raises RuntimeError."""
+        return replace(self, markers=_Released())
+
+
+class _Released:
+    """The ``markers`` of a result that let them go (``StabiliseResult.without_markers``)."""
+
+    def compute(self):
+        raise RuntimeError("the stabilised markers of this result were released (only its head poses were kept)")
 
 
 def frame_label(frame):

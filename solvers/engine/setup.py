@@ -57,6 +57,13 @@ def _compact(x):
     return x[:1] if x.shape[0] and x.strides[0] == 0 else x
 
 
+def _rows(x, rows):
+    """``x[rows]`` for (F, K) bounds, still a broadcast view where every row is the same."""
+    if isinstance(rows, slice) or x.strides[0]:
+        return x[rows]
+    return np.broadcast_to(x[:1], (rows.size, x.shape[1]))
+
+
 def _mask(mask, finite, dims):
     F, P = finite.shape
     if mask is None:
@@ -255,8 +262,9 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
         has = Cr.sum(axis=1) > 0
         w0 = None
         if start is not None:  # frames or shapes it leaves NaN start from their rest value
-            w0 = start[:, var]
-            w0 = np.where(np.isnan(w0), np.clip(0.0, lo, hi), w0)
+            w0 = start if whole else start[:, var]
+            if np.isnan(w0).any():
+                w0 = np.where(np.isnan(w0), np.clip(0.0, lo, hi), w0)
         if temporal:
             if not has.any():
                 continue
@@ -271,8 +279,9 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
             if idx.size == 0:
                 continue
             rows = slice(None) if idx.size == F else idx  # every frame has data: no (F, P) copies
-            w, it, fb = solve_frames(Ar, Cr[rows], G[rows], Rr, lo[rows], hi[rows], l1, max_iter=max_iter,
-                                     chunk=chunk, start=None if w0 is None else w0[rows], exact=exact)
+            w, it, fb = solve_frames(Ar, Cr[rows], G[rows], Rr, _rows(lo, rows), _rows(hi, rows), l1,
+                                     max_iter=max_iter, chunk=chunk, start=None if w0 is None else w0[rows],
+                                     exact=exact)
             if whole:
                 W[rows] = w
             else:

@@ -22,7 +22,7 @@ from ..engine.frames import PatternSetup, reuse_pattern_setup
 from ..errors import FacecapError
 from ..character.diagnostics import basis_warnings
 from ..character.shape_options import resolve_bounds, resolve_locks, resolve_regions
-from ..capture.stabilise import refine_rigid, smooth_head_motion, stabilise_rigid
+from ..capture.stabilise import refine_rigid, release_markers, smooth_head_motion, stabilise_rigid
 from ..strategies import STRATEGY_NAMES
 from ..strategies.base import Target, as_target
 from ..strategies.geometric import GeometricOptions, solve_geometric
@@ -272,9 +272,9 @@ def _retarget_geometric(markers, basis, settings):
         neutral_all, offsets, norm_info = normalise_stabilised(stab, settings, notes if iteration == 0 else [])
         neutral = neutral_all[used_idx]
         align = align_actor(neutral, sub.neutral, used, regions=settings.align_regions, flag_mm=settings.align_flag_mm)
-        positions = stab.markers.positions if offsets is None else stab.markers.positions + offsets
-        # np.take keeps the frame-major layout (positions[:, idx] would be marker-major, 2x slower later)
-        deltas = align.apply_vectors(np.take(positions, used_idx, axis=1) - neutral[None])
+        deltas = None  # the last iteration's: freed before the next are made
+        deltas = _character_deltas(stab.markers.positions, offsets, used_idx, neutral, align)
+        stab = release_markers(stab, markers)  # its (F, M, 3) markers: computed again if read
         t2 = time.perf_counter()
         with warnings.catch_warnings(), (reuse_pattern_setup(setup) if setup is not None else nullcontext()):
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -299,12 +299,10 @@ def _retarget_geometric(markers, basis, settings):
             setup = None  # hundreds of MB on long takes: not kept for the residuals
             break
         # Hierarchical stabilisation: refit the head on all markers against the solve's prediction.
-        char_pred = _predict(solved.weights, sub.deltas)
-        predicted = neutral[None] + align.inverse_vectors(char_pred)
-        if offsets is not None:  # back to where the (un-normalised) markers are
-            predicted = predicted - np.take(offsets, used_idx, axis=1)
-        predicted[~solved.solved] = np.nan
+        predicted = _predicted_markers(solved, sub.deltas, neutral, align, offsets, used_idx)
+        solved = deltas = None  # (F, M, 3) each (a solve keeps its data for residuals on demand)
         stab = refine_rigid(markers, stab, used, predicted, weights=trust)
+        predicted = None
         stab = smooth_head_motion(markers, stab, half_window=half_window)
         timings["stabilise"] += time.perf_counter() - t3
     align_res = align.residual
@@ -571,11 +569,49 @@ def _predict(weights, deltas):
     return (np.nan_to_num(weights) @ deltas.reshape(K, M * D)).reshape(-1, M, D)
 
 
+#: Frames per block of the per-frame array work below: temporaries of a few MB that the allocator
+#: reuses, not (F, M, 3) ones (587 MB each on 100 minutes at 60 fps; issue 18).
+BLOCK = 8192
+
+
+def _character_deltas(positions, offsets, used_idx, neutral, align):
+    """The used markers' deltas from ``neutral`` in character space (F, U, 3), from the stabilised
+    ``positions`` (F, M, 3) (+ master ``offsets``), in blocks of frames."""
+    F = positions.shape[0]
+    out = np.empty((F, len(used_idx), positions.shape[2]))
+    for a in range(0, F, BLOCK):
+        s = slice(a, a + BLOCK)
+        p = positions[s] if offsets is None else positions[s] + offsets[s]
+        # np.take keeps the frame-major layout (positions[:, idx] would be marker-major, 2x slower later)
+        out[s] = align.apply_vectors(np.take(p, used_idx, axis=1) - neutral[None])
+    return out
+
+
+def _predicted_markers(solved, basis_deltas, neutral, align, offsets, used_idx):
+    """Where ``solved`` puts the used markers in the stabilised head frame (F, U, 3), NaN in frames
+    it did not solve; in blocks of frames."""
+    F = solved.weights.shape[0]
+    out = np.empty((F, len(used_idx), basis_deltas.shape[2]))
+    for a in range(0, F, BLOCK):
+        s = slice(a, a + BLOCK)
+        p = neutral[None] + align.inverse_vectors(_predict(solved.weights[s], basis_deltas))
+        if offsets is not None:  # back to where the (un-normalised) markers are
+            p -= np.take(offsets[s], used_idx, axis=1)
+        out[s] = p
+    out[~solved.solved] = np.nan
+    return out
+
+
 def _residuals(weights, basis_deltas, deltas, measured):
     """RMS residual per frame (F,) and per marker (M,) over the measured samples only, and the
-    distance per frame and marker (F, M), NaN where not measured."""
-    res = _predict(weights, basis_deltas) - deltas
-    sq = np.where(measured, (res**2).sum(axis=2), 0.0)
+    distance per frame and marker (F, M), NaN where not measured (in blocks of frames)."""
+    sq = np.empty(measured.shape)
+    for a in range(0, sq.shape[0], BLOCK):
+        s = slice(a, a + BLOCK)
+        res = _predict(weights[s], basis_deltas) - deltas[s]
+        sq[s] = np.where(measured[s], (res**2).sum(axis=2), 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return (np.sqrt(sq.sum(axis=1) / measured.sum(axis=1)), np.sqrt(sq.sum(axis=0) / measured.sum(axis=0)),
-                np.where(measured, np.sqrt(sq), np.nan))
+        per_frame, per_marker = np.sqrt(sq.sum(axis=1) / measured.sum(axis=1)), np.sqrt(sq.sum(axis=0) / measured.sum(axis=0))
+    dist = np.sqrt(sq, out=sq)  # in place: no second (F, M)
+    dist[~measured] = np.nan
+    return per_frame, per_marker, dist
