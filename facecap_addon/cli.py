@@ -51,7 +51,7 @@ def run_retarget(config, *, quiet=False, solve=None):
     import numpy as np
 
     from ..solvers.capture.cleaning import clean
-    from ..solvers.engine.split import run_beside
+    from ..solvers.engine.split import release_freed_memory, run_beside
     from ..solvers.markers import UNIT_SCALE
     from ..solvers.errors import ConfigError
     from ..solvers.pipeline import retarget
@@ -159,6 +159,7 @@ def run_retarget(config, *, quiet=False, solve=None):
     markers = None
     if getattr(result, "stabilise", None) is not None:
         result = dataclasses.replace(result, stabilise=result.stabilise.without_markers())
+    release_freed_memory()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=notes, say=say,
                             report_fields={**source, "cleaning": cleaning, **tuning_info, **extra})
     return result, outputs

@@ -40,6 +40,7 @@ def run_beside(here, there, *, let_finish=False):
 
     if not fork_available():
         return here(), there()
+    release_freed_memory()  # pages the allocator kept would count in both processes
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
 
@@ -48,6 +49,7 @@ def run_beside(here, there, *, let_finish=False):
             out = ("ok", there())
         except BaseException as e:  # the parent then runs it itself
             out = ("error", repr(e))
+        release_freed_memory()  # what ``there`` freed, while the parent takes the result
         _send(send, out)
 
     try:
@@ -107,3 +109,28 @@ def _recv(conn):
             conn.recv_bytes()
         buffers.append(buf)
     return pickle.loads(head, buffers=buffers)
+
+
+def release_freed_memory():
+    """Give the memory the C allocator keeps after frees back to the system (glibc's
+    ``malloc_trim``; a no-op elsewhere). Batch commands keep freed memory for reuse while they
+    compute (``facecap_addon.cli.keep_freed_memory``); between stages whose working sets differ
+    (reading, solving, keying) that memory is only weight: measured after the 36,000-frame CLI
+    solve, 1.33 -> 0.88 GB resident. Returns whether it ran."""
+    global _TRIM
+    if _TRIM is None:
+        _TRIM = False
+        if sys.platform.startswith("linux"):
+            import ctypes
+
+            try:
+                _TRIM = ctypes.CDLL("libc.so.6").malloc_trim
+            except (OSError, AttributeError):
+                pass
+    if not _TRIM:
+        return False
+    _TRIM(0)
+    return True
+
+
+_TRIM = None
