@@ -4,6 +4,8 @@ Run through ``python -m facecap bench`` (with the solver cases). Times are media
 timed on a subset are scaled per key or per frame.
 """
 
+import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -12,13 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
+from ..solvers.character.basis import Basis
+from ..solvers.io.csv import write_markers_csv
 from ..solvers.tools.bench import median_time
+from ..solvers.tools.peak_memory import available, run_measured
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _shape_key_mesh(n_shapes):
-    import bpy
+    import bpy  # bpy: Blender starts on first import
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     mesh = bpy.data.meshes.new("BenchFace")
@@ -33,7 +38,7 @@ def _shape_key_mesh(n_shapes):
 
 def bench_keying(frames=36000, shapes=52, baseline_frames=300, repeat=3):
     """Bulk keying (keyframe_points.add + foreach_set) against keyframe_insert per key."""
-    from . import anim
+    from . import anim  # loads bpy
 
     obj = _shape_key_mesh(shapes)
     key = obj.data.shape_keys
@@ -70,12 +75,7 @@ def write_long_take(folder, frames):
     (it starts and ends at rest, so the pieces join smoothly; the head jumps back to rest between
     pieces). Written piece by piece: the bench's own memory stays that of one piece.
     Returns the config path."""
-    import dataclasses
-    import json
-
-    from ..solvers.character.basis import Basis
-    from ..solvers.io.csv import write_markers_csv
-    from ..solvers.tools.synth import performance_weights, synthesize_take
+    from ..solvers.tools.synth import performance_weights, synthesize_take  # loads scipy
 
     folder = Path(folder)
     samples = ROOT / "sample_blends"
@@ -114,10 +114,6 @@ def _cli_env():
 def bench_cli_retarget(frames=36000, repeat=3):
     """``python -m facecap retarget`` on a long synthetic take of the sample character, process start to
     saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
-    import json
-
-    from ..solvers.character.basis import Basis
-
     basis = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz")
     with tempfile.TemporaryDirectory(prefix="facecap-bench-") as tmp:
         tmp = Path(tmp)
@@ -151,8 +147,6 @@ def bench_memory(frames=MEMORY_FRAMES):
     sample character, one run per length: the summed RSS and PSS of the tree (see
     ``solvers.tools.peak_memory``), the main process's own peak, and the growth per frame between
     the shortest and longest take. Returns a list of rows (one per take, then the growth)."""
-    from ..solvers.tools.peak_memory import available, run_measured
-
     if not available():
         return [dict(name="memory", seconds=0.0, baseline_seconds=None, ratio=None, goal="",
                      note="skipped: needs Linux /proc")]

@@ -64,10 +64,19 @@ def create_take(scene, markers, take_name, *, empty_size=0.002, set_scene_range=
                                     frames=markers.frames, values=pos[:, m, :])
     add_segment_markers(scene, markers.segments)
     if set_scene_range:
-        scene.frame_start, scene.frame_end = int(np.floor(markers.frames[0])), int(np.ceil(markers.frames[-1]))
-        scene.render.fps = max(1, int(round(markers.fps)))
-        scene.render.fps_base = scene.render.fps / markers.fps
+        fit_scene_to_take(scene, markers.frames, markers.fps)
     return coll
+
+
+def fit_scene_to_take(scene, frames, fps):
+    """The scene's frame range and frame rate (``fps`` / ``fps_base``) set to a take's; ``fps`` None
+    leaves the rate."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if frames.size:
+        scene.frame_start, scene.frame_end = int(np.floor(frames[0])), int(np.ceil(frames[-1]))
+    if fps:
+        scene.render.fps = max(1, int(round(fps)))
+        scene.render.fps_base = scene.render.fps / fps
 
 
 def add_segment_markers(scene, segments):
@@ -78,3 +87,27 @@ def add_segment_markers(scene, segments):
             made.append(scene.timeline_markers.new(label, frame=int(round(first))))
             made.append(scene.timeline_markers.new(f"{label} end", frame=int(round(last))))
     return made
+
+
+def remember_take(scene, markers, path, coll):
+    """Point the sidebar settings at the new take, as File > Import does."""
+    settings = scene.facecap
+    settings.take_name = path.stem
+    settings.markers_path = str(path)
+    if markers.units in ("mm", "cm", "m"):
+        settings.units = markers.units
+    settings.fps = markers.fps
+    settings.marker_collection = coll
+    settings.markers.clear()
+    gaps = markers.gap_counts()
+    for name in markers.names:
+        item = settings.markers.add()
+        item.name = name
+        item.gaps = gaps[name]
+        item.stable = name.startswith("head")
+    first, last = int(markers.frames[0]), int(markers.frames[-1])
+    neutral = markers.segments.get("posed_neutral") or markers.segments.get("neutral")
+    if neutral:
+        settings.neutral_first, settings.neutral_last = int(neutral[0][0]), int(neutral[0][1])
+    elif not (first <= settings.neutral_first <= settings.neutral_last <= last):
+        settings.neutral_first, settings.neutral_last = first, min(first + 29, last)

@@ -12,6 +12,7 @@ from bpy.props import (
 )
 
 from . import properties_video
+from .option_props import from_option
 
 STRATEGY_ITEMS = [
     ("geometric", "Geometric", "Solve marker deltas against the character's shape keys at the bound vertices"),
@@ -112,7 +113,7 @@ class FACECAP_PG_library_version(bpy.types.PropertyGroup):
     """A stored library version (its arrays are kept in the scene's ``facecap_libraries`` property)."""
 
     parent: StringProperty(name="Parent", description="Version this one was tuned from (empty: the original)")
-    strategy: StringProperty(name="Strategy")
+    strategy: EnumProperty(items=STRATEGY_ITEMS, **from_option("solve.strategy", label="Strategy"))
     kind: StringProperty(name="Kind", description="actor_basis, character_basis or examples")
     created: StringProperty(name="Created")
     corrected_before: FloatProperty(name="Before", default=-1.0, description="RMS error on the corrected frames before")
@@ -168,56 +169,13 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     neutral_first: IntProperty(name="First", default=1, description="First frame of the neutral / T-pose range")
     neutral_last: IntProperty(name="Last", default=30, description="Last frame of the neutral / T-pose range")
     strategy: EnumProperty(name="Strategy", items=STRATEGY_ITEMS, default="geometric")
-    regularisation: FloatProperty(
-        name="Regularisation",
-        default=1e-3,
-        min=0.0,
-        precision=5,
-        description="Ridge weight relative to the basis scale: larger values keep weights smaller and steadier",
-    )
-    sparsity: FloatProperty(
-        name="Sparsity",
-        default=1e-3,
-        min=0.0,
-        precision=5,
-        description="L1 weight relative to the basis scale: pulls shapes that only explain noise to zero",
-    )
-    symmetry: FloatProperty(
-        name="Symmetry",
-        default=0.0,
-        min=0.0,
-        precision=4,
-        description="Coupling of Left/Right shape pairs relative to the basis scale; lets a side with missing markers follow the other",
-    )
-    smoothing_first: FloatProperty(
-        name="Velocity Smoothing",
-        default=0.0,
-        min=0.0,
-        precision=4,
-        description="Temporal weight on frame-to-frame change (0 = frames solved independently)",
-    )
-    smoothing_second: FloatProperty(
-        name="Acceleration Smoothing",
-        default=0.3,
-        min=0.0,
-        precision=4,
-        description="Temporal weight on the second difference (removes jitter, keeps fast closures)",
-    )
-    fine_iterations: IntProperty(
-        name="Fine Refits",
-        default=2,
-        min=0,
-        max=10,
-        description="Hierarchical stabilisation: refits of the head pose on all markers against the solve",
-    )
-    head_smoothing: FloatProperty(
-        name="Head Smoothing",
-        default=0.1,
-        min=0.0,
-        max=1.0,
-        unit="TIME_ABSOLUTE",
-        description="Half-window in seconds of the zero-phase smoothing of the head pose (0 = off)",
-    )
+    regularisation: FloatProperty(precision=5, **from_option("solve.regularisation", label="Regularisation"))
+    sparsity: FloatProperty(precision=5, **from_option("solve.sparsity", label="Sparsity"))
+    symmetry: FloatProperty(precision=4, **from_option("solve.symmetry", label="Symmetry"))
+    smoothing_first: FloatProperty(precision=4, **from_option("solve.smoothing", index=0, label="Velocity Smoothing"))
+    smoothing_second: FloatProperty(precision=4, **from_option("solve.smoothing", index=1, label="Acceleration Smoothing"))
+    fine_iterations: IntProperty(**from_option("stabilise.fine_iterations", label="Fine Refits"))
+    head_smoothing: FloatProperty(unit="TIME_ABSOLUTE", **from_option("stabilise.head_smoothing", label="Head Smoothing"))
     shapes: CollectionProperty(type=FACECAP_PG_shape)
     active_shape: IntProperty(default=0)
     regions: CollectionProperty(type=FACECAP_PG_region)
@@ -234,21 +192,19 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     active_calib_pose: IntProperty(default=0)
     calib_pose_name: StringProperty(name="Pose Name", default="jawOpen",
                                     description="Name of the next pose added from the timeline")
-    calib_align: EnumProperty(name="Align", items=ALIGN_ITEMS, default="rigid",
-                              description="How the take's neutral is brought onto the calibration neutral")
+    calib_align: EnumProperty(items=ALIGN_ITEMS, **from_option("calibration.align", label="Align"))
     # -- mapping (calibrated, refine, parallel) -----------------------------------------------
     mapping: CollectionProperty(type=FACECAP_PG_mapping)
     active_mapping: IntProperty(default=0)
-    mapping_aliases: BoolProperty(name="Aliases", default=True,
-                                  description="Match names through ARKit / Live Link Face / MediaPipe / FACS alias tables")
+    mapping_aliases: BoolProperty(**from_option("mapping.aliases", label="Aliases"))
     # -- parallel -----------------------------------------------------------------------------
     weights_path: StringProperty(name="Weights File", subtype="FILE_PATH",
                                  description="Solved weights: Live Link Face / ARKit / MediaPipe CSV")
-    parallel_gain: FloatProperty(name="Gain", default=1.0, description="Gain on every channel")
-    parallel_offset: FloatProperty(name="Offset", default=0.0, description="Offset added to every channel")
+    parallel_gain: FloatProperty(**from_option("mapping.gain", label="Gain"))
+    parallel_offset: FloatProperty(**from_option("mapping.offset", label="Offset"))
     parallel_curve: EnumProperty(name="Curve", items=CURVE_ITEMS, default="linear")
     parallel_gamma: FloatProperty(name="Gamma", default=1.0, min=0.05, description="Exponent of the gamma curve")
-    parallel_mirror: BoolProperty(name="Mirror", default=False, description="Swap Left/Right source channels")
+    parallel_mirror: BoolProperty(**from_option("mapping.mirror", label="Mirror"))
     parallel_use_neutral: BoolProperty(name="Neutral Offset", default=False,
                                        description="Subtract the median of the source over a neutral frame range")
     parallel_neutral_first: IntProperty(name="First", default=1)
@@ -256,34 +212,29 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     # -- examples (linear, rbf, pca) ------------------------------------------------------------
     examples_action: PointerProperty(name="Examples", type=bpy.types.Action,
                                      description="Action on the character's shape keys whose keyed frames are the posed examples")
-    ridge: FloatProperty(name="Ridge", default=1e-3, min=0.0, precision=6, description="Ridge weight of the linear map")
-    rbf_kernel: EnumProperty(name="Kernel", items=KERNEL_ITEMS, default="thin_plate_spline")
-    rbf_smoothing: FloatProperty(name="Smoothing", default=0.0, min=0.0, precision=4,
-                                 description="0 reproduces the examples exactly")
-    rbf_degree: IntProperty(name="Tail Degree", default=1, min=-1, max=2, description="Polynomial tail (-1 = none)")
-    rbf_far: FloatProperty(name="Far", default=2.0, min=0.01,
-                           description="Frames farther than this x the example spacing are reported as extrapolated")
+    ridge: FloatProperty(precision=6, **from_option("examples.ridge", label="Ridge"))
+    rbf_kernel: EnumProperty(items=KERNEL_ITEMS, **from_option("examples.kernel", label="Kernel"))
+    rbf_smoothing: FloatProperty(precision=4, **from_option("examples.rbf_smoothing", label="Smoothing"))
+    rbf_degree: IntProperty(**from_option("examples.degree", label="Tail Degree"))
+    rbf_far: FloatProperty(**from_option("examples.far", label="Far", min=0.01))
     n_components: IntProperty(name="Components", default=0, min=0, description="Principal components (0 = default)")
-    pca_mode: EnumProperty(name="Mode", items=PCA_MODE_ITEMS, default="related")
-    pca_ica: BoolProperty(name="ICA", default=False, description="Rotate the components to independent ones (FastICA)")
-    pca_n_basis: IntProperty(name="Basis Components", default=8, min=1,
-                             description="Leading components whose extreme frames are the basis frames")
-    pca_variance: FloatProperty(name="Variance", default=0.99, min=0.01, max=1.0, description="Share of variance kept")
+    pca_mode: EnumProperty(items=PCA_MODE_ITEMS, **from_option("pca.mode", label="Mode"))
+    pca_ica: BoolProperty(**from_option("pca.ica", label="ICA"))
+    pca_n_basis: IntProperty(**from_option("pca.n_basis", label="Basis Components"))
+    pca_variance: FloatProperty(**from_option("pca.variance", label="Variance", min=0.01))
     # -- refine ----------------------------------------------------------------------------------
-    refine_max_iterations: IntProperty(name="Iterations", default=10, min=0, max=100)
-    refine_tol: FloatProperty(name="Tolerance", default=1e-3, min=0.0, precision=5,
-                              description="Stop when the fit error falls by less than this fraction")
-    refine_stiffness: FloatProperty(name="Stiffness", default=1e-2, min=0.0, precision=5,
-                                    description="Pull towards the original library (larger = smaller corrections)")
+    refine_max_iterations: IntProperty(**from_option("refine.max_iterations", label="Iterations"))
+    refine_tol: FloatProperty(precision=5, **from_option("refine.tol", label="Tolerance"))
+    refine_stiffness: FloatProperty(precision=5, **from_option("refine.stiffness", label="Stiffness"))
     head_object: PointerProperty(name="Head Motion", type=bpy.types.Object, description="Empty keyed with the removed head motion")
     flagged_frames: IntProperty(name="Flagged Frames", default=0, description="Frames the last stabilisation could not fit")
     unreliable_frames: IntProperty(name="Unreliable Frames", default=0,
                                    description="Frames where too few stable markers agreed in the last stabilisation")
     # -- stabilise / neutral / master / align (issue 4) -----------------------------------------
     stabilise_mode: EnumProperty(
-        name="Fit", default="rigid",
         items=[("rigid", "Rigid", "Rotation and translation per frame"),
                ("similarity", "Similarity", "Also a uniform scale per frame (captures from different days)")],
+        **from_option("stabilise.mode", label="Fit"),
     )
     auto_stable: BoolProperty(name="Auto Stable Set", default=False,
                               description="Suggest the stable markers from the take at every solve")
@@ -330,6 +281,30 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
                               description="Jump to Worst skips frames this close to a worse one")
     last_report: StringProperty(name="Last Result", description="Summary of the last solve")
 
+
+#: Sidebar settings that are not take-config options, and why (every other setting is an option's
+#: control: ``solvers.options``; a test checks both directions).
+SIDEBAR_ONLY = {
+    "marker_collection": "the imported take's marker empties (a config names the file)",
+    "head_object": "the empty Stabilise keys with the head motion (a result)",
+    "flagged_frames": "a read-out of the last stabilisation",
+    "unreliable_frames": "a read-out of the last stabilisation",
+    "stable_gap": "a read-out of Suggest Stable Markers",
+    "last_action": "a read-out: the action the last solve created",
+    "last_report": "a read-out: the last solve's summary",
+    "video": "the group of video settings (its own settings are checked one by one)",
+    "tuning_index": "list selection",
+    "library_index": "list selection",
+    "worst_last": "state of Next Worst Frame",
+    "worst_spread": "an option of Next Worst Frame (an interactive tool)",
+    "active_marker": "list selection",
+    "active_shape": "list selection",
+    "active_region": "list selection",
+    "active_calib_pose": "list selection",
+    "active_mapping": "list selection",
+    "video.max_points": "Track Clip Footage's option (the `track` command has its own config)",
+    "video.method": "Track Clip Footage's option (the `track` command has its own config)",
+}
 
 CLASSES = (FACECAP_PG_marker, FACECAP_PG_shape, FACECAP_PG_region, FACECAP_PG_pose, FACECAP_PG_mapping,
            FACECAP_PG_tuning_frame, FACECAP_PG_library_version, FACECAP_PG_settings)

@@ -4,6 +4,8 @@ the options of Track Clip Footage, and of Solve from Clip Flow (flow-PCA feature
 import bpy
 from bpy.props import EnumProperty, IntProperty, IntVectorProperty, PointerProperty
 
+from .option_props import from_option
+
 PROJECTION_ITEMS = [
     ("front", "Front View", "Solve 2D tracks against the character seen from the front (orthographic)"),
     ("camera", "Camera", "Solve 2D tracks against the character seen through the camera that filmed the take"),
@@ -34,8 +36,7 @@ def _is_camera(_self, obj):
 class FACECAP_PG_video(bpy.types.PropertyGroup):
     """Video takes: projection of the character for 2D solves, Track Clip Footage options."""
 
-    projection: EnumProperty(name="Projection", items=PROJECTION_ITEMS, default="front",
-                             description="How the character's bound points are projected to compare with 2D tracks")
+    projection: EnumProperty(items=PROJECTION_ITEMS, **from_option("solve.projection", label="Projection"))
     camera: PointerProperty(name="Camera", type=bpy.types.Object, poll=_is_camera,
                             description="Camera that filmed the take (empty: the scene camera)")
     region: IntVectorProperty(name="Region", size=4, default=(0, 0, 0, 0), min=0,
@@ -45,14 +46,12 @@ class FACECAP_PG_video(bpy.types.PropertyGroup):
                                           "there (all zero: the whole frame)")
     max_points: IntProperty(name="Max Points", default=100, min=1, description="Automatic features to track")
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="lk", description="How the points are followed")
-    flow_method: EnumProperty(name="Flow", items=FLOW_METHOD_ITEMS, default="dis",
-                              description="Dense optical flow of Solve from Clip Flow")
+    flow_method: EnumProperty(items=FLOW_METHOD_ITEMS, **from_option("tracking.method", label="Flow"))
     stable_region: IntVectorProperty(name="Stable Region", size=4, default=(0, 0, 0, 0), min=0,
                                      description="x, y, width, height in pixels of an area that moves with the head "
                                                  "only (forehead, temples, a head-cam rig): its motion is removed "
                                                  "from the features (all zero: head motion stays in)")
-    flow_components: IntProperty(name="Components", default=12, min=1, max=200,
-                                 description="PCA components of the face's flow per frame")
+    flow_components: IntProperty(**from_option("flow.components", label="Components"))
     flow_grid_step: IntProperty(name="Grid Step", default=0, min=0, max=64,
                                 description="Flow sample spacing in pixels (0: about 4,000 samples over the region)")
     flow_strategy: EnumProperty(name="Strategy", items=FLOW_STRATEGY_ITEMS, default="linear",

@@ -1,13 +1,18 @@
 """Scene <-> solver adapters for a take: marker empties, settings, keyed results."""
 
 import glob
+import json
 
+import bpy
 import numpy as np
 
+from ..solvers.capture.align import region_patterns
+from ..solvers.character.shape_options import Region
 from ..solvers.errors import FacecapError
+from ..solvers.io import import_markers
+from ..solvers.io.weights import read_weights
 from ..solvers.markers import MarkerSet
 from ..solvers.pipeline import RetargetSettings
-from ..solvers.character.shape_options import Region
 from ..solvers.strategies.base import Target
 from ..solvers.strategies.options import (
     CalibrationSettings,
@@ -20,6 +25,7 @@ from ..solvers.strategies.options import (
 )
 from ..solvers.transforms import matrix_to_euler_xyz
 from . import anim, layers
+from .import_scene import pixels_from_scene
 
 LOCATION = [("location", 0), ("location", 1), ("location", 2)]
 
@@ -73,7 +79,6 @@ def strategy_settings(settings):
 
 def master_markers(settings):
     """The performer's master T-pose stored in the .blend (``settings.master_data``), or None."""
-    import json
 
     if not settings.master_data:
         return None
@@ -85,7 +90,6 @@ def master_markers(settings):
 
 def store_master(settings, names, pose, source):
     """Store a master T-pose (M, 3, metres) in the .blend."""
-    import json
 
     pose = np.asarray(pose, dtype=np.float64)
     settings.master_data = json.dumps({"names": list(names), "positions": np.round(pose, 9).tolist(),
@@ -95,13 +99,10 @@ def store_master(settings, names, pose, source):
 
 def neutral_options(settings):
     """The [neutral] / [stabilise] / [align] / [output] head part of RetargetSettings from the sidebar."""
-    import bpy
 
     mode = settings.neutral_mode
     out = {"stabilise_mode": settings.stabilise_mode, "align_regions": (), "landmarks": _patterns(settings.landmarks)}
     if settings.align_regions:
-        from ..solvers.capture.align import region_patterns
-
         out["align_regions"] = region_patterns(True)
     if mode == "RANGES":
         out["neutral_ranges"] = ((settings.neutral_first, settings.neutral_last),
@@ -171,7 +172,6 @@ def markers_from_empties(coll, names, fps):
     for m, (f, v) in enumerate(tracks):
         pos[np.searchsorted(frames, f), m] = v
     if coll.get("facecap_dim", 3) == 2:  # tracked footage: pixels, drawn in the XZ plane
-        from .import_scene import pixels_from_scene
 
         return MarkerSet(tuple(names), frames, pixels_from_scene(pos), fps=fps, units="px",
                          source=f"collection '{coll.name}'")
@@ -216,11 +216,11 @@ def examples_from_action(action, obj):
     return ExamplePairs(frames.astype(np.float64), values, names)
 
 
-def strategy_inputs(settings):
-    """StrategyInputs for the Solve panel's strategy, read from the scene and the files it names."""
-    import bpy
+def strategy_inputs(settings, strategy=None):
+    """StrategyInputs for ``strategy`` (default: the Solve panel's), read from the scene and the files
+    the panel names."""
 
-    strategy = settings.strategy
+    strategy = strategy or settings.strategy
     inputs, notes = {}, []
     if strategy in ("calibrated", "refine"):
         if settings.calib_source == "COLLECTION":
@@ -228,8 +228,6 @@ def strategy_inputs(settings):
                 inputs["calibration"] = markers_from_empties(settings.calib_collection, [m.name for m in settings.markers],
                                                              settings.fps)
         elif settings.calib_path:
-            from ..solvers.io import import_markers
-
             imported = import_markers(bpy.path.abspath(settings.calib_path), units=settings.calib_units)
             inputs["calibration"] = imported.markers
             notes.extend(imported.notes)
@@ -239,8 +237,6 @@ def strategy_inputs(settings):
                 raise FacecapError("choose the character first")
             inputs["examples"] = examples_from_action(settings.examples_action, settings.target)
     elif strategy == "parallel" and settings.weights_path:
-        from ..solvers.io.weights import read_weights
-
         track = read_weights(bpy.path.abspath(settings.weights_path))
         inputs["weights"] = track
         notes.extend(track.notes)
@@ -249,12 +245,10 @@ def strategy_inputs(settings):
 
 def source_channel_names(settings):
     """Names on the source side of the mapping table: calibration poses, or the weights file's channels."""
-    import bpy
 
     if settings.strategy == "parallel":
         if not settings.weights_path:
             raise FacecapError("choose the weights file first")
-        from ..solvers.io.weights import read_weights
 
         return read_weights(bpy.path.abspath(settings.weights_path)).names
     names = []
@@ -303,7 +297,7 @@ def key_weights(obj, result, action_name, *, take_name=""):
     curves += [(f'["{p}"]', 0) for p in props]
     values = _float32_columns(columns, scales)
     # the diagnostics as samples: nobody edits them, and keys would double the keying and the .blend
-    # (measured on the 36,000-frame CLI take: see README)
+    # (measured on the 36,000-frame CLI take: see docs/performance.md)
     sampled = [False] * len(result.shape_names) + [True] * len(props)
     action = anim.new_action_with_curves(key, name=action_name, curves=curves, frames=result.frames, values=values,
                                          group=groups, assign=False, sampled=sampled)
@@ -366,7 +360,6 @@ def key_head_on_target(target, stab, name, *, scale=1.0, frames=None):
     (1 = the head fit is flagged or unreliable there) is keyed on the object. ``frames``: the take's
     frame numbers (default: the stabilised markers', which a result may have released).
     """
-    import bpy
 
     obj_name, _, bone_name = target.partition(":")
     obj = bpy.data.objects.get(obj_name)
@@ -410,7 +403,6 @@ def key_head_on_target(target, stab, name, *, scale=1.0, frames=None):
 
 def key_head_motion(scene, stab, name):
     """An empty keyed with the removed head motion (location + unwrapped Euler rotation)."""
-    import bpy
 
     head = bpy.data.objects.new(name, None)
     head.empty_display_type = "ARROWS"

@@ -1,8 +1,7 @@
-"""The scene side of solving and tuning: one path from the sidebar to a keyed solve layer.
+"""The scene side of tuning: per-shape controls, library versions, the animator's corrections.
 
-``solve_take`` is what *Solve and Key* and *Retune* share: the take and the character read from
-the scene, the active library version applied, the per-shape controls applied to the weights.
-Library versions live in the .blend: a row per version in ``settings.library_versions`` and the
+Solving itself goes through ``scene_solve`` (the sidebar's side of the one solve path). Library
+versions live in the .blend: a row per version in ``settings.library_versions`` and the
 arrays (``LibraryVersion.to_arrays``) as one compressed ``.npz`` in a scene ID property (base64),
 so a version round-trips bit-exactly and nothing is ever overwritten.
 """
@@ -10,12 +9,12 @@ so a version round-trips bit-exactly and nothing is ever overwritten.
 import base64
 import glob
 import io
-from dataclasses import replace
 
 import numpy as np
 
+from ..solvers.character.shape_controls import ShapeControl, resolve_controls
 from ..solvers.errors import FacecapError
-from ..solvers.character.shape_controls import ShapeControl, apply_controls
+from ..solvers.tuning.take import LibraryVersion
 from . import anim, layers, take
 
 #: scene ID property holding {version name: base64 npz}
@@ -49,7 +48,6 @@ def shape_controls(settings, *, with_locks=False):
 
 def set_controls(settings, controls):
     """Write {shape or glob: ShapeControl} into the shape list (shapes not listed are left alone)."""
-    from ..solvers.character.shape_controls import resolve_controls
 
     names = [s.name for s in settings.shapes]
     for item, c in zip(settings.shapes, resolve_controls(names, controls)):
@@ -111,100 +109,12 @@ def store_version(scene, version):
 
 def load_version(scene, name):
     """The LibraryVersion ``name`` stored in the .blend."""
-    from ..solvers.tuning.take import LibraryVersion
 
     store = scene.get(LIBRARY_PROP)
     if store is None or name not in store:
         raise FacecapError(f"library version '{name}' is not stored in this .blend")
     with np.load(io.BytesIO(base64.b64decode(store[name])), allow_pickle=False) as data:
         return LibraryVersion.from_arrays({k: data[k] for k in data.files})
-
-
-# -- solving ----------------------------------------------------------------------------------------
-def solve_inputs(settings, scene):
-    """(markers, character, RetargetSettings, StrategyInputs) for the sidebar's take and strategy,
-    with the active library version applied."""
-    from .scene_data import basis_from_object
-
-    strategy = settings.strategy
-    markers = None if strategy == "parallel" else take.markers_from_collection(settings)
-    if strategy == "geometric":
-        character = basis_from_object(settings.target, markers.names)
-    else:
-        character = take.character_target(settings.target)
-    inputs = take.strategy_inputs(settings)
-    rsettings = take.retarget_settings(settings)
-    if markers is not None:
-        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames))
-        if markers.dim == 2:
-            from .video_scene import projection_from_sidebar
-
-            rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
-    if settings.library_active:
-        from ..solvers.tuning.take import apply_version
-
-        version = load_version(scene, settings.library_active)
-        character, inputs, rsettings = apply_version(version, character, inputs, rsettings)
-    return markers, character, rsettings, inputs
-
-
-def _layered_locks(settings, frames):
-    """{shape: (F,) value the animator sees} for locked shapes that have a solve layer or keys."""
-    key = settings.target.data.shape_keys
-    if key is None or key.animation_data is None:
-        return {}
-    locked = [s.name for s in settings.shapes if s.lock and s.name in key.key_blocks]
-    has_solve = layers.solved_action(key) is not None
-    keyed = {n for n in locked if layers.edit_key_frames(key, [n]).size}
-    names = [n for n in locked if has_solve or n in keyed]
-    if not names:
-        return {}
-    _, final = layers.layer_values(key, names, frames)
-    return dict(zip(names, final.T))
-
-
-def animator_locks(settings, frames):
-    """Solve locks: a locked shape is held at what the animator sees on every frame (the solve
-    layer plus their keys) when there is such a layer, else at its lock value."""
-    layered = _layered_locks(settings, np.asarray(frames, dtype=np.float64))
-    return tuple((glob.escape(s.name), layered.get(s.name, s.lock_value)) for s in settings.shapes if s.lock)
-
-
-def with_controls(settings, result):
-    """``result`` with the sidebar's per-shape controls applied to its weights."""
-    controls = shape_controls(settings)
-    if not controls:
-        return result
-    return replace(result, weights=apply_controls(result.weights, result.shape_names, controls, settings.fps))
-
-
-def solve_take(settings, scene):
-    """Solve the sidebar's take (controls applied); returns RetargetResult."""
-    from ..solvers.pipeline import retarget
-
-    markers, character, rsettings, inputs = solve_inputs(settings, scene)
-    return with_controls(settings, retarget(markers, character, rsettings, inputs=inputs))
-
-
-def key_solve(settings, result):
-    """Key ``result`` as the target's new solve layer; returns the action.
-
-    A locked shape keeps its previous solve-layer curve: the solve held it at what the animator saw
-    (solve layer + their keys), so re-keying that value under their keys would count them twice.
-    """
-    key = settings.target.data.shape_keys
-    locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
-    if locked and key is not None and layers.solved_action(key) is not None:
-        previous, _ = layers.layer_values(key, locked, result.frames)
-        weights = result.weights.copy()
-        for j, n in enumerate(locked):
-            if not np.isnan(previous[:, j]).all():
-                weights[:, result.shape_names.index(n)] = previous[:, j]
-        result = replace(result, weights=weights)
-    name = settings.take_name or "FaceCap"
-    action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
-    settings.last_action = action.name
-    return action
 
 
 # -- corrections ------------------------------------------------------------------------------------

@@ -7,6 +7,12 @@ import bpy
 import numpy as np
 
 from ..solvers.errors import FacecapError
+from ..solvers.solve import solve_job
+from ..solvers.video.flow import track_with_flow_job
+from ..solvers.video.flow_solve import FlowSolveSettings
+from ..solvers.video.reading import Footage
+from ..solvers.video.tracking import track_points_job
+from .scene_solve import key_solve, request_from_scene
 
 
 def clip_footage(clip):
@@ -77,10 +83,6 @@ class ClipTracking(_ClipJob):
     what = label = "Tracking"
 
     def __init__(self, scene, clip, frame, *, region=(0, 0, 0, 0), max_points=100, method="lk"):
-        from ..solvers.video import Footage
-        from ..solvers.video.flow import track_with_flow_job
-        from ..solvers.video.tracking import track_points_job
-
         source, offset = clip_footage(clip)
         names, points = clip_seeds(clip, frame)
         if names:
@@ -111,21 +113,12 @@ class ClipFlowSolving(_ClipJob):
     label = "Flow of"
 
     def __init__(self, scene, clip, frame):
-        from dataclasses import replace
-
-        from ..solvers.video import Footage
-        from ..solvers.video.flow_solve import FlowSolveSettings, retarget_flow_job
-        from . import take
-
         settings, video = scene.facecap, scene.facecap.video
         if settings.target is None:
             raise FacecapError("choose the character (Target) first")
         if settings.examples_action is None:
             raise FacecapError("choose the Examples action in the Solve panel: the character keyed at the clip "
                                "frames you posed")
-        examples = take.examples_from_action(settings.examples_action, settings.target)
-        character = take.character_target(settings.target)
-        rsettings = replace(take.retarget_settings(settings), strategy=video.flow_strategy)
         source, offset = clip_footage(clip)
         footage = Footage(source, frame_offset=offset, fps=clip.fps or scene.render.fps / scene.render.fps_base)
         region, stable = tuple(video.region), tuple(video.stable_region)
@@ -134,138 +127,10 @@ class ClipFlowSolving(_ClipJob):
                                  stable_region=(stable,) if stable[2] * stable[3] > 0 else (),
                                  grid_step=video.flow_grid_step or None, n_components=video.flow_components)
         self.clip_name, self.settings = clip.name, settings
-        self.job = retarget_flow_job(footage, character, examples, settings=rsettings, flow=flow)
+        self.job = solve_job(request_from_scene(settings, scene, footage=footage, flow=flow))
 
     def write(self):
         """Key the finished solve (per-shape controls applied) as the character's solve layer; returns
         (action, the keyed RetargetResult)."""
-        from .tuning_scene import key_solve, with_controls
 
-        result = with_controls(self.settings, self.result)
-        return key_solve(self.settings, result), result
-
-
-def camera_from_scene(scene, name=None, *, object_matrix=None, resolution=None):
-    """``solvers.camera.Camera`` of the scene camera (or the camera object ``name``).
-
-    ``object_matrix`` (a character's ``matrix_world``) makes the camera see that object's local
-    coordinates, where its bound points and shape deltas live. ``resolution`` (width, height) gives
-    pixels of footage whose size differs from the render resolution (same aspect expected).
-    """
-    from ..solvers.character.camera import Camera
-
-    if name:
-        obj = bpy.data.objects.get(name)
-        if obj is None or obj.type != "CAMERA":
-            raise FacecapError(f"'{name}' is not a camera object in this .blend")
-    else:
-        obj = scene.camera
-        if obj is None:
-            raise FacecapError(f"scene '{scene.name}' has no camera; set one or name it ([solve] camera)")
-    cam, render = obj.data, scene.render
-    pct = render.resolution_percentage / 100.0
-    size = (int(render.resolution_x * pct), int(render.resolution_y * pct))
-    if cam.type not in ("PERSP", "ORTHO"):
-        raise FacecapError(f"camera '{obj.name}': {cam.type} cameras are not supported (perspective or orthographic)")
-    model = Camera.from_blender(
-        lens=cam.lens, sensor_width=cam.sensor_width, sensor_height=cam.sensor_height, sensor_fit=cam.sensor_fit,
-        resolution=size, shift=(cam.shift_x, cam.shift_y), matrix_world=np.array(obj.matrix_world),
-        pixel_aspect=(render.pixel_aspect_x, render.pixel_aspect_y), orthographic=cam.type == "ORTHO",
-        ortho_scale=cam.ortho_scale,
-    )
-    if resolution is not None:
-        w, h = (int(v) for v in resolution)
-        if abs(w / h - size[0] / size[1]) > 1e-3:
-            raise FacecapError(f"camera '{obj.name}': footage {w}x{h} and render {size[0]}x{size[1]} differ in aspect")
-        s = w / size[0]
-        model = Camera(model.fx * s, model.fy * s, model.cx * s, model.cy * s, w, h, model.world_to_camera,
-                       model.orthographic)
-    if object_matrix is not None:
-        model = model.relative_to(np.array(object_matrix))
-    return model
-
-
-def projection_for(scene, character, projection="front", camera_name=None, *, resolution=None):
-    """What ``solvers.pipeline.markers_2d`` projects a 2D take's character through: ``"front"`` or the
-    camera (``camera_name`` or the scene camera) seeing ``character``'s local coordinates.
-
-    For the take config (``[solve] projection`` / ``camera``) and the sidebar (Scene.facecap.video).
-    """
-    if projection == "front":
-        return "front"
-    if projection != "camera":
-        raise FacecapError(f"projection must be 'front' or 'camera'; got {projection!r}")
-    return camera_from_scene(scene, camera_name or None, object_matrix=character.matrix_world, resolution=resolution)
-
-
-def projection_from_sidebar(scene, character, *, resolution=None):
-    """``projection_for`` with the sidebar's Scene.facecap.video settings."""
-    video = scene.facecap.video
-    camera = video.camera.name if video.camera is not None else None
-    return projection_for(scene, character, video.projection, camera, resolution=resolution)
-
-
-# -- flow-PCA features: solving footage without markers -------------------------------------------
-def run_flow_retarget(config, *, quiet=False):
-    """``run_retarget`` for a ``[source] video`` take: flow-PCA features of the footage, the
-    ``[solve] strategy`` (linear / rbf / pca) learned from ``[examples] weights`` posed at footage
-    frames; keys the solve layer and writes the same outputs. Returns (RetargetResult, outputs).
-
-    The flow shows progress on stderr; Ctrl-C stops it between two frames with
-    :class:`~facecap.solvers.video.Cancelled` and nothing written (the CLI exits 130).
-    """
-    import sys
-    import time
-
-    from ..solvers.config.strategies import load_strategy_inputs
-    from ..solvers.video.cli import _Progress, sigint_cancels
-    from ..solvers.video.flow_config import check_against_footage
-    from ..solvers.video.flow_solve import retarget_flow_job
-    from ..solvers.video.reading import Footage
-    from .cli import key_and_write, open_target
-    from .take import character_target
-    from .tune_cli import finish_solve, prepare_solve
-
-    def say(message):
-        if not quiet:
-            print(f"facecap: {message}", file=sys.stderr, flush=True)
-
-    video, timings, t0 = config.video, {}, time.perf_counter()
-    say(f"[1/5] reading footage {video.path}")
-    footage = Footage(video.path, **video.footage)
-    info = footage.info
-    check_against_footage(config.path, video, info)
-    inputs = load_strategy_inputs(config)
-    timings["read"] = time.perf_counter() - t0
-
-    t1 = time.perf_counter()
-    obj = open_target(config, say)
-    character, inputs, settings, tuning_info = prepare_solve(config, character_target(obj), inputs)
-    timings["load_character"] = time.perf_counter() - t1
-
-    job = retarget_flow_job(footage, character, inputs.examples, settings=settings, flow=video.flow)
-    say(f"[3/5] {video.flow.method} flow over {info.n_frames} frames ({info.work_width}x{info.work_height}), "
-        f"solving {len(character.names)} shapes (strategy: {settings.strategy}, "
-        f"{len(inputs.examples.frames)} posed frames)")
-    shown = None if quiet else _Progress(sys.stderr, f"flow ({video.flow.method})")
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            result = job.run(progress)
-        finally:
-            if shown is not None:
-                shown.close_line()
-    result = finish_solve(config, result, info.fps)
-
-    source = {"video_file": video.path,
-              "source": {"format": "video", "kind": info.kind, "fps": info.fps, "width": info.width,
-                         "height": info.height, "scale": info.scale, "frames": [info.frames[0], info.frames[-1]],
-                         "count": info.n_frames},
-              "flow": result.info["flow"], "examples_file": str(config.examples_weights_path), "cleaning": []}
-    outputs = key_and_write(config, obj, result, outputs={}, timings=timings, t0=t0, notes=list(inputs.notes),
-                            say=say, report_fields={**source, **tuning_info})
-    return result, outputs
+        return key_solve(self.settings, self.result), self.result

@@ -1,6 +1,20 @@
 """One operator per user action; thin: read settings -> core -> write -> report."""
 
+import bpy
+
 from . import calibration, importers, mapping, neutral, solve, stabilise, tuning, video
 
 CLASSES = (importers.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
            + mapping.CLASSES + video.CLASSES + tuning.CLASSES)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_import.append(importers.menu_func_import)
+
+
+def unregister():
+    bpy.types.TOPBAR_MT_file_import.remove(importers.menu_func_import)
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

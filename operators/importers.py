@@ -1,5 +1,6 @@
 """File > Import operators, one per format family, and drag-and-drop file handlers."""
 
+import warnings
 from pathlib import Path
 
 import bpy
@@ -7,7 +8,11 @@ from bpy.props import CollectionProperty, EnumProperty, FloatProperty, StringPro
 from bpy.types import OperatorFileListElement
 from bpy_extras.io_utils import ImportHelper
 
+from ..facecap_addon import import_scene, take
+from ..facecap_addon.scene_sources import markers_from_clip, markers_from_empties
+from ..solvers.capture.cleaning import CleanSettings, clean
 from ..solvers.errors import FacecapError
+from ..solvers.io import import_markers
 
 IMPORT_UNIT_ITEMS = [
     ("AUTO", "From File", "Units written in the file (C3D, TRC, JSON) or guessed from the face size"),
@@ -47,11 +52,6 @@ class _ImportMarkers(ImportHelper):
         return [Path(bpy.path.abspath(self.filepath))]
 
     def execute(self, context):
-        import warnings
-
-        from ..facecap_addon import import_scene
-        from ..solvers.io import import_markers
-
         options = {"up_axis": self.up_axis}
         if self.units == "bu":
             options["unit_scale"] = self.unit_scale
@@ -68,7 +68,7 @@ class _ImportMarkers(ImportHelper):
                 return {"CANCELLED"}
             markers = result.markers
             coll = import_scene.create_take(context.scene, markers, path.stem)
-            _remember_take(context.scene, markers, path, coll)
+            import_scene.remember_take(context.scene, markers, path, coll)
             for note in result.notes:
                 self.report({"INFO"}, f"{path.name}: {note}")
             gaps = sum(markers.gap_counts().values())
@@ -76,30 +76,6 @@ class _ImportMarkers(ImportHelper):
                             f"{len(markers.segments)} segment labels) into '{coll.name}'")
         self.report({"INFO"}, "Imported " + "; ".join(imported))
         return {"FINISHED"}
-
-
-def _remember_take(scene, markers, path, coll):
-    """Point the sidebar settings at the new take, as facecap.import_markers does."""
-    settings = scene.facecap
-    settings.take_name = path.stem
-    settings.markers_path = str(path)
-    if markers.units in ("mm", "cm", "m"):
-        settings.units = markers.units
-    settings.fps = markers.fps
-    settings.marker_collection = coll
-    settings.markers.clear()
-    gaps = markers.gap_counts()
-    for name in markers.names:
-        item = settings.markers.add()
-        item.name = name
-        item.gaps = gaps[name]
-        item.stable = name.startswith("head")
-    first, last = int(markers.frames[0]), int(markers.frames[-1])
-    neutral = markers.segments.get("posed_neutral") or markers.segments.get("neutral")
-    if neutral:
-        settings.neutral_first, settings.neutral_last = int(neutral[0][0]), int(neutral[0][1])
-    elif not (first <= settings.neutral_first <= settings.neutral_last <= last):
-        settings.neutral_first, settings.neutral_last = first, min(first + 29, last)
 
 
 class FACECAP_OT_import_markers(bpy.types.Operator, _ImportMarkers):
@@ -165,8 +141,6 @@ class FACECAP_OT_use_selected_empties(bpy.types.Operator):
         return any(o.type == "EMPTY" for o in context.selected_objects)
 
     def execute(self, context):
-        from ..facecap_addon.scene_sources import markers_from_empties
-
         empties = sorted((o for o in context.selected_objects if o.type == "EMPTY"), key=lambda o: o.name)
         name = self.take_name or (context.active_object.name if context.active_object else "selection")
         try:
@@ -179,7 +153,7 @@ class FACECAP_OT_use_selected_empties(bpy.types.Operator):
         coll["facecap_take"] = name
         for obj in empties:
             coll.objects.link(obj)
-        _remember_take(context.scene, markers, Path(name), coll)
+        import_scene.remember_take(context.scene, markers, Path(name), coll)
         self.report({"INFO"}, f"Take '{name}': {markers.n_markers} empties over {markers.n_frames} keyed frames")
         return {"FINISHED"}
 
@@ -198,9 +172,6 @@ class FACECAP_OT_import_clip_tracks(bpy.types.Operator):
         return context.scene.active_clip is not None or len(bpy.data.movieclips) > 0
 
     def execute(self, context):
-        from ..facecap_addon import import_scene
-        from ..facecap_addon.scene_sources import markers_from_clip
-
         clip = bpy.data.movieclips.get(self.clip) if self.clip else context.scene.active_clip
         if clip is None:
             self.report({"ERROR"}, f"no movie clip named '{self.clip}'" if self.clip else "the scene has no active clip")
@@ -212,7 +183,7 @@ class FACECAP_OT_import_clip_tracks(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         coll = import_scene.create_take(context.scene, markers, clip.name)
-        _remember_take(context.scene, markers, Path(clip.name), coll)
+        import_scene.remember_take(context.scene, markers, Path(clip.name), coll)
         gaps = sum(markers.gap_counts().values())
         self.report({"INFO"}, f"Imported {markers.n_markers} tracks over {markers.n_frames} frames ({gaps} gap samples) from '{clip.name}'")
         return {"FINISHED"}
@@ -238,9 +209,6 @@ class FACECAP_OT_clean_markers(bpy.types.Operator):
         return context.scene.facecap.marker_collection is not None
 
     def execute(self, context):
-        from ..facecap_addon import import_scene, take
-        from ..solvers.capture.cleaning import CleanSettings, clean
-
         settings = context.scene.facecap
         try:
             markers = take.markers_from_collection(settings)
@@ -258,7 +226,7 @@ class FACECAP_OT_clean_markers(bpy.types.Operator):
         name = f"{settings.take_name} clean"
         stable = {m.name for m in settings.markers if m.stable}
         coll = import_scene.create_take(context.scene, result.markers, name, set_scene_range=False)
-        _remember_take(context.scene, result.markers, Path(settings.markers_path or name), coll)
+        import_scene.remember_take(context.scene, result.markers, Path(settings.markers_path or name), coll)
         settings.take_name = name
         for item in settings.markers:
             item.stable = item.name in stable

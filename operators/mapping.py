@@ -2,7 +2,9 @@
 
 import bpy
 
+from ..facecap_addon import take
 from ..solvers.errors import FacecapError
+from ..solvers.strategies.mapping import Mapping
 
 
 class FACECAP_OT_mapping_add(bpy.types.Operator):
@@ -54,9 +56,6 @@ class FACECAP_OT_mapping_fill_by_name(bpy.types.Operator):
         return s.target is not None and s.strategy in ("calibrated", "refine", "parallel")
 
     def execute(self, context):
-        from ..facecap_addon import take
-        from ..solvers.strategies.mapping import Mapping
-
         settings = context.scene.facecap
         try:
             sources = take.source_channel_names(settings)

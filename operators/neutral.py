@@ -1,9 +1,19 @@
 """Choose the neutral / T-pose frame range."""
 
+import warnings
+from dataclasses import replace
+
 import bpy
+import numpy as np
 from bpy.props import IntProperty, StringProperty
 
+from ..facecap_addon import take
+from ..facecap_addon.take import can_stabilise
+from ..solvers.capture.neutral import neutral_from_frames
+from ..solvers.capture.normalise import detect_neutral_frames
 from ..solvers.errors import FacecapError
+from ..solvers.io import import_markers
+from ..solvers.pipeline.stages import spans, stabilise_take
 
 
 class FACECAP_OT_set_neutral(bpy.types.Operator):
@@ -21,9 +31,6 @@ class FACECAP_OT_set_neutral(bpy.types.Operator):
         return context.scene.facecap.marker_collection is not None
 
     def execute(self, context):
-        from ..facecap_addon import take
-        from ..solvers.capture.neutral import neutral_from_frames
-
         scene = context.scene
         first, last = self.first, self.last
         if first < 0 or last < 0:
@@ -52,17 +59,9 @@ class FACECAP_OT_detect_neutral(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        from ..facecap_addon.take import can_stabilise
-
         return can_stabilise(context.scene.facecap)
 
     def execute(self, context):
-        from dataclasses import replace
-
-        from ..facecap_addon import take
-        from ..solvers.capture.normalise import detect_neutral_frames
-        from ..solvers.pipeline import _spans, stabilise_take
-
         settings = context.scene.facecap
         try:
             markers = take.markers_from_collection(settings)
@@ -73,7 +72,7 @@ class FACECAP_OT_detect_neutral(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         settings.neutral_mode = "DETECT"
-        self.report({"INFO"}, f"Neutral detected from {len(frames)} frame(s): {_spans(frames)}")
+        self.report({"INFO"}, f"Neutral detected from {len(frames)} frame(s): {spans(frames)}")
         return {"FINISHED"}
 
 
@@ -91,18 +90,12 @@ class FACECAP_OT_load_master(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import take
-        from ..solvers.io import import_markers
-
         settings = context.scene.facecap
         try:
             markers = import_markers(bpy.path.abspath(self.filepath)).markers.to_units("m")
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        import warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -126,17 +119,9 @@ class FACECAP_OT_master_from_take(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        from ..facecap_addon.take import can_stabilise
-
         return can_stabilise(context.scene.facecap)
 
     def execute(self, context):
-        from dataclasses import replace
-
-        from ..facecap_addon import take
-        from ..solvers.capture.neutral import neutral_from_frames
-        from ..solvers.pipeline import stabilise_take
-
         settings = context.scene.facecap
         try:
             markers = take.markers_from_collection(settings)

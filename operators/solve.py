@@ -1,7 +1,9 @@
 """Solve the take onto the character and key the weights as a new solve layer."""
 
 import bpy
+import numpy as np
 
+from ..facecap_addon import scene_solve
 from ..solvers.errors import FacecapError
 
 
@@ -18,14 +20,10 @@ class FACECAP_OT_solve(bpy.types.Operator):
         return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         try:
-            result = tuning_scene.solve_take(settings, context.scene)
-            action = tuning_scene.key_solve(settings, result)
+            result = scene_solve.solve_take(settings, context.scene)
+            action = scene_solve.key_solve(settings, result)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -1,8 +1,13 @@
 """Remove head motion and keep it on an empty (or the character's head); suggest the stable set."""
 
 import bpy
+import numpy as np
 
+from ..facecap_addon import take
+from ..facecap_addon.take import can_stabilise
+from ..solvers.capture.stable_markers import suggest_stable_markers
 from ..solvers.errors import FacecapError
+from ..solvers.pipeline.stages import stabilise_take
 
 
 class FACECAP_OT_stabilise(bpy.types.Operator):
@@ -15,16 +20,9 @@ class FACECAP_OT_stabilise(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        from ..facecap_addon.take import can_stabilise
-
         return can_stabilise(context.scene.facecap)
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import take
-        from ..solvers.pipeline import stabilise_take
-
         settings = context.scene.facecap
         notes = []
         try:
@@ -66,9 +64,6 @@ class FACECAP_OT_suggest_stable(bpy.types.Operator):
         return context.scene.facecap.marker_collection is not None
 
     def execute(self, context):
-        from ..facecap_addon import take
-        from ..solvers.capture.stable_markers import suggest_stable_markers
-
         settings = context.scene.facecap
         try:
             markers = take.markers_from_collection(settings)

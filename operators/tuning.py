@@ -6,23 +6,23 @@ frames; see ``facecap_addon/layers.py`` and ``solvers/tuning_take.py``.
 """
 
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
+from ..facecap_addon import layers, scene_solve, tuning_scene
+from ..solvers.character.shape_controls import load_preset, save_preset
 from ..solvers.errors import FacecapError
+from ..solvers.tuning.retune import fit_gain_offset
 
 
 def _solved(context):
-    from ..facecap_addon import layers
-
     s = context.scene.facecap
     key = getattr(getattr(s.target, "data", None), "shape_keys", None)
     return key is not None and layers.solved_action(key) is not None
 
 
 def _add_frames(settings, frames):
-    from ..facecap_addon import tuning_scene
-
     have = {t.frame for t in settings.tuning_frames}
     new = [int(f) for f in frames if int(f) not in have]
     if new:
@@ -47,8 +47,6 @@ class FACECAP_OT_tuning_add_current(bpy.types.Operator):
         return _solved(context)
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         new = _add_frames(settings, [context.scene.frame_current])
         tuning_scene.sync_markers(context.scene)
@@ -68,8 +66,6 @@ class FACECAP_OT_tuning_add_edited(bpy.types.Operator):
         return _solved(context)
 
     def execute(self, context):
-        from ..facecap_addon import layers, tuning_scene
-
         settings = context.scene.facecap
         key = settings.target.data.shape_keys
         frames = layers.edited_frames(key, tuning_scene.shape_names(settings.target))
@@ -91,8 +87,6 @@ class FACECAP_OT_tuning_remove(bpy.types.Operator):
         return len(context.scene.facecap.tuning_frames) > 0
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         settings.tuning_frames.remove(settings.tuning_index)
         settings.tuning_index = max(0, min(settings.tuning_index, len(settings.tuning_frames) - 1))
@@ -108,8 +102,6 @@ class FACECAP_OT_tuning_clear(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         context.scene.facecap.tuning_frames.clear()
         tuning_scene.sync_markers(context.scene)
         return {"FINISHED"}
@@ -133,27 +125,20 @@ class FACECAP_OT_retune(bpy.types.Operator):
         return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import tuning_scene
-        from ..solvers.tuning.take import retune_take
-
         scene = context.scene
         settings = scene.facecap
         try:
             corrections = tuning_scene.corrections(settings)
-            markers, character, rsettings, inputs = tuning_scene.solve_inputs(settings, scene)
             mu = None if settings.tune_auto_mu else settings.tune_mu
-            tuned = retune_take(markers, character, rsettings, inputs, corrections, mu=mu,
-                                parent=settings.library_active)
+            result = scene_solve.solve_take(settings, scene, corrections=corrections, mu=mu)
+            tuned = result.retune
             if tuned.changed:
                 tuning_scene.store_version(scene, tuned.version)
                 settings.library_active = tuned.version.name
                 settings.library_index = list(settings.library_versions.keys()).index(tuned.version.name)
             if self.consume:
                 tuning_scene.take_in_corrections(settings, sorted(corrections))
-            result = tuning_scene.with_controls(settings, tuned.result)
-            tuning_scene.key_solve(settings, result)
+            scene_solve.key_solve(settings, result)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -182,8 +167,6 @@ class FACECAP_OT_library_use(bpy.types.Operator):
     name: StringProperty(name="Version", description="Stored version name; empty = the original library")
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         if self.name and self.name not in settings.library_versions:
             self.report({"ERROR"}, f"no library version '{self.name}' in this .blend")
@@ -191,8 +174,8 @@ class FACECAP_OT_library_use(bpy.types.Operator):
         previous = settings.library_active
         settings.library_active = self.name
         try:
-            result = tuning_scene.solve_take(settings, context.scene)
-            tuning_scene.key_solve(settings, result)
+            result = scene_solve.solve_take(settings, context.scene)
+            scene_solve.key_solve(settings, result)
         except FacecapError as exc:
             settings.library_active = previous
             self.report({"ERROR"}, str(exc))
@@ -231,11 +214,6 @@ class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
         return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
 
     def execute(self, context):
-        import numpy as np
-
-        from ..facecap_addon import layers, tuning_scene
-        from ..solvers.tuning.retune import fit_gain_offset
-
         settings = context.scene.facecap
         try:
             corrections = tuning_scene.corrections(settings)
@@ -246,7 +224,7 @@ class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
                                                    for i, f in enumerate(frames)})
             changed = tuning_scene.compose_gain_offset(settings, names, gain, offset)
             tuning_scene.take_in_corrections(settings, frames)
-            tuning_scene.key_solve(settings, tuning_scene.solve_take(settings, context.scene))
+            scene_solve.key_solve(settings, scene_solve.solve_take(settings, context.scene))
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -266,8 +244,6 @@ class FACECAP_OT_jump_worst(bpy.types.Operator):
         return _solved(context)
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-
         settings = context.scene.facecap
         try:
             frames, residual = tuning_scene.residual_curve(settings.target.data.shape_keys)
@@ -297,9 +273,6 @@ class FACECAP_OT_controls_save(bpy.types.Operator, ExportHelper):
     filter_glob: StringProperty(default="*.json", options={"HIDDEN"})
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-        from ..solvers.character.shape_controls import save_preset
-
         try:
             save_preset(self.filepath, tuning_scene.shape_controls(context.scene.facecap, with_locks=True))
         except FacecapError as exc:
@@ -323,9 +296,6 @@ class FACECAP_OT_controls_load(bpy.types.Operator, ImportHelper):
         return len(context.scene.facecap.shapes) > 0
 
     def execute(self, context):
-        from ..facecap_addon import tuning_scene
-        from ..solvers.character.shape_controls import load_preset
-
         try:
             tuning_scene.set_controls(context.scene.facecap, load_preset(self.filepath))
         except FacecapError as exc:

@@ -5,7 +5,9 @@ from pathlib import Path
 
 import bpy
 
+from ..facecap_addon import import_scene
 from ..facecap_addon.properties_video import METHOD_ITEMS
+from ..facecap_addon.video_scene import ClipFlowSolving, ClipTracking
 from ..solvers.errors import FacecapError
 
 TICK_SECONDS = 0.02  # timer interval
@@ -118,21 +120,16 @@ class FACECAP_OT_track_clip(ClipJobOperator, bpy.types.Operator):
     method: bpy.props.EnumProperty(name="Method", items=METHOD_ITEMS, default="lk")
 
     def _start(self, context):
-        from ..facecap_addon.video_scene import ClipTracking
-
         scene = context.scene
         return ClipTracking(scene, scene.active_clip, scene.frame_current, region=tuple(self.region),
                             max_points=self.max_points, method=self.method)
 
     def _write(self, context, session):
-        from ..facecap_addon import import_scene
-        from .importers import _remember_take
-
         scene, result = context.scene, session.result
         markers = result.markers
         name = f"{session.clip_name} tracks"
         coll = import_scene.create_take(scene, markers, name, set_scene_range=False)
-        _remember_take(scene, markers, Path(name), coll)
+        import_scene.remember_take(scene, markers, Path(name), coll)
         scene.facecap.take_name = name  # not Path(name).stem: clip names keep their extension ("face.avi")
         self.report({"INFO"}, f"Tracked {markers.n_markers} points over {markers.n_frames} frames into '{coll.name}'; "
                               + result.summary().splitlines()[0])
@@ -148,8 +145,6 @@ class FACECAP_OT_solve_clip_flow(ClipJobOperator, bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def _start(self, context):
-        from ..facecap_addon.video_scene import ClipFlowSolving
-
         scene = context.scene
         return ClipFlowSolving(scene, scene.active_clip, scene.frame_current)
 

@@ -1,14 +1,19 @@
 """facecap core: numpy/scipy only, never Blender modules (tests assert this)."""
 
+from .capture.neutral import neutral_from_frames
+from .capture.stabilise import StabiliseResult, stabilise_rigid
 from .character.basis import Basis
 from .config import TakeConfig, load_take_config
 from .engine import SolveResult, solve_bounded
 from .errors import ConfigError, FacecapError, InputFileError
-from .io.csv import read_markers_csv, read_weights_csv, write_markers_csv, write_weights_csv
+from .io.csv import (
+    read_markers_csv,
+    read_weights_csv,
+    write_markers_csv,
+    write_weights_csv,
+)
 from .markers import MarkerSet
-from .capture.neutral import neutral_from_frames
 from .pipeline import RetargetResult, RetargetSettings, retarget
-from .capture.stabilise import StabiliseResult, stabilise_rigid
 from .transforms import Similarity, fit_rigid_batch, fit_similarity
 
 __all__ = [

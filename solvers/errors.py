@@ -1,6 +1,20 @@
 """Project error classes: every bad input raises one of these with a message a user can act on."""
 
 
+#: A message quoting what it found (a header, a value) is cut to this many characters in the middle:
+#: one readable line, however long the file's line was.
+MAX_MESSAGE = 600
+
+
+def one_line(text, limit=MAX_MESSAGE):
+    """``text`` on one line, at most ``limit`` characters (the middle elided)."""
+    text = " ".join(str(text).split())
+    if len(text) <= limit:
+        return text
+    keep = (limit - 5) // 2
+    return f"{text[:keep]} ... {text[-keep:]}"
+
+
 class FacecapError(Exception):
     """Base class for readable, expected errors (bad files, bad settings, impossible solves)."""
 
@@ -17,7 +31,7 @@ class InputFileError(FacecapError):
             where += f", line {line}"
         if field is not None:
             where += f", field '{field}'"
-        super().__init__(f"{where}: {message}")
+        super().__init__(f"{where}: {one_line(message)}")
 
 
 class ConfigError(FacecapError):
@@ -31,4 +45,4 @@ class ConfigError(FacecapError):
             where += f"{path}: "
         if key is not None:
             where += f"[{key}] "
-        super().__init__(where + message)
+        super().__init__(where + one_line(message))

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
-from .normalise import match_landmarks
 from ..transforms import fit_similarity
+from .normalise import match_landmarks
 
 #: ``[align] regions = true``: the upper face (brows, eyes, nose, forehead); the rest is the lower face
 UPPER_FACE = ("*brow*", "*forehead*", "*eye*", "*temple*", "*nose*", "*nostril*", "head_*", "*cheekbone*",

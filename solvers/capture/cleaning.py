@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..markers import MarkerSet
+from ..options import default
 
 
 @dataclass(frozen=True)
@@ -52,15 +53,15 @@ class CleanSettings:
     one_euro : tuple (min_cutoff_hz, beta, d_cutoff_hz) or None
     """
 
-    fix_swaps: bool = False
-    swap_ratio: float = 0.5
+    fix_swaps: bool = default("clean.fix_swaps")
+    swap_ratio: float = default("clean.swap_ratio")
     spike_speed: float = None
     spike_mad: float = None
-    fill_spline: int = 0
-    fill_model: int = 0
+    fill_spline: int = default("clean.fill_spline")
+    fill_model: int = default("clean.fill_model")
     model_rank: int = None
     lowpass_hz: float = None
-    lowpass_order: int = 4
+    lowpass_order: int = default("clean.lowpass_order")
     one_euro: tuple = None
 
     def __post_init__(self):
@@ -249,6 +250,7 @@ def fill_gaps_spline(markers, *, max_gap):
     frames on each side; its smoothing weight is chosen once per marker by hiding 5-frame blocks
     of the marker's longest visible run and keeping the weight that predicts them best.
     """
+    # scipy: loaded on first use
     from scipy.interpolate import make_smoothing_spline
 
     pos = markers.positions.copy()
@@ -279,6 +281,7 @@ _LAMBDAS = 10.0 ** np.arange(-1.0, 3.01, 0.5)
 
 def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
     """Smoothing weight for ``make_smoothing_spline`` by hold-out of 5-frame blocks (None = GCV)."""
+    # scipy: loaded on first use
     from scipy.interpolate import make_smoothing_spline
 
     runs = _visible_runs(vis)
@@ -370,7 +373,10 @@ def lowpass(markers, *, cutoff_hz, order=4):
     Returns (markers, removed (F, M, D) = raw - filtered, StepReport). Runs too short for the
     filter's padding are left unfiltered and counted in the message.
     """
-    from scipy.signal import butter, filtfilt
+    from scipy.signal import (  # scipy: loaded on first use
+        butter,
+        filtfilt,
+    )
 
     nyquist = markers.fps / 2.0
     if not 0 < cutoff_hz < nyquist:

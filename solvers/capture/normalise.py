@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from ..transforms import fit_rigid_batch, fit_similarity
 from .neutral import neutral_from_frames
-from ..transforms import fit_similarity
+from .stable_markers import _moving_mean
 
 #: default landmark patterns: eye corners and mouth corners (case-insensitive globs)
 DEFAULT_LANDMARKS = ("*eye*outer*", "*eye*inner*", "*eye_corner*", "*canthus*", "*mouth_corner*", "*lip_corner*")
@@ -57,7 +58,6 @@ def detect_neutral_frames(markers, *, count=None, fraction=0.05, max_compare=150
     frames : ndarray of the chosen frame numbers (sorted)
     deformation : (F,) RMS deformation per frame from the reference (metres, NaN where skipped)
     """
-    from .stable_markers import _moving_mean
 
     # Compare poses smoothed over ~0.15 s: frame-to-frame noise would hide a held pose otherwise.
     P = _moving_mean(markers.positions, max(1, int(round(0.075 * markers.fps))))
@@ -96,7 +96,6 @@ def neutral_from_file(file_markers, take_stab, *, stable_names):
     The file's stable markers are fitted (rigidly) onto the take's stabilisation reference.
     ``file_markers`` must be in the take's units (metres here). Returns (M_file, 3) and the names.
     """
-    from ..transforms import fit_rigid_batch
 
     pose = np.nanmedian(file_markers.positions, axis=0)
     common = [n for n in stable_names if n in set(file_markers.names)]

@@ -7,6 +7,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..transforms import _fit_rigid, _gaps, _zero_rows, best_rotation, fit_rigid_batch
+from .smoothing import local_polynomial
 from .stabilise_2d import stabilise_2d, transforms_2d  # noqa: F401  (transforms_2d re-exported)
 from .stabilise_result import StabiliseResult, frame_label
 
@@ -377,8 +378,6 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     average, exact for the small changes within a window) and projected back onto rotations.
     Flagged frames do not contribute and stay flagged.
     """
-    from .smoothing import local_polynomial
-
     if half_window <= 0 or markers.dim != 3:
         return stab
     ok = (~stab.flagged).astype(np.float64)

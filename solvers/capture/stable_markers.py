@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from .stabilise import stabilise_rigid
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,7 +36,7 @@ class StableSuggestion:
 
 
 def _moving_mean(x, half):
-    from scipy.ndimage import uniform_filter1d
+    from scipy.ndimage import uniform_filter1d  # scipy: loaded on first use
 
     v = np.isfinite(x)
     w = 2 * half + 1
@@ -66,7 +67,6 @@ def suggest_stable_markers(markers, *, window=0.15, components=8, min_markers=3,
     -------
     StableSuggestion
     """
-    from .stabilise import stabilise_rigid
 
     if markers.dim != 3:
         raise FacecapError(f"suggest stable markers: needs 3D markers; got {markers.dim}D")

@@ -1,10 +1,13 @@
 """Basis: named shapes sampled at the bound marker points, as deltas from neutral."""
 
+import zipfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from ..errors import FacecapError
+from ..errors import FacecapError, InputFileError
+from ..io.files import atomic_path
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,24 +101,22 @@ class Basis:
         return self.deltas.reshape(self.n_shapes, -1).T
 
     def save_npz(self, path):
-        np.savez_compressed(
-            path,
-            shape_names=np.array(self.shape_names),
-            marker_names=np.array(self.marker_names),
-            neutral=self.neutral,
-            deltas=self.deltas,
-            lower=self.lower,
-            upper=self.upper,
-        )
+        """Write the basis as a compressed .npz (atomically: never half a file under ``path``)."""
+        with atomic_path(path, suffix=".npz") as tmp:
+            np.savez_compressed(tmp, shape_names=np.array(self.shape_names), marker_names=np.array(self.marker_names),
+                                neutral=self.neutral, deltas=self.deltas, lower=self.lower, upper=self.upper)
 
     @classmethod
     def load_npz(cls, path):
-        with np.load(path) as z:
-            return cls(
-                tuple(str(s) for s in z["shape_names"]),
-                tuple(str(s) for s in z["marker_names"]),
-                z["neutral"],
-                z["deltas"],
-                z["lower"],
-                z["upper"],
-            )
+        """A basis written by ``save_npz``; InputFileError naming the file when it is not one."""
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return cls(tuple(str(s) for s in z["shape_names"]), tuple(str(s) for s in z["marker_names"]),
+                           z["neutral"], z["deltas"], z["lower"], z["upper"])
+        except FileNotFoundError:
+            raise InputFileError(path, "file not found") from None
+        except FacecapError as exc:
+            raise InputFileError(path, f"not a valid stored basis: {exc}") from None
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+            reason = "empty file" if Path(path).is_file() and Path(path).stat().st_size == 0 else str(exc) or type(exc).__name__
+            raise InputFileError(path, f"not a stored basis (.npz written by facecap): {reason}") from None

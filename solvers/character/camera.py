@@ -7,7 +7,7 @@ Pixels have their origin at the top-left corner of the image and y growing downw
 size spans (``AUTO``: the larger one, with the sensor *width*), and the lens shift is a fraction
 of that dimension. Blender's camera looks down its local -Z with +Y up.
 
-Never imports Blender: ``facecap_addon.video_scene.camera_from_scene`` reads a camera object into
+Never imports Blender: ``facecap_addon.scene_camera.camera_from_scene`` reads a camera object into
 :meth:`Camera.from_blender`.
 """
 
@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from .basis import Basis
 
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 
@@ -147,7 +148,6 @@ class Camera:
         yaw from 0.55 m (noise-free, no priors) weights RMSE 0.0010 (tangent) vs 0.0040 (secant).
         ``basis`` is in the coordinates the camera sees (world, or object-local after :meth:`relative_to`).
         """
-        from .basis import Basis
 
         if basis.neutral.shape[1] != 3:
             raise FacecapError("camera: project_basis needs a 3D basis")

@@ -26,9 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .aliases import canonical_names, name_key
+from ..capture.smoothing import local_polynomial
 from ..errors import FacecapError, InputFileError
 from ..io.files import write_json_atomic
+from .aliases import canonical_names, name_key
 
 CURVES = ("linear", "smoothstep", "gamma:<g>")
 PRESET_FORMAT = "facecap-shape-controls"
@@ -145,7 +146,6 @@ def resolve_controls(names, controls):
 
 def _smooth(column, half_window):
     """Zero-phase local-linear smoothing of one shape's curve; NaN frames stay NaN and are skipped."""
-    from ..capture.smoothing import local_polynomial
 
     ok = np.isfinite(column)
     out = local_polynomial(np.where(ok, column, 0.0), half_window=half_window, order=1, weights=ok.astype(float))

@@ -2,7 +2,7 @@
 
 Sections: [target] [source] [clean] [binding] [stabilise] [neutral] [solve] [output], plus the
 strategy sections [calibration] [mapping] [examples] [pca] [refine] (see
-``solvers/strategies/README.md`` for every key and its default). ``[stabilise] markers`` and
+``docs/strategies.md`` for every key and its default). ``[stabilise] markers`` and
 ``[neutral] frames`` are required for marker strategies; ``parallel`` reads ``[source] weights``
 instead of ``[source] markers``; a video take reads ``[source] video`` with ``[tracking]`` and ``[flow]``
 (flow-PCA features for linear / rbf / pca; ``solvers.video.flow_config``).
@@ -18,110 +18,21 @@ binding; ``[output] head = "Object"`` or ``"Armature:bone"`` keys the removed he
 The animator feedback loop (issue 7): ``[tuning]`` and ``[controls]``, see ``solvers.config.tuning``.
 """
 
+import math
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ConfigError, FacecapError
-from ..markers import UNIT_SCALE
-from ..pipeline import STRATEGIES, RetargetSettings
+from ..capture.align import region_patterns
+from ..capture.cleaning import CleanSettings
 from ..character.shape_options import Region
+from ..errors import ConfigError, FacecapError
+from ..options import BY_NAME, OPTIONS, SECTIONS, default
+from ..pipeline import RetargetSettings
+from ..video.flow_config import split_video_sections, video_take
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
-
-# section -> {key: (type(s), required)}
-SCHEMA = {
-    "target": {"blend": (str, False), "object": (str, True)},
-    "source": {
-        "markers": (str, False),
-        "weights": (str, False),
-        "format": (str, False),
-        "units": (str, False),
-        "unit_scale": ((int, float), False),
-        "fps": ((int, float), False),
-        "up_axis": (str, False),
-        "delimiter": (str, False),
-        "decimal": (str, False),
-    },
-    "clean": {
-        "fix_swaps": (bool, False),
-        "swap_ratio": ((int, float), False),
-        "spike_speed": ((int, float), False),
-        "spike_mad": ((int, float), False),
-        "fill_spline": (int, False),
-        "fill_model": (int, False),
-        "model_rank": (int, False),
-        "lowpass_hz": ((int, float), False),
-        "lowpass_order": (int, False),
-        "one_euro": (list, False),
-    },
-    "binding": {"vertex_groups": (bool, False)},
-    "stabilise": {
-        "markers": ((list, str), False),
-        "mode": (str, False),
-        "fine_iterations": (int, False),
-        "fine_weight": ((int, float), False),
-        "head_smoothing": ((int, float), False),
-    },
-    "neutral": {"frames": (list, False), "file": (str, False), "detect": (bool, False), "master": (str, False),
-                "landmarks": (list, False)},
-    "align": {"regions": ((bool, dict), False), "flag_mm": ((int, float), False)},
-    "solve": {
-        "strategy": (str, False),
-        "regularisation": ((int, float), False),
-        "sparsity": ((int, float), False),
-        "symmetry": ((int, float), False),
-        "smoothing": (list, False),
-        "bounds": (dict, False),
-        "locks": (dict, False),
-        "regions": (dict, False),
-        "projection": (str, False),  # 2D takes: "front" (orthographic) or "camera" (the scene camera)
-        "camera": (str, False),  # 2D takes: camera object name for projection = "camera" (default: scene camera)
-    },
-    "output": {"blend": (str, False), "weights": (str, False), "report": (str, False), "action": (str, False),
-               "actor_basis": (str, False),
-               "head": (str, False)},
-    "calibration": {
-        "markers": (str, False),
-        "units": (str, False),
-        "fps": ((int, float), False),
-        "neutral": (list, False),
-        "poses": (dict, False),
-        "split": (list, False),
-        "stable_markers": (list, False),
-        "basis": (str, False),
-        "align": (str, False),
-    },
-    "mapping": {
-        "aliases": (bool, False),
-        "keyed_by": (str, False),
-        "table": (dict, False),
-        "gain": ((int, float, dict), False),
-        "offset": ((int, float, dict), False),
-        "clamp": ((list, dict), False),
-        "curve": ((str, dict), False),
-        "mirror": (bool, False),
-        "neutral": (list, False),
-    },
-    "examples": {
-        "weights": (str, False),
-        "markers": (str, False),
-        "frames": (list, False),
-        "ridge": ((int, float), False),
-        "kernel": (str, False),
-        "rbf_smoothing": ((int, float), False),
-        "degree": (int, False),
-        "n_components": (int, False),
-        "far": ((int, float), False),
-    },
-    "pca": {"mode": (str, False), "ica": (bool, False), "n_basis": (int, False), "variance": ((int, float), False)},
-    "refine": {
-        "training": (str, False),
-        "max_iterations": (int, False),
-        "tol": ((int, float), False),
-        "stiffness": ((int, float), False),
-    },
-}
 
 
 @dataclass(frozen=True)
@@ -156,6 +67,7 @@ class TakeConfig:
     tuning: object = None  # [tuning]: TuningConfig (solvers.config.tuning)
     controls: dict = None  # [controls]: {shape or glob: ShapeControl}
     video: object = None  # [source] video + [tracking] / [flow]: VideoTake (solvers.video.flow_config)
+    controls_preset: Path | None = None  # [controls] preset
 
 
 def load_take_config(path):
@@ -165,42 +77,39 @@ def load_take_config(path):
     ------
     ConfigError naming the file and the offending [section] key.
     """
-    path = Path(path).resolve()
+    path = Path(os.path.expanduser(str(path))).resolve()
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a UTF-8 BOM is fine
     except FileNotFoundError:
         raise ConfigError("config file not found", path=path) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"not valid TOML: {exc}", path=path) from None
+    except RecursionError:
+        raise ConfigError("not valid TOML: values nested too deeply", path=path) from None
+    except ValueError as exc:  # an integer beyond Python's digit limit
+        raise ConfigError(f"not valid TOML: {exc}", path=path) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"cannot read: {exc}", path=path) from None
-    free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by tuning_config
-    from ..video.flow_config import split_video_sections, video_take
+    _check_schema(path, data)
+    free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by config.tuning
 
     video_raw = split_video_sections(data)  # [source] video, [tracking], [flow]: a markerless video take
-    _check_schema(path, data)
     base = path.parent
 
     def get(section, key, default=None):
         return data.get(section, {}).get(key, default)
 
     def resolve(value):
-        return None if value is None else (base / value).resolve()
+        return None if value is None else (base / os.path.expanduser(value)).resolve()
 
     units = get("source", "units")
-    if units is not None and units not in (*UNIT_SCALE, "bu", "px"):
-        raise ConfigError(f"units must be one of {sorted((*UNIT_SCALE, 'bu', 'px'))}; got '{units}'", path=path, key="source.units")
     fps = get("source", "fps")
-    if fps is not None and fps <= 0:
-        raise ConfigError(f"fps must be positive; got {fps}", path=path, key="source.fps")
     read_options = {k: get("source", k) for k in ("format", "unit_scale", "up_axis", "delimiter", "decimal")}
     read_options = {k: v for k, v in read_options.items() if v is not None}
     if units == "bu" and "unit_scale" not in read_options:
         raise ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale")
     clean = _clean_settings(path, data.get("clean", {}))
-    strategy = get("solve", "strategy", "geometric" if video_raw is None else "linear")
-    if strategy not in STRATEGIES:
-        raise ConfigError(f"unknown strategy '{strategy}'; available: {', '.join(STRATEGIES)}", path=path, key="solve.strategy")
+    strategy = get("solve", "strategy", default("solve.strategy") if video_raw is None else "linear")
     video = None if video_raw is None else video_take(path, video_raw, data, strategy)
     if video is None:
         _check_source(path, data, strategy)
@@ -208,19 +117,11 @@ def load_take_config(path):
     normalise = {}
     if video is None and (strategy != "parallel" or "markers" in data.get("stabilise", {}) or data.get("neutral")):
         stable, frames, normalise = _stabilise_neutral(path, data, resolve)
-    defaults = RetargetSettings(stable_markers=(), neutral_frames=(1, 1))
-    numbers = {}
-    for section, key in (
+    numbers = {key: get(section, key, default(f"{section}.{key}")) for section, key in (
         ("solve", "regularisation"), ("solve", "sparsity"), ("solve", "symmetry"),
         ("stabilise", "fine_weight"), ("stabilise", "head_smoothing"), ("stabilise", "fine_iterations"),
-    ):
-        value = get(section, key, getattr(defaults, key))
-        if value < 0:
-            raise ConfigError(f"must be >= 0; got {value}", path=path, key=f"{section}.{key}")
-        numbers[key] = value
-    smoothing = get("solve", "smoothing", list(defaults.smoothing))
-    if len(smoothing) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0 for v in smoothing):
-        raise ConfigError(f"expected [first_difference, second_difference] weights >= 0; got {smoothing}", path=path, key="solve.smoothing")
+    )}
+    smoothing = get("solve", "smoothing", default("solve.smoothing"))
     shape_options = _shape_options(path, data.get("solve", {}))
     projection, camera_name = _projection(path, data.get("solve", {}))
     if not get("binding", "vertex_groups", True):
@@ -229,12 +130,7 @@ def load_take_config(path):
     weights_path = resolve(get("source", "weights"))
     strategy_options = strategy_settings(path, data, strategy)
     cal_units = get("calibration", "units")
-    if cal_units is not None and cal_units not in (*UNIT_SCALE, "px"):  # px: a filmed calibration (2D tracks)
-        raise ConfigError(f"units must be one of {sorted((*UNIT_SCALE, 'px'))}; got '{cal_units}'", path=path,
-                          key="calibration.units")
     cal_fps = get("calibration", "fps")
-    if cal_fps is not None and cal_fps <= 0:
-        raise ConfigError(f"fps must be positive; got {cal_fps}", path=path, key="calibration.fps")
     return TakeConfig(
         path=path,
         target_blend=resolve(get("target", "blend")),
@@ -273,6 +169,7 @@ def load_take_config(path):
         camera_name=camera_name,
         tuning=parse_tuning(path, free.get("tuning"), base),
         controls=parse_controls(path, free.get("controls"), base),
+        controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
     )
 
@@ -349,7 +246,6 @@ def _stabilise_neutral(path, data, resolve):
         for name, pats in regions.items():
             if not (isinstance(pats, list) and pats and all(isinstance(v, str) for v in pats)):
                 raise ConfigError("expected a non-empty list of marker patterns", path=path, key=f"align.regions.{name}")
-    from ..capture.align import region_patterns
 
     out["align_regions"] = region_patterns(regions)
     if "flag_mm" in al:
@@ -380,41 +276,51 @@ def _check_source(path, data, strategy):
 
 
 def _check_schema(path, data):
+    """Every section and key known and every value of its kind and in its range (``solvers.options``);
+    the sections' own parsers check how values fit together."""
     for section, body in data.items():
-        if section not in SCHEMA:
-            raise ConfigError(f"unknown section [{section}]; known: {', '.join(SCHEMA)}", path=path)
+        if section not in SECTIONS:
+            raise ConfigError(f"unknown section [{section}]; known: {', '.join(SECTIONS)}", path=path)
         if not isinstance(body, dict):
             raise ConfigError(f"[{section}] must be a table", path=path)
         for key, value in body.items():
-            if key not in SCHEMA[section]:
-                raise ConfigError(
-                    f"unknown key; known keys: {', '.join(SCHEMA[section])}", path=path, key=f"{section}.{key}"
-                )
-            kind, _ = SCHEMA[section][key]
-            allows_bool = kind is bool or (isinstance(kind, tuple) and bool in kind)
-            if not isinstance(value, kind) or (not allows_bool and isinstance(value, bool)):
-                raise ConfigError(f"wrong type {type(value).__name__}", path=path, key=f"{section}.{key}")
-    for section, keys in SCHEMA.items():
-        for key, (_, required) in keys.items():
-            if required and key not in data.get(section, {}):
-                raise ConfigError("missing required key", path=path, key=f"{section}.{key}")
+            opt = BY_NAME.get(f"{section}.{key}") or (BY_NAME["controls.<shape>"] if section == "controls" else None)
+            if opt is None:
+                known = [o.key for o in OPTIONS if o.section == section]
+                raise ConfigError(f"unknown key; known keys: {', '.join(known)}", path=path, key=f"{section}.{key}")
+            problem = opt.check(value)
+            if problem is not None:
+                raise ConfigError(problem, path=path, key=f"{section}.{key}")
+    for opt in OPTIONS:
+        if opt.required and opt.key not in data.get(opt.section, {}):
+            raise ConfigError("missing required key", path=path, key=opt.name)
 
 
 def _number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+#: Blender's shape-key slider range: bounds and lock values outside it are typos
+SLIDER_LIMIT = 10.0
+
+
+def _weight(value):
+    return _number(value) and math.isfinite(value) and abs(value) <= SLIDER_LIMIT
+
+
 def _shape_options(path, solve):
     """bounds / locks / regions of [solve]: shape-name glob patterns mapped to values."""
     bounds = []
     for pattern, value in solve.get("bounds", {}).items():
-        if not (isinstance(value, list) and len(value) == 2 and all(_number(v) for v in value) and value[0] <= value[1]):
-            raise ConfigError(f"expected [lower, upper] with lower <= upper; got {value}", path=path, key=f"solve.bounds.{pattern}")
+        if not (isinstance(value, list) and len(value) == 2 and all(_weight(v) for v in value) and value[0] <= value[1]):
+            raise ConfigError(f"expected [lower, upper] with lower <= upper, each between -{SLIDER_LIMIT:g} and "
+                              f"{SLIDER_LIMIT:g}; got {value}", path=path, key=f"solve.bounds.{pattern}")
         bounds.append((pattern, float(value[0]), float(value[1])))
     locks = []
     for pattern, value in solve.get("locks", {}).items():
-        if not _number(value):
-            raise ConfigError(f"expected a number; got {value!r}", path=path, key=f"solve.locks.{pattern}")
+        if not _weight(value):
+            raise ConfigError(f"expected a number between -{SLIDER_LIMIT:g} and {SLIDER_LIMIT:g}; got {value!r}",
+                              path=path, key=f"solve.locks.{pattern}")
         locks.append((pattern, float(value)))
     regions = []
     for name, body in solve.get("regions", {}).items():
@@ -430,7 +336,6 @@ def _shape_options(path, solve):
 
 def _clean_settings(path, section):
     """[clean] -> CleanSettings (every step off unless named)."""
-    from ..capture.cleaning import CleanSettings
 
     values = dict(section)
     if "one_euro" in values:

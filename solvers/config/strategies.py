@@ -8,7 +8,14 @@ take, stored actor basis, posed example weights, training take, solved weights) 
 
 import warnings
 
-from ..errors import ConfigError, FacecapError
+import numpy as np
+
+from ..capture.cleaning import clean
+from ..character.basis import Basis
+from ..errors import ConfigError, FacecapError, InputFileError
+from ..io import import_markers
+from ..io.csv import read_weights_csv
+from ..io.weights import read_weights
 from ..strategies.options import (
     CalibrationSettings,
     ExamplePairs,
@@ -18,6 +25,7 @@ from ..strategies.options import (
     RefineSettings,
     StrategyInputs,
 )
+from ..strategies.parallel import parallel_curve
 from ..strategies.wiring import NEEDS
 
 ALIGN = ("rigid", "similarity", "none")
@@ -118,10 +126,8 @@ def _per_shape(value, key, fail, check):
 
 
 def _curve_ok(spec):
-    from ..strategies.parallel import _curve
-
     try:
-        _curve(spec)
+        parallel_curve(spec)
     except FacecapError:
         return False
     return True
@@ -205,18 +211,10 @@ def load_strategy_inputs(config, *, read_markers=None):
         How extra marker takes (calibration, example take, training take) are read; default
         ``readers.import_markers`` with the [source] read options and the [clean] steps.
     """
-    import numpy as np
 
-    from ..character.basis import Basis
-    from ..errors import InputFileError
-    from ..io.csv import read_weights_csv
-    from ..io.weights import read_weights
 
     notes = []
     if read_markers is None:
-        from ..capture.cleaning import clean
-        from ..io import import_markers
-
         options = {k: v for k, v in config.read_options.items() if k != "format"}
 
         def read_markers(path, units, fps):

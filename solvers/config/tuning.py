@@ -20,6 +20,7 @@ Errors name the file and the ``[section.key]``.
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..character.shape_controls import control_from_dict, load_preset
 from ..errors import ConfigError, FacecapError
 
 TUNING_KEYS = {"corrections": str, "mu": (int, float), "library": str, "out": str}
@@ -55,7 +56,6 @@ def parse_tuning(path, section, base):
 
 def parse_controls(path, section, base):
     """``[controls]`` -> {shape or glob: ShapeControl} (the preset's entries first, the table's over them)."""
-    from ..character.shape_controls import control_from_dict, load_preset
 
     section = section or {}
     if not isinstance(section, dict):

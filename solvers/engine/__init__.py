@@ -20,6 +20,7 @@ active-set kernel of ``engine.frames``; otherwise the whole take is one problem,
 import numpy as np
 
 from ..errors import FacecapError
+from ..options import default
 from . import setup
 from .frames import exact_frame, solve_frames  # noqa: F401  (re-exported for tests)
 from .result import SolveResult  # noqa: F401  (the facade's result type)
@@ -27,7 +28,7 @@ from .result import SolveResult  # noqa: F401  (the facade's result type)
 #: Default smoothing (mu1, mu2) for ``relative=True``, in units of the basis scale (see ``basis_scale``).
 #: Chosen by ``tests/core/test_engine_temporal.py``: a 3-frame lip closure at 60 fps keeps >= 90 % of
 #: its peak while the second-difference jitter of a noisy take drops by >= 50 %.
-DEFAULT_SMOOTHING = (0.0, 0.3)
+DEFAULT_SMOOTHING = default("solve.smoothing")
 
 #: Ridge floor, relative to the basis scale, added to every solve so unobservable shapes stay at
 #: their smallest-norm value instead of making the system singular.

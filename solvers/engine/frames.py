@@ -21,7 +21,9 @@ need no scipy, which Blender does not ship. The state codes and classification a
 Inputs are trusted (validated by ``engine.solve_bounded``). Locked shapes arrive as lo == hi.
 """
 
+import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from contextvars import ContextVar
 
@@ -339,8 +341,6 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
 
     Returns (W (F, K), iterations, number of frames handed to the exact fallback).
     """
-    import os
-    from concurrent.futures import ThreadPoolExecutor
 
     F, K = G.shape
     W = np.empty((F, K))

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from .frames import solve_frames
 from .result import SolveResult
 
 
@@ -219,8 +220,6 @@ FRAME_MAX_ITER, TEMPORAL_MAX_ITER = 40, 200
 
 
 def run(prob, *, max_iter, chunk, start=None, exact=True):
-    from .frames import solve_frames
-
     A, C, D = prob.A, prob.C, prob.D
     F, P = D.shape
     K = A.shape[1]
@@ -268,7 +267,7 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
         if temporal:
             if not has.any():
                 continue
-            from .temporal import solve_temporal
+            from .temporal import solve_temporal  # loads scipy
 
             w, it, ok = solve_temporal(Ar, Cr, G, Rr, lo, hi, l1, prob.mu, max_iter=max_iter, chunk=chunk, start=w0)
             W[:, shapes] = w[:, :nr]

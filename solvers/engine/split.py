@@ -8,6 +8,8 @@ its result comes back through a pipe). Fork is used only where it is the platfor
 or if the child fails, both halves run here one after the other. Same results either way.
 """
 
+import ctypes
+import multiprocessing as mp
 import os
 import pickle
 import sys
@@ -36,7 +38,6 @@ def run_beside(here, there, *, let_finish=False):
     is killed, or, with ``let_finish``, waited for (a child writing a file then completes its
     atomic write instead of leaving a temporary file behind).
     """
-    import multiprocessing as mp
 
     if not fork_available():
         return here(), there()
@@ -121,8 +122,6 @@ def release_freed_memory():
     if _TRIM is None:
         _TRIM = False
         if sys.platform.startswith("linux"):
-            import ctypes
-
             try:
                 _TRIM = ctypes.CDLL("libc.so.6").malloc_trim
             except (OSError, AttributeError):

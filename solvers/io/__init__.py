@@ -22,12 +22,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import FacecapError, InputFileError
+from ..markers import MarkerSet
 from .c3d import read_c3d, write_c3d
 from .csv import is_long_header, read_long_csv, read_wide_csv, sniff, write_markers_csv
 from .json import read_json, write_json
 from .trc import read_trc, write_trc
 from .weights import WeightTrack, read_weights
-from ..markers import MarkerSet
 
 FORMATS = ("c3d", "trc", "csv", "csv-long", "json")
 EXTENSIONS = {".c3d": "c3d", ".trc": "trc", ".json": "json", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}

@@ -28,11 +28,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FacecapError, InputFileError
-from .files import atomic_path
+from ..markers import MarkerSet
 from .csv_vector import SlowPath as _SlowPath
 from .csv_vector import vector_numeric as _vector_numeric
+from .files import atomic_path
 from .timing import check_markerset, finish, finish_arrays, segments_from_labels
-from ..markers import MarkerSet
 
 GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
 _GAP_SPELLINGS = ("", "NA", "na", "N/A", "n/a", "null", "NULL", "None", "none")  # nan: parsed by numpy

@@ -1,27 +1,89 @@
-"""Atomic output files: a crash or an error never leaves a half-written output behind."""
+"""Atomic output files: a crash or an error never leaves a half-written output behind.
+
+A file is written under a temporary name beside its final one (``.<name>.facecap-tmp.<pid>.<tag><suffix>``)
+and renamed into place in one step. An interrupted run (SIGINT, SIGTERM) removes its temporary file;
+one killed outright leaves it, and a later run removes it (``remove_stale_temporaries``: the process
+that wrote it is gone). Outputs get the permissions the user's umask gives new files.
+"""
 
 import contextlib
 import json
 import os
+import re
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
 
+TMP_MARK = ".facecap-tmp."
+_STALE = re.compile(r"^\..+\.facecap-tmp\.(\d+)\.[^/]*$")
+_UMASK = []
+_UMASK_LOCK = threading.Lock()
 
-@contextlib.contextmanager
-def atomic_path(path):
-    """Yield a temporary path beside ``path``; on success it replaces ``path`` in one step."""
+
+def umask():
+    """The process umask (read once: reading it means setting it)."""
+    with _UMASK_LOCK:
+        if not _UMASK:
+            mask = os.umask(0o022)
+            os.umask(mask)
+            _UMASK.append(mask)
+    return _UMASK[0]
+
+
+def new_temporary(path, *, suffix=None):
+    """A new empty temporary file beside ``path`` named as this program's (ending in ``suffix``,
+    default ``path``'s own, so writers that add an extension keep it), with a new file's permissions."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    suffix = path.suffix if suffix is None else suffix
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TMP_MARK}{os.getpid()}.", suffix=suffix, dir=path.parent)
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~umask())  # mkstemp makes it 0600
+    return Path(tmp)
+
+
+@contextlib.contextmanager
+def atomic_path(path, *, suffix=None):
+    """Yield a temporary path beside ``path`` (see ``new_temporary``); on success it replaces ``path``
+    in one step. Whatever happens, the temporary file is gone afterwards."""
+    tmp = new_temporary(path, suffix=suffix)
     try:
-        yield Path(tmp)
+        yield tmp
         os.replace(tmp, path)
     finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        if tmp.exists():
+            tmp.unlink()
+
+
+def remove_stale_temporaries(folder):
+    """Remove this program's temporary files in ``folder`` whose writing process is gone; returns them."""
+    folder = Path(folder)
+    removed = []
+    if not folder.is_dir():
+        return removed
+    for entry in folder.iterdir():
+        match = _STALE.match(entry.name)
+        if match and entry.is_file() and not _alive(int(match.group(1))):
+            try:
+                entry.unlink()
+                removed.append(entry)
+            except OSError:
+                pass
+    return removed
+
+
+def _alive(pid):
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # someone else's live process
+    return True
 
 
 def write_text_atomic(path, text):

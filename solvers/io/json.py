@@ -27,9 +27,9 @@ import math
 import numpy as np
 
 from ..errors import FacecapError, InputFileError
+from ..markers import MarkerSet
 from .files import write_text_atomic
 from .timing import check_markerset, finish
-from ..markers import MarkerSet
 
 SCHEMA_VERSION = 1
 

@@ -8,7 +8,7 @@ timestamps resampled to a fixed rate.
 
 import numpy as np
 
-from ..errors import FacecapError
+from ..errors import FacecapError, InputFileError
 from ..markers import UNIT_SCALE, MarkerSet
 
 #: Units a reader accepts; "bu" (Blender units) needs ``unit_scale`` (metres per unit).
@@ -233,7 +233,6 @@ def segments_from_labels(labels, frames):
 
 def check_markerset(build, path):
     """Call ``build()`` and turn a MarkerSet validation error into an InputFileError for ``path``."""
-    from ..errors import InputFileError
 
     try:
         return build()

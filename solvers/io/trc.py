@@ -15,10 +15,10 @@ Empty cells (and ``NaN``) are gaps; a row may stop early when its last markers a
 import numpy as np
 
 from ..errors import FacecapError, InputFileError
-from .files import atomic_path
-from .csv import GAP_TOKENS
-from .timing import UNIT_ALIASES, check_markerset, finish
 from ..markers import MarkerSet
+from .csv import GAP_TOKENS
+from .files import atomic_path
+from .timing import UNIT_ALIASES, check_markerset, finish
 
 
 def _cells(line):

@@ -17,9 +17,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .arkit import ARKIT_52
 from ..errors import FacecapError, InputFileError
-from .csv import TIME_HEADERS, _rows, _time_column, read_numeric_columns, read_text_columns, sniff
+from .arkit import ARKIT_52
+from .csv import (
+    TIME_HEADERS,
+    _rows,
+    _time_column,
+    read_numeric_columns,
+    read_text_columns,
+    sniff,
+)
 from .timing import frames_from_times, resample
 
 HEAD_CHANNELS = ("HeadYaw", "HeadPitch", "HeadRoll")

@@ -52,9 +52,11 @@ mapping tables (one-to-one by name or many-to-many with gains) in ``mapping.Mapp
 
 import importlib
 
+from ..errors import FacecapError
+
 #: strategy name -> (module, class), imported on first use (``get_strategy``)
 STRATEGY_CLASSES = {
-    "geometric": ("geometric_strategy", "GeometricStrategy"),
+    "geometric": ("geometric", "GeometricStrategy"),
     "calibrated": ("calibrated", "CalibratedStrategy"),
     "parallel": ("parallel", "ParallelStrategy"),
     "linear": ("linear", "LinearStrategy"),
@@ -67,7 +69,6 @@ STRATEGY_NAMES = tuple(STRATEGY_CLASSES)
 
 def get_strategy(name):
     """The strategy class called ``name``."""
-    from ..errors import FacecapError
 
     if name not in STRATEGY_CLASSES:
         raise FacecapError(f"unknown strategy '{name}'; available: {', '.join(STRATEGY_NAMES)}")

@@ -1,15 +1,17 @@
-"""What every strategy shares: the result object, the character target and the source features.
+"""The contract every cross-mapping strategy keeps: what it is given (``Target``, ``PreparedTake``),
+what it must provide (``Strategy``) and what it returns (``StrategyResult``).
 
-See the package docstring (``solvers/strategies/__init__.py``) for the interface itself.
+See the package docstring (``solvers/strategies/__init__.py``) for the interface in words; the
+maths the strategies share lives in ``sources`` (marker deltas) and ``lowrank`` (PCA, gap filling).
 """
 
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from ..character.basis import Basis
 from ..errors import FacecapError
-from ..transforms import fit_similarity
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,6 +30,11 @@ class StrategyResult:
     clamped : (F,) int, character weights moved onto their bounds by the final clamp
     info : dict of strategy-specific diagnostics (JSON-ready scalars and short lists)
     solve : the engine's SolveResult where a weight solve ran, else None
+    marker_names : markers of the fit, in the order of ``solve.residuals``' columns (empty: the
+        strategy's ``actor_basis`` markers, else the take's)
+    alignment : the transform that carried the take's neutral onto what the strategy was fitted on
+        (``geometric``: actor -> character similarity), else None
+    alignment_residual : (U,) each of ``marker_names``' distance from its target after ``alignment``
     """
 
     weights: np.ndarray
@@ -40,6 +47,67 @@ class StrategyResult:
     clamped: np.ndarray = None
     info: dict = field(default_factory=dict)
     solve: object = None
+    marker_names: tuple = ()
+    alignment: object = None
+    alignment_residual: np.ndarray = None
+
+
+@runtime_checkable
+class Strategy(Protocol):
+    """What the pipeline calls on every strategy (``geometric`` included).
+
+    ``name`` is the ``[solve] strategy`` value; ``source_kind`` is ``"markers"`` (stabilised,
+    neutral-normalised actor deltas (F, M, D)) or ``"weights"`` (solved channels (F, S)).
+    ``fit`` learns from the character and the strategy's inputs and returns the strategy;
+    ``solve`` maps a take to character weights.
+    """
+
+    name: str
+    source_kind: str
+
+    def fit(self, character, **inputs): ...
+
+    def solve(self, source, *, names=None, neutral=None, confidence=None) -> "StrategyResult": ...
+
+
+@runtime_checkable
+class PredictsMarkers(Protocol):
+    """A strategy whose solve predicts the markers themselves: the pipeline refits the head on every
+    marker against that prediction (hierarchical stabilisation) before the final solve.
+
+    ``solve`` also takes ``start`` (weights of an earlier solve, (F, K)) and ``quick`` (a cheap
+    per-frame prediction instead of the optimum); ``predict(result)`` returns the actor-space marker
+    deltas (F, U, D) of ``result.marker_names`` that ``result`` explains.
+    """
+
+    def solve(self, source, *, names=None, neutral=None, confidence=None, start=None, quick=False): ...
+
+    def predict(self, result): ...
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedTake:
+    """A take as every marker strategy receives it.
+
+    deltas : (F, M, D) stabilised marker positions minus the neutral (metres, or pixels for 2D
+        tracks), NaN for gaps; master T-pose offsets already added
+    neutral : (M, D) the neutral in the same (stabilised head) frame
+    names : M marker names
+    frames : (F,) frame numbers
+    stabilise : StabiliseResult
+    offsets : (F, M, D) master T-pose offsets added to the positions, or None
+    """
+
+    deltas: np.ndarray
+    neutral: np.ndarray
+    names: tuple
+    frames: np.ndarray
+    stabilise: object
+    offsets: np.ndarray = None
+
+    @property
+    def dim(self):
+        return self.deltas.shape[2]
 
 
 @dataclass(frozen=True)
@@ -67,214 +135,3 @@ def as_target(character):
     if not names or len(set(names)) != len(names):
         raise FacecapError("`character` shape names must be non-empty and unique")
     return Target(names, np.zeros(len(names)), np.ones(len(names)))
-
-
-def clamp_to(target, weights):
-    """Clip (F, K) weights to the target's bounds; returns (clipped, count per frame)."""
-    clipped = np.clip(weights, target.lower, target.upper)
-    changed = np.isfinite(weights) & (np.abs(clipped - weights) > 1e-12)
-    return clipped, changed.sum(axis=1)
-
-
-def as_deltas(source, *, what="source"):
-    """Validate marker deltas: (F, M, D) float array (D = 2 or 3), NaN for gaps."""
-    deltas = np.asarray(source, dtype=np.float64)
-    if deltas.ndim == 2 and deltas.shape[0] > 0:
-        raise FacecapError(f"`{what}` must have shape (F, M, 3) marker deltas; got {deltas.shape} (weights go to `parallel`)")
-    if deltas.ndim != 3 or deltas.shape[2] not in (2, 3) or deltas.shape[0] == 0:
-        raise FacecapError(f"`{what}` must have shape (F, M, 3); got {deltas.shape}")
-    if np.isinf(deltas).any():
-        raise FacecapError(f"`{what}` contains infinite values")
-    gap = np.isnan(deltas).any(axis=2)
-    if gap.any():
-        deltas = deltas.copy()
-        deltas[gap] = np.nan
-    return deltas
-
-
-def reorder(deltas, names, fitted_names, *, what="source"):
-    """Columns of ``deltas`` (F, M, D) in ``fitted_names`` order; markers the source lacks are gaps."""
-    if names is None or fitted_names is None:
-        if fitted_names is not None and deltas.shape[1] != len(fitted_names):
-            raise FacecapError(
-                f"`{what}` has {deltas.shape[1]} markers; the strategy was fitted on {len(fitted_names)} "
-                "(pass `names` to match them by name)"
-            )
-        return deltas
-    names = tuple(names)
-    if len(names) != deltas.shape[1]:
-        raise FacecapError(f"`names` has {len(names)} entries for {deltas.shape[1]} markers in `{what}`")
-    lookup = {n: i for i, n in enumerate(names)}
-    common = [n for n in fitted_names if n in lookup]
-    if len(common) < 3:
-        raise FacecapError(
-            f"`{what}` shares only {len(common)} marker(s) with the fitted ones; "
-            f"fitted: {list(fitted_names)[:8]}..., source: {list(names)[:8]}..."
-        )
-    out = np.full((deltas.shape[0], len(fitted_names), deltas.shape[2]), np.nan)
-    for j, n in enumerate(fitted_names):
-        if n in lookup:
-            out[:, j] = deltas[:, lookup[n]]
-    return out
-
-
-def align_to(deltas, neutral, fitted_neutral, *, mode="rigid"):
-    """Rotate (and, for ``mode="similarity"``, scale) deltas from the source's neutral frame into
-    the frame the strategy was fitted in (Sony's master T-pose alignment).
-
-    ``neutral`` (M, D) is in the source's order after ``reorder``; rows with NaN are ignored.
-    Returns (deltas, Similarity or None).
-    """
-    if mode == "none" or neutral is None or fitted_neutral is None:
-        return deltas, None
-    if mode not in ("rigid", "similarity"):
-        raise FacecapError(f"`align` must be 'none', 'rigid' or 'similarity'; got {mode!r}")
-    neutral = np.asarray(neutral, dtype=np.float64)
-    if neutral.shape != fitted_neutral.shape:
-        raise FacecapError(f"`neutral` must have shape {fitted_neutral.shape}; got {neutral.shape}")
-    sim = fit_similarity(neutral, fitted_neutral, allow_scale=(mode == "similarity"))
-    return sim.apply_vectors(deltas), sim
-
-
-def flat(deltas):
-    """(F, M, D) -> (F, M * D)."""
-    return deltas.reshape(deltas.shape[0], -1)
-
-
-def check_pairs(features, weights, target, *, what="examples"):
-    """Validate example pairs: features (N, M, D) or (N, P) without gaps, weights (N, K) finite."""
-    X = np.asarray(features, dtype=np.float64)
-    if X.ndim == 3:
-        X = X.reshape(X.shape[0], -1)
-    if X.ndim != 2 or X.shape[0] == 0:
-        raise FacecapError(f"`{what}` must have shape (N, M, 3) or (N, P); got {np.shape(features)}")
-    if not np.isfinite(X).all():
-        raise FacecapError(f"`{what}` must have no gaps (NaN); fill or drop those frames first")
-    W = np.asarray(weights, dtype=np.float64)
-    if W.shape != (X.shape[0], target.n_shapes):
-        raise FacecapError(f"`weights` must have shape ({X.shape[0]}, {target.n_shapes}); got {W.shape}")
-    if not np.isfinite(W).all():
-        raise FacecapError("`weights` must be finite")
-    return X, W
-
-
-def fill_gaps(X, mean, components):
-    """Fill NaN entries of X (F, P) from the visible ones through a linear subspace.
-
-    For every frame with gaps, solve for subspace coefficients on the visible coordinates (least
-    squares) and take the missing ones from the reconstruction (the PPCA-style imputation of the
-    retargeting course, section 2). ``components`` (C, P) with orthonormal rows; ``mean`` (P,).
-    Frames with no visible coordinate stay NaN. Returns (filled X, frames that had gaps).
-
-    With k coordinates missing (A = components[:, missing], (C, k)) the normal equations of the
-    visible ones are (I - A A') c = components[:, visible] x_visible, solved by Woodbury through the
-    k x k matrix I - A'A: no least-squares solve over the C components per frame (a 2,000-frame
-    take with 5% gaps and ~160 components: 0.15 s instead of 3.4 s). Frames whose visible
-    coordinates hardly determine the coefficients (I - A'A nearly singular) take the minimum-norm
-    least squares.
-    """
-    X = np.array(X, dtype=np.float64)
-    gaps = np.isnan(X)
-    rows = np.flatnonzero(gaps.any(axis=1))
-    for f in rows:
-        miss = gaps[f]
-        if miss.all():
-            continue
-        vis = ~miss
-        A = components[:, miss]
-        S = np.eye(A.shape[1]) - A.T @ A
-        if np.linalg.eigvalsh(S)[0] >= 1e-6:
-            b = components[:, vis] @ (X[f, vis] - mean[vis])
-            coef = b + A @ np.linalg.solve(S, A.T @ b)
-        else:
-            coef, *_ = np.linalg.lstsq(components[:, vis].T, X[f, vis] - mean[vis], rcond=None)
-        X[f, miss] = mean[miss] + coef @ A
-    return X, rows
-
-
-def pca(X, *, center=True, n_components=None, variance=None):
-    """Principal components of X (N, P) by SVD.
-
-    Returns mean (P,) (zeros if not ``center``), components (C, P) orthonormal rows in
-    descending variance with the largest-magnitude entry positive, singular values (C,), and
-    the explained variance ratio (C,). ``n_components`` caps C; ``variance`` (0-1] keeps the
-    fewest components reaching that share of the total. Components with a singular value below
-    1e-10 of the largest are dropped (rank).
-    """
-    X = np.asarray(X, dtype=np.float64)
-    mean = X.mean(axis=0) if center else np.zeros(X.shape[1])
-    U, s, Vt = np.linalg.svd(X - mean, full_matrices=False)
-    rank = int(np.sum(s > 1e-10 * (s[0] if s.size and s[0] > 0 else 1.0)))
-    energy = s**2 / max(np.sum(s**2), 1e-300)
-    C = rank
-    if variance is not None:
-        C = min(C, int(np.searchsorted(np.cumsum(energy), variance - 1e-12) + 1))
-    if n_components is not None:
-        C = min(C, int(n_components))
-    Vt = Vt[:C]
-    signs = np.sign(Vt[np.arange(C), np.argmax(np.abs(Vt), axis=1)])
-    signs[signs == 0] = 1.0
-    return mean, Vt * signs[:, None], s[:C], energy[:C]
-
-
-def pca_gappy(X, *, center=True, n_components=None, variance=None, tol=1e-4, max_iterations=100,
-              start_components=60, max_rows=2000):
-    """``pca`` of X (N, P) with NaN gaps, every row with a visible entry contributing.
-
-    With markers occluded independently, most frames of a take have some gap and the gap-free ones
-    may be little more than the neutral holds: a PCA of those spans noise, not the performance.
-    Here the missing entries are imputed by soft-thresholded SVD (soft-impute, Mazumder et al.
-    2010) with the threshold at the noise level of Gavish & Donoho's optimal hard threshold, so no
-    rank has to be chosen and weak (noise) directions do not absorb the gaps. Without gaps this is
-    ``pca(X)`` exactly. The imputation starts from the span of the gap-free rows (at most
-    ``start_components``), which it keeps when they explain the others exactly (noiseless data).
-    With gaps, the subspace is learnt from at most ``max_rows`` evenly spaced rows (every SVD of the
-    imputation is of that size: a 36,000-frame take took 26 s whole, ~1 s this way).
-    Returns ``pca``'s four outputs for the filled rows.
-    """
-    X = np.asarray(X, dtype=np.float64)
-    gaps = np.isnan(X)
-    if gaps.any():
-        X = X[~gaps.all(axis=1)]
-        if len(X) > max_rows:
-            X = X[np.linspace(0, len(X) - 1, max_rows).round().astype(np.int64)]
-        gaps = np.isnan(X)
-        if len(X) == 0:
-            raise FacecapError("no frame with a visible coordinate to learn a subspace from")
-        mean = np.nanmean(X, axis=0) if center else np.zeros(X.shape[1])
-        Xf = X - mean
-        full = ~gaps.any(axis=1)
-        if full.any():  # start from the gap-free rows' span: exact when they span the rest, else only faster
-            Xf = fill_gaps(Xf, np.zeros(X.shape[1]), pca(Xf[full], center=False, n_components=start_components)[1])[0]
-        Xf[np.isnan(Xf)] = 0.0
-        threshold = noise_threshold(np.linalg.svd(Xf, compute_uv=False), Xf.shape)
-        scale = max(float(np.sqrt(np.mean(Xf**2))), 1e-300)
-        for _ in range(max_iterations):
-            U, s, Vt = np.linalg.svd(Xf, full_matrices=False)
-            fit = (U * np.maximum(s - threshold, 0.0)) @ Vt
-            step = float(np.sqrt(np.mean((fit[gaps] - Xf[gaps]) ** 2)))
-            Xf[gaps] = fit[gaps]
-            if step < tol * scale:
-                break
-        X = Xf + mean
-    return pca(X, center=center, n_components=n_components, variance=variance)
-
-
-def noise_threshold(s, shape):
-    """Gavish & Donoho's optimal hard threshold for the singular values ``s`` of an ``shape`` (N, P)
-    matrix whose noise level is unknown: ``omega(beta) * median(s)``, beta the aspect ratio."""
-    beta = min(shape) / max(shape)
-    return (0.56 * beta**3 - 0.95 * beta**2 + 1.82 * beta + 1.43) * float(np.median(s))
-
-
-def gap_subspace(*frames, variance=0.99999, max_components=60):
-    """(mean, components) for ``fill_gaps`` from the rows of several (F, P) arrays (the fitted
-    examples/training frames and the take being solved), uncentred; rows with gaps count too
-    (``pca_gappy``), as the gap-free ones alone may be little more than the neutral."""
-    rows = [np.asarray(X, dtype=np.float64) for X in frames if X is not None]
-    rows = np.concatenate(rows)
-    rows = rows[np.isfinite(rows).any(axis=1)]
-    if len(rows) == 0:
-        raise FacecapError("no frame with a visible marker to learn the gap-filling subspace from")
-    _, comps, _, _ = pca_gappy(rows, center=False, n_components=max_components, variance=variance)
-    return np.zeros(rows.shape[1]), comps

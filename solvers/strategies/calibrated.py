@@ -13,17 +13,19 @@ import warnings
 
 import numpy as np
 
-from ..character.aliases import name_key
-from ..character.basis import Basis
-from ..engine import DEFAULT_SMOOTHING, solve_bounded
-from ..errors import FacecapError
-from ..markers import UNIT_SCALE
 from ..capture.neutral import neutral_from_frames
 from ..capture.stabilise import stabilise_2d, stabilise_rigid
-from .base import StrategyResult, as_deltas, as_target, clamp_to, flat, reorder
+from ..character.aliases import name_key
+from ..character.basis import Basis
+from ..engine import solve_bounded
+from ..errors import FacecapError
+from ..markers import UNIT_SCALE
+from ..options import default
+from .base import StrategyResult, as_target
 from .geometric import symmetric_pairs
 from .linear import align_source
 from .mapping import Mapping
+from .sources import as_deltas, clamp_to, flat, reorder
 
 
 def _ranges(name, spec):
@@ -147,8 +149,9 @@ class CalibratedStrategy:
     name = "calibrated"
     source_kind = "markers"
 
-    def __init__(self, *, mapping=None, keyed_by="source", aliases=True, regularisation=1e-3, sparsity=1e-3,
-                 symmetry=0.0, smoothing=DEFAULT_SMOOTHING, align="rigid", pose_bounds=(0.0, 1.0)):
+    def __init__(self, *, mapping=None, keyed_by="source", aliases=True, regularisation=default("solve.regularisation"),
+                 sparsity=default("solve.sparsity"), symmetry=default("solve.symmetry"),
+                 smoothing=default("solve.smoothing"), align=default("calibration.align"), pose_bounds=(0.0, 1.0)):
         if align not in ("rigid", "similarity", "none"):
             raise FacecapError(f"calibrated: `align` must be 'rigid', 'similarity' or 'none'; got {align!r}")
         for key, value in (("regularisation", regularisation), ("sparsity", sparsity), ("symmetry", symmetry)):

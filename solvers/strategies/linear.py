@@ -15,7 +15,9 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..transforms import Similarity, fit_similarity_2d
-from .base import StrategyResult, align_to, as_deltas, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, reorder
+from .base import StrategyResult, as_target
+from .lowrank import fill_gaps, gap_subspace
+from .sources import align_to, as_deltas, check_pairs, clamp_to, flat, reorder
 
 
 def as_source(source, *, what="source"):

@@ -8,6 +8,8 @@ files or the scene (a calibration take, posed example weights, a training take, 
 
 from dataclasses import dataclass, field
 
+from ..options import default
+
 
 @dataclass(frozen=True)
 class CalibrationSettings:
@@ -27,7 +29,7 @@ class CalibrationSettings:
     neutral_frames: tuple = None
     split: tuple = ()
     stable_markers: tuple = ()
-    align: str = "rigid"
+    align: str = default("calibration.align")
 
     def pose_table(self):
         """``{name: [[first, last], ...]}`` for ``actor_basis_from_poses``."""
@@ -49,13 +51,13 @@ class MappingSettings:
     """
 
     table: tuple = ()
-    keyed_by: str = "source"
-    aliases: bool = True
-    gain: object = 1.0
-    offset: object = 0.0
+    keyed_by: str = default("mapping.keyed_by")
+    aliases: bool = default("mapping.aliases")
+    gain: object = default("mapping.gain")
+    offset: object = default("mapping.offset")
     clamp: object = None
-    curve: object = "linear"
-    mirror: bool = False
+    curve: object = default("mapping.curve")
+    mirror: bool = default("mapping.mirror")
     neutral_frames: tuple = None
 
     def table_dict(self):
@@ -80,31 +82,31 @@ class ExampleSettings:
     """
 
     frames: tuple = ()
-    ridge: float = 1e-3
-    kernel: str = "thin_plate_spline"
-    rbf_smoothing: float = 0.0
-    degree: int = 1
+    ridge: float = default("examples.ridge")
+    kernel: str = default("examples.kernel")
+    rbf_smoothing: float = default("examples.rbf_smoothing")
+    degree: int = default("examples.degree")
     n_components: int = None
-    far: float = 2.0
+    far: float = default("examples.far")
 
 
 @dataclass(frozen=True)
 class PCASettings:
     """``[pca]``: mode "related" (default) or "posed", FastICA, basis frames, kept variance."""
 
-    mode: str = "related"
-    ica: bool = False
-    n_basis: int = 8
-    variance: float = 0.99
+    mode: str = default("pca.mode")
+    ica: bool = default("pca.ica")
+    n_basis: int = default("pca.n_basis")
+    variance: float = default("pca.variance")
 
 
 @dataclass(frozen=True)
 class RefineSettings:
     """``[refine]``: Choe & Ko iteration limits and the pull towards the original library."""
 
-    max_iterations: int = 10
-    tol: float = 1e-3
-    stiffness: float = 1e-2
+    max_iterations: int = default("refine.max_iterations")
+    tol: float = default("refine.tol")
+    stiffness: float = default("refine.stiffness")
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,13 +16,13 @@ scalar applies to every shape; the ``"*"`` key sets the default inside a dict.
 import numpy as np
 
 from ..character.aliases import canonical_names, mirror_name, name_key
-from ..errors import FacecapError
 from ..character.shape_controls import curve_function
+from ..errors import FacecapError
 from .base import StrategyResult, as_target
 from .mapping import Mapping
 
 
-def _curve(spec):
+def parallel_curve(spec):
     """The shared response curve (``shape_controls.curve_function``) with parallel's error prefix."""
     return curve_function(spec, what="parallel")
 
@@ -57,7 +57,7 @@ class ParallelStrategy:
         self.curve = curve
         self.mirror = bool(mirror)
         for spec in (curve.values() if isinstance(curve, dict) else [curve]):
-            _curve(spec)
+            parallel_curve(spec)
         self.target = None
         self.mapping = None
         self.source_names = None
@@ -96,6 +96,11 @@ class ParallelStrategy:
                                               aliases=self.aliases)
         else:
             raise FacecapError(f"parallel: `mapping` must be None, a Mapping or a dict; got {type(spec).__name__}")
+        if not np.any(self.mapping.matrix):
+            raise FacecapError(
+                f"parallel: none of the {len(self.source_names)} source channel(s) ({', '.join(self.source_names[:6])}"
+                f"{'...' if len(self.source_names) > 6 else ''}) maps to a shape of the character "
+                f"({', '.join(self.target.names[:6])}...): name them alike or give a [mapping] table")
         self._mirror_perm = self._mirror_permutation() if self.mirror else None
         self._gain = self._per_shape(self.gain, 1.0, "gain")
         self._offset = self._per_shape(self.offset, 0.0, "offset")
@@ -151,7 +156,7 @@ class ParallelStrategy:
 
     def _per_shape_curves(self):
         specs = self._lookup(self.curve, "linear", "curve") if isinstance(self.curve, dict) else [self.curve] * self.target.n_shapes
-        return [_curve(s) for s in specs]
+        return [parallel_curve(s) for s in specs]
 
     def _mirror_permutation(self):
         index = {name_key(n): i for i, n in enumerate(self.source_names)}

@@ -25,9 +25,10 @@ import numpy as np
 
 from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
-from .base import (StrategyResult, as_deltas, as_target, clamp_to, fill_gaps, flat, noise_threshold, pca, pca_gappy,
-                   reorder)
+from .base import StrategyResult, as_target
 from .linear import align_source, as_source
+from .lowrank import fill_gaps, noise_threshold, pca, pca_gappy
+from .sources import as_deltas, clamp_to, flat, reorder
 
 MODES = ("related", "posed")
 

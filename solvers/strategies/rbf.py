@@ -13,8 +13,10 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from ..errors import FacecapError
-from .base import StrategyResult, as_target, check_pairs, clamp_to, fill_gaps, flat, gap_subspace, pca_gappy, reorder
+from .base import StrategyResult, as_target
 from .linear import align_source, as_source
+from .lowrank import fill_gaps, gap_subspace, pca_gappy
+from .sources import check_pairs, clamp_to, flat, reorder
 
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
            "inverse_multiquadric", "inverse_quadratic")

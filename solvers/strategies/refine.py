@@ -19,9 +19,10 @@ import numpy as np
 from ..character.basis import Basis
 from ..engine import solve_bounded
 from ..errors import FacecapError
-from .base import align_to, as_deltas, flat, reorder
+from ..options import default
 from .calibrated import CalibratedStrategy
 from .geometric import symmetric_pairs
+from .sources import align_to, as_deltas, flat, reorder
 
 
 class RefineStrategy(CalibratedStrategy):
@@ -41,7 +42,8 @@ class RefineStrategy(CalibratedStrategy):
 
     name = "refine"
 
-    def __init__(self, *, max_iterations=10, tol=1e-3, stiffness=1e-2, fit_smoothing=(0.0, 0.0), **options):
+    def __init__(self, *, max_iterations=default("refine.max_iterations"), tol=default("refine.tol"),
+                 stiffness=default("refine.stiffness"), fit_smoothing=(0.0, 0.0), **options):
         super().__init__(**options)
         if int(max_iterations) < 0 or not tol >= 0 or not stiffness >= 0:
             raise FacecapError("refine: need max_iterations >= 0, tol >= 0 and stiffness >= 0")

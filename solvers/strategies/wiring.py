@@ -1,21 +1,21 @@
 """Build and fit a strategy from the pipeline's settings and inputs.
 
 ``retarget`` (``solvers.pipeline``) prepares the take (stabilised, neutral-normalised actor
-deltas), then calls ``fit_strategy`` here; the strategy classes themselves know nothing about
-configs or the sidebar. ``require_inputs`` raises the one readable error a user gets when a
-strategy's inputs are missing.
+deltas), then calls ``fit_strategy`` here for every strategy, ``geometric`` included; the strategy
+classes themselves know nothing about configs or the sidebar. ``require_inputs`` raises the one
+readable error a user gets when a strategy's inputs are missing.
 """
-
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..character.aliases import name_key
+from ..character.shape_options import resolve_bounds
 from ..errors import FacecapError
-from ..capture.neutral import neutral_from_frames
-from ..capture.stabilise import smooth_head_motion, stabilise_rigid
 from . import make_strategy
-from .base import fill_gaps, flat, gap_subspace
+from .base import Target, as_target
+from .lowrank import fill_gaps, gap_subspace
+from .options import ExamplePairs
+from .sources import flat
 
 #: what each strategy needs besides the take, in the words of the take config
 NEEDS = {
@@ -28,33 +28,11 @@ NEEDS = {
 }
 
 
-@dataclass(frozen=True, eq=False)
-class PreparedTake:
-    """A take as every marker strategy receives it.
-
-    deltas : (F, M, 3) stabilised marker positions minus the neutral, metres, NaN for gaps
-    neutral : (M, 3) the neutral in the same (stabilised head) frame
-    names : M marker names
-    frames : (F,) frame numbers
-    stabilise : StabiliseResult
-    """
-
-    deltas: np.ndarray
-    neutral: np.ndarray
-    names: tuple
-    frames: np.ndarray
-    stabilise: object
-
-
-def prepare_take(markers, stable_markers, neutral_frames, *, head_smoothing=0.1):
-    """Stabilise ``markers`` (any of m/cm/mm) rigidly on ``stable_markers`` (reference = the neutral
-    frames), smooth the head motion and subtract the neutral; returns a PreparedTake (metres)."""
-    markers = markers.to_units("m")
-    first, last = neutral_frames
-    stab = stabilise_rigid(markers, tuple(stable_markers), reference_frames=(first, last))
-    stab = smooth_head_motion(markers, stab, half_window=int(round(head_smoothing * markers.fps)))
-    neutral = neutral_from_frames(stab.markers, first, last)
-    return PreparedTake(stab.markers.positions - neutral[None], neutral, markers.names, markers.frames, stab)
+def shape_target(character, settings):
+    """The character's shape names with ``settings.bounds`` applied (a ``Target``)."""
+    target = as_target(character)
+    lower, upper = resolve_bounds(target.names, target.lower, target.upper, settings.bounds)
+    return Target(target.names, np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64))
 
 
 def require_inputs(strategy, inputs, settings):
@@ -150,13 +128,13 @@ def filled_frames(deltas, idx):
     return ex, gappy
 
 
-def fit_strategy(settings, target, inputs, take, *, prepare):
-    """A fitted marker strategy for ``settings.strategy`` (not ``geometric`` or ``parallel``).
+def fit_strategy(settings, character, inputs, take, *, prepare):
+    """A fitted marker strategy for ``settings.strategy`` (any but ``parallel``).
 
     Parameters
     ----------
     settings : RetargetSettings
-    target : Target (the character's shape names and bounds)
+    character : Basis (geometric: the shapes at the bound points), or a Target / shape names
     inputs : StrategyInputs
     take : PreparedTake, the take being solved
     prepare : callable MarkerSet -> PreparedTake for another take (training, example take)
@@ -166,8 +144,14 @@ def fit_strategy(settings, target, inputs, take, *, prepare):
     (strategy, notes)
     """
     name = settings.strategy
-    require_inputs(name, inputs, settings)
     notes = []
+    if name == "geometric":
+        s = make_strategy(name, **_priors(settings), align_regions=settings.align_regions,
+                          align_flag_mm=settings.align_flag_mm)
+        return s.fit(character, names=take.names, bounds=settings.bounds, locks=settings.locks,
+                     regions=settings.regions), notes
+    require_inputs(name, inputs, settings)
+    target = shape_target(character, settings)
     if name == "calibrated":
         s = make_strategy(name, **_mapping_kwargs(settings), **_priors(settings), align=settings.calibration.align)
         return s.fit(target, **_calibration_kwargs(settings, inputs)), notes
@@ -216,7 +200,6 @@ def _selected(examples, frames):
     missing = [f for f in want.tolist() if not np.any(np.abs(have - f) < 1e-6)]
     if missing:
         raise FacecapError(f"examples: frame(s) {missing[:8]} have no posed weights")
-    from .options import ExamplePairs
 
     return ExamplePairs(have[rows], np.asarray(examples.weights)[rows], examples.names, examples.markers)
 

@@ -11,6 +11,7 @@ moves a compact patch of markers), weights that are mostly 0 with smooth events 
 ~5 % gaps as occlusion runs of 10-120 frames, and 0.2 mm marker noise on ~1 cm shapes.
 """
 
+import argparse
 import time
 
 import numpy as np
@@ -80,7 +81,7 @@ def median_time(fn, repeat, cpu=None, first=None):
 
 def bvls_loop(A, D, lam, lo=0.0, hi=1.0):
     """The naive baseline: one lsq_linear(method='bvls') per frame on the visible rows."""
-    from scipy.optimize import lsq_linear
+    from scipy.optimize import lsq_linear  # scipy: loaded on first use
 
     K = A.shape[1]
     out = np.empty((D.shape[0], K))
@@ -159,8 +160,6 @@ def run_benchmarks(cases=None, quick=False):
 
 
 def main(argv=None):
-    import argparse
-
     parser = argparse.ArgumentParser(prog="facecap bench", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     parser.add_argument("--case", action="append", choices=("per-frame", "temporal", "temporal-typical"))

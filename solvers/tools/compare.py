@@ -16,10 +16,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..character.basis import Basis
 from ..capture.neutral import neutral_from_frames
 from ..capture.stabilise import stabilise_rigid
+from ..character.basis import Basis
+from ..strategies import make_strategy
 from ..strategies.pca import farthest_frames
+from ..strategies.wiring import filled_frames
 from .synth import performance_weights, synthesize_take
 
 SAMPLE_BASIS = Path(__file__).resolve().parents[2] / "sample_blends" / "character_basis.npz"
@@ -139,8 +141,6 @@ def _phone_weights(truth, names, *, noise=0.02, seed=0):
 
 def run_comparison(scenario=None, *, strategies=None):
     """Fit and solve every strategy on ``scenario``; returns a list of row dicts."""
-    from ..strategies import make_strategy
-    from ..strategies.wiring import filled_frames
 
     sc = build_scenario() if scenario is None else scenario
     char, tr, te = sc.character, sc.training, sc.test

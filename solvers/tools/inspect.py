@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 
 from ..errors import FacecapError
+from ..io import import_markers, read_weights
 from ..markers import MarkerSet
 
 
@@ -64,7 +65,6 @@ def main(argv=None):
     parser.add_argument("--up-axis", choices=("Y", "Z"), default=None)
     parser.add_argument("--weights", action="store_true", help="read a solved-weights CSV (Live Link Face, MediaPipe)")
     args = parser.parse_args(argv)
-    from ..io import import_markers, read_weights
 
     try:
         with warnings.catch_warnings():

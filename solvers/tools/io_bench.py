@@ -15,10 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import median_time
 from ..io.c3d import read_c3d, write_c3d
-from ..io.csv import read_weights_csv, read_wide_csv, write_markers_csv, write_weights_csv
+from ..io.csv import (
+    read_weights_csv,
+    read_wide_csv,
+    write_markers_csv,
+    write_weights_csv,
+)
 from ..markers import MarkerSet
+from .bench import median_time
 
 
 def synthetic(frames=36000, markers=100, seed=0):

@@ -64,6 +64,7 @@ import numpy as np
 from ..character.basis import Basis
 from ..engine import DEFAULT_SMOOTHING, solve_bounded
 from ..errors import FacecapError
+from ..options import default
 
 #: mu candidates (frames at full weight) for the leave-one-frame-out search, simplest (largest) first
 MU_GRID = (30.0, 10.0, 3.0, 1.0, 0.3)
@@ -113,7 +114,8 @@ class TuneResult:
     notes: tuple = ()
 
 
-def default_solver(library, deltas, *, regularisation=1e-3, sparsity=1e-3, smoothing=DEFAULT_SMOOTHING):
+def default_solver(library, deltas, *, regularisation=default("solve.regularisation"),
+                   sparsity=default("solve.sparsity"), smoothing=DEFAULT_SMOOTHING):
     """The ``calibrated`` strategy's actor solve: (F, M, D) deltas -> (F, K) weights (NaN unsolved)."""
     F, M, D = deltas.shape
     res = solve_bounded(library.matrix(), deltas.reshape(F, M * D), lower=library.lower, upper=library.upper,

@@ -17,7 +17,7 @@ import hashlib
 import json
 import os
 import re
-import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +26,7 @@ import numpy as np
 from ..character.aliases import canonical_names, name_key
 from ..character.basis import Basis
 from ..errors import FacecapError, InputFileError
+from ..io.files import new_temporary
 from ..pipeline import jsonable
 from ..strategies.options import ExamplePairs
 
@@ -134,11 +135,9 @@ def _write_new(path, write):
     """Write through ``write(tmp_path)`` and link the result to ``path`` or the first free
     ``<stem>-N<suffix>``; never replaces a file. Returns the path written."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    os.close(fd)
+    tmp = new_temporary(path)
     try:
-        write(Path(tmp))
+        write(tmp)
         for n in range(1, 10000):
             target = path if n == 1 else path.with_name(f"{path.stem}-{n}{path.suffix}")
             try:
@@ -184,12 +183,13 @@ def load_version(path):
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputFileError(path, f"not a library version (.npz): {exc}") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        reason = "empty file" if path.stat().st_size == 0 else str(exc) or type(exc).__name__
+        raise InputFileError(path, f"not a library version (.npz): {reason}") from None
     try:
         return LibraryVersion.from_arrays(arrays)
-    except FacecapError as exc:
-        raise InputFileError(path, str(exc)) from None
+    except (FacecapError, KeyError, ValueError, TypeError, IndexError) as exc:
+        raise InputFileError(path, f"not a library version: {exc}") from None
 
 
 def list_versions(folder):

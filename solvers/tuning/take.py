@@ -27,10 +27,16 @@ import numpy as np
 
 from ..character.aliases import canonical_names, name_key
 from ..character.basis import Basis
+from ..character.shape_options import resolve_bounds, resolve_locks, resolve_regions
+from ..engine import solve_bounded
 from ..errors import FacecapError
-from .store import LibraryVersion, payload_digest  # noqa: F401 (LibraryVersion: part of this API)
 from ..pipeline import jsonable, retarget
+from ..pipeline.stages import normalise_stabilised
+from ..strategies.geometric import GeometricOptions, solve_geometric, symmetric_pairs
 from ..strategies.options import ExamplePairs, StrategyInputs
+from ..strategies.sources import align_to, reorder
+from .retune import retune
+from .store import LibraryVersion, payload_digest  # noqa: F401 (LibraryVersion: part of this API)
 
 #: strategy -> what a version of it stores
 KINDS = {"calibrated": "actor_basis", "refine": "actor_basis", "geometric": "character_basis",
@@ -281,8 +287,6 @@ def retune_take(markers, character, settings, inputs, corrections, *, mu=None, b
 
 def _tune_actor(markers, base, settings, idx, Wc, mu, parent, notes):
     """calibrated/refine: retune the actor library on the aligned actor deltas and pose activations."""
-    from ..strategies.base import align_to, reorder
-    from .retune import retune
 
     strategy = base.fitted
     lib = strategy.actor_basis
@@ -301,8 +305,7 @@ def _tune_actor(markers, base, settings, idx, Wc, mu, parent, notes):
 
 def _take_deltas(base, settings):
     """The stabilised, neutral-normalised actor deltas (F, M, 3), neutral (M, 3) and marker names the
-    pipeline solved: its final stabilisation and the same normalisation (``pipeline.normalise_stabilised``)."""
-    from ..pipeline import normalise_stabilised
+    pipeline solved: its final stabilisation and the same normalisation (``pipeline.stages.normalise_stabilised``)."""
 
     stab = base.stabilise
     neutral, offsets, _ = normalise_stabilised(stab, settings, [])
@@ -312,8 +315,6 @@ def _take_deltas(base, settings):
 
 def _actor_solver(strategy, *, per_frame=False):
     """The strategy's own actor solve (its priors) as (Basis, deltas) -> activations, NaN unsolved."""
-    from ..engine import solve_bounded
-    from ..strategies.geometric import symmetric_pairs
 
     def solve(lib, D):
         F, M, Dm = D.shape
@@ -360,9 +361,6 @@ def _pose_corrections(mapping, shape_names, Wc, notes):
 
 def _tune_character(markers, character, base, settings, idx, Wc, mu, parent, notes):
     """geometric: retune the character's shapes at the bound points on the aligned character-space deltas."""
-    from ..character.shape_options import resolve_bounds, resolve_locks, resolve_regions
-    from ..strategies.geometric import GeometricOptions, solve_geometric
-    from .retune import retune
 
     if markers.dim != 3:
         raise FacecapError("tuning: retuning a 2D (video) geometric solve is not supported; use the shape controls")

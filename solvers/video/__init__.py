@@ -6,14 +6,35 @@ Needs OpenCV (``cv2``, contrib for TV-L1); never imports Blender modules. Import
 is cheap; cv2 is imported by the modules that use it.
 """
 
+from ..capture.stabilise import (
+                   stabilise_2d,  # the one 2D stabilisation (image tracks), re-exported here
+)
 from .features import FlowFeatures, flow_features, remove_similarity, solve_from_flow
+from .flow import (
+                   DenseFlowResult,
+                   FlowEstimator,
+                   ReferenceFlow,
+                   compose,
+                   dense_flow,
+                   dense_flow_job,
+                   endpoint_error,
+                   reverse,
+                   sample_flow,
+                   track_with_flow,
+                   track_with_flow_job,
+                   warp,
+)
 from .flow_solve import FlowSolveSettings, retarget_flow, retarget_flow_job
-from .flow import (DenseFlowResult, FlowEstimator, ReferenceFlow, compose, dense_flow, dense_flow_job, endpoint_error,
-                   reverse, sample_flow, track_with_flow, track_with_flow_job, warp)
 from .pca import FlowPCA, flow_pca
 from .reading import Cancelled, Footage, FootageInfo, Job, open_footage, write_video
-from ..capture.stabilise import stabilise_2d  # the one 2D stabilisation (image tracks), re-exported here
-from .tracking import LKTracker, TrackResult, auto_seeds, read_seed_points, track_points, track_points_job
+from .tracking import (
+                   LKTracker,
+                   TrackResult,
+                   auto_seeds,
+                   read_seed_points,
+                   track_points,
+                   track_points_job,
+)
 
 __all__ = [
     "Cancelled", "DenseFlowResult", "FlowEstimator", "FlowFeatures", "FlowPCA", "FlowSolveSettings", "Footage",

@@ -39,8 +39,11 @@ import tomllib
 from pathlib import Path
 
 from ..errors import ConfigError, FacecapError
-from ..io.files import write_json_atomic
 from ..io.csv import write_markers_csv, write_weights_csv
+from ..io.files import write_json_atomic
+from .flow import track_with_flow_job
+from .reading import Cancelled, Footage
+from .tracking import track_points_job
 
 SCHEMA = {
     "source": {"video", "first", "last", "step", "scale", "fps", "frame_offset"},
@@ -139,9 +142,6 @@ class _Progress:
 
 def tracking_job(settings):
     """The :class:`~.reading.Job` described by ``load_track_config`` output (seeds read and checked)."""
-    from .flow import track_with_flow_job
-    from .reading import Footage
-    from .tracking import track_points_job
 
     footage = Footage(settings["video"], **settings["footage"])
     common = dict(points=settings["points"], region=settings["region"], reference=settings["reference"])
@@ -220,8 +220,6 @@ def main(argv=None):
 
 
 def _main(args, stop):
-    from .reading import Cancelled
-
     shown = None
     try:
         settings = load_track_config(args.config)

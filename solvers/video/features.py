@@ -12,6 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from ..strategies import make_strategy
+from ..strategies.base import as_target
+from ..transforms import fit_similarity_2d
 from .pca import flow_pca
 
 EXAMPLE_STRATEGIES = ("linear", "rbf", "pca")
@@ -44,7 +47,6 @@ def remove_similarity(flows, points, stable):
     samples that move with the head only. Per frame a similarity S maps ``p`` to ``p + F(p)`` on
     them; the returned field is ``S^-1(p + F(p)) - p`` (the face's own motion, in the reference frame).
     """
-    from ..transforms import fit_similarity_2d
 
     flows = np.asarray(flows, dtype=np.float64)
     p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
@@ -102,8 +104,6 @@ def solve_from_flow(features, character, *, strategy="linear", example_frames, e
 
 def fit_from_flow(features, character, *, strategy="linear", example_frames, example_weights, **options):
     """The strategy of :func:`solve_from_flow`, fitted (its ``solve(features.coefficients)`` gives the weights)."""
-    from ..strategies import make_strategy
-    from ..strategies.base import as_target
 
     if strategy not in EXAMPLE_STRATEGIES:
         raise FacecapError(f"flow features drive {', '.join(EXAMPLE_STRATEGIES)}; got strategy {strategy!r}")

@@ -20,6 +20,7 @@ import numpy as np
 from ..errors import FacecapError
 from ..markers import MarkerSet
 from .reading import Footage, Job, _cv2
+from .tracking import TrackResult, _check_region, _seeds, _to_source
 
 METHODS = ("dis", "farneback", "tvl1")
 
@@ -298,7 +299,6 @@ def dense_flow_job(footage, *, method="dis", reference=None, region=None, grid_s
     if region is None:
         x0, y0, x1, y1 = 0, 0, W, H
     else:
-        from .tracking import _check_region
         x, y, w, h = _check_region(region, (info.height, info.width))
         s = info.scale
         x0, y0 = int(np.floor(x * s)), int(np.floor(y * s))
@@ -337,7 +337,6 @@ def track_with_flow(footage, *, points=None, names=None, region=None, reference=
 def track_with_flow_job(footage, *, points=None, names=None, region=None, reference=None, method="dis",
                         max_points=100, drift="fuse", error_scale=25.0, **options):
     """:func:`track_with_flow` as a :class:`~.reading.Job` (a frame per step)."""
-    from .tracking import TrackResult, _seeds, _to_source
 
     footage, ref_frame, ref_img = _open(footage, reference)
     info = footage.info

@@ -19,7 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
+from ..options import default
+from ..pipeline import RetargetSettings, hold_locks
+from ..pipeline.result import assemble
+from ..strategies.wiring import example_weights, shape_target
 from .features import EXAMPLE_STRATEGIES, FlowFeatures, fit_from_flow, remove_similarity
+from .flow import dense_flow_job
 from .pca import flow_pca
 from .reading import Footage, Job
 
@@ -41,14 +46,14 @@ class FlowSolveSettings:
         components explaining that fraction)
     """
 
-    method: str = "dis"
+    method: str = default("tracking.method")
     reference: int = None
     region: tuple = None
     stable_region: tuple = ()
     grid_step: int = None
-    drift: str = "fuse"
-    preset: str = "balanced"
-    n_components: int = 12
+    drift: str = default("tracking.drift")
+    preset: str = default("tracking.preset")
+    n_components: int = default("flow.components")
     variance: float = None
 
 
@@ -85,7 +90,6 @@ def check_flow_settings(flow, info):
 def example_matrix(examples, target, frames, *, only=()):
     """(example frames (N,), weights (N, K) in ``target``'s shape order, notes) from ExamplePairs;
     ``only`` (``[examples] frames``) keeps just those posed frames."""
-    from ..strategies.wiring import example_weights
 
     ex_frames = np.asarray(examples.frames, dtype=np.float64).reshape(-1)
     values = np.asarray(examples.weights, dtype=np.float64)
@@ -164,19 +168,13 @@ def retarget_flow(footage, character, examples, *, settings=None, flow=None, pro
 def retarget_flow_job(footage, character, examples, *, settings=None, flow=None):
     """:func:`retarget_flow` as a :class:`~.reading.Job` (a footage frame per step; the features and
     the solve run after the last frame). Everything is validated before the first step."""
-    from ..pipeline import RetargetResult, RetargetSettings
-    from ..character.shape_options import resolve_bounds, resolve_locks
-    from ..strategies.base import Target, as_target
-    from .flow import dense_flow_job
 
     t0 = time.perf_counter()
     settings = RetargetSettings((), (1, 1), strategy="linear") if settings is None else settings
     flow = FlowSolveSettings() if flow is None else flow
     if settings.strategy not in EXAMPLE_STRATEGIES:
         raise FacecapError(f"flow features drive {', '.join(EXAMPLE_STRATEGIES)}; got strategy {settings.strategy!r}")
-    target = as_target(character)
-    lower, upper = resolve_bounds(target.names, target.lower, target.upper, settings.bounds)
-    target = Target(target.names, np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64))
+    target = shape_target(character, settings)
     footage = footage if isinstance(footage, Footage) else Footage(footage)
     info = footage.info
     region, stable = check_flow_settings(flow, info)
@@ -208,13 +206,7 @@ def retarget_flow_job(footage, character, examples, *, settings=None, flow=None)
         fitted = fit_from_flow(features, target, strategy=settings.strategy, example_frames=ex_frames,
                                example_weights=W, **options)
         res = fitted.solve(features.coefficients)
-        weights = res.weights
-        locks = resolve_locks(target.names, settings.locks, n_frames=weights.shape[0])
-        held = ~np.isnan(locks)
-        if held.any():
-            weights = np.where(held & ~np.isnan(weights).all(axis=1)[:, None], locks, weights)
-        if settings.regions:
-            notes.append(f"[solve] regions apply to the geometric strategy only; ignored by '{settings.strategy}'")
+        weights = hold_locks(target.names, res.weights, settings, notes)
         t_end = time.perf_counter()
         F = len(features.frames)
         figures = {
@@ -235,14 +227,9 @@ def retarget_flow_job(footage, character, examples, *, settings=None, flow=None)
         }
         timings = {"flow": t_feat - t_flow, "features": t_solve - t_feat, "solve": t_end - t_solve,
                    "total": t_end - t0}
-        return RetargetResult(
-            frames=features.frames, shape_names=target.names, weights=weights, marker_names=(),
-            residual_rms=np.full(F, np.nan), marker_residual=np.zeros(0), at_bound=res.clamped, stabilise=None,
-            alignment=None, alignment_residual=None, warnings=tuple(dict.fromkeys([*notes, *res.warnings])),
-            timings={k: round(v, 6) for k, v in timings.items()}, strategy=settings.strategy, residual_space=None,
-            source_weights=features.coefficients,
-            source_names=tuple(f"flow_pc{i + 1}" for i in range(pca.n_components)),
-            info={**dict(res.info), "flow": figures}, fitted=fitted,
-        )
+        names = tuple(f"flow_pc{i + 1}" for i in range(pca.n_components))
+        return assemble(fitted, res, weights, frames=features.frames, settings=settings,
+                        notes=[*notes, *res.warnings], timings=timings, info={"flow": figures},
+                        source=(features.coefficients, names))
 
     return Job(steps(), inner.total, info=info)

@@ -53,7 +53,7 @@ class FootageInfo:
 
 def _cv2():
     try:
-        import cv2
+        import cv2  # OpenCV: imported on first use
     except ImportError:  # pragma: no cover - the pinned environment has it
         raise FacecapError("video input needs OpenCV: pip install opencv-contrib-python-headless") from None
     return cv2
@@ -88,6 +88,16 @@ class Job:
     @property
     def finished(self):
         return self.result is not None
+
+    def then(self, finish):
+        """This job, its result passed through ``finish`` when the last step ends."""
+        steps = self._steps
+
+        def finishing():
+            return finish((yield from steps))
+
+        self._steps = finishing()
+        return self
 
     @property
     def fraction(self):

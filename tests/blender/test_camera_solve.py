@@ -1,5 +1,6 @@
 """A 2D take filmed by a scene camera at an angle, solved through that camera (Blender end to end)."""
 
+from dataclasses import replace
 import json
 from pathlib import Path
 
@@ -10,10 +11,10 @@ from mathutils import Matrix, Vector
 from scene_fixtures import build_character
 
 from facecap.facecap_addon.scene_data import basis_from_object
-from facecap.facecap_addon.video_scene import projection_for
+from facecap.facecap_addon.scene_camera import projection_for
 from facecap.solvers import Basis, MarkerSet, RetargetSettings
 from facecap.solvers.character.camera import look_at
-from facecap.solvers.pipeline.markers_2d import retarget_geometric_2d
+from facecap.solvers.pipeline import retarget
 from facecap.solvers.tools.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
@@ -47,9 +48,8 @@ def test_geometric_2d_through_the_scene_camera(empty_scene):
 
     character = basis_from_object(obj, markers.names)
     settings = RetargetSettings(stable, (1, 40))
-    through = retarget_geometric_2d(markers, character, settings,
-                                    projection=projection_for(scene, obj, "camera", "Witness"))
-    front = retarget_geometric_2d(markers, character, settings, projection=projection_for(scene, obj))
+    through = retarget(markers, character, replace(settings, projection=projection_for(scene, obj, "camera", "Witness")))
+    front = retarget(markers, character, replace(settings, projection=projection_for(scene, obj)))
     e_cam = float(np.sqrt(np.mean((through.weights - W) ** 2)))
     e_front = float(np.sqrt(np.mean((front.weights - W) ** 2)))
     print(f"Blender witness camera at 25 deg: weights RMSE camera {e_cam:.4f}, front view {e_front:.4f}")

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import cli
+from facecap.facecap_addon import headless
 from facecap.solvers.engine import split as engine_split
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import InputFileError
@@ -39,10 +39,10 @@ def _run(monkeypatch, config, beside):
         calls.append(kw)
         return real(here, there, **kw)
 
-    monkeypatch.setattr(engine_split, "run_beside", spy)
-    monkeypatch.setattr(cli, "PARALLEL_READ_BYTES", -1 if beside else 1 << 60)
-    monkeypatch.setattr(cli, "PARALLEL_WRITE_VALUES", -1 if beside else 1 << 60)
-    cli.run_retarget(config, quiet=True)
+    monkeypatch.setattr(headless, "run_beside", spy)
+    monkeypatch.setattr(headless, "PARALLEL_READ_BYTES", -1 if beside else 1 << 60)
+    monkeypatch.setattr(headless, "PARALLEL_WRITE_VALUES", -1 if beside else 1 << 60)
+    headless.run_take(config, quiet=True)
     return calls
 
 

@@ -7,7 +7,7 @@ import pytest
 from scene_fixtures import LayoutStub
 
 from facecap.facecap_addon import panels_video, properties_video
-from facecap.facecap_addon.video_scene import projection_for
+from facecap.facecap_addon.scene_camera import projection_for
 from facecap.solvers.character.camera import Camera
 
 

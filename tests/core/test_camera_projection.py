@@ -1,5 +1,6 @@
 """2D takes solved through a scene camera (perspective) versus the orthographic front view."""
 
+from dataclasses import replace
 import json
 from pathlib import Path
 
@@ -8,7 +9,7 @@ import pytest
 
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings
 from facecap.solvers.character.camera import Camera, look_at
-from facecap.solvers.pipeline.markers_2d import retarget_geometric_2d
+from facecap.solvers.pipeline import retarget
 from facecap.solvers.tools.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
@@ -58,8 +59,8 @@ def test_camera_projection_beats_the_front_view_at_25_degrees(sample):
     cam = camera_at(25.0)
     markers = rendered_tracks(basis, W, cam, stable)
     settings = RetargetSettings(stable, (1, 50))
-    through = retarget_geometric_2d(markers, basis, settings, projection=cam)
-    front = retarget_geometric_2d(markers, basis, settings, projection="front")
+    through = retarget(markers, basis, replace(settings, projection=cam))
+    front = retarget(markers, basis, replace(settings, projection="front"))
     e_cam, e_front = rmse(through, W), rmse(front, W)
     print(f"yaw 25 deg: weights RMSE camera {e_cam:.4f}, front view {e_front:.4f}")
     assert e_cam <= 0.06
@@ -99,7 +100,7 @@ def test_camera_errors_name_the_problem(sample):
         Camera.from_blender(sensor_fit="DIAGONAL")
     markers = rendered_tracks(basis, W[:60], camera_at(0.0), stable)
     with pytest.raises(FacecapError, match="projection must be 'front' or a camera"):
-        retarget_geometric_2d(markers, basis, RetargetSettings(stable, (1, 50)), projection="camera")
+        retarget(markers, basis, RetargetSettings(stable, (1, 50), projection="camera"))
 
 
 CONFIG = """
@@ -120,9 +121,9 @@ frames = [1, 30]
     ("", "front", None, None),
     ('projection = "camera"', "camera", None, None),
     ('projection = "camera"\ncamera = "Witness Cam"', "camera", "Witness Cam", None),
-    ('projection = "fisheye"', None, None, r"\[solve.projection\] expected \"front\" or \"camera\""),
+    ('projection = "fisheye"', None, None, r"\[solve.projection\] expected one of front, camera; got 'fisheye'"),
     ('camera = "Cam"', None, None, r"\[solve.camera\] a camera is only used with projection = \"camera\""),
-    ("projection = 1", None, None, r"\[solve.projection\] wrong type int"),
+    ("projection = 1", None, None, r"\[solve.projection\] expected one of front, camera; got 1"),
 ])
 def test_projection_keys_in_the_take_config(tmp_path, solve, projection, camera, message):
     from facecap.solvers import ConfigError, load_take_config

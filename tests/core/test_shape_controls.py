@@ -168,9 +168,9 @@ def test_curve_function_is_shared_with_parallel():
     from facecap.solvers.strategies import parallel
 
     x = np.linspace(-0.2, 1.2, 8)
-    assert_allclose(parallel._curve("smoothstep")(x), curve_function("smoothstep")(x))
+    assert_allclose(parallel.parallel_curve("smoothstep")(x), curve_function("smoothstep")(x))
     with pytest.raises(FacecapError, match="parallel: unknown curve"):
-        parallel._curve("nope")
+        parallel.parallel_curve("nope")
 
 
 def _config(tmp_path, text):
@@ -198,11 +198,11 @@ def test_tuning_and_controls_sections_of_a_take_config(tmp_path):
 
 
 @pytest.mark.parametrize("text, match", [
-    ("[tuning]\nmu = 0\n", r"\[tuning.mu\] must be > 0"),
-    ("[tuning]\nmu = \"auto\"\n", r"\[tuning.mu\] wrong type str"),
+    ("[tuning]\nmu = 0\n", r"\[tuning.mu\] expected a number > 0; got 0"),
+    ("[tuning]\nmu = \"auto\"\n", r"\[tuning.mu\] expected a number; got 'auto'"),
     ("[tuning]\nlibary = \"v.npz\"\n", r"\[tuning.libary\] unknown key"),
     ("[controls]\njawOpen = { gain = \"x\" }\n", r"\[controls.jawOpen\] `gain` must be a finite number"),
-    ("[controls]\njawOpen = 1.2\n", r"\[controls.jawOpen\] expected a table of controls"),
+    ("[controls]\njawOpen = 1.2\n", r"\[controls.jawOpen\] expected a table; got 1.2"),
     ("[controls]\npreset = \"missing.json\"\n", r"\[controls.preset\] file not found"),
 ])
 def test_bad_tuning_and_controls_keys_are_named(tmp_path, text, match):

@@ -130,7 +130,7 @@ def test_linear_gaps_cost_little(gappy_takes):
 
 
 def test_pca_gappy_recovers_the_span_the_gap_free_rows_miss():
-    from facecap.solvers.strategies.base import pca, pca_gappy
+    from facecap.solvers.strategies.lowrank import pca, pca_gappy
 
     rng = np.random.default_rng(1)
     basis = np.linalg.qr(rng.normal(size=(40, 4)))[0].T  # (4, 40) orthonormal

@@ -91,7 +91,7 @@ def test_farthest_frames_cover_the_take(take):
 
 def _farthest_reference(X, n, n_components=18):
     """farthest_frames as it was before frames with gaps counted (gap-free takes only)."""
-    from facecap.solvers.strategies.base import pca
+    from facecap.solvers.strategies.lowrank import pca
 
     F = X.reshape(len(X), -1)
     _, comps, _, _ = pca(F, center=False, n_components=n_components)
@@ -105,7 +105,7 @@ def _farthest_reference(X, n, n_components=18):
 
 
 def test_gap_free_takes_are_unchanged(take):
-    from facecap.solvers.strategies.base import pca
+    from facecap.solvers.strategies.lowrank import pca
 
     basis, W, X = take
     X = X + 1e-4 * np.random.default_rng(1).normal(size=X.shape)  # noise: every component kept at variance=1
@@ -124,7 +124,7 @@ def test_gap_free_takes_are_unchanged(take):
 
 def test_fill_gaps_matches_least_squares_per_frame():
     """The Woodbury fill equals a least-squares fit on each frame's visible coordinates."""
-    from facecap.solvers.strategies.base import fill_gaps, pca
+    from facecap.solvers.strategies.lowrank import fill_gaps, pca
 
     rng = np.random.default_rng(2)
     X = rng.normal(size=(200, 12)) @ rng.normal(size=(12, 60)) + 0.01 * rng.normal(size=(200, 60))

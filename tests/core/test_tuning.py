@@ -221,7 +221,7 @@ def test_through_the_calibrated_strategy():
     ``actor_basis_from_poses``; the take is solved by ``CalibratedStrategy`` (head motion, rigid
     alignment onto the calibration neutral); the tuned library goes back in as ``actor_basis``."""
     from facecap.solvers.tools.compare import STABLE, actor_take, calibration_weights
-    from facecap.solvers.strategies.base import align_to, reorder
+    from facecap.solvers.strategies.sources import align_to, reorder
     from facecap.solvers.strategies.calibrated import CalibratedStrategy
     from facecap.solvers.tools.synth import synthesize_take
 

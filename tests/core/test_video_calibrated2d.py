@@ -8,7 +8,6 @@ import pytest
 
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings
 from facecap.solvers.pipeline import retarget
-from facecap.solvers.pipeline.markers_2d import retarget_markers_2d
 from facecap.solvers.strategies.options import CalibrationSettings, StrategyInputs
 from facecap.solvers.tools.synth import performance_weights
 
@@ -71,10 +70,10 @@ def test_calibrated_2d_from_a_filmed_calibration(sample):
     assert r.fitted.actor_basis.neutral.shape == (basis.n_markers, 2)  # the actor basis is 2D (pixels)
     assert np.nanmedian(r.residual_rms) < 1.0  # px: noise is 0.3 px
     # Without the zoom correction ("rigid" keeps the calibration's scale) the weights come out ~2500/2200 too big.
-    rigid = retarget_markers_2d(take, basis.shape_names, settings.__class__(
+    rigid = retarget(take, basis.shape_names, settings.__class__(
         stable, (1, 50), strategy="calibrated",
         calibration=CalibrationSettings(poses=poses, neutral_frames=(1, NEUTRAL), align="rigid")),
-        StrategyInputs(calibration=calibration))
+        inputs=StrategyInputs(calibration=calibration))
     assert float(np.sqrt(np.mean((rigid.weights - W) ** 2))) > rmse
 
 
@@ -85,13 +84,11 @@ def test_2d_takes_need_2d_calibrations_and_fitted_strategies(sample):
     three_d = MarkerSet(basis.marker_names, np.arange(1, 81), np.zeros((80, basis.n_markers, 3)), units="m")
     cal = CalibrationSettings(poses=(("jawOpen", ((5, 9),)),), neutral_frames=(1, 4))
     with pytest.raises(FacecapError, match=r"\[calibration\] markers: a 2D take needs 2D tracks"):
-        retarget_markers_2d(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="calibrated",
-                                                                      calibration=cal),
-                            StrategyInputs(calibration=three_d))
+        retarget(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="calibrated", calibration=cal),
+                 inputs=StrategyInputs(calibration=three_d))
     with pytest.raises(FacecapError, match="does not solve 2D image tracks"):
-        retarget_markers_2d(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="refine",
-                                                                      calibration=cal),
-                            StrategyInputs(calibration=take))
+        retarget(take, basis.shape_names, RetargetSettings(stable, (1, 50), strategy="refine", calibration=cal),
+                 inputs=StrategyInputs(calibration=take))
 
 
 def test_linear_from_2d_tracks_and_posed_frames(sample):
@@ -135,5 +132,5 @@ poses = { jawOpen = [40, 48] }
     cfg = load_take_config(path)
     assert cfg.calibration_units == "px" and cfg.settings.calibration.align == "similarity"
     path.write_text(text.replace('units = "px"\nalign', 'units = "pixels"\nalign'))
-    with pytest.raises(ConfigError, match=r"\[calibration.units\] units must be one of .*'px'"):
+    with pytest.raises(ConfigError, match=r"\[calibration.units\] expected one of m, cm, mm, px; got 'pixels'"):
         load_take_config(path)

@@ -151,7 +151,7 @@ def test_a_video_take_config(tmp_path):
     (VIDEO + '[solve]\nstrategy = "geometric"\n' + EXAMPLES, "solve.strategy", "linear, rbf, pca"),
     (VIDEO + 'markers = "take.csv"\n' + EXAMPLES, "source.markers", "not both"),
     ('[source]\nmarkers = "take.csv"\n[tracking]\nregion = [1, 2, 3, 4]\n', "source.video", "missing"),
-    (VIDEO + 'scale = 2\n' + EXAMPLES, "source.scale", "\\(0, 1\\]"),
+    (VIDEO + 'scale = 2\n' + EXAMPLES, "source.scale", "> 0 and <= 1; got 2"),
     (VIDEO + EXAMPLES + 'markers = "other.csv"\n', "examples.markers", "frames of the footage"),
 ])
 def test_video_config_errors_name_the_key(tmp_path, body, key, message):

@@ -132,7 +132,7 @@ def test_bad_config_names_the_key(tmp_path):
     config.write_text('[source]\nmarkers = "x.csv"\nunits = "inch"\n[target]\nobject = "Face"\n[stabilise]\nmarkers=["a","b","c"]\n[neutral]\nframes=[1,2]\n')
     proc = run("-m", "facecap", "retarget", "--config", str(config))
     assert proc.returncode == 1
-    assert proc.stderr.strip() == f"facecap: error: {config}: [source.units] units must be one of ['bu', 'cm', 'm', 'mm', 'px']; got 'inch'"
+    assert proc.stderr.strip() == f"facecap: error: {config}: [source.units] expected one of m, cm, mm, bu, px; got 'inch'"
 
 
 def test_output_may_not_overwrite_input_blend(tmp_path):

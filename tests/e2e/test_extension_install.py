@@ -24,7 +24,7 @@ REPO = Path(__file__).resolve().parents[2]
 TIMEOUT = 300
 
 # Paths that are for developers only and must never ship in the extension zip.
-DEV_ONLY_DIRS = ("tests/", ".ci/", ".git/", ".pytest_cache/", "sample_blends/", ".venv/")
+DEV_ONLY_DIRS = ("tests/", ".ci/", ".git/", ".pytest_cache/", "sample_blends/", ".venv/", "docs/")
 DEV_ONLY_FILES = ("pyproject.toml", ".git", ".gitignore")
 
 INSTALL_SCRIPT = textwrap.dedent(

@@ -1,0 +1,393 @@
+"""The one headless path: a take config -> open the character -> ``solvers.solve`` -> key -> write.
+
+``retarget``, ``tune`` and a ``[source] video`` take all run ``run_take``; what differs is only what
+the ``SolveRequest`` carries (corrections to retune from, footage instead of markers). Expected
+failures raise ``FacecapError`` with one line naming the file and key; the CLI turns them into
+exit status 1.
+"""
+
+import dataclasses
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..solvers.capture.cleaning import clean
+from ..solvers.config.strategies import load_strategy_inputs
+from ..solvers.engine.split import run_beside
+from ..solvers.errors import ConfigError, InputFileError
+from ..solvers.io import import_markers
+from ..solvers.io.csv import write_weights_csv
+from ..solvers.config.checks import check_against_take
+from ..solvers.config.paths import check_outputs, take_outputs
+from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
+from ..solvers.solve import SolveRequest, solve_job
+from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
+from ..solvers.video.cli import _Progress, sigint_cancels
+from ..solvers.video.flow_config import check_against_footage
+from ..solvers.video.reading import Footage
+from .scene_data import basis_from_object
+
+#: Take files larger than this are read in a forked child while Blender starts (smaller ones are
+#: read in less time than the fork costs).
+PARALLEL_READ_BYTES = 4 << 20
+#: Weights (frames x shapes) above which the weights CSV is written in a forked child.
+PARALLEL_WRITE_VALUES = 200_000
+
+
+def progress_line(message):
+    print(f"facecap: {message}", file=sys.stderr, flush=True)
+
+
+def run_take(config, *, quiet=False, tune=False, replace=False):
+    """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
+
+    ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
+    are retuned from and the new library version stored (``[tuning] out``). An existing output
+    .blend is added to (everything in it kept, the new solve the active layer) unless ``replace``:
+    then the run starts from ``[target] blend``. Nothing is read or solved before every output path
+    is checked (``preflight``).
+    """
+    say = (lambda _m: None) if quiet else progress_line
+    t0 = time.perf_counter()
+    timings = {}
+    base = preflight(config, tune=tune, replace=replace)
+    take, obj, timings["read"], t_open = _read_and_open(config, say, base)
+    check_against_take(config, take.markers, take.inputs)
+    t1 = time.perf_counter()
+    request, source_info = _request(config, obj, take, tune=tune)
+    timings["load_character"] = time.perf_counter() - t1 + t_open
+    say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
+        f"(strategy: {request.settings.strategy})")
+    result = _run(request, quiet=quiet)
+    outputs, extra = {}, {}
+    if request.version is not None:
+        extra["library"] = {"file": str(config.tuning.library), "version": request.version.name,
+                            "parent": request.version.parent}
+    if tune:
+        extra["tuning"] = _store_retune(config, result.retune)
+    if take.footage is not None:
+        extra["flow"] = result.info["flow"]
+    if config.output_actor_basis is not None:
+        _write_actor_basis(config, result, outputs)
+    if config.output_blend is not None:
+        extra["output_blend"] = base.report()
+    outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
+                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=take.fps())
+    return result, outputs
+
+
+@dataclasses.dataclass(frozen=True)
+class Base:
+    """The .blend a run opens: ``[target] blend``, or the existing output .blend it adds to."""
+
+    path: Path  # None: the open file (or Blender's start-up scene)
+    mode: str  # "new" (no output .blend yet, or none asked for), "added" (to the existing output), "replaced"
+
+    def report(self):
+        return {"mode": self.mode, "opened": None if self.path is None else str(self.path)}
+
+
+def preflight(config, *, tune=False, replace=False):
+    """Every check that needs no solve, before any work: something will be written, no output is an
+    input or another output, every output can be written; stale temporary files of earlier killed
+    runs are removed. Returns the ``Base`` to open."""
+    if tune and config.video is not None:
+        raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
+    if not tune and not take_outputs(config):
+        raise ConfigError("nothing would be written: give [output] blend, weights or report", path=config.path,
+                          key="output")
+    check_outputs(config, library=versions_folder(config) if tune else None)
+    for path in take_outputs(config).values():
+        remove_stale_temporaries(path.parent)
+    out = config.output_blend
+    if out is not None and out.is_file():
+        if replace:
+            return Base(config.target_blend, "replaced")
+        check_blend_file(out, "[output.blend]", config.path)
+        return Base(out, "added")
+    return Base(config.target_blend, "new")
+
+
+def check_blend_file(path, key, config_path):
+    """Raise ConfigError unless ``path`` starts like a .blend (plain, gzip or zstd compressed)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError as exc:
+        raise ConfigError(f"{key} {path}: cannot be read ({exc.strerror})", path=config_path) from None
+    if not head.startswith((b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")):
+        raise ConfigError(f"{key} {path}: not a .blend file", path=config_path)
+
+
+@dataclasses.dataclass
+class _Take:
+    """What was read of a take config's source."""
+
+    markers: object = None  # MarkerSet
+    footage: object = None  # solvers.video.Footage
+    inputs: object = None  # StrategyInputs
+    source: dict = None  # format, units... for the report
+    notes: tuple = ()
+    cleaning: tuple = ()
+
+    def fps(self):
+        if self.markers is not None:
+            return self.markers.fps
+        if self.footage is not None:
+            return self.footage.info.fps
+        return self.inputs.weights.fps
+
+    def describe(self):
+        if self.markers is not None:
+            return f"{self.markers.n_frames} frames from {self.markers.n_markers} markers"
+        if self.footage is not None:
+            info = self.footage.info
+            return f"{info.n_frames} footage frames ({info.work_width}x{info.work_height})"
+        return f"{len(self.inputs.weights.frames)} frames of {len(self.inputs.weights.names)} solved channels"
+
+
+def _read_and_open(config, say, base):
+    """(take, target object, read seconds, open seconds). A big marker file is read in a forked
+    child while Blender starts and opens the character (measured on a 36,000-frame CSV take: 1.0-1.5 s
+    of reading beside 0.8-1.0 s of start-up); a bad file is read again here, so its error is raised here."""
+
+    def read():
+        t = time.perf_counter()
+        return read_take(config, say), time.perf_counter() - t
+
+    def open_blend():  # Blender's start-up (the first ``import bpy``) is in here
+        t = time.perf_counter()
+        return open_target(config, say, base), time.perf_counter() - t
+
+    path = config.markers_path
+    if path is not None and path.is_file() and path.stat().st_size > PARALLEL_READ_BYTES:
+        (obj, t_open), (take, t_read) = run_beside(open_blend, read)
+    else:
+        take, t_read = read()
+        obj, t_open = open_blend()
+    return take, obj, t_read, t_open
+
+
+def read_take(config, say):
+    """Read the take's source (markers cleaned as ``[clean]`` says, footage, or solved weights) and
+    the strategy's inputs."""
+
+
+
+    inputs = load_strategy_inputs(config)
+    if config.video is not None:
+        say(f"[1/5] reading footage {config.video.path}")
+        footage = Footage(config.video.path, **config.video.footage)
+        check_against_footage(config.path, config.video, footage.info)
+        return _Take(footage=footage, inputs=inputs, notes=tuple(inputs.notes))
+    if config.markers_path is None:
+        say(f"[1/5] reading solved weights {config.weights_path}")
+        return _Take(inputs=inputs)
+    say(f"[1/5] reading markers {config.markers_path}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        imported = import_markers(config.markers_path, units=config.units, fps=config.fps, **config.read_options)
+    notes = tuple(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
+    cleaned = clean(imported.markers, config.clean)
+    # one memory layout whichever process reads the take (a pickled array comes back C-ordered,
+    # and sums over another layout round differently in the last bits)
+    markers = dataclasses.replace(cleaned.markers, positions=np.ascontiguousarray(cleaned.markers.positions))
+    return _Take(markers=markers, inputs=inputs, source={"format": imported.format, "units": imported.markers.units},
+                 notes=notes, cleaning=tuple(cleaned.report.summary().splitlines()))
+
+
+def open_target(config, say, base=None):
+    """Open the run's ``Base`` .blend (default ``[target] blend``, if given); returns ``[target] object``."""
+    import bpy  # bpy: Blender starts on first import
+
+    base = base or Base(config.target_blend, "new")
+    if base.path is not None:
+        if not base.path.is_file():
+            raise InputFileError(base.path, "file not found (config [target] blend)")
+        check_blend_file(base.path, "[output.blend]" if base.mode == "added" else "[target.blend]", config.path)
+        say(f"[2/5] opening {base.path}" + (" (adding to it)" if base.mode == "added" else ""))
+        bpy.ops.wm.open_mainfile(filepath=str(base.path), load_ui=False)
+    obj = bpy.data.objects.get(config.target_object)
+    if obj is None:
+        where = "the existing [output] blend (--replace starts from [target] blend)" if base.mode == "added" \
+            else "the .blend"
+        raise ConfigError(f"no object named '{config.target_object}' in {where}", path=config.path,
+                          key="target.object")
+    return obj
+
+
+def _request(config, obj, take, *, tune):
+    """The SolveRequest of a take config, and the report's source fields."""
+    from .take import character_target  # loads bpy
+
+    settings = config.settings
+    # Only geometric samples the character at bound vertices; the others need its shape names and ranges.
+    character = basis_from_object(obj, take.markers.names) if settings.strategy == "geometric" else \
+        character_target(obj)
+    if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
+        import bpy  # bpy: Blender starts on first import
+
+        from .scene_camera import projection_for  # loads bpy
+
+        settings = dataclasses.replace(settings, projection=projection_for(bpy.context.scene, obj, "camera",
+                                                                           config.camera_name))
+    tuning, version, corrections = config.tuning, None, None
+    if tuning is not None and tuning.library is not None:
+        version = load_version(tuning.library)
+    if tune:
+        corrections = _corrections(config, _shape_names(character))
+    request = SolveRequest(character=character, settings=settings, inputs=take.inputs, markers=take.markers,
+                           footage=take.footage, flow=getattr(config.video, "flow", None), version=version,
+                           corrections=corrections, mu=None if tuning is None else tuning.mu,
+                           parent="" if version is None else version.name, controls=config.controls or None)
+    return request, _source_fields(config, take)
+
+
+def _shape_names(character):
+    return character.shape_names if hasattr(character, "shape_names") else character.names
+
+
+def _corrections(config, names):
+    tuning = config.tuning
+    if tuning is None or tuning.corrections is None:
+        raise ConfigError("the tune command needs the animator's corrections (frame,<shape>,... CSV)",
+                          path=config.path, key="tuning.corrections")
+    return read_corrections_csv(tuning.corrections, names)
+
+
+def _source_fields(config, take):
+    """Where the take came from, for the report."""
+    if take.markers is not None:
+        m = take.markers
+        return {"markers_file": str(config.markers_path),
+                "source": {**take.source, "fps": m.fps, "segments": dict(m.segments.items())}}
+    if take.footage is not None:
+        info = take.footage.info
+        return {"video_file": config.video.path, "examples_file": str(config.examples_weights_path),
+                "source": {"format": "video", "kind": info.kind, "fps": info.fps, "width": info.width,
+                           "height": info.height, "scale": info.scale, "frames": [info.frames[0], info.frames[-1]],
+                           "count": info.n_frames}}
+    track = take.inputs.weights
+    return {"weights_file": str(config.weights_path),
+            "source": {"format": track.format, "fps": track.fps, "timecode": track.timecode}}
+
+
+def _run(request, *, quiet):
+    """Run the request; footage shows progress on stderr and Ctrl-C stops it between two frames with
+    ``Cancelled`` (nothing written; the CLI exits 130)."""
+
+    job = solve_job(request)
+    if request.footage is None:
+        return job.run()
+    shown = None if quiet else _Progress(sys.stderr, f"flow ({request.flow.method})")
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            result = job.run(progress)
+        finally:
+            if shown is not None:
+                shown.close_line()
+    return result
+
+
+def versions_folder(config):
+    """``[tuning] out``, else the folder of the first [output] file, else ``<config folder>/library``."""
+    if config.tuning is not None and config.tuning.out is not None:
+        return config.tuning.out
+    for path in (config.output_report, config.output_weights, config.output_blend):
+        if path is not None:
+            return Path(path).parent
+    return config.path.parent / "library"
+
+
+def _store_retune(config, tuned):
+    """Store the retune's new version (and, once, the original: the way back); the report's fields."""
+
+    folder = versions_folder(config)
+    saved = {}
+    if config.tuning.library is None and not (folder / f"{tuned.parent_version.name}.npz").exists():
+        saved["original"] = str(save_version(tuned.parent_version, folder))  # the way back, once
+    if tuned.changed:
+        saved["version"] = str(save_version(tuned.version, folder))
+    return {**tuned.report(), "files": saved, "corrections_file": str(config.tuning.corrections)}
+
+
+def _write_actor_basis(config, result, outputs):
+    actor_basis = getattr(result.fitted, "actor_basis", None)
+    if actor_basis is None:
+        raise ConfigError(f"strategy '{result.strategy}' has no actor basis to store (calibrated and refine do)",
+                          path=config.path, key="output.actor_basis")
+    config.output_actor_basis.parent.mkdir(parents=True, exist_ok=True)
+    actor_basis.save_npz(config.output_actor_basis)
+    outputs["actor_basis"] = str(config.output_actor_basis)
+
+
+def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields, fps=None):
+    """Key ``result`` as ``obj``'s solve layer and write ``[output]`` weights / .blend / report.
+
+    ``outputs`` holds what was already written; ``report_fields`` are added to the JSON report
+    (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings. The scene
+    takes the take's frame range and ``fps``. Returns ``outputs`` with the action and the written paths.
+    """
+    import bpy  # bpy: Blender starts on first import
+
+    from . import anim  # loads bpy
+    from .import_scene import fit_scene_to_take  # loads bpy
+    from .take import key_weights  # loads bpy
+
+    def key_and_save():
+        t3 = time.perf_counter()
+        say("[4/5] keying")
+        action = key_weights(obj, result, anim.unique_action_name(config.action_name))
+        fit_scene_to_take(bpy.context.scene, result.frames, fps)
+        timings["key"] = time.perf_counter() - t3
+        say("[5/5] writing outputs")
+        if config.output_blend is not None:
+            _save_blend_atomic(config.output_blend)
+        return action
+
+    def write_weights():
+        write_weights_csv(config.output_weights, result.frames, result.shape_names, result.weights)
+
+    if config.output_weights is not None and result.weights.size > PARALLEL_WRITE_VALUES:
+        # the weights CSV is written by a forked child while Blender keys and saves (measured on
+        # 36,000 frames x 52 shapes: 0.4-0.6 s of writing beside 1.2 s); a failed child's file is
+        # written again here
+        action, _ = run_beside(key_and_save, write_weights, let_finish=True)
+    else:
+        action = key_and_save()
+        if config.output_weights is not None:
+            write_weights()
+    outputs = {"action": action.name, **outputs}
+    if config.output_weights is not None:
+        outputs["weights"] = str(config.output_weights)
+    if config.output_blend is not None:
+        outputs["blend"] = str(config.output_blend)
+    timings["total"] = time.perf_counter() - t0
+    if config.output_report is not None:
+        report = result.report()
+        report["config"] = str(config.path)
+        report.update(report_fields)
+        report["outputs"] = outputs
+        report["warnings"] = list(notes) + report["warnings"]
+        report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
+        write_json_atomic(config.output_report, report)
+        outputs["report"] = str(config.output_report)
+    for note in list(notes) + list(result.warnings):
+        say(f"warning: {note}")
+    return outputs
+
+
+def _save_blend_atomic(path):
+    import bpy  # bpy: Blender starts on first import
+
+    with atomic_path(path, suffix=".blend") as tmp:
+        tmp.unlink()  # a name only: over an existing file Blender would keep a .blend1 backup of it
+        bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, compress=True)

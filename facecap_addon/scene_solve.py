@@ -1,0 +1,92 @@
+"""The sidebar's side of the one solve path (``solvers.solve``): a ``SolveRequest`` from the scene
+and the solve layer it keys.
+
+*Solve and Key*, *Retune*, *Fit Gain and Offset* and *Solve from Clip Flow* all build their request
+here (``request_from_scene``): the take and the character read from the scene, the active library
+version, the animator's locks and the per-shape controls.
+"""
+
+import glob
+from dataclasses import replace
+
+import numpy as np
+
+from ..solvers.solve import SolveRequest, solve
+from . import anim, layers, take
+from .scene_camera import projection_from_sidebar
+from .scene_data import basis_from_object
+from .tuning_scene import load_version, shape_controls
+
+
+def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=None, mu=None):
+    """A SolveRequest for the sidebar's take and strategy.
+
+    ``footage`` (with ``flow``): a video take solved from flow features instead of the imported
+    markers; ``corrections`` ({frame: {shape: value}}) and ``mu``: retune from them and re-solve.
+    """
+
+    strategy = settings.strategy if footage is None else settings.video.flow_strategy
+    markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
+    if strategy == "geometric":
+        character = basis_from_object(settings.target, markers.names)
+    else:
+        character = take.character_target(settings.target)
+    inputs = take.strategy_inputs(settings, strategy)
+    rsettings = replace(take.retarget_settings(settings), strategy=strategy)
+    if markers is not None:
+        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames))
+        if markers.dim == 2:
+            rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
+    # library versions are learned from the marker take: a footage solve does not use them
+    version = load_version(scene, settings.library_active) if settings.library_active and footage is None else None
+    return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
+                        flow=flow, version=version, corrections=corrections, mu=mu,
+                        parent=settings.library_active or "", controls=shape_controls(settings), fps=settings.fps)
+
+
+def solve_take(settings, scene, **kwargs):
+    """Solve the sidebar's take (controls applied); returns RetargetResult."""
+    return solve(request_from_scene(settings, scene, **kwargs))
+
+
+def _layered_locks(settings, frames):
+    """{shape: (F,) value the animator sees} for locked shapes that have a solve layer or keys."""
+    key = settings.target.data.shape_keys
+    if key is None or key.animation_data is None:
+        return {}
+    locked = [s.name for s in settings.shapes if s.lock and s.name in key.key_blocks]
+    has_solve = layers.solved_action(key) is not None
+    keyed = {n for n in locked if layers.edit_key_frames(key, [n]).size}
+    names = [n for n in locked if has_solve or n in keyed]
+    if not names:
+        return {}
+    _, final = layers.layer_values(key, names, frames)
+    return dict(zip(names, final.T))
+
+
+def animator_locks(settings, frames):
+    """Solve locks: a locked shape is held at what the animator sees on every frame (the solve
+    layer plus their keys) when there is such a layer, else at its lock value."""
+    layered = _layered_locks(settings, np.asarray(frames, dtype=np.float64))
+    return tuple((glob.escape(s.name), layered.get(s.name, s.lock_value)) for s in settings.shapes if s.lock)
+
+
+def key_solve(settings, result):
+    """Key ``result`` as the target's new solve layer; returns the action.
+
+    A locked shape keeps its previous solve-layer curve: the solve held it at what the animator saw
+    (solve layer + their keys), so re-keying that value under their keys would count them twice.
+    """
+    key = settings.target.data.shape_keys
+    locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
+    if locked and key is not None and layers.solved_action(key) is not None:
+        previous, _ = layers.layer_values(key, locked, result.frames)
+        weights = result.weights.copy()
+        for j, n in enumerate(locked):
+            if not np.isnan(previous[:, j]).all():
+                weights[:, result.shape_names.index(n)] = previous[:, j]
+        result = replace(result, weights=weights)
+    name = settings.take_name or "FaceCap"
+    action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
+    settings.last_action = action.name
+    return action

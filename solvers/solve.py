@@ -1,0 +1,102 @@
+"""The one solve path. Every front end describes its take as a ``SolveRequest`` and runs it here:
+the sidebar's *Solve and Key*, *Retune* and *Solve from Clip Flow* (``facecap_addon.scene_solve``)
+and the command line's ``retarget``, ``tune`` and video retarget (``facecap_addon.headless``).
+
+A request carries the take (markers, or footage for flow features; solved weights ride in
+``inputs.weights`` for ``parallel``), the character, the settings and inputs, and optionally a
+stored library version to solve with, the animator's corrections to retune from, and per-shape
+controls applied to the weights. The result is always a ``RetargetResult`` (``pipeline.result``).
+"""
+
+from dataclasses import dataclass, replace
+
+from .character.shape_controls import apply_controls, locks_from_controls
+from .errors import FacecapError
+from .pipeline import retarget
+from .strategies.options import StrategyInputs
+from .tuning.take import apply_version, retune_take
+from .video.flow_solve import retarget_flow_job
+from .video.reading import Job
+
+
+@dataclass(frozen=True, eq=False)
+class SolveRequest:
+    """What one solve needs, whichever front end built it.
+
+    character : Basis (geometric: the shapes at the bound points) or Target / shape names
+    settings : RetargetSettings
+    inputs : StrategyInputs (calibration, examples, training take, or the solved weights of ``parallel``)
+    markers : MarkerSet of a marker take (None for ``parallel`` and video takes)
+    footage : solvers.video.Footage of a video take (flow features; with ``flow``, FlowSolveSettings)
+    version : tuning.take.LibraryVersion to solve with instead of what the inputs give
+    corrections : {frame: {shape: value}} the animator set: retune from them, then re-solve
+    mu, parent : the retune's prior (None: automatic) and the name of the version solved with
+    controls : {shape or glob: ShapeControl} applied to the solved weights; their locks hold shapes
+        in the solve
+    fps : frame rate for the controls' smoothing (default: the take's)
+    """
+
+    character: object
+    settings: object
+    inputs: StrategyInputs = StrategyInputs()
+    markers: object = None
+    footage: object = None
+    flow: object = None
+    version: object = None
+    corrections: dict = None
+    mu: float = None
+    parent: str = ""
+    controls: dict = None
+    fps: float = None
+
+
+def solve(request, progress=None):
+    """Run ``request`` to the end; ``progress(done, total) -> bool`` (False cancels) sees footage
+    frames. Returns a RetargetResult (``result.retune`` holds the retune when corrections were given)."""
+    return solve_job(request).run(progress)
+
+
+def solve_job(request):
+    """``solve`` as a ``Job`` that advances a footage frame per step (the modal operators and the
+    CLI's Ctrl-C); a marker take is one step. Everything is validated before the first step."""
+    character, inputs, settings = request.character, request.inputs, request.settings
+    if request.version is not None:
+        character, inputs, settings = apply_version(request.version, character, inputs, settings)
+    if request.controls:
+        names = character.shape_names if hasattr(character, "shape_names") else _names(character)
+        settings = replace(settings, locks=tuple(settings.locks) + locks_from_controls(request.controls, names))
+    if request.footage is not None:
+        if request.corrections is not None:
+            raise FacecapError("tuning a video take from corrections is not supported yet; use the shape controls")
+
+        job = retarget_flow_job(request.footage, character, inputs.examples, settings=settings, flow=request.flow)
+        fps = request.footage.info.fps
+        return job.then(lambda result: _with_controls(result, request, fps))
+
+    def steps():
+        result = retarget(request.markers, character, settings, inputs=inputs)
+        if request.corrections is not None:
+            tuned = retune_take(request.markers, character, settings, inputs, request.corrections, mu=request.mu,
+                                base=result, parent=request.parent)
+            result = replace(tuned.result, retune=tuned)
+        yield None
+        return _with_controls(result, request, _take_fps(request))
+
+    return Job(steps(), 1, what="solve")
+
+
+def _names(character):
+    return tuple(getattr(character, "names", character))
+
+
+def _take_fps(request):
+    if request.markers is not None:
+        return request.markers.fps
+    return getattr(request.inputs.weights, "fps", None)
+
+
+def _with_controls(result, request, fps):
+    if not request.controls:
+        return result
+    fps = request.fps or fps
+    return replace(result, weights=apply_controls(result.weights, result.shape_names, request.controls, fps))
