@@ -16,13 +16,14 @@ import numpy as np
 
 from ..solvers.capture.cleaning import clean
 from ..solvers.config.strategies import load_strategy_inputs
-from ..solvers.engine.split import run_beside
+from ..solvers.engine.split import release_freed_memory, run_beside
 from ..solvers.errors import ConfigError, InputFileError
 from ..solvers.io import import_markers
 from ..solvers.io.csv import write_weights_csv
 from ..solvers.config.checks import check_against_take
 from ..solvers.config.paths import check_outputs, take_outputs
 from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
+from ..solvers.markers import UNIT_SCALE
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import _Progress, sigint_cancels
@@ -74,8 +75,15 @@ def run_take(config, *, quiet=False, tune=False, replace=False):
         _write_actor_basis(config, result, outputs)
     if config.output_blend is not None:
         extra["output_blend"] = base.report()
+    # The take's (F, M, 3) arrays are not needed for keying, whose F-curves (and Blender's copy of
+    # them when it saves) are a long take's largest memory: freed before it (issue 18).
+    fps = take.fps()
+    take.markers = request = None
+    if getattr(result, "stabilise", None) is not None:
+        result = dataclasses.replace(result, stabilise=result.stabilise.without_markers())
+    release_freed_memory()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
-                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=take.fps())
+                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=fps)
     return result, outputs
 
 
@@ -192,9 +200,12 @@ def read_take(config, say):
         imported = import_markers(config.markers_path, units=config.units, fps=config.fps, **config.read_options)
     notes = tuple(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
     cleaned = clean(imported.markers, config.clean)
+    markers = cleaned.markers
+    if markers.dim == 3 and markers.units in UNIT_SCALE:  # in metres, as the solve reads them: one
+        markers = markers.to_units("m")  # (F, M, 3) copy of the take for the whole run (issue 18)
     # one memory layout whichever process reads the take (a pickled array comes back C-ordered,
     # and sums over another layout round differently in the last bits)
-    markers = dataclasses.replace(cleaned.markers, positions=np.ascontiguousarray(cleaned.markers.positions))
+    markers = dataclasses.replace(markers, positions=np.ascontiguousarray(markers.positions))
     return _Take(markers=markers, inputs=inputs, source={"format": imported.format, "units": imported.markers.units},
                  notes=notes, cleaning=tuple(cleaned.report.summary().splitlines()))
 

@@ -1,8 +1,6 @@
 """Head stabilisation: remove rigid head motion using markers that do not deform with expression."""
 
 import warnings
-from dataclasses import replace
-
 import numpy as np
 
 from ..errors import FacecapError
@@ -33,17 +31,6 @@ MODES = ("rigid", "similarity")
 #: Frames per block of the head refit: its temporaries are a few (block, M, 3) arrays (13 MB for
 #: 68 markers) that the allocator reuses, not (F, M, 3) ones (587 MB each on 100 minutes at 60 fps).
 REFIT_BLOCK = 8192
-
-
-def release_markers(stab, markers):
-    """``stab`` with its stabilised markers computed again from ``markers`` (the raw take it was
-    fitted on, in the same units) when next read, instead of kept: frees their (F, M, 3) floats
-    (with the raw take, a long take's largest arrays) once the caller has taken what it needs from
-    them. The markers read later are the same, bit for bit. 3D rigid/similarity results only; any
-    other is returned as it is."""
-    if markers.dim != 3 or stab.rotations.shape[1:] != (3, 3) or len(stab.rotations) != markers.n_frames:
-        return stab
-    return replace(stab, markers=_MovedMarkers(markers, stab.rotations, stab.translations, stab.scales, stab.flagged))
 
 
 def _apply(R, t, scales, X):
@@ -388,14 +375,15 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     R = best_rotation(smooth[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1))  # the rotation nearest each average
     t = smooth[:, 9:12]
     scales = None if stab.scales is None else smooth[:, 12]
-    moved = _apply(R, t, scales, markers.positions)
-    moved[stab.flagged] = np.nan
-    fitted = _columns(moved, markers.index(stab.stable_names))
+    # The stable markers only (the same numbers as those rows of the full product, bit for bit); all
+    # of them are computed when first read.
+    fitted = _apply(R, t, scales, _columns(markers.positions, markers.index(stab.stable_names)))
+    fitted[stab.flagged] = np.nan
     with np.errstate(invalid="ignore"):
         fitted -= stab.reference
         rms = np.sqrt(np.nanmean(_norm3(fitted) ** 2, axis=1))
     return StabiliseResult(
-        markers=markers._with_mapped_positions(moved),
+        markers=_MovedMarkers(markers, R, t, scales, stab.flagged),
         stable_names=stab.stable_names,
         reference=stab.reference,
         rotations=R,

@@ -10,7 +10,8 @@ from ..markers import MarkerSet
 
 class LazyMarkers:
     """Descriptor of the ``markers`` field: accepts an object with a ``compute()`` method (the
-    stabilised markers not computed yet, e.g. ``stabilise._MovedMarkers``) and computes it once."""
+    stabilised markers not computed yet, e.g. ``stabilise._MovedMarkers``) and computes it once;
+    the computation is kept, so that the computed markers can be let go (``release_markers``)."""
 
     def __set_name__(self, owner, name):
         self.slot = "_" + name
@@ -26,6 +27,14 @@ class LazyMarkers:
 
     def __set__(self, obj, value):
         obj.__dict__[self.slot] = value
+        if not isinstance(value, MarkerSet):
+            obj.__dict__[self.slot + "_source"] = value
+
+    def release(self, obj):
+        """Forget the computed markers of ``obj`` if they can be computed again."""
+        source = obj.__dict__.get(self.slot + "_source")
+        if source is not None:
+            obj.__dict__[self.slot] = source
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +67,13 @@ class StabiliseResult:
     def head_rotations(self):
         """Head rotation per frame relative to the reference (raw = R_head @ stabilised + ...)."""
         return self.rotations.transpose(0, 2, 1)
+
+    def release_markers(self):
+        """Let the computed stabilised markers go: they are computed again (the same numbers, bit for
+        bit) if read later. Their (F, M, 3) floats are, with the raw take, a long take's largest
+        arrays; a caller that has taken what it needs from them frees them with this (results made
+        from a per-frame pose keep how to compute them; others keep their markers)."""
+        type(self).__dict__["markers"].release(self)
 
     def without_markers(self):
         """This result without its stabilised markers (their (F, M, 3) floats, or the raw take a

@@ -302,6 +302,12 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
         r[C == 0] = 0.0  # also every NaN of D
         return r
 
+    def residual_rows(a, b):  # the same for frames [a, b)
+        r = Wz[a:b] @ A.T
+        r -= D[a:b]
+        r[C[a:b] == 0] = 0.0
+        return r
+
     lo, hi = _compact(prob.lo), _compact(prob.hi)  # bounds the same for every frame: (1, K), no (F, K) temporaries
     tol = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
     free_shape = ~locked1
@@ -318,5 +324,5 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
         notes.append(f"temporal solve did not settle within {max_iter} active-set iterations; weights are feasible but not optimal")
     return SolveResult(
         W, residuals, at_bound, solved_any, iters, fallback, tuple(notes), converged,
-        "temporal" if temporal else "per-frame",
+        "temporal" if temporal else "per-frame", residual_rows,
     )

@@ -116,9 +116,12 @@ def spans(frames):
 def normalised(stab, settings, notes):
     """The PreparedTake of a stabilised 3D take, and the neutral's info."""
     neutral, offsets, info = normalise_stabilised(stab, settings, notes)
-    pos = stab.markers.positions if offsets is None else stab.markers.positions + offsets
     sm = stab.markers
-    return PreparedTake(pos - neutral[None], neutral, sm.names, sm.frames, stab, offsets), info
+    pos = sm.positions if offsets is None else sm.positions + offsets
+    take = PreparedTake(pos - neutral[None], neutral, sm.names, sm.frames, stab, offsets)
+    pos = sm = None
+    stab.release_markers()  # their (F, M, 3) floats: computed again if read (issue 18)
+    return take, info
 
 
 def prepare_take(markers, settings, notes):

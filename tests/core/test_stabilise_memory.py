@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers.capture import stabilise
-from facecap.solvers.capture.stabilise import refine_rigid, release_markers, smooth_head_motion, stabilise_rigid
+from facecap.solvers.capture.stabilise import refine_rigid, smooth_head_motion, stabilise_rigid
 from test_stabilise_speed_paths import STABLE, _take
 
 
@@ -30,9 +30,15 @@ def test_refit_in_blocks_is_the_whole_take_refit(monkeypatch, mode):
 
 def test_released_markers_come_back_the_same():
     markers = _take(F=300)
-    stab = smooth_head_motion(markers, stabilise_rigid(markers, STABLE), half_window=4)
-    kept = stab.markers.positions.copy()
-    released = release_markers(stab, markers)
-    assert "_markers" in released.__dict__ and not hasattr(released.__dict__["_markers"], "positions")
-    assert np.array_equal(released.markers.positions, kept, equal_nan=True)
-    assert np.array_equal(released.rotations, stab.rotations) and released.rms is stab.rms
+    for stab in (stabilise_rigid(markers, STABLE), smooth_head_motion(markers, stabilise_rigid(markers, STABLE),
+                                                                      half_window=4)):
+        kept = stab.markers.positions.copy()
+        first = stab.markers
+        stab.release_markers()
+        assert not hasattr(stab.__dict__["_markers"], "positions")  # only how to compute them is kept
+        again = stab.markers
+        assert again is not first and np.array_equal(again.positions, kept, equal_nan=True)
+    gone = stab.without_markers()
+    assert np.array_equal(gone.rotations, stab.rotations) and gone.rms is stab.rms
+    with pytest.raises(RuntimeError, match="released"):
+        gone.markers
