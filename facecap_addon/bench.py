@@ -121,7 +121,8 @@ def bench_cli_retarget(frames=36000, repeat=3):
         env = _cli_env()
 
         def once():
-            proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config)],
+            # --replace: every run the same work (without it, a run adds its solve to the last one's .blend)
+            proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config), "--replace"],
                                   capture_output=True, text=True, env=env)
             if proc.returncode != 0:
                 raise RuntimeError(proc.stderr.strip().splitlines()[-1])
@@ -138,7 +139,7 @@ def bench_cli_retarget(frames=36000, repeat=3):
 
 #: Takes of the memory case (frames): 10 and 100 minutes at 60 fps.
 MEMORY_FRAMES = (36000, 360000)
-#: Goal for the process tree's peak on the longest take (bytes, summed RSS).
+#: Goal for the process tree's peak on the longest take (bytes).
 MEMORY_GOAL = 3 << 30
 
 
@@ -146,10 +147,11 @@ def bench_memory(frames=MEMORY_FRAMES):
     """Peak memory of ``python -m facecap retarget`` (the whole process tree) on long takes of the
     sample character, one run per length: the summed RSS and PSS of the tree (see
     ``solvers.tools.peak_memory``), the main process's own peak, and the growth per frame between
-    the shortest and longest take. Returns a list of rows (one per take, then the growth)."""
+    the shortest and longest take. Returns a list of rows (one per take, then the growth), each
+    with a printable ``line``."""
     if not available():
-        return [dict(name="memory", seconds=0.0, baseline_seconds=None, ratio=None, goal="",
-                     note="skipped: needs Linux /proc")]
+        return [dict(line="memory: skipped (needs Linux /proc)")]
+    shapes = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz").n_shapes
     rows, peaks = [], []
     for n in frames:
         with tempfile.TemporaryDirectory(prefix="facecap-bench-mem-") as tmp:
@@ -159,22 +161,23 @@ def bench_memory(frames=MEMORY_FRAMES):
         if m["returncode"] != 0:
             raise RuntimeError(f"retarget of {n} frames failed: {m['stderr'][-1] if m['stderr'] else m['returncode']}")
         peaks.append((n, m))
-        stages = ", ".join(f"{k.split(' ')[0]} {v['rss'] / 2**30:.2f}" for k, v in m["stages"].items() if k != "start")
+        if m["killed"]:
+            raise RuntimeError(f"retarget of {n} frames stopped: the machine ran short of memory")
+        peaks.append((n, m))
+        stages = ", ".join(f"{' '.join(k.split(' ')[:2])} {v['pss'] / 2**30:.2f}/{v['rss'] / 2**30:.2f}"
+                           for k, v in m["stages"].items() if k != "start")
         rows.append(dict(
-            name=f"memory: CLI retarget {n} frames ({size / 2**20:.0f} MB CSV), peak of the process tree",
-            seconds=m["seconds"], baseline_seconds=None, ratio=None,
-            goal=f"<= {MEMORY_GOAL / 2**30:.0f} GiB at {max(frames)} frames",
-            note=(f"tree RSS {m['tree_rss'] / 2**30:.2f} GiB ({m['procs']} processes), tree PSS "
-                  f"{m['tree_pss'] / 2**30:.2f} GiB, main process {m['main_rss'] / 2**30:.2f} GiB; "
-                  f"tree RSS per stage (GiB): {stages}"),
-            tree_rss=m["tree_rss"], tree_pss=m["tree_pss"], main_rss=m["main_rss"], stages=m["stages"],
+            frames=n, seconds=m["seconds"], tree_rss=m["tree_rss"], tree_pss=m["tree_pss"], main_rss=m["main_rss"],
+            stages=m["stages"],
+            line=(f"memory: CLI retarget {n} frames x {shapes} shapes ({size / 2**20:.0f} MB CSV), one run of "
+                  f"{m['seconds']:.0f} s: peak of the process tree {m['tree_pss'] / 2**30:.2f} GiB PSS, "
+                  f"{m['tree_rss'] / 2**30:.2f} GiB summed RSS ({m['procs']} process{'es' if m['procs'] > 1 else ''}); main process "
+                  f"{m['main_rss'] / 2**30:.2f} GiB; per stage, PSS/RSS GiB: {stages}"),
         ))
     if len(peaks) > 1:
         (n0, a), (n1, b) = peaks[0], peaks[-1]
-        per = {k: (b[k] - a[k]) / (n1 - n0) for k in ("tree_rss", "tree_pss", "main_rss")}
-        rows.append(dict(
-            name=f"memory growth {n0} -> {n1} frames", seconds=0.0, baseline_seconds=None, ratio=None,
-            goal="linear in frames",
-            note=", ".join(f"{k} {v / 1024:.2f} KiB/frame" for k, v in per.items()),
-        ))
+        per = {k: (b[k] - a[k]) / (n1 - n0) / 1024 for k in ("tree_pss", "tree_rss", "main_rss")}
+        rows.append(dict(line=(f"memory growth {n0} -> {n1} frames: {per['tree_pss']:.2f} KiB a frame (tree PSS), "
+                               f"{per['tree_rss']:.2f} (summed RSS), {per['main_rss']:.2f} (main process); goal "
+                               f"<= {MEMORY_GOAL / 2**30:.0f} GiB at {n1} frames, linear growth")))
     return rows

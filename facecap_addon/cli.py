@@ -11,7 +11,8 @@ inspect FILE [options]        describe a capture file; non-zero exit with a one-
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
-bench [--quick]               time the solve, the keying and the whole CLI, with ratios to naive baselines
+bench [--quick] [--memory]    time the solve, the keying and the whole CLI, with ratios to naive baselines;
+                              --memory: peak memory of the CLI's process tree on long takes instead
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
@@ -62,7 +63,7 @@ from ..solvers.tools.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
-from .bench import bench_cli_retarget, bench_keying  # noqa: E402
+from .bench import MEMORY_FRAMES, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
 from .demo import run_demo  # noqa: E402
 from .headless import progress_line, run_take  # noqa: E402
 
@@ -129,6 +130,10 @@ def _cmd_docs_images(args):
 
 
 def _cmd_bench(args):
+    if args.memory:  # the memory case on its own (it takes minutes per take)
+        for row in bench_memory((3600, 36000) if args.quick else MEMORY_FRAMES):
+            print(row["line"], flush=True)
+        return 0
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
         print(_bench_line(row), flush=True)
@@ -173,6 +178,9 @@ def build_parser():
     p.set_defaults(func=_cmd_config_docs)
     p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
+    p.add_argument("--memory", action="store_true",
+                   help="only the memory case: peak memory of `retarget`'s process tree on 36,000- and 360,000-frame "
+                        "takes (with --quick 3,600 and 36,000); about 20 minutes")
     p.set_defaults(func=_cmd_bench)
     p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
