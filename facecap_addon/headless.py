@@ -200,6 +200,7 @@ def read_take(config, say):
         imported = import_markers(config.markers_path, units=config.units, fps=config.fps, **config.read_options)
     notes = tuple(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
     cleaned = clean(imported.markers, config.clean)
+    release_freed_memory()  # the parser's blocks, before the take's copy in metres is made
     markers = cleaned.markers
     if markers.dim == 3 and markers.units in UNIT_SCALE:  # in metres, as the solve reads them: one
         markers = markers.to_units("m")  # (F, M, 3) copy of the take for the whole run (issue 18)

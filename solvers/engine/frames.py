@@ -128,8 +128,8 @@ _REUSE = ContextVar("facecap_pattern_setup", default=None)
 
 
 #: Bytes of pattern products a ``PatternSetup`` keeps by default (Hessian and inverse: 2 K^2 floats a
-#: pattern): every pattern of a 10-minute take of the sample character (8,519 patterns, 368 MB),
-#: a bounded part of longer ones (patterns beyond it are computed per chunk, as without reuse).
+#: pattern): every pattern of a 10-minute take of the sample character (8,519 patterns, 368 MB);
+#: none of a take whose patterns do not all fit (they are computed per chunk, as without reuse).
 REUSE_BYTES = 400 << 20
 
 
@@ -142,10 +142,13 @@ class PatternSetup:
         self.problems = {}
         self.room = int(max_bytes)
 
-    def book(self, n, K):
-        """Room for up to ``n`` more patterns of K shapes; returns how many fit."""
+    def book(self, n, K, whole=False):
+        """Room for up to ``n`` more patterns of K shapes; returns how many fit (with ``whole``: all
+        of them, or none)."""
         with self.lock:
             fit = max(0, min(int(n), self.room // (2 * K * K * 8)))
+            if whole and fit < n:
+                fit = 0
             self.room -= fit * 2 * K * K * 8
             return fit
 
@@ -247,18 +250,22 @@ class _Products:
         self.lock = threading.Lock()
         self.setup = PatternSetup() if setup is None else setup
         self.index = {}  # pattern bytes -> row
+        self.declined = False  # the take's patterns did not all fit: none is kept
         self.H, self.Hinv = _Blocks(), _Blocks()
         self.ok = np.zeros(0, bool)
 
-    def keep(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None):
+    def keep(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None, whole=False):
         """Compute and keep the products of ``pats`` not kept yet, while there is room; in slices
         mapped by ``map_`` (e.g. a thread pool's); inverses are updated from ``full`` (a
-        ``FullInverse`` of this A, R; default: made here). Returns the ``full`` used (or None)."""
+        ``FullInverse`` of this A, R; default: made here). ``whole``: ``pats`` are every pattern of
+        the take; if they do not all fit, none is kept, now or later (on a long take a fraction of
+        them would save little and hold the setup's whole budget). Returns the ``full`` used."""
         K = A.shape[1]
         with self.lock:
             keys = [p.tobytes() for p in pats]
             new = np.array([i for i, k in enumerate(keys) if k not in self.index], dtype=np.intp)
-            new = new[: self.setup.book(new.size, K)]
+            new = new[: 0 if self.declined else self.setup.book(new.size, K, whole)]
+            self.declined |= whole and new.size < sum(k not in self.index for k in keys)
             if inverses and full is None and (new.size or (self.Hinv.where[:, 0] < 0).any()):
                 full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
             if new.size:
@@ -378,7 +385,7 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
         if workers > 1 and n_chunks > 1:
             with ThreadPoolExecutor(workers) as pool:
                 if products is not None:  # the take's patterns once, on the threads (chunks repeat them)
-                    products.keep(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full)
+                    products.keep(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full, whole=True)
                 out = list(pool.map(one, range(0, F, chunk)))
         else:
             out = [one(s) for s in range(0, F, chunk)]
