@@ -58,6 +58,11 @@ def _compact(x):
     return x[:1] if x.shape[0] and x.strides[0] == 0 else x
 
 
+def _block(x, rows):
+    """Rows ``rows`` (a slice) of an (F, K) array, or ``x`` itself where it is one row for every frame."""
+    return x if x.shape[0] == 1 else x[rows]
+
+
 def _rows(x, rows):
     """``x[rows]`` for (F, K) bounds, still a broadcast view where every row is the same."""
     if isinstance(rows, slice) or x.strides[0]:
@@ -234,7 +239,9 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
     if prob.held.size:
         held_lo, held_hi = prob.lo[:, prob.held], prob.hi[:, prob.held]
         hold = np.where(locked[:, prob.held], prob.lock[:, prob.held], np.clip(0.0, held_lo, held_hi))
-    W = np.full((F, K), np.nan)
+    whole_take = (temporal and len(prob.regions) == 1 and prob.held.size == 0
+                  and np.array_equal(prob.regions[0][0], np.arange(K)))
+    W = None if whole_take else np.full((F, K), np.nan)  # a whole-take solve's result is used as it is
     if prob.held.size:
         W[:, prob.held] = hold
     solved_any = np.zeros(F, dtype=bool)
@@ -270,7 +277,10 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
             from .temporal import solve_temporal  # loads scipy
 
             w, it, ok = solve_temporal(Ar, Cr, G, Rr, lo, hi, l1, prob.mu, max_iter=max_iter, chunk=chunk, start=w0)
-            W[:, shapes] = w[:, :nr]
+            if W is None:  # the solve is the whole result: no (F, K) copy
+                W = w
+            else:
+                W[:, shapes] = w[:, :nr]
             solved_any[:] = True
             converged &= ok
         else:
@@ -294,6 +304,8 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
             if miss.any():
                 W[:, shapes] = np.where(miss, prob.lock[:, shapes], W[:, shapes])
 
+    if W is None:  # no data at all
+        W = np.full((F, K), np.nan)
     Wz = np.where(np.isnan(W), 0.0, W) if np.isnan(W).any() else W
 
     def residuals():  # (F, P): computed when first asked for (most callers never do)
@@ -313,10 +325,12 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
     free_shape = ~locked1
     if prob.held.size:
         free_shape[:, prob.held] = False
-    near = np.abs(Wz - lo) <= tol
-    near |= np.abs(Wz - hi) <= tol
-    at = near & free_shape
-    at_bound = at.sum(axis=1)
+    at_bound = np.empty(F, dtype=np.intp)
+    for a in range(0, F, 8192):  # in blocks of frames: no (F, K) temporaries
+        s = slice(a, a + 8192)
+        near = np.abs(Wz[s] - _block(lo, s)) <= _block(tol, s)
+        near |= np.abs(Wz[s] - _block(hi, s)) <= _block(tol, s)
+        at_bound[s] = (near & _block(free_shape, s)).sum(axis=1)
     at_bound[~solved_any] = 0
     if (~solved_any).any():
         notes.append(f"{int((~solved_any).sum())} frame(s) had no visible markers and were not solved")
