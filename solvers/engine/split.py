@@ -1,5 +1,6 @@
-"""Two halves of a long take solved at the same time: one in a forked child process, one here
-(and, with ``run_beside``, any two independent jobs: the CLI reads the take while Blender starts).
+"""Two halves of a long take's windows solved at the same time: one half in a forked child process,
+one here (and, with ``run_beside``, any two independent jobs: the CLI reads the take while Blender
+starts). Results come back with their arrays out of band (no pickled copy of them).
 
 The temporal kernel's banded LAPACK calls go through scipy's wrappers, which hold the GIL, so
 threads cannot overlap them; a forked child can, and it inherits the inputs without a copy (only

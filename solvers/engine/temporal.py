@@ -32,9 +32,10 @@ changes until it falls again (after Judice & Pires' block-pivoting safeguard). M
 frame slices of the sample take with L1 1-10^4 times the default, smoothing 0.1-10 times and
 kinks at 0: 15 of 24 configurations ran out of 40 iterations before, 1 runs out of 200 now.
 
-Long takes are first solved as two overlapping halves at the same time (``engine_split``: the
-second in a forked child); the whole-take iteration then starts from the joined halves and only
-has to settle the seam (measured: 2 iterations, 0.3 s on 36,000 frames).
+Long takes (``SPLIT_FRAMES`` and more) are solved in windows of ``WINDOW_FRAMES`` frames whose seams
+are then settled exactly (``engine.windows``): the same optimum, in the memory of one window per
+process (the first pass's windows are shared by two processes, ``engine.split``). Measured on
+100 minutes at 60 fps of the sample character: see docs/performance.md.
 """
 
 import numpy as np
