@@ -8,6 +8,7 @@ import numpy as np
 from ..errors import FacecapError
 from .frames import solve_frames
 from .result import SolveResult
+from .split import release_freed_memory
 
 
 @dataclass(frozen=True, eq=False)
@@ -336,6 +337,7 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
         notes.append(f"{int((~solved_any).sum())} frame(s) had no visible markers and were not solved")
     if not converged:
         notes.append(f"temporal solve did not settle within {max_iter} active-set iterations; weights are feasible but not optimal")
+    release_freed_memory(F)  # on long takes: what the solve freed, before the next stage
     return SolveResult(
         W, residuals, at_bound, solved_any, iters, fallback, tuple(notes), converged,
         "temporal" if temporal else "per-frame", residual_rows,

@@ -113,13 +113,21 @@ def _recv(conn):
     return pickle.loads(head, buffers=buffers)
 
 
-def release_freed_memory():
+#: Takes at least this long give freed memory back between the stages of a solve too
+#: (``release_freed_memory(frames)``): there it is GBs, and re-faulting it a small part of the time.
+LONG_TAKE_FRAMES = 100_000
+
+
+def release_freed_memory(frames=None):
     """Give the memory the C allocator keeps after frees back to the system (glibc's
     ``malloc_trim``; a no-op elsewhere). Batch commands keep freed memory for reuse while they
     compute (``facecap_addon.cli.keep_freed_memory``); between stages whose working sets differ
     (reading, solving, keying) that memory is only weight: measured after the 36,000-frame CLI
-    solve, 1.33 -> 0.88 GB resident. Returns whether it ran."""
+    solve, 1.33 -> 0.88 GB resident. With ``frames`` (the take's length), only on takes of at least
+    ``LONG_TAKE_FRAMES``. Returns whether it ran."""
     global _TRIM
+    if frames is not None and frames < LONG_TAKE_FRAMES:
+        return False
     if _TRIM is None:
         _TRIM = False
         if sys.platform.startswith("linux"):

@@ -20,6 +20,7 @@ from ..capture.stabilise import refine_rigid, smooth_head_motion
 from ..character.basis import Basis
 from ..character.shape_options import resolve_locks
 from ..engine.frames import PatternSetup, reuse_pattern_setup
+from ..engine.split import release_freed_memory
 from ..errors import FacecapError
 from ..strategies.base import PredictsMarkers
 from ..strategies.geometric import bound_markers
@@ -154,6 +155,7 @@ def _solve(strategy, take, markers, settings, notes, timings):
         stab = _refit_head(strategy, res, take, metres, settings)
         res = take = None  # their (F, M, D) arrays (a solve keeps its data for residuals): freed first
         take, _ = stages.normalised(stab, settings, [])
+        release_freed_memory(take.frames.size)  # long takes: the refit's freed memory, before the solve
         t_refit += time.perf_counter() - t2
     timings["solve"] = t_solve
     if refits:

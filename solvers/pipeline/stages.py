@@ -20,6 +20,7 @@ from ..capture.normalise import (
 )
 from ..capture.stabilise import smooth_head_motion, stabilise_2d, stabilise_rigid
 from ..capture.stable_markers import suggest_stable_markers
+from ..engine.split import release_freed_memory
 from ..errors import FacecapError
 from ..io import import_markers
 from ..strategies.base import PreparedTake
@@ -136,6 +137,7 @@ def prepare_take(markers, settings, notes):
     markers = markers.to_units("m")
     stab, suggestion = stabilise_take(markers, settings, notes)
     take, info = normalised(stab, settings, notes)
+    release_freed_memory(take.frames.size)  # long takes: the stabilisation's freed memory (issue 18)
     return take, suggestion, info
 
 
