@@ -300,7 +300,9 @@ def _check_curves(curves):
 def _check_key_arrays(curves, frames, values):
     curves = _check_curves(curves)
     frames = np.asarray(frames, dtype=np.float64)
-    values = np.asarray(values, dtype=np.float64)
+    values = np.asarray(values)
+    if values.dtype != np.float32:  # float32 (what Blender keeps) is taken as it is: no float64 copy
+        values = values.astype(np.float64, copy=False)
     if frames.ndim != 1:
         raise FacecapError(f"`frames` must have shape (F,); got {frames.shape}")
     if values.shape != (frames.size, len(curves)):

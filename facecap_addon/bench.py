@@ -5,6 +5,7 @@ Run through ``python -m facecap bench`` (with the solver cases). Times are media
 timed on a subset are scaled per key or per frame.
 """
 
+import dataclasses
 import json
 import os
 import shutil
@@ -19,6 +20,7 @@ import numpy as np
 from ..solvers.character.basis import Basis
 from ..solvers.io.csv import write_markers_csv
 from ..solvers.tools.bench import median_time
+from ..solvers.tools.peak_memory import available, run_measured
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -65,35 +67,65 @@ def bench_keying(frames=36000, shapes=52, baseline_frames=300, repeat=3):
     )
 
 
-def bench_cli_retarget(frames=36000, repeat=3):
-    """``python -m facecap retarget`` on a long synthetic take of the sample character, process start to
-    saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
+#: Frames per synthetic piece of a long take: longer takes are pieces like it, one after the other.
+PIECE_FRAMES = 36000
 
-    from ..solvers.tools.synth import (  # loads scipy
-        performance_weights,
-        synthesize_take,
-    )
 
+def write_long_take(folder, frames):
+    """A long synthetic take of the sample character in ``folder``: ``long_take.csv`` and the take
+    config ``long_take.toml`` (outputs beside them). Takes longer than ``PIECE_FRAMES`` are pieces of
+    that length with their own head motion, noise and gaps (seeds 6, 7, ...) on the same performance
+    (it starts and ends at rest, so the pieces join smoothly; the head jumps back to rest between
+    pieces). Written piece by piece: the bench's own memory stays that of one piece.
+    Returns the config path."""
+    from ..solvers.tools.synth import performance_weights, synthesize_take  # loads scipy
+
+    folder = Path(folder)
     samples = ROOT / "sample_blends"
     basis = Basis.load_npz(samples / "character_basis.npz")
     layout = json.loads((samples / "marker_layout.json").read_text())
     stable = [m["name"] for m in layout["markers"] if m["stable"]]
-    weights = performance_weights(basis.shape_names, frames, seed=5)
-    take = synthesize_take(basis, weights, stable=stable, seed=6)
+    weights = performance_weights(basis.shape_names, min(frames, PIECE_FRAMES), seed=5)
+    csv = folder / "long_take.csv"
+    piece_csv = folder / "piece.csv"
+    with open(csv, "w", encoding="utf-8") as out:
+        for i, first in enumerate(range(0, frames, PIECE_FRAMES)):
+            n = min(PIECE_FRAMES, frames - first)
+            take = synthesize_take(basis, weights[:n], stable=stable, seed=6 + i)
+            write_markers_csv(piece_csv, dataclasses.replace(take.markers, frames=take.markers.frames + first))
+            with open(piece_csv, encoding="utf-8") as fh:
+                header = fh.readline()
+                if i == 0:
+                    out.write(header)
+                for block in iter(lambda: fh.read(1 << 24), ""):
+                    out.write(block)
+    piece_csv.unlink()
+    config = folder / "long_take.toml"
+    config.write_text(
+        f'[target]\nblend = "{samples / "character.blend"}"\nobject = "Face"\n'
+        f'[source]\nmarkers = "long_take.csv"\nunits = "mm"\nfps = 60\n'
+        f"[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = [1, 50]\n"
+        f'[output]\nblend = "out.blend"\nweights = "out.csv"\nreport = "report.json"\n'
+    )
+    return config
+
+
+def _cli_env():
+    return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+
+
+def bench_cli_retarget(frames=36000, repeat=3):
+    """``python -m facecap retarget`` on a long synthetic take of the sample character, process start to
+    saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
+    basis = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz")
     with tempfile.TemporaryDirectory(prefix="facecap-bench-") as tmp:
         tmp = Path(tmp)
-        write_markers_csv(tmp / "long_take.csv", take.markers)
-        config = tmp / "long_take.toml"
-        config.write_text(
-            f'[target]\nblend = "{samples / "character.blend"}"\nobject = "Face"\n'
-            f'[source]\nmarkers = "long_take.csv"\nunits = "mm"\nfps = 60\n'
-            f"[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = [1, 50]\n"
-            f'[output]\nblend = "out.blend"\nweights = "out.csv"\nreport = "report.json"\n'
-        )
-        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        config = write_long_take(tmp, frames)
+        env = _cli_env()
 
         def once():
-            proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config)],
+            # --replace: every run the same work (without it, a run adds its solve to the last one's .blend)
+            proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config), "--replace"],
                                   capture_output=True, text=True, env=env)
             if proc.returncode != 0:
                 raise RuntimeError(proc.stderr.strip().splitlines()[-1])
@@ -171,3 +203,48 @@ def bench_batch(takes=20, frames=720, jobs=2, repeat=3):
               f"--jobs 1 {cpu['jobs1']:.1f}, --jobs {jobs} {cpu[f'jobs{jobs}']:.1f}; "
               f"{len(os.sched_getaffinity(0))} cores, 1-min load {load[0]:.1f} before, {load[1]:.1f} after"),
     )
+
+
+#: Takes of the memory case (frames): 10 and 100 minutes at 60 fps.
+MEMORY_FRAMES = (36000, 360000)
+#: Goal for the process tree's peak on the longest take (bytes).
+MEMORY_GOAL = 3 << 30
+
+
+def bench_memory(frames=MEMORY_FRAMES):
+    """Peak memory of ``python -m facecap retarget`` (the whole process tree) on long takes of the
+    sample character, one run per length: the summed RSS and PSS of the tree (see
+    ``solvers.tools.peak_memory``), the main process's own peak, and the growth per frame between
+    the shortest and longest take. Returns a list of rows (one per take, then the growth), each
+    with a printable ``line``."""
+    if not available():
+        return [dict(line="memory: skipped (needs Linux /proc)")]
+    shapes = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz").n_shapes
+    rows, peaks = [], []
+    for n in frames:
+        with tempfile.TemporaryDirectory(prefix="facecap-bench-mem-") as tmp:
+            config = write_long_take(tmp, n)
+            size = (Path(tmp) / "long_take.csv").stat().st_size
+            m = run_measured([sys.executable, "-m", "facecap", "retarget", "--config", str(config)], env=_cli_env())
+        if m["returncode"] != 0:
+            raise RuntimeError(f"retarget of {n} frames failed: {m['stderr'][-1] if m['stderr'] else m['returncode']}")
+        if m["killed"]:
+            raise RuntimeError(f"retarget of {n} frames stopped: the machine ran short of memory")
+        peaks.append((n, m))
+        stages = ", ".join(f"{' '.join(k.split(' ')[:2])} {v['pss'] / 2**30:.2f}/{v['rss'] / 2**30:.2f}"
+                           for k, v in m["stages"].items() if k != "start")
+        rows.append(dict(
+            frames=n, seconds=m["seconds"], tree_rss=m["tree_rss"], tree_pss=m["tree_pss"], main_rss=m["main_rss"],
+            stages=m["stages"],
+            line=(f"memory: CLI retarget {n} frames x {shapes} shapes ({size / 2**20:.0f} MB CSV), one run of "
+                  f"{m['seconds']:.0f} s: peak of the process tree {m['tree_pss'] / 2**30:.2f} GiB PSS, "
+                  f"{m['tree_rss'] / 2**30:.2f} GiB summed RSS ({m['procs']} process{'es' if m['procs'] > 1 else ''}); main process "
+                  f"{m['main_rss'] / 2**30:.2f} GiB; per stage, PSS/RSS GiB: {stages}"),
+        ))
+    if len(peaks) > 1:
+        (n0, a), (n1, b) = peaks[0], peaks[-1]
+        per = {k: (b[k] - a[k]) / (n1 - n0) / 1024 for k in ("tree_pss", "tree_rss", "main_rss")}
+        rows.append(dict(line=(f"memory growth {n0} -> {n1} frames: {per['tree_pss']:.2f} KiB a frame (tree PSS), "
+                               f"{per['tree_rss']:.2f} (summed RSS), {per['main_rss']:.2f} (main process); goal "
+                               f"<= {MEMORY_GOAL / 2**30:.0f} GiB at {n1} frames, linear growth")))
+    return rows

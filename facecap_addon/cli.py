@@ -16,10 +16,11 @@ tune --config take.toml       retune what the strategy learned from [tuning] cor
 batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
   [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
   [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
-bench [--quick] [--accuracy] [--batch]
+bench [--quick] [--accuracy] [--batch] [--memory]
                               time the solve, the keying and the whole CLI, with ratios to naive baselines;
                               --accuracy: accuracy over random scenarios; --batch: batch --jobs 2 against
-                              sequential retarget runs
+                              sequential retarget runs; --memory: peak memory of the CLI's process tree on
+                              long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
@@ -75,7 +76,7 @@ from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
 from .batch import run_batch  # noqa: E402
 from .batch_worker import serve  # noqa: E402
-from .bench import bench_batch, bench_cli_retarget, bench_keying  # noqa: E402
+from .bench import MEMORY_FRAMES, bench_batch, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
 from .demo import run_demo  # noqa: E402
 from .headless import progress_line, run_take  # noqa: E402
 from .review import review_flags  # noqa: E402
@@ -158,6 +159,10 @@ def _cmd_convert(args):
 def _cmd_bench(args):
     if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
         return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
+    if args.memory:  # the memory case on its own (it takes minutes per take)
+        for row in bench_memory((3600, 36000) if args.quick else MEMORY_FRAMES):
+            print(row["line"], flush=True)
+        return 0
     if args.batch:  # minutes of its own: only when asked
         print(_bench_line(bench_batch(takes=args.batch_takes, jobs=args.batch_jobs, repeat=args.repeat)), flush=True)
         return 0
@@ -241,6 +246,9 @@ def build_parser():
     p.add_argument("--batch-takes", type=int, default=20, help="takes of 720 frames in the batch case (default 20)")
     p.add_argument("--batch-jobs", type=int, default=2, help="--jobs of the batch case (default 2)")
     p.add_argument("--repeat", type=int, default=3, help="runs of the batch case, median (default 3)")
+    p.add_argument("--memory", action="store_true",
+                   help="only the memory case: peak memory of `retarget`'s process tree on 36,000- and 360,000-frame "
+                        "takes (with --quick 3,600 and 36,000); about 20 minutes")
     p.set_defaults(func=_cmd_bench)
     p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")

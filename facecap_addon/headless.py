@@ -17,13 +17,14 @@ import numpy as np
 from ..solvers.capture.cleaning import clean
 from ..solvers.character.binding_map import BindingSettings
 from ..solvers.config.strategies import load_strategy_inputs
-from ..solvers.engine.split import run_beside
+from ..solvers.engine.split import LONG_TAKE_FRAMES, release_freed_memory, run_beside
 from ..solvers.errors import ConfigError, InputFileError
 from ..solvers.io import import_markers
 from ..solvers.io.csv import write_weights_csv
 from ..solvers.config.checks import check_against_take
 from ..solvers.config.paths import check_outputs, take_outputs
 from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
+from ..solvers.markers import UNIT_SCALE
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import ProgressLine, sigint_cancels
@@ -51,7 +52,8 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     then the run starts from ``[target] blend``. Nothing is read or solved before every output path
     is checked (``preflight``). ``say``: where progress and warning lines go (default: stderr unless
     ``quiet``); ``characters``: a cache of sampled characters kept across takes (a batch worker's
-    ``CharacterCache``).
+    ``CharacterCache``). On takes of ``LONG_TAKE_FRAMES`` or more the returned result's stabilised
+    markers are released before keying (its head poses stay), unless the review page is written.
     ``[output] html`` writes the review page last (``review``: its ``facecap_addon.review.ReviewOptions``;
     ``config.truth_path`` the known weights it overlays).
     """
@@ -80,10 +82,19 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
         _write_actor_basis(config, result, outputs)
     if config.output_blend is not None:
         extra["output_blend"] = base.report()
+    # The take's (F, M, 3) arrays are not needed for keying, whose F-curves (and Blender's copy of
+    # them when it saves) are a long take's largest memory: freed before it (issue 18). A long
+    # take's result lets its stabilised markers go too, unless the review page is to draw them.
+    fps, settings = take.fps(), request.settings
+    long_take = result.frames.size >= LONG_TAKE_FRAMES
+    take.markers = request = None
+    if long_take and getattr(result, "stabilise", None) is not None and config.output_html is None:
+        result = dataclasses.replace(result, stabilise=result.stabilise.without_markers())
+    release_freed_memory()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
-                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=take.fps())
+                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=fps)
     if config.output_html is not None:
-        outputs["html"] = str(write_take_review(config, obj, request.settings, result, notes=take.notes,
+        outputs["html"] = str(write_take_review(config, obj, settings, result, notes=take.notes,
                                                 timings=timings, truth=truth, options=review, say=say))
     return result, outputs
 
@@ -183,9 +194,6 @@ def _read_and_open(config, say, base):
 def read_take(config, say):
     """Read the take's source (markers cleaned as ``[clean]`` says, footage, or solved weights) and
     the strategy's inputs."""
-
-
-
     inputs = load_strategy_inputs(config)
     if config.video is not None:
         say(f"[1/5] reading footage {config.video.path}")
@@ -201,9 +209,13 @@ def read_take(config, say):
         imported = import_markers(config.markers_path, units=config.units, fps=config.fps, **config.read_options)
     notes = tuple(dict.fromkeys([*imported.notes, *(str(w.message) for w in caught)]))
     cleaned = clean(imported.markers, config.clean)
+    release_freed_memory()  # the parser's blocks, before the take's copy in metres is made
+    markers = cleaned.markers
+    if markers.dim == 3 and markers.units in UNIT_SCALE:  # in metres, as the solve reads them: one
+        markers = markers.to_units("m")  # (F, M, 3) copy of the take for the whole run (issue 18)
     # one memory layout whichever process reads the take (a pickled array comes back C-ordered,
     # and sums over another layout round differently in the last bits)
-    markers = dataclasses.replace(cleaned.markers, positions=np.ascontiguousarray(cleaned.markers.positions))
+    markers = dataclasses.replace(markers, positions=np.ascontiguousarray(markers.positions))
     return _Take(markers=markers, inputs=inputs, source={"format": imported.format, "units": imported.markers.units},
                  notes=notes, cleaning=tuple(cleaned.report.summary().splitlines()))
 

@@ -282,18 +282,20 @@ def key_weights(obj, result, action_name, *, take_name=""):
         raise FacecapError(f"object '{obj.name}' has no shape keys")
     curves = [(layers.shape_path(n), 0) for n in result.shape_names]
     groups = ["FaceCap Weights"] * len(curves)
-    columns = [result.weights, result.residual_rms * 1e3, np.asarray(result.at_bound, dtype=np.float64)]
+    columns = [result.weights, result.residual_rms, np.asarray(result.at_bound, dtype=np.float64)]
+    scales = [1.0, 1e3, 1.0]
     props = list(DIAGNOSTIC_CURVES)
     groups += ["FaceCap Diagnostics"] * len(DIAGNOSTIC_CURVES)
     per_marker = getattr(result, "frame_marker_residual", None)
     if per_marker is not None and per_marker.shape == (result.frames.size, len(result.marker_names)):
         props += [MARKER_ERROR_PREFIX + n for n in result.marker_names]
         groups += ["FaceCap Marker Error"] * len(result.marker_names)
-        columns.append(per_marker * 1e3)
+        columns.append(per_marker)
+        scales.append(1e3)
     for prop in props:
         key[prop] = 0.0
     curves += [(f'["{p}"]', 0) for p in props]
-    values = np.column_stack(columns)
+    values = _float32_columns(columns, scales)
     # the diagnostics as samples: nobody edits them, and keys would double the keying and the .blend
     # (measured on the 36,000-frame CLI take: see docs/performance.md)
     sampled = [False] * len(result.shape_names) + [True] * len(props)
@@ -302,8 +304,25 @@ def key_weights(obj, result, action_name, *, take_name=""):
     layers.place_solved_action(key, action, take_name or action_name)
     if getattr(result, "head_target", "") and result.stabilise is not None:
         scale = getattr(result.alignment, "scale", 1.0) if result.alignment is not None else 1.0
-        key_head_on_target(result.head_target, result.stabilise, f"{action_name} Head", scale=scale)
+        key_head_on_target(result.head_target, result.stabilise, f"{action_name} Head", scale=scale,
+                           frames=result.frames)
     return action
+
+
+def _float32_columns(columns, scales, block=8192):
+    """``np.column_stack([c * s ...])`` as float32, the precision Blender keeps, filled in blocks of
+    rows: no float64 (F, C) copy or (F, M) temporaries (on 100 minutes at 60 fps: 175 MB instead of
+    about 700 MB beside Blender's keys). Each value is rounded once, from the float64 product."""
+    n = columns[0].shape[0]
+    widths = [1 if c.ndim == 1 else c.shape[1] for c in columns]
+    out = np.empty((n, sum(widths)), dtype=np.float32)
+    for a in range(0, n, block):
+        col = 0
+        for c, s, k in zip(columns, scales, widths):
+            part = c[a : a + block]
+            out[a : a + block, col : col + k] = (part if s == 1.0 else part * s).reshape(-1, k)
+            col += k
+    return out
 
 
 def _head_pose(stab):
@@ -331,14 +350,15 @@ def _unreliable(stab):
     return bad.astype(np.float64)
 
 
-def key_head_on_target(target, stab, name, *, scale=1.0):
+def key_head_on_target(target, stab, name, *, scale=1.0, frames=None):
     """Key the removed head motion onto a character's head object or bone.
 
     ``target`` is "Object" or "Armature:bone" (an object in ``bpy.data.objects``). The object (or
     bone) keeps its rest placement and turns about its own origin by the actor's head rotation;
     its translation is the actor's head displacement times ``scale`` (actor -> character). Euler
     angles are unwrapped (no flips); flagged frames get no key. A ``facecap_unreliable`` curve
-    (1 = the head fit is flagged or unreliable there) is keyed on the object.
+    (1 = the head fit is flagged or unreliable there) is keyed on the object. ``frames``: the take's
+    frame numbers (default: the stabilised markers', which a result may have released).
     """
 
     obj_name, _, bone_name = target.partition(":")
@@ -377,7 +397,8 @@ def key_head_on_target(target, stab, name, *, scale=1.0):
     values = np.column_stack([values, _unreliable(stab)])
     curves = [(path + "location", i) for i in range(3)] + [(path + "rotation_euler", i) for i in range(3)]
     curves.append(('["facecap_unreliable"]', 0))
-    return anim.new_action_with_curves(obj, name=name, curves=curves, frames=stab.markers.frames, values=values)
+    frames = stab.markers.frames if frames is None else frames
+    return anim.new_action_with_curves(obj, name=name, curves=curves, frames=frames, values=values)
 
 
 def key_head_motion(scene, stab, name):

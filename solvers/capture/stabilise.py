@@ -1,19 +1,20 @@
 """Head stabilisation: remove rigid head motion using markers that do not deform with expression."""
 
 import warnings
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import FacecapError
-from ..markers import MarkerSet
-from ..transforms import fit_rigid_masked, gap_mask, zero_rows, best_rotation, fit_rigid_batch
+from ..transforms import best_rotation, fit_rigid_batch, fit_rigid_masked, gap_mask, zero_rows
 from .smoothing import local_polynomial
+from .stabilise_2d import stabilise_2d, transforms_2d  # noqa: F401  (transforms_2d re-exported)
+from .stabilise_result import StabiliseResult, frame_label, frame_rms
 
 
 class _MovedMarkers:
     """Stabilised markers not computed yet: the pipeline refits or smooths a head pose before
-    anyone reads its markers, so they are applied on first access (an (F, M, 3) product each)."""
+    anyone reads its markers, so they are applied on first access (an (F, M, 3) product each).
+    Read by ``StabiliseResult.markers`` (``stabilise_result.LazyMarkers``)."""
 
     def __init__(self, markers, R, t, scales, flagged):
         # The pose as of now (small copies), should a caller edit the result's arrays in place.
@@ -26,58 +27,11 @@ class _MovedMarkers:
         return markers._with_mapped_positions(moved)
 
 
-class _LazyMarkers:
-    """Descriptor of the ``markers`` field: accepts a :class:`_MovedMarkers` and computes it once."""
-
-    def __set_name__(self, owner, name):
-        self.slot = "_" + name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            raise AttributeError(self.slot)  # tells dataclass the field has no default
-        value = obj.__dict__[self.slot]
-        if isinstance(value, _MovedMarkers):
-            value = value.compute()
-            obj.__dict__[self.slot] = value
-        return value
-
-    def __set__(self, obj, value):
-        obj.__dict__[self.slot] = value
-
-
-@dataclass(frozen=True, eq=False)
-class StabiliseResult:
-    """Stabilised markers plus the head motion that was removed.
-
-    ``markers`` holds every marker in the reference head frame; frames whose fit is not
-    determined (``flagged``) are all gaps there, never silently wrong.
-    The head pose of frame f is ``x_raw = R_f^T (x_stab - t_f)``, i.e. the inverse of
-    (``rotations[f]``, ``translations[f]``).
-    """
-
-    markers: MarkerSet = _LazyMarkers()  # computed on first access when given as _MovedMarkers
-    stable_names: tuple
-    reference: np.ndarray  # (S, 3) stable markers in the reference head frame
-    rotations: np.ndarray  # (F, 3, 3) raw -> stabilised
-    translations: np.ndarray  # (F, 3)
-    rms: np.ndarray  # (F,) residual of the stable markers after the fit (NaN where flagged)
-    flagged: np.ndarray  # (F,) bool
-    flag_reasons: dict = field(default_factory=dict)  # frame number -> reason
-    unreliable: np.ndarray = None  # (F,) bool: fitted, but too few stable markers agreed (robust fit)
-    marker_trust: dict = field(default_factory=dict)  # stable marker -> mean robust weight (1 = rigid)
-    scales: np.ndarray = None  # (F,) uniform scale raw -> stabilised (mode "similarity"); None = 1
-    mode: str = "rigid"
-
-    def scale_array(self):
-        """(F,) per-frame scale raw -> stabilised (ones for a rigid fit)."""
-        return np.ones(len(self.rotations)) if self.scales is None else self.scales
-
-    def head_rotations(self):
-        """Head rotation per frame relative to the reference (raw = R_head @ stabilised + ...)."""
-        return self.rotations.transpose(0, 2, 1)
-
-
 MODES = ("rigid", "similarity")
+
+#: Frames per block of the head refit: its temporaries are a few (block, M, 3) arrays (13 MB for
+#: 68 markers) that the allocator reuses, not (F, M, 3) ones (587 MB each on 100 minutes at 60 fps).
+REFIT_BLOCK = 8192
 
 
 def _apply(R, t, scales, X):
@@ -189,7 +143,7 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
     flagged = (count < min_points) | ~rank_ok
     reasons = {}
     for f in np.flatnonzero(flagged):
-        frame = _frame_label(markers.frames[f])
+        frame = frame_label(markers.frames[f])
         if count[f] < min_points:
             reasons[frame] = f"only {int(count[f])} of {len(stable)} stable markers visible (need {min_points})"
         else:
@@ -197,7 +151,7 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
 
     unreliable = ~flagged & ((weights > 0.5).sum(axis=1) < min_points)
     for f in np.flatnonzero(unreliable):
-        reasons[_frame_label(markers.frames[f])] = "fit unreliable: too few stable markers agree with the reference"
+        reasons[frame_label(markers.frames[f])] = "fit unreliable: too few stable markers agree with the reference"
     with np.errstate(invalid="ignore"):
         trust = np.where(vis, weights, np.nan)
         trust = {n: float(np.nanmean(trust[:, i])) for i, n in enumerate(stable) if vis[:, i].any()}
@@ -208,9 +162,7 @@ def stabilise_rigid(markers, stable, *, reference_frames=None, min_points=3, rob
     fitted = _apply(R, t, scales, pts)
     fitted -= reference
     err = _norm3(fitted)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
+    rms = frame_rms(np.where(vis, err, np.nan))
     rms[flagged] = np.nan
     return StabiliseResult(
         markers=_MovedMarkers(markers, R, t, scales, flagged),
@@ -295,10 +247,6 @@ def _tukey_weights(r, vis, c=4.685):
     return np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
 
 
-def _frame_label(frame):
-    return int(frame) if float(frame).is_integer() else float(frame)
-
-
 def _reference_pose(markers, pts, vis, stable, reference_frames):
     """Robust reference: frames of the range aligned to their first complete frame, then the median."""
     if reference_frames is None:
@@ -309,7 +257,7 @@ def _reference_pose(markers, pts, vis, stable, reference_frames):
         if candidates.size == 0:
             raise FacecapError(
                 f"stabilise: reference frames {first}-{last} are outside the take "
-                f"({_frame_label(markers.frames[0])}-{_frame_label(markers.frames[-1])})"
+                f"({frame_label(markers.frames[0])}-{frame_label(markers.frames[-1])})"
             )
     complete = candidates[vis[candidates].all(axis=1)]
     if complete.size == 0:
@@ -355,18 +303,15 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     StabiliseResult
     """
     idx = markers.index(names)
-    raw = _columns(markers.positions, idx)  # a copy of our own: fit_rigid_batch's cleaning is done here in place
     predicted = np.asarray(predicted, dtype=np.float64)
-    gap_raw, gap_pred = gap_mask(raw), gap_mask(predicted)
-    w = np.where(gap_raw | gap_pred, 0.0, np.asarray(weights, dtype=np.float64)[None])
-    raw[gap_raw] = 0.0
-    predicted = zero_rows(predicted, gap_pred)
-    # keep the gross fit's scale; refit rotation/translation on scaled points (then only the
-    # unscaled fit's rank test is used)
-    scaled = None if stab.scales is None else raw * stab.scales[:, None, None]
-    R, t, rank_ok = fit_rigid_masked(raw, predicted, w, overwrite=True)
-    if scaled is not None:
-        R, t, _ = fit_rigid_masked(scaled, predicted, w, overwrite=True)
+    weights = np.asarray(weights, dtype=np.float64)
+    F = markers.n_frames
+    R, t, rank_ok = np.empty((F, 3, 3)), np.empty((F, 3)), np.empty(F, dtype=bool)
+    for a in range(0, F, REFIT_BLOCK):  # frames are fitted independently (to rounding: best_rotation's
+        # Newton steps run until the block's last frame settles)
+        s = slice(a, a + REFIT_BLOCK)
+        scales = None if stab.scales is None else stab.scales[s]
+        R[s], t[s], rank_ok[s] = _refit(markers.positions[s], idx, predicted[s], weights, scales)
     flagged = stab.flagged | ~rank_ok
     R = np.where(flagged[:, None, None], stab.rotations, R)
     t = np.where(flagged[:, None], stab.translations, t)
@@ -375,11 +320,10 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     fitted[flagged] = np.nan
     fitted -= stab.reference
     err = _norm3(fitted)
-    with np.errstate(invalid="ignore"):
-        rms = np.sqrt(np.nanmean(err**2, axis=1))
+    rms = frame_rms(err)
     reasons = dict(stab.flag_reasons)
     for f in np.flatnonzero(flagged & ~stab.flagged):
-        reasons[_frame_label(markers.frames[f])] = "fine refit: markers not determined"
+        reasons[frame_label(markers.frames[f])] = "fine refit: markers not determined"
     return StabiliseResult(
         markers=_MovedMarkers(markers, R, t, stab.scales, flagged),
         stable_names=stab.stable_names,
@@ -396,6 +340,22 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     )
 
 
+def _refit(positions, idx, predicted, weights, scales):
+    """refine_rigid's fit of the frames of ``positions`` (the raw take's) against ``predicted``."""
+    raw = _columns(positions, idx)  # a copy of our own: the fit's cleaning is done here in place
+    gap_raw, gap_pred = gap_mask(raw), gap_mask(predicted)
+    w = np.where(gap_raw | gap_pred, 0.0, weights[None])
+    raw[gap_raw] = 0.0
+    predicted = zero_rows(predicted, gap_pred)
+    # keep the gross fit's scale; refit rotation/translation on scaled points (then only the
+    # unscaled fit's rank test is used)
+    scaled = None if scales is None else raw * scales[:, None, None]
+    R, t, rank_ok = fit_rigid_masked(raw, predicted, w, overwrite=True)
+    if scaled is not None:
+        R, t, _ = fit_rigid_masked(scaled, predicted, w, overwrite=True)
+    return R, t, rank_ok
+
+
 def smooth_head_motion(markers, stab, *, half_window, order=3):
     """Zero-phase smoothing of the per-frame head pose (head motion is slower than marker noise).
 
@@ -403,7 +363,6 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     average, exact for the small changes within a window) and projected back onto rotations.
     Flagged frames do not contribute and stay flagged.
     """
-
     if half_window <= 0 or markers.dim != 3:
         return stab
     ok = (~stab.flagged).astype(np.float64)
@@ -414,14 +373,14 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     R = best_rotation(smooth[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1))  # the rotation nearest each average
     t = smooth[:, 9:12]
     scales = None if stab.scales is None else smooth[:, 12]
-    moved = _apply(R, t, scales, markers.positions)
-    moved[stab.flagged] = np.nan
-    fitted = _columns(moved, markers.index(stab.stable_names))
-    with np.errstate(invalid="ignore"):
-        fitted -= stab.reference
-        rms = np.sqrt(np.nanmean(_norm3(fitted) ** 2, axis=1))
+    # The stable markers only (the same numbers as those rows of the full product, bit for bit); all
+    # of them are computed when first read.
+    fitted = _apply(R, t, scales, _columns(markers.positions, markers.index(stab.stable_names)))
+    fitted[stab.flagged] = np.nan
+    fitted -= stab.reference
+    rms = frame_rms(_norm3(fitted))
     return StabiliseResult(
-        markers=markers._with_mapped_positions(moved),
+        markers=_MovedMarkers(markers, R, t, scales, stab.flagged),
         stable_names=stab.stable_names,
         reference=stab.reference,
         rotations=R,
@@ -434,115 +393,3 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
         scales=scales,
         mode=stab.mode,
     )
-
-
-def stabilise_2d(markers, stable, *, reference_frames=None, mode="similarity", min_points=None, robust=True,
-                 iterations=5):
-    """Stabilise 2D tracks on stable points: per-frame similarity (or rigid) or affine map onto a reference.
-
-    Parameters
-    ----------
-    markers : MarkerSet (2D image tracks)
-    stable : sequence of str, points that move only with the head (>= 2 for similarity, >= 3 for affine)
-    reference_frames : (first, last) or None; the median of that range (default: the first frame
-        with every stable point) is the reference
-    mode : "similarity", "rigid" or "affine"
-    robust : bool
-        Tukey-reweight the stable points per frame (``iterations`` refits), so a "stable" point that
-        does move (a cheek in a smile, a slipping dot) loses its say; needs more points than the
-        model's minimum.
-
-    Returns
-    -------
-    StabiliseResult with ``rotations`` (F, 2, 2) holding the linear part (rotation x scale, or the
-    affine matrix), ``translations`` (F, 2) (see ``transforms_2d``); frames with too few points are flagged.
-    """
-    if markers.dim != 2:
-        raise FacecapError(f"stabilise 2D needs 2D markers; got D = {markers.dim}")
-    if mode not in ("rigid", "similarity", "affine"):
-        raise FacecapError(f"stabilise 2D: mode must be 'rigid', 'similarity' or 'affine'; got '{mode}'")
-    stable = tuple(stable)
-    need = 3 if mode == "affine" else 2
-    min_points = need if min_points is None else max(min_points, need)
-    if len(stable) < need:
-        raise FacecapError(f"stabilise 2D ({mode}): need at least {need} stable points; got {len(stable)} {list(stable)}")
-    idx = markers.index(stable, what="stable marker")
-    pts = markers.positions[:, idx]
-    vis = ~np.isnan(pts[:, :, 0])
-    F = markers.n_frames
-    if reference_frames is None:
-        complete = np.flatnonzero(vis.all(axis=1))
-        if complete.size == 0:
-            raise FacecapError("stabilise 2D: no frame shows all stable points")
-        reference = pts[complete[0]]
-    else:
-        sel = markers.frame_range_mask(*reference_frames)
-        if not sel.any():
-            raise FacecapError(f"stabilise 2D: reference frames {reference_frames[0]}-{reference_frames[1]} are outside the take")
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            reference = np.nanmedian(pts[sel], axis=0)
-        if np.isnan(reference).any():
-            raise FacecapError("stabilise 2D: a stable point is never visible in the reference frames")
-    # Tukey scale floor, unit-free: a small fraction of the stable points' spread.
-    floor = 1e-4 * float(np.sqrt(np.mean(np.sum((reference - reference.mean(axis=0)) ** 2, axis=1)))) or 1e-12
-    A = np.tile(np.eye(2), (F, 1, 1))
-    t = np.zeros((F, 2))
-    flagged = vis.sum(axis=1) < min_points
-    for f in np.flatnonzero(~flagged):
-        x, y = pts[f, vis[f]], reference[vis[f]]
-        w = np.ones(len(x))
-        fit = _fit_2d(x, y, w, mode)
-        for _ in range(iterations if robust and len(x) > need else 0):
-            M, c = fit
-            res = np.linalg.norm(x @ M.T + c - y, axis=1)
-            u = res / (4.685 * max(1.4826 * np.median(res), floor))
-            w = np.where(u < 1, (1 - u**2) ** 2, 0.0)
-            if (w > 0).sum() < need:
-                break
-            fit = _fit_2d(x, y, w, mode) or fit
-        if fit is None:
-            flagged[f] = True
-            continue
-        A[f], t[f] = fit
-    moved = (markers.positions @ A.transpose(0, 2, 1)) + t[:, None, :]
-    moved[flagged] = np.nan
-    err = np.linalg.norm(moved[:, idx] - reference[None], axis=2)
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        rms = np.sqrt(np.nanmean(np.where(vis, err, np.nan) ** 2, axis=1))
-    rms[flagged] = np.nan
-    reasons = {_frame_label(markers.frames[f]): f"only {int(vis[f].sum())} of {len(stable)} stable points visible "
-               f"(need {min_points}) or they are degenerate" for f in np.flatnonzero(flagged)}
-    return StabiliseResult(
-        markers=markers._with_mapped_positions(moved), stable_names=stable, reference=reference, rotations=A,
-        translations=t, rms=rms, flagged=flagged, flag_reasons=reasons, unreliable=np.zeros(F, dtype=bool),
-        marker_trust={n: 1.0 for n in stable}, scales=None, mode=mode,
-    )
-
-
-def _fit_2d(x, y, w, mode):
-    """Weighted fit ``y ~ M x + c`` (Umeyama for rigid/similarity, least squares for affine); None if degenerate."""
-    wn = w / w.sum()
-    cx, cy = wn @ x, wn @ y
-    x0, y0 = x - cx, y - cy
-    if mode == "affine":
-        sw = np.sqrt(wn)[:, None]
-        sol, _, rank, _ = np.linalg.lstsq(x0 * sw, y0 * sw, rcond=None)
-        if rank < 2:
-            return None
-        M = sol.T
-    else:
-        U, _, Vt = np.linalg.svd((x0 * wn[:, None]).T @ y0)
-        d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-        R = Vt.T @ np.diag([1.0, d]) @ U.T
-        var = float(wn @ np.sum(x0**2, axis=1))
-        if var <= 1e-24:
-            return None
-        M = R if mode == "rigid" else float(wn @ np.sum(y0 * (x0 @ R.T), axis=1)) / var * R
-    return M, cy - M @ cx
-
-
-def transforms_2d(result):
-    """(F, 2, 3) matrices ``[A | t]`` mapping raw image points onto the reference, from a 2D StabiliseResult."""
-    return np.concatenate([result.rotations, result.translations[:, :, None]], axis=2)

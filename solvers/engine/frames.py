@@ -14,9 +14,9 @@ fewer shapes are fixed than free, the fixed ones solve for their multipliers wit
 (``Hinv_BB m = x_B - u_B``, u the unconstrained optimum). Frames only re-solve while their state
 changes; the systems are gathered by size and solved in batches of exactly that size, so a frame
 costs O(min(free, fixed)^3), not O(K^3). Frames that have not settled after ``max_iter``
-iterations go to an exact per-frame fallback (``box_qp``, a BVLS-style primal active set in plain
-numpy, with a finite sign search for L1 on shapes whose range contains 0): per-frame solves need
-no scipy, which Blender does not ship.
+iterations go to an exact per-frame fallback (``engine.exact``: a BVLS-style primal active set in
+plain numpy, with a finite sign search for L1 on shapes whose range contains 0): per-frame solves
+need no scipy, which Blender does not ship. The state codes and classification are ``engine.states``.
 
 Inputs are trusted (validated by ``engine.solve_bounded``). Locked shapes arrive as lo == hi.
 """
@@ -29,10 +29,10 @@ from contextvars import ContextVar
 
 import numpy as np
 
+from .batched import hmul, solve_free
+from .exact import box_qp, exact_frame  # noqa: F401  (box_qp re-exported: the fallback's kernel)
+from .states import FREE, classify, fixed_values, start_state
 from .threads import single_blas_thread
-
-# state codes
-_FREE, _LO, _HI, _ZERO = 0, 1, 2, 3
 
 
 def patterns(C):
@@ -127,12 +127,30 @@ def pattern_inverses(Hp, pats=None, full=None):
 _REUSE = ContextVar("facecap_pattern_setup", default=None)
 
 
-class PatternSetup:
-    """Products kept by ``reuse_pattern_setup``: one ``_Products`` per exact (A, R)."""
+#: Bytes of pattern products a ``PatternSetup`` keeps by default (Hessian and inverse: 2 K^2 floats a
+#: pattern): every pattern of a 10-minute take of the sample character (8,519 patterns, 368 MB);
+#: none of a take whose patterns do not all fit (they are computed per chunk, as without reuse).
+REUSE_BYTES = 400 << 20
 
-    def __init__(self):
+
+class PatternSetup:
+    """Products kept by ``reuse_pattern_setup``: one ``_Products`` per exact (A, R), at most
+    ``max_bytes`` of them in all (each kept pattern books room for its Hessian and its inverse)."""
+
+    def __init__(self, max_bytes=REUSE_BYTES):
         self.lock = threading.Lock()
         self.problems = {}
+        self.room = int(max_bytes)
+
+    def book(self, n, K, whole=False):
+        """Room for up to ``n`` more patterns of K shapes; returns how many fit (with ``whole``: all
+        of them, or none)."""
+        with self.lock:
+            fit = max(0, min(int(n), self.room // (2 * K * K * 8)))
+            if whole and fit < n:
+                fit = 0
+            self.room -= fit * 2 * K * K * 8
+            return fit
 
 
 @contextmanager
@@ -147,9 +165,10 @@ def reuse_pattern_setup(setup=None):
     15.6 -> 14.1 s CPU; the temporal solve takes its Hessians without a copy.
 
     Scoped, not global: the products (two K x K floats per pattern: 2 x 184 MB there; the Hessians
-    replace the temporal solve's own, so +180 MB peak) live as long as ``setup`` (a
-    ``PatternSetup``; default: a new one, dropped on exit; pass one to share it across several
-    ``with`` blocks). Without ``setup``, a nested use shares the outer one. Per thread/task (a
+    replace the temporal solve's own) live as long as ``setup`` (a ``PatternSetup``; default: a new
+    one, dropped on exit; pass one to share it across several ``with`` blocks), and are bounded by
+    its ``max_bytes``: on longer takes the patterns beyond it are computed where needed, as
+    without reuse (the same bits either way). Without ``setup``, a nested use shares the outer one. Per thread/task (a
     context variable): solves elsewhere in the same process do not see it. Yields the setup.
     """
     if setup is None and _REUSE.get() is not None:
@@ -172,7 +191,7 @@ def reusable(A, R, C):
     # exact bytes (and layout) rather than a hash: equal keys then mean bit-identical products
     key = (A.shape, A.strides, R.shape, R.strides, np.dtype(C.dtype).str, A.tobytes(), R.tobytes())
     with setup.lock:
-        return setup.problems.setdefault(key, _Products())
+        return setup.problems.setdefault(key, _Products(setup))
 
 
 class _Blocks:
@@ -224,25 +243,29 @@ def _spans(n, size=512):
 class _Products:
     """Per-pattern setup products of one (A, R): each pattern's H, and its inverse and ``ok`` flag
     once a per-frame solve asked, found by the pattern's bytes. Each is computed on its own, so it
-    is bit-identical to a per-chunk computation, and never changes once stored."""
+    is bit-identical to a per-chunk computation, and never changes once stored. Patterns are kept
+    while the ``PatternSetup``'s room lasts."""
 
-    def __init__(self):
+    def __init__(self, setup=None):
         self.lock = threading.Lock()
+        self.setup = PatternSetup() if setup is None else setup
         self.index = {}  # pattern bytes -> row
+        self.declined = False  # the take's patterns did not all fit: none is kept
         self.H, self.Hinv = _Blocks(), _Blocks()
         self.ok = np.zeros(0, bool)
 
-    def prepare(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None):
-        """Snapshots of the products of ``pats`` for ``_Blocks.gather``: (H, (Hinv, ok) or None).
-        Missing ones are computed in slices mapped by ``map_`` (e.g. a thread pool's); inverses are
-        updated from ``full`` (a ``FullInverse`` of this A, R; default: made here)."""
+    def keep(self, A, pats, R, H_full=None, inverses=False, map_=map, full=None, whole=False):
+        """Compute and keep the products of ``pats`` not kept yet, while there is room; in slices
+        mapped by ``map_`` (e.g. a thread pool's); inverses are updated from ``full`` (a
+        ``FullInverse`` of this A, R; default: made here). ``whole``: ``pats`` are every pattern of
+        the take; if they do not all fit, none is kept, now or later (on a long take a fraction of
+        them would save little and hold the setup's whole budget). Returns the ``full`` used."""
         K = A.shape[1]
-        if pats.shape[0] == 0:
-            none = ([np.empty((0, K, K))], np.zeros((0, 2), np.intp))
-            return none, ((none, np.zeros(0, bool)) if inverses else None)
         with self.lock:
             keys = [p.tobytes() for p in pats]
             new = np.array([i for i, k in enumerate(keys) if k not in self.index], dtype=np.intp)
+            new = new[: 0 if self.declined else self.setup.book(new.size, K, whole)]
+            self.declined |= whole and new.size < sum(k not in self.index for k in keys)
             if inverses and full is None and (new.size or (self.Hinv.where[:, 0] < 0).any()):
                 full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
             if new.size:
@@ -266,111 +289,52 @@ class _Products:
                     if inv is not None:
                         self.Hinv.add(np.arange(n0 + a, n0 + b), inv[0])
                         self.ok[n0 + a : n0 + b] = inv[1]
-            rows = np.fromiter((self.index[k] for k in keys), dtype=np.intp, count=len(keys))
-            H = self.H.snapshot(rows)
-            if not inverses:
-                return H, None
-            need = self.Hinv.where[rows, 0] < 0  # kept by a solve that needed no inverses (a temporal one)
-            if need.any():
-                todo, pt = rows[need], pats[need]
-                Ht = _Blocks.gather(self.H.snapshot(todo))
-                spans = _spans(todo.size)
+            if inverses:
+                rows = np.fromiter((self.index.get(k, -1) for k in keys), dtype=np.intp, count=len(keys))
+                need = rows >= 0
+                need[need] = self.Hinv.where[rows[need], 0] < 0  # kept by a solve that needed no inverses (a temporal one)
+                if need.any():
+                    todo, pt = rows[need], pats[need]
+                    Ht = _Blocks.gather(self.H.snapshot(todo))
+                    spans = _spans(todo.size)
 
-                def invert(span):
-                    return pattern_inverses(Ht[span[0] : span[1]], pt[span[0] : span[1]], full)
+                    def invert(span):
+                        return pattern_inverses(Ht[span[0] : span[1]], pt[span[0] : span[1]], full)
 
-                for (a, b), (Hi, ok) in zip(spans, map_(invert, spans)):
-                    self.Hinv.add(todo[a:b], Hi)
-                    self.ok[todo[a:b]] = ok
-            return H, (self.Hinv.snapshot(rows), self.ok[rows])
+                    for (a, b), (Hi, ok) in zip(spans, map_(invert, spans)):
+                        self.Hinv.add(todo[a:b], Hi)
+                        self.ok[todo[a:b]] = ok
+        return full
+
+    def prepare(self, A, pats, R, H_full=None, inverses=False, full=None):
+        """The products of ``pats`` in their order: (H (n, K, K), (Hinv, ok) or None); kept ones
+        taken (without a copy when they are one kept block in order), new ones kept while there is
+        room, the others computed here."""
+        K = A.shape[1]
+        full = self.keep(A, pats, R, H_full, inverses, full=full)
+        with self.lock:
+            rows = np.fromiter((self.index.get(p.tobytes(), -1) for p in pats), dtype=np.intp, count=pats.shape[0])
+            kept = rows >= 0
+            H = self.H.snapshot(rows[kept])
+            Hi = (self.Hinv.snapshot(rows[kept]), self.ok[rows[kept]]) if inverses else None
+        if kept.all():
+            return _Blocks.gather(H), (None if Hi is None else (_Blocks.gather(Hi[0]), Hi[1]))
+        Hp = np.empty((pats.shape[0], K, K))
+        if kept.any():
+            Hp[kept] = _Blocks.gather(H)
+        Hp[~kept] = pattern_hessians(A, pats[~kept], R, H_full)
+        if not inverses:
+            return Hp, None
+        if full is None:
+            full = FullInverse(A, A.T @ A + R if H_full is None else H_full)
+        Hinv, ok = np.empty_like(Hp), np.empty(pats.shape[0], bool)
+        if kept.any():
+            Hinv[kept], ok[kept] = _Blocks.gather(Hi[0]), Hi[1]
+        Hinv[~kept], ok[~kept] = pattern_inverses(Hp[~kept], pats[~kept], full)
+        return Hp, (Hinv, ok)
 
     def hessians(self, A, pats, R, H_full=None):
-        return _Blocks.gather(self.prepare(A, pats, R, H_full)[0])
-
-
-def hmul(Hp, inv, x):
-    """y_f = H_{inv[f]} x_f for every row of x."""
-    n_pat = Hp.shape[0]
-    if n_pat == 1:
-        return x @ Hp[0]
-    if n_pat * 2 > x.shape[0]:  # few rows per pattern: one gathered einsum (GIL-free in threads)
-        return np.einsum("nkl,nl->nk", Hp[inv], x)
-    return hmul_by_pattern(Hp, inv, x)
-
-
-def hmul_by_pattern(Hp, inv, x):
-    """``hmul`` as one product per pattern present: rows sorted by pattern, slices, no gather of
-    the matrices. Faster single-threaded for many rows (the temporal kernel); its Python loop makes
-    it slower than the einsum in the threaded per-frame kernel (measured)."""
-    n = x.shape[0]
-    if n <= 256:  # few rows: gathering their matrices is cheap
-        return np.einsum("nkl,nl->nk", Hp[inv], x)
-    order = np.argsort(inv, kind="stable")
-    si = inv[order]
-    starts = np.flatnonzero(np.concatenate([[True], si[1:] != si[:-1]]))
-    ends = np.append(starts[1:], n)
-    xs = x[order]
-    ys = np.empty_like(xs)
-    for a, b, p in zip(starts.tolist(), ends.tolist(), si[starts].tolist()):
-        ys[a:b] = xs[a:b] @ Hp[p]
-    y = np.empty_like(x)
-    y[order] = ys
-    return y
-
-
-def classify(v, step, lo, hi, lam):
-    """State of each variable from the proximal point v (see module docstring); ``step`` per frame
-    (F,) or per variable (F, K)."""
-    state = np.full(v.shape, _FREE, dtype=np.int8)
-    if not lam.any():  # no L1: the shrunk point is v itself (the same states, fewer passes)
-        t = v
-        state[v == 0] = _ZERO
-    else:
-        tau = (step if step.ndim == 2 else step[:, None]) * lam
-        t = np.sign(v) * np.maximum(np.abs(v) - tau, 0.0)
-        state[np.abs(v) <= tau] = _ZERO
-    state[t >= hi] = _HI
-    state[t <= lo] = _LO
-    sign = np.sign(v)
-    return state, sign
-
-
-def start_state(w, lo, hi, lam):
-    """(state, sign) of the weights ``w`` (e.g. an earlier solve's), read as an active set."""
-    state = np.full(w.shape, _FREE, dtype=np.int8)
-    state[(w == 0) & (lam > 0) & (lo < 0) & (hi > 0)] = _ZERO
-    state[w <= lo] = _LO
-    state[w >= hi] = _HI
-    return state, np.sign(w)
-
-
-def fixed_values(state, lo, hi):
-    return np.where(state == _LO, lo, np.where(state == _HI, hi, 0.0))
-
-
-def solve_free(Hp, inv, free, rhs):
-    """x with x_F = H_FF^{-1} rhs_F per frame (0 elsewhere), batched by free-set size."""
-    n, K = free.shape
-    x = np.zeros((n, K))
-    cnt = free.sum(axis=1)
-    itype = np.int32 if Hp.size < 2**31 else np.int64  # smaller index arrays gather faster
-    idx_all = np.argsort(~free, axis=1, kind="stable").astype(itype)  # free indices first, in order
-    inv_k = inv.astype(itype) * K
-    flat_H = Hp.reshape(-1)
-    order = np.lexsort((inv, cnt))  # by size, then by pattern (cache-friendly gathers)
-    sizes = cnt[order]
-    starts = np.searchsorted(sizes, np.arange(K + 2))
-    for s in range(1, K + 1):
-        sel = order[starts[s] : starts[s + 1]]
-        if sel.size == 0:
-            continue
-        idx = idx_all[sel, :s]
-        rows = inv_k[sel][:, None] + idx  # row of H_p, flattened over patterns
-        M = np.take(flat_H, (rows * K)[:, :, None] + idx[:, None, :])
-        b = np.take_along_axis(rhs[sel], idx, axis=1)
-        sol = np.linalg.solve(M, b[:, :, None])[:, :, 0]
-        x[sel[:, None], idx] = sol
-    return x
+        return self.prepare(A, pats, R, H_full)[0]
 
 
 def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=None, exact=True, start=None):
@@ -404,8 +368,7 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
             Hp = pattern_hessians(A, pats, R, H_full)
             inverses = pattern_inverses(Hp, pats, full)
         else:  # this chunk's patterns, in its own order (the kernels' shapes and code paths as without)
-            H, (Hinv, ok) = products.prepare(A, pats, R, H_full, inverses=True, full=full)
-            Hp, inverses = _Blocks.gather(H), (_Blocks.gather(Hinv), ok)
+            Hp, inverses = products.prepare(A, pats, R, H_full, inverses=True, full=full)
         state = None if start is None else start_state(start[sl], lo[sl], hi[sl], lam)
         w, it, bad, sign = _pdas(Hp, inv, G[sl], lo[sl], hi[sl], lam, max_iter, state, inverses)
         if bad.size and not exact:  # a starting guess is enough: clip the last iterate
@@ -422,7 +385,7 @@ def solve_frames(A, C, G, R, lo, hi, lam, *, max_iter=40, chunk=4096, workers=No
         if workers > 1 and n_chunks > 1:
             with ThreadPoolExecutor(workers) as pool:
                 if products is not None:  # the take's patterns once, on the threads (chunks repeat them)
-                    products.prepare(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full)
+                    products.keep(A, patterns(C)[0], R, H_full, inverses=True, map_=pool.map, full=full, whole=True)
                 out = list(pool.map(one, range(0, F, chunk)))
         else:
             out = [one(s) for s in range(0, F, chunk)]
@@ -459,7 +422,7 @@ def _pdas(Hp, inv, g, lo, hi, lam, max_iter, state=None, inverses=None):
         else:
             st, sg = classify(w[active] - step[active, None] * grad, step[active], lo[active], hi[active], lam)
         if prev is not None:
-            keep = ((st != prev) | ((st == _FREE) & (sg != prev_sg) & (lam > 0))).any(axis=1)
+            keep = ((st != prev) | ((st == FREE) & (sg != prev_sg) & (lam > 0))).any(axis=1)
             if not keep.all():
                 last_drop = it
             active, st, sg, ia = active[keep], st[keep], sg[keep], ia[keep]
@@ -469,7 +432,7 @@ def _pdas(Hp, inv, g, lo, hi, lam, max_iter, state=None, inverses=None):
                 # a few frames cycling between states (measured: 2-8 of 4000 for 30 iterations on
                 # the sample character): the exact fallback is cheaper than waiting for max_iter
                 return w, it, active, sign
-        free = st == _FREE
+        free = st == FREE
         xf = fixed_values(st, lo[active], hi[active])
         lin = lam * np.where(free, sg, 0.0) if has_l1 else None
         wa, grad = _equality_solve(Hp, Hinv, ia, free, xf, g[active], u0[active], lin, dual_ok[active])
@@ -509,85 +472,3 @@ def _equality_solve(Hp, Hinv, ia, free, xf, g, u0, lin, dual_ok):
         w[Dn] = np.where(fixed, xf[Dn], u + hmul(Hinv, iD, m))
         grad[Dn] = m if lin is None else m - lin[Dn]
     return w, grad
-
-
-def exact_frame(H, g, lo, hi, lam, sign0=None):
-    """Exact solve of one frame's box/L1 QP.
-
-    Fixed variables (lo == hi) are eliminated; shapes whose range excludes 0 carry their L1 term as
-    a linear term; shapes whose range straddles 0 (with lam > 0) are solved orthant by orthant with
-    ``box_qp``, flipping the sign of any variable stuck at 0 whose subgradient condition fails. Each flip
-    strictly lowers the objective, so the search ends.
-    """
-    K = g.size
-    w = np.where(lo == hi, lo, 0.0).astype(float)
-    fr = np.flatnonzero(lo < hi)
-    if fr.size == 0:
-        return w
-    fx = np.flatnonzero(lo == hi)
-    Hr = H[np.ix_(fr, fr)]
-    gr = g[fr] - H[np.ix_(fr, fx)] @ w[fx]
-    l, h, lm = lo[fr], hi[fr], lam[fr]
-    straddle = (l < 0) & (h > 0) & (lm > 0)
-    s = np.where(l >= 0, 1.0, np.where(h <= 0, -1.0, 0.0))
-    if sign0 is not None:
-        s0 = np.sign(sign0[fr])
-        s[straddle] = np.where(s0[straddle] < 0, -1.0, 1.0)
-    else:
-        s[straddle] = 1.0
-    x = None
-    for _ in range(4 * K + 8):
-        lb = np.where(straddle & (s > 0), 0.0, l)
-        ub = np.where(straddle & (s < 0), 0.0, h)
-        x = box_qp(Hr, gr - lm * s, lb, ub, x)
-        grad = Hr @ x - gr
-        at0 = straddle & (np.abs(x) <= 1e-14)
-        flip = at0 & (((s > 0) & (grad > lm)) | ((s < 0) & (grad < -lm)))
-        if not flip.any():
-            break
-        s[flip] = -s[flip]
-    w[fr] = x
-    return w
-
-
-def box_qp(H, q, lb, ub, x0=None):
-    """Exact minimiser of ``1/2 x'Hx - q'x`` on ``lb <= x <= ub`` (H SPD; bounds may be infinite).
-
-    Primal active set in the manner of Lawson-Hanson / BVLS: keep a feasible point and a set of
-    variables held at a bound; solve for the others; if that point leaves the box, step to the
-    first bound hit and hold that variable too; otherwise release the held variable whose
-    multiplier has the wrong sign (the worst one), or stop when none has. Each release strictly
-    lowers the objective and each step holds one more variable, so it ends; a generous iteration
-    cap guards against rounding-induced cycling.
-    """
-    n = q.size
-    x = np.clip(np.zeros(n) if x0 is None else x0, lb, ub)
-    held = (x <= lb) | (x >= ub)
-    movable = lb < ub
-    scale = max(float(np.abs(np.diag(H)).max(initial=0.0)), 1e-300)
-    tol = 1e-13 * scale * max(1.0, float(np.abs(x).max(initial=0.0)))
-    for _ in range(20 * n + 40):
-        fr = ~held
-        z = x.copy()
-        if fr.any():
-            z[fr] = np.linalg.solve(H[np.ix_(fr, fr)], q[fr] - H[np.ix_(fr, held)] @ x[held])
-        out = fr & ((z < lb) | (z > ub))
-        if not out.any():
-            x = z
-            grad = H @ x - q
-            wrong = np.where(held & movable & (x <= lb), -grad, 0.0)  # wants to rise off lb
-            wrong = np.maximum(wrong, np.where(held & movable & (x >= ub), grad, 0.0))
-            k = int(np.argmax(wrong))
-            if wrong[k] <= tol:
-                return x
-            held[k] = False
-            continue
-        d = z - x
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(out & (z < lb), (lb - x) / d, np.where(out & (z > ub), (ub - x) / d, np.inf))
-        k = int(np.argmin(t))
-        x = x + np.clip(t[k], 0.0, 1.0) * d
-        x[k] = lb[k] if z[k] < lb[k] else ub[k]
-        x = np.clip(x, lb, ub)
-        held[k] = True
-    return x

@@ -8,6 +8,7 @@ import numpy as np
 from ..errors import FacecapError
 from .frames import solve_frames
 from .result import SolveResult
+from .split import release_freed_memory
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,6 +57,18 @@ def _per_shape(x, name, F, K, *, allow_frames=True):
 def _compact(x):
     """(F, K) ``x`` as (1, K) where every row is the same by construction (a broadcast view)."""
     return x[:1] if x.shape[0] and x.strides[0] == 0 else x
+
+
+def _block(x, rows):
+    """Rows ``rows`` (a slice) of an (F, K) array, or ``x`` itself where it is one row for every frame."""
+    return x if x.shape[0] == 1 else x[rows]
+
+
+def _rows(x, rows):
+    """``x[rows]`` for (F, K) bounds, still a broadcast view where every row is the same."""
+    if isinstance(rows, slice) or x.strides[0]:
+        return x[rows]
+    return np.broadcast_to(x[:1], (rows.size, x.shape[1]))
 
 
 def _mask(mask, finite, dims):
@@ -227,7 +240,9 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
     if prob.held.size:
         held_lo, held_hi = prob.lo[:, prob.held], prob.hi[:, prob.held]
         hold = np.where(locked[:, prob.held], prob.lock[:, prob.held], np.clip(0.0, held_lo, held_hi))
-    W = np.full((F, K), np.nan)
+    whole_take = (temporal and len(prob.regions) == 1 and prob.held.size == 0
+                  and np.array_equal(prob.regions[0][0], np.arange(K)))
+    W = None if whole_take else np.full((F, K), np.nan)  # a whole-take solve's result is used as it is
     if prob.held.size:
         W[:, prob.held] = hold
     solved_any = np.zeros(F, dtype=bool)
@@ -254,15 +269,19 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
         has = Cr.sum(axis=1) > 0
         w0 = None
         if start is not None:  # frames or shapes it leaves NaN start from their rest value
-            w0 = start[:, var]
-            w0 = np.where(np.isnan(w0), np.clip(0.0, lo, hi), w0)
+            w0 = start if whole else start[:, var]
+            if np.isnan(w0).any():
+                w0 = np.where(np.isnan(w0), np.clip(0.0, lo, hi), w0)
         if temporal:
             if not has.any():
                 continue
             from .temporal import solve_temporal  # loads scipy
 
             w, it, ok = solve_temporal(Ar, Cr, G, Rr, lo, hi, l1, prob.mu, max_iter=max_iter, chunk=chunk, start=w0)
-            W[:, shapes] = w[:, :nr]
+            if W is None:  # the solve is the whole result: no (F, K) copy
+                W = w
+            else:
+                W[:, shapes] = w[:, :nr]
             solved_any[:] = True
             converged &= ok
         else:
@@ -270,8 +289,9 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
             if idx.size == 0:
                 continue
             rows = slice(None) if idx.size == F else idx  # every frame has data: no (F, P) copies
-            w, it, fb = solve_frames(Ar, Cr[rows], G[rows], Rr, lo[rows], hi[rows], l1, max_iter=max_iter,
-                                     chunk=chunk, start=None if w0 is None else w0[rows], exact=exact)
+            w, it, fb = solve_frames(Ar, Cr[rows], G[rows], Rr, _rows(lo, rows), _rows(hi, rows), l1,
+                                     max_iter=max_iter, chunk=chunk, start=None if w0 is None else w0[rows],
+                                     exact=exact)
             if whole:
                 W[rows] = w
             else:
@@ -285,6 +305,8 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
             if miss.any():
                 W[:, shapes] = np.where(miss, prob.lock[:, shapes], W[:, shapes])
 
+    if W is None:  # no data at all
+        W = np.full((F, K), np.nan)
     Wz = np.where(np.isnan(W), 0.0, W) if np.isnan(W).any() else W
 
     def residuals():  # (F, P): computed when first asked for (most callers never do)
@@ -293,21 +315,30 @@ def run(prob, *, max_iter, chunk, start=None, exact=True):
         r[C == 0] = 0.0  # also every NaN of D
         return r
 
+    def residual_rows(a, b):  # the same for frames [a, b)
+        r = Wz[a:b] @ A.T
+        r -= D[a:b]
+        r[C[a:b] == 0] = 0.0
+        return r
+
     lo, hi = _compact(prob.lo), _compact(prob.hi)  # bounds the same for every frame: (1, K), no (F, K) temporaries
     tol = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
     free_shape = ~locked1
     if prob.held.size:
         free_shape[:, prob.held] = False
-    near = np.abs(Wz - lo) <= tol
-    near |= np.abs(Wz - hi) <= tol
-    at = near & free_shape
-    at_bound = at.sum(axis=1)
+    at_bound = np.empty(F, dtype=np.intp)
+    for a in range(0, F, 8192):  # in blocks of frames: no (F, K) temporaries
+        s = slice(a, a + 8192)
+        near = np.abs(Wz[s] - _block(lo, s)) <= _block(tol, s)
+        near |= np.abs(Wz[s] - _block(hi, s)) <= _block(tol, s)
+        at_bound[s] = (near & _block(free_shape, s)).sum(axis=1)
     at_bound[~solved_any] = 0
     if (~solved_any).any():
         notes.append(f"{int((~solved_any).sum())} frame(s) had no visible markers and were not solved")
     if not converged:
         notes.append(f"temporal solve did not settle within {max_iter} active-set iterations; weights are feasible but not optimal")
+    release_freed_memory(F)  # on long takes: what the solve freed, before the next stage
     return SolveResult(
         W, residuals, at_bound, solved_any, iters, fallback, tuple(notes), converged,
-        "temporal" if temporal else "per-frame",
+        "temporal" if temporal else "per-frame", residual_rows,
     )

@@ -32,26 +32,20 @@ changes until it falls again (after Judice & Pires' block-pivoting safeguard). M
 frame slices of the sample take with L1 1-10^4 times the default, smoothing 0.1-10 times and
 kinks at 0: 15 of 24 configurations ran out of 40 iterations before, 1 runs out of 200 now.
 
-Long takes are first solved as two overlapping halves at the same time (``engine_split``: the
-second in a forked child); the whole-take iteration then starts from the joined halves and only
-has to settle the seam (measured: 2 iterations, 0.3 s on 36,000 frames).
+Long takes (``SPLIT_FRAMES`` and more) are solved in windows of ``WINDOW_FRAMES`` frames whose seams
+are then settled exactly (``engine.windows``): the same optimum, in the memory of one window per
+process (the first pass's windows are shared by two processes, ``engine.split``). Measured on
+100 minutes at 60 fps of the sample character: see docs/performance.md.
 """
 
 import numpy as np
 
 from .banded import context, frame_band, solve_window
-from .frames import (
-    _FREE,
-    _ZERO,
-    classify,
-    fixed_values,
-    hmul_by_pattern,
-    pattern_hessians,
-    patterns,
-    reusable,
-    solve_frames,
-)
-from .split import fork_available, run_pair
+from . import windows
+from .batched import hmul_by_pattern
+from .frames import pattern_hessians, patterns, reusable, solve_frames
+from .split import run_beside
+from .states import FREE, ZERO, classify, fixed_values
 from .threads import single_blas_thread
 from .trajectory import dilate, pentadiagonal_mul, predict_states
 
@@ -161,62 +155,123 @@ def _settle(ctx, qmul_rows, T, G, w, grad, free, lin, tol, pad, max_rounds=8):
     return w, grad, touched
 
 
-#: Takes at least this long are cut in two halves solved at the same time (``engine_split``); the
-#: whole-take iteration then starts from their joined solution and only settles the seam.
+#: Takes at least this long are solved in windows (``engine.windows``): memory bounded by a window,
+#: and the windows of the first pass shared by two processes (``engine.split``) where possible.
 SPLIT_FRAMES = 6000
-#: Frames each half runs past the middle, so that its free end is far from the seam.
+#: Frames each window of the first pass runs past its core on both sides, so that its free ends are
+#: far from the seams (the seam windows then only confirm them).
 OVERLAP = 200
+#: Core length of the first pass's windows (frames). Each window holds its banded factor (about
+#: 29 KB a frame on the sample character) and (frames, K) iterates; measured on 36,000 frames of
+#: the sample character: see docs/performance.md.
+WINDOW_FRAMES = 6000
+#: Half-width (frames) of the first window solved around each seam.
+SEAM = 32
+
+
+def residual_tolerance(scale, w):
+    """The kernel's tolerance on the free residual: rounding level of the system's largest entry."""
+    return 1e-12 * scale * max(1.0, float(np.abs(w).max(initial=0.0)))
 
 
 def solve_temporal(A, C, G, R, lo, hi, lam, mu, *, max_iter=200, chunk=4096, pad=32, split=True, start=None):
     """Solve the whole take. Shapes as in ``engine_frames.solve_frames``; mu = (mu1, mu2) absolute.
     ``start`` (F, K): weights to start from instead of the per-frame guess (e.g. a per-frame solve
     the caller already has); only the work changes, not the optimum. Should the iteration not settle
-    from ``start`` within ``max_iter``, it runs again from the per-frame guess.
+    from ``start`` within ``max_iter``, it runs again from the per-frame guess. Takes of at least
+    ``SPLIT_FRAMES`` frames (with ``split``) are solved in windows whose seams are settled exactly
+    (``engine.windows``): the same optimum, in memory bounded by the window length.
 
     Returns (W (F, K), iterations, converged).
     """
-
     F, K = G.shape
+    products = reusable(A, R, C)  # pattern Hessians kept from earlier solves, when asked (this thread's)
+    if split and F >= SPLIT_FRAMES:
+        return _solve_windows(A, C, G, R, lo, hi, lam, mu, products, max_iter, chunk, pad, start)
+    w, it, ok, _ = _solve_piece(A, C, G, R, lo, hi, lam, temporal_operator(F, *mu), products, max_iter, chunk,
+                                pad, start, None)
+    return w, it, ok
+
+
+def _solve_piece(A, C, G, R, lo, hi, lam, T, products, max_iter, chunk, pad, first, workers):
+    """The kernel on one piece: a whole take, or a window of one (``T`` its temporal operator, ``G``
+    with the held frames' coupling folded in). Starts from ``first`` if given (clipped), else from
+    per-frame solves; should ``first`` not settle, again from those.
+    Returns (W, iterations, converged, scale of the system)."""
     pats, inv = patterns(C)
-    Hp = pattern_hessians(A, pats, R, products=reusable(A, R, C))  # kept from earlier solves when asked
+    Hp = pattern_hessians(A, pats, R, products=products)
 
-    def run(first):
-        def guess(a, b, workers):
-            """Start for frames [a, b): ``first``, or per-frame solves (frames without data: their rest value)."""
-            if first is not None:
-                return np.clip(first[a:b], lo[a:b], hi[a:b])
-            w = np.clip(0.0, lo[a:b], hi[a:b]).astype(float)
-            idx = np.flatnonzero(C[a:b].sum(axis=1) > 0)
-            if idx.size:
-                idx_t = idx + a
-                w[idx] = solve_frames(A, C[idx_t], G[idx_t], R, lo[idx_t], hi[idx_t], lam, max_iter=INIT_ITER,
-                                      chunk=chunk, exact=False, workers=workers)[0]
-            return w
+    def guess(first):
+        """``first``, or per-frame solves (frames without data: their rest value)."""
+        if first is not None:
+            return np.clip(first, lo, hi)
+        w = np.clip(0.0, lo, hi).astype(float)
+        idx = np.flatnonzero(C.sum(axis=1) > 0)
+        if idx.size:
+            w[idx] = solve_frames(A, C[idx], G[idx], R, lo[idx], hi[idx], lam, max_iter=INIT_ITER, chunk=chunk,
+                                  exact=False, workers=workers)[0]
+        return w
 
-        def half(a, b):
-            return _active_set(Hp, inv[a:b], G[a:b], lo[a:b], hi[a:b], lam, mu, guess(a, b, 1), max_iter, pad)
-
-        iters = 0
-        if split and F >= SPLIT_FRAMES and fork_available():
-            m = F // 2
-            b0 = max(0, m - OVERLAP)
-            (wa, ia, _), (wb, ib, _) = run_pair(half, (0, min(F, m + OVERLAP)), (b0, F))
-            w = np.concatenate([wa[:m], wb[m - b0 :]])
-            iters = max(ia, ib)
-        else:
-            w = guess(0, F, None)
-        w, it, ok = _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad)
-        return w, iters + it, ok
-
-    w, it, ok = run(start)
-    if not ok and start is not None:
+    w, it, ok = _active_set(Hp, inv, G, lo, hi, lam, T, guess(first), max_iter, pad)
+    if not ok and first is not None:
         # The active set can wander without settling from some starts (measured: a smooth start on
         # weakly observed shapes of the sample character); the per-frame guess is the start the
         # iteration is made for, so a given start that fails is dropped for it.
-        w, more, ok = run(None)
+        w, more, ok = _active_set(Hp, inv, G, lo, hi, lam, T, guess(None), max_iter, pad)
         it += more
-    return w, it, ok
+    return w, it, ok, _scale(Hp, T)
+
+
+def _solve_windows(A, C, G, R, lo, hi, lam, mu, products, max_iter, chunk, pad, start):
+    """The whole take in windows (``engine.windows``): cores in windows with free ends, then the seams."""
+    F, K = G.shape
+    edges = windows.cores(F, WINDOW_FRAMES)
+    n = edges.size - 1
+    W = np.empty((F, K))
+
+    def run_cores(first, last, out):
+        """Cores [first, last) one after the other, into ``out`` (their frames); (iterations, converged)."""
+        its, oks = [0], [True]
+        for i in range(first, last):
+            a, b = max(0, int(edges[i]) - OVERLAP), min(F, int(edges[i + 1]) + OVERLAP)
+            w, it, ok, _ = _solve_piece(A, C[a:b], G[a:b], R, lo[a:b], hi[a:b], lam, temporal_operator(b - a, *mu),
+                                        products, max_iter, chunk, pad, None if start is None else start[a:b], 1)
+            out[edges[i] - edges[first] : edges[i + 1] - edges[first]] = w[edges[i] - a : edges[i + 1] - a]
+            its.append(it)
+            oks.append(ok)
+        return max(its), all(oks)
+
+    def there():  # the child's half comes back as an array
+        out = np.empty((edges[n] - edges[n // 2], K))
+        return out, run_cores(n // 2, n, out)
+
+    (it_a, ok_a), (wb, (it_b, ok_b)) = run_beside(lambda: run_cores(0, n // 2, W), there)
+    W[edges[n // 2] :] = wb
+    del wb
+    it_s, ok_s = _settle_seams(A, C, G, R, lo, hi, lam, temporal_operator(F, *mu), products, max_iter, chunk, pad,
+                               W, edges)
+    return W, max(it_a, it_b) + it_s, ok_a and ok_b and ok_s
+
+
+def _settle_seams(A, C, G, R, lo, hi, lam, T, products, max_iter, chunk, pad, W, edges):
+    """Settle every seam of ``W`` in place (``engine.windows``); returns (iterations, converged)."""
+    F = W.shape[0]
+    seams = windows.Seams(edges, max(SEAM, 3), F)
+    reach = windows.coupling(T)
+    its, ok_all = [0], True
+    while (span := seams.next()) is not None:
+        a, b = span
+        Gw = G[a:b] - windows.held_coupling(T, W, a, b)
+        w, it, ok, scale = _solve_piece(A, C[a:b], Gw, R, lo[a:b], hi[a:b], lam, windows.window_operator(T, a, b),
+                                        products, max_iter, chunk, pad, W[a:b], 1)
+        left, right = windows.edge_changes(W[a:b], w, a, b, F)
+        W[a:b] = w
+        its.append(it)
+        ok_all &= ok
+        # the neighbours outside read the edge frames: moved beyond the tolerance, the window grows
+        tol = residual_tolerance(scale, w)
+        seams.settle(a, b, left * reach > tol, right * reach > tol)
+    return max(its), ok_all
 
 
 def _single_changes(changed, st_old, st_new, frames, pad):
@@ -231,8 +286,8 @@ def _single_changes(changed, st_old, st_new, frames, pad):
     heads = rows[np.concatenate([[True], f[1:] - f[:-1] > 2 * pad])]
     one = np.zeros_like(changed)
     one[heads, np.argmax(changed[heads], axis=1)] = True
-    jump = one & (st_old != _FREE) & (st_new != _FREE)
-    return one, np.where(jump, _FREE, st_new).astype(st_new.dtype)
+    jump = one & (st_old != FREE) & (st_new != FREE)
+    return one, np.where(jump, FREE, st_new).astype(st_new.dtype)
 
 
 #: First iteration whose classification goes through the trajectory predictor. The first one reads
@@ -250,10 +305,15 @@ PREDICT_FROM = 2
 SAFE_TRIES = 3
 
 
-def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
-    """The primal-dual active-set iteration over frames with pattern Hessians ``Hp[inv]``, from ``w``."""
+def _scale(Hp, T):
+    """Largest entry of the system (within-frame and temporal)."""
+    return float(np.abs(Hp).max() + np.abs(T[0]).max(initial=0.0))
+
+
+def _active_set(Hp, inv, G, lo, hi, lam, T, w, max_iter, pad):
+    """The primal-dual active-set iteration over frames with pattern Hessians ``Hp[inv]`` and the
+    temporal operator ``T`` (``temporal_operator``, or a window's), from ``w``."""
     F, K = G.shape
-    T = temporal_operator(F, *mu)
     w = np.array(w, dtype=float)
 
     def qmul_rows(X, rows):
@@ -263,7 +323,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
     # puts it (a step from the mean curvature sent strong shapes from one bound straight to the other)
     curvature = np.maximum(np.einsum("nkk->nk", Hp)[inv] + T[0][:, None], 1e-300)  # Q_kk
     step = 1.0 / curvature
-    scale = float(np.abs(Hp).max() + np.abs(T[0]).max(initial=0.0))
+    scale = _scale(Hp, T)
     has_l1 = bool(np.any(lam > 0))
     with single_blas_thread():
         grad = qmul_rows(w, None) + _tmul(T, w) - G
@@ -273,7 +333,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
         predict = True  # the trajectory predictor, until an iteration fails to reduce the wrong count
         pending = np.zeros(F, dtype=bool)  # frames with wrong variables the safeguard left for later
         for it in range(1, max_iter + 1):
-            free = st == _FREE
+            free = st == FREE
             if redo.any():
                 idx = np.flatnonzero(redo)
                 target = np.where(free[idx], w[idx], fixed_values(st[idx], lo[idx], hi[idx]))
@@ -285,7 +345,7 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
                 w[idx] = target[moved]
                 grad += _qdelta(qmul_rows, T, delta, redo)
             lin = lam * np.where(free, sg, 0.0) if has_l1 else 0.0
-            tol = 1e-12 * scale * max(1.0, float(np.abs(w).max(initial=0.0)))
+            tol = residual_tolerance(scale, w)
             w, grad, touched = _settle(context(Hp, inv, T, free), qmul_rows, T, G, w, grad, free, lin, tol, pad)
             # only frames whose w or grad moved can change state (early on: all of them, no gathers)
             near = touched | dilate(redo, 2) | pending
@@ -296,8 +356,8 @@ def _active_set(Hp, inv, G, lo, hi, lam, mu, w, max_iter, pad):
                 # A free weight whose sign changes stops at the kink 0 first: on shapes the markers
                 # barely see, a direct jump to the other sign moves it across the whole flat
                 # direction and back every iteration (measured: +-0.5 for a 3.6e-7 change).
-                flip = (st[idx] == _FREE) & (st_t == _FREE) & (sg_t != sg[idx]) & (lam > 0)
-                st_t[flip] = _ZERO
+                flip = (st[idx] == FREE) & (st_t == FREE) & (sg_t != sg[idx]) & (lam > 0)
+                st_t[flip] = ZERO
             changed = st_t != st[idx]
             n_wrong = int(changed.sum())
             pending[:] = False  # every pending frame was in idx

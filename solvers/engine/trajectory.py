@@ -19,7 +19,7 @@ checks it (KKT) and corrects what the coupling between shapes changes, so the op
 import numpy as np
 
 from ..errors import needs
-from .frames import _FREE, _ZERO, classify, fixed_values
+from .states import FREE, ZERO, classify, fixed_values
 
 with needs("scipy", "The temporal solve (smoothing over time)"):  # Blender has scipy only from the zip
     from scipy.linalg import lapack
@@ -71,7 +71,7 @@ def _round(diag, couplings, w0, g0, lo0, hi0, lam0, st, sg):
     """One active-set round of the stacked trajectory windows: solve the free entries with the
     fixed ones at their values, classify. Returns (state, sign), or None if not positive definite."""
     c1, c2 = couplings
-    free = st == _FREE
+    free = st == FREE
     d = np.where(free, 0.0, fixed_values(st, lo0, hi0) - w0)
     rhs = g0 + pentadiagonal_mul(diag, c1, c2, d) + lam0 * np.where(free, sg, 0.0)
     fi = np.flatnonzero(free)
@@ -90,8 +90,8 @@ def _round(diag, couplings, w0, g0, lo0, hi0, lam0, st, sg):
     v = (w0 + d) - step * (g0 + pentadiagonal_mul(diag, c1, c2, d))
     st_new, sg_new = classify(v[None], step[None], lo0[None], hi0[None], lam0[None])
     st_new, sg_new = st_new[0], sg_new[0]
-    flip = (st == _FREE) & (st_new == _FREE) & (sg_new != sg) & (lam0 > 0)  # as the kernel: stop at 0 first
-    st_new[flip] = _ZERO
+    flip = (st == FREE) & (st_new == FREE) & (sg_new != sg) & (lam0 > 0)  # as the kernel: stop at 0 first
+    st_new[flip] = ZERO
     return st_new, sg_new
 
 

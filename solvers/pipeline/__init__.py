@@ -12,6 +12,7 @@ on (geometric: the character's bound points, by a similarity).
 import time
 import warnings
 from contextlib import nullcontext
+from dataclasses import replace
 
 import numpy as np
 
@@ -19,6 +20,7 @@ from ..capture.stabilise import refine_rigid, smooth_head_motion
 from ..character.basis import Basis
 from ..character.shape_options import resolve_locks
 from ..engine.frames import PatternSetup, reuse_pattern_setup
+from ..engine.split import release_freed_memory
 from ..errors import FacecapError
 from ..strategies.base import PredictsMarkers
 from ..strategies.geometric import bound_markers
@@ -152,7 +154,10 @@ def _solve(strategy, take, markers, settings, notes, timings):
         if final:
             break
         previous = res.weights
-        take = _refit_head(strategy, res, take, metres, settings)
+        stab = _refit_head(strategy, res, take, metres, settings)
+        res = take = None  # their (F, M, D) arrays (a solve keeps its data for residuals): freed first
+        take, _ = stages.normalised(stab, settings, [])
+        release_freed_memory(take.frames.size)  # long takes: the refit's freed memory, before the solve
         t_refit += time.perf_counter() - t2
     timings["solve"] = t_solve
     if refits:
@@ -161,19 +166,34 @@ def _solve(strategy, take, markers, settings, notes, timings):
 
 
 def _refit_head(strategy, res, take, markers, settings):
-    """The take restabilised on every marker against ``strategy``'s prediction of them."""
+    """The take's stabilisation refitted on every marker against ``strategy``'s prediction of them."""
     used = res.marker_names
     idx = [take.names.index(n) for n in used]
-    predicted = take.neutral[idx][None] + strategy.predict(res)
-    if take.offsets is not None:  # back to where the (un-normalised) markers are
-        predicted = predicted - np.take(take.offsets, idx, axis=1)
-    predicted[~res.solved] = np.nan
+    predicted = _predicted(strategy, res, take, idx)
     stable = set(take.stabilise.stable_names)
     trust = np.array([1.0 if n in stable else settings.fine_weight for n in used])
     stab = refine_rigid(markers, take.stabilise, used, predicted, weights=trust)
-    stab = smooth_head_motion(markers, stab, half_window=stages.head_half_window(settings, markers.fps))
-    refitted, _ = stages.normalised(stab, settings, [])
-    return refitted
+    return smooth_head_motion(markers, stab, half_window=stages.head_half_window(settings, markers.fps))
+
+
+#: Frames per block of ``_predicted``: temporaries of a few MB, not (F, M, D) ones (issue 18).
+BLOCK = 8192
+
+
+def _predicted(strategy, res, take, idx):
+    """Where ``strategy`` puts the markers ``idx`` of ``take`` in the stabilised head frame (F, U, D)
+    (the neutral plus its prediction, less any master offsets), NaN in frames it did not solve;
+    predicted in blocks of frames."""
+    F = res.weights.shape[0]
+    out = np.empty((F, len(idx), take.deltas.shape[2]))
+    for a in range(0, F, BLOCK):
+        s = slice(a, a + BLOCK)
+        part = take.neutral[idx][None] + strategy.predict(replace(res, weights=res.weights[s]))
+        if take.offsets is not None:  # back to where the (un-normalised) markers are
+            part -= np.take(take.offsets[s], idx, axis=1)
+        out[s] = part
+    out[~res.solved] = np.nan
+    return out
 
 
 def _retarget_weights(character, settings, inputs):

@@ -144,9 +144,11 @@ def marker_residuals(strategy, res, take):
     fitted = res.marker_names or getattr(getattr(strategy, "actor_basis", None), "marker_names", None) or take.names
     used = tuple(n for n in fitted if n in set(take.names))
     F, dims = take.frames.size, take.deltas.shape[2]
-    if res.solve is None or res.solve.residuals.shape[1] != dims * len(fitted):
+    if res.solve is None:
         return used, np.full(len(used), np.nan), None
-    r2 = (res.solve.residuals.reshape(F, len(fitted), dims) ** 2).sum(axis=2)
+    r2 = res.solve.residual_norms(dims)  # (F, markers), in blocks: no (F, P) residuals (issue 18)
+    if r2.shape != (F, len(fitted)):
+        return used, np.full(len(used), np.nan), None
     seen = np.isfinite(r2) & (r2 > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))

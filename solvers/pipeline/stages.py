@@ -20,6 +20,7 @@ from ..capture.normalise import (
 )
 from ..capture.stabilise import smooth_head_motion, stabilise_2d, stabilise_rigid
 from ..capture.stable_markers import suggest_stable_markers
+from ..engine.split import release_freed_memory
 from ..errors import FacecapError
 from ..io import import_markers
 from ..strategies.base import PreparedTake
@@ -120,9 +121,12 @@ def spans(frames):
 def normalised(stab, settings, notes):
     """The PreparedTake of a stabilised 3D take, and the neutral's info."""
     neutral, offsets, info = normalise_stabilised(stab, settings, notes)
-    pos = stab.markers.positions if offsets is None else stab.markers.positions + offsets
     sm = stab.markers
-    return PreparedTake(pos - neutral[None], neutral, sm.names, sm.frames, stab, offsets), info
+    pos = sm.positions if offsets is None else sm.positions + offsets
+    take = PreparedTake(pos - neutral[None], neutral, sm.names, sm.frames, stab, offsets)
+    pos = sm = None
+    stab.release_markers()  # their (F, M, 3) floats: computed again if read (issue 18)
+    return take, info
 
 
 def neutral_ranges(settings):
@@ -174,6 +178,7 @@ def prepare_take(markers, settings, notes):
     markers = markers.to_units("m")
     stab, suggestion = stabilise_take(markers, settings, notes)
     take, info = normalised(stab, settings, notes)
+    release_freed_memory(take.frames.size)  # long takes: the stabilisation's freed memory (issue 18)
     return take, suggestion, info
 
 

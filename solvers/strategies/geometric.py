@@ -154,12 +154,10 @@ class GeometricStrategy:
         deltas = as_deltas(source)
         names = tuple(self.basis.marker_names if names is None else names)
         idx = [names.index(n) for n in self.basis.marker_names]
-        # np.take keeps the frame-major layout (deltas[:, idx] would be marker-major, 2x slower later)
-        deltas = np.take(deltas, idx, axis=1)
         alignment, residual = None, None
         if neutral is not None:
             alignment, residual = self._align(np.asarray(neutral, dtype=np.float64)[idx])
-            deltas = alignment.apply_vectors(deltas)
+        deltas = _taken(deltas, idx, alignment)
         if confidence is not None:
             confidence = np.take(np.nan_to_num(np.asarray(confidence, dtype=np.float64)), idx, axis=1)
         options = replace(self.options, smoothing=(0.0, 0.0)) if quick else self.options
@@ -221,11 +219,30 @@ def bound_markers(character, names, *, source="take"):
     return used, notes
 
 
+#: Frames per block of the per-frame array work below: temporaries of a few MB that the allocator
+#: reuses, not (F, M, D) ones (587 MB each on 100 minutes at 60 fps of 68 markers; issue 18).
+BLOCK = 8192
+
+
+def _taken(deltas, idx, alignment):
+    """``deltas[:, idx]`` (F, U, D), carried by ``alignment`` when given, in blocks of frames; np.take
+    keeps the frame-major layout (deltas[:, idx] would be marker-major, 2x slower later)."""
+    out = np.empty((deltas.shape[0], len(idx), deltas.shape[2]))
+    for a in range(0, deltas.shape[0], BLOCK):
+        part = np.take(deltas[a : a + BLOCK], idx, axis=1)
+        out[a : a + BLOCK] = part if alignment is None else alignment.apply_vectors(part)
+    return out
+
+
 def _residual_rms(weights, basis_deltas, deltas):
-    """RMS residual per frame (F,) over the observed markers of ``deltas`` (F, M, D)."""
+    """RMS residual per frame (F,) over the observed markers of ``deltas`` (F, M, D), in blocks of frames."""
     K, M, D = basis_deltas.shape
-    res = (np.nan_to_num(weights) @ basis_deltas.reshape(K, M * D)).reshape(-1, M, D) - deltas
-    measured = ~np.isnan(deltas[:, :, 0])
-    sq = np.where(measured, (res**2).sum(axis=2), 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(sq.sum(axis=1) / measured.sum(axis=1))
+    out = np.empty(deltas.shape[0])
+    for a in range(0, deltas.shape[0], BLOCK):
+        s = slice(a, a + BLOCK)
+        res = (np.nan_to_num(weights[s]) @ basis_deltas.reshape(K, M * D)).reshape(-1, M, D) - deltas[s]
+        measured = ~np.isnan(deltas[s, :, 0])
+        sq = np.where(measured, (res**2).sum(axis=2), 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[s] = np.sqrt(sq.sum(axis=1) / measured.sum(axis=1))
+    return out

@@ -1,10 +1,13 @@
 """Blender test fixtures: an isolated user folder, the add-on registered once, a fresh scene per test."""
 
+import atexit
 import os
+import shutil
 import tempfile
 
 # Point Blender's user folders at a temporary directory *before* bpy is imported.
 _USER = tempfile.mkdtemp(prefix="facecap-blender-user-")
+atexit.register(shutil.rmtree, _USER, ignore_errors=True)
 for _var in (
     "BLENDER_USER_RESOURCES",
     "BLENDER_USER_CONFIG",

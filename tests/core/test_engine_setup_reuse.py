@@ -153,3 +153,43 @@ def test_threads_share_one_setup():
         for workers in (4, 1, 2):
             got = engine_frames.solve_frames(A, C, G, R, lo, hi, lam, chunk=50, workers=workers)
             assert np.array_equal(ref[0], got[0]) and ref[1:] == got[1:]
+
+
+@pytest.mark.parametrize("room", [0, 10, 10**9])  # patterns that fit: none, some, all
+def test_a_bounded_setup_keeps_what_fits_and_gives_the_same_bits(monkeypatch, room):
+    """``PatternSetup(max_bytes)`` keeps at most that many bytes of products (Hessian and inverse
+    per pattern): all of a take's patterns, or none when they do not all fit (the per-frame solve
+    sees the whole take first); the others are computed where needed: the same bits in every case."""
+    A = localised_basis(K=12, seed=13)
+    D1, D2 = gappy_take(A, F=600, seed=14)
+    K = A.shape[1]
+    outside = pipeline_like(A, D1, D2, **KW)
+    setup = PatternSetup(max_bytes=room * 2 * K * K * 8)
+    with reuse_pattern_setup(setup):
+        inside = pipeline_like(A, D1, D2, **KW)
+    monkeypatch.setattr(engine_temporal, "SPLIT_FRAMES", 200)  # and the windowed temporal solve
+    split_out = solve_bounded(A, D2, smoothing=(0.0, 0.3), **KW)
+    with reuse_pattern_setup(setup):
+        split_in = solve_bounded(A, D2, smoothing=(0.0, 0.3), **KW)
+    n_pat = engine_frames.patterns(np.isfinite(D1))[0].shape[0]
+    (products,) = setup.problems.values()
+    assert len(products.index) == (n_pat if room >= n_pat else 0) and n_pat > 10
+    for a, b in zip(outside + (split_out,), inside + (split_in,)):
+        identical(a, b)
+
+
+def test_products_asked_for_piecewise_are_kept_while_they_fit():
+    """Patterns asked for a piece at a time (the windows of a temporal solve) are kept until the
+    room runs out; the rest are computed, the same bits as kept ones."""
+    A = localised_basis(K=12, seed=15)
+    D1, _ = gappy_take(A, F=600, seed=16)
+    K = A.shape[1]
+    pats = engine_frames.patterns(np.isfinite(D1))[0]
+    R = 1e-3 * np.eye(K)
+    setup = PatternSetup(max_bytes=7 * 2 * K * K * 8)
+    with reuse_pattern_setup(setup):
+        products = engine_frames.reusable(A, R, pats)
+        first = products.hessians(A, pats[:5], R)
+        every = products.hessians(A, pats, R)
+    assert len(products.index) == 7
+    assert np.array_equal(every, engine_frames.pattern_hessians(A, pats, R)) and np.array_equal(first, every[:5])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers.engine import temporal as engine_temporal
-from facecap.solvers.engine.frames import _FREE, classify, fixed_values, solve_frames
+from facecap.solvers.engine.frames import FREE, classify, fixed_values, solve_frames
 from facecap.solvers.engine.temporal import _tmul, temporal_operator
 from facecap.solvers.engine.trajectory import predict_states
 
@@ -63,7 +63,7 @@ def _dense_window_check(Hdiag, T, frames, w, grad, lo, hi, lam, state, sign, mas
     w0, g0 = w[rows, ks], grad[rows, ks]
     lo0, hi0, lam0 = lo[rows, ks], hi[rows, ks], lam[ks]
     st, sg = state[rows, ks], sign[rows, ks]
-    free = st == _FREE
+    free = st == FREE
     d = np.where(free, 0.0, fixed_values(st, lo0, hi0) - w0)
     rhs = -(g0 + Q @ d + lam0 * np.where(free, sg, 0.0))
     d[free] = np.linalg.solve(Q[np.ix_(free, free)], rhs[free])
