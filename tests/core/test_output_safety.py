@@ -4,6 +4,7 @@ one line, not a traceback."""
 
 import os
 import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -77,10 +78,24 @@ def test_write_locations_are_checked_before_any_work(tmp_path, setup, output, me
     refused(write_config(tmp_path, output), message)
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders: nothing to refuse")
-def test_a_read_only_folder_is_refused(tmp_path):
-    (tmp_path / "ro").mkdir()
-    (tmp_path / "ro").chmod(0o555)
+@pytest.fixture
+def read_only_folder(tmp_path):
+    """A folder nobody may write into: mode 0555, and for root (who ignores modes, as CI runs) also
+    immutable (``chattr +i``), which root cannot write into either."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    immutable = os.geteuid() == 0
+    if immutable:
+        chattr = shutil.which("chattr")
+        if chattr is None or subprocess.run([chattr, "+i", str(folder)], capture_output=True).returncode != 0:
+            pytest.skip("running as root where chattr +i is not possible: no folder root cannot write into")
+    yield folder
+    if immutable:
+        subprocess.run([shutil.which("chattr"), "-i", str(folder)], check=True)
+
+
+def test_a_read_only_folder_is_refused(tmp_path, read_only_folder):
     refused(write_config(tmp_path, 'weights = "ro/w.csv"'), "read-only")
 
 
