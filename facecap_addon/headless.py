@@ -457,8 +457,8 @@ def _unevaluated_save_context(bpy):
     An operator call first evaluates its context's view layer, and that copies every keyed action
     for evaluation: on a 100-minute take about 1.2 GiB beside the 1.15 GiB of keys (measured at
     120,000 frames: +0.41 GiB at the save, +0.003 GiB with this context). A scene without users is
-    not written, so the file is the same. Only with one scene, which the file then opens on as
-    before (with several, the saved file's active scene would be the first one's).
+    not written, so the file is the same. Only with one scene: the file then opens on it as before
+    (with several it would open on the first one, not necessarily the active one).
     """
     scenes = bpy.data.scenes
     if len(scenes) != 1:
