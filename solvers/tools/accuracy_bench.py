@@ -8,9 +8,9 @@ the draws of :mod:`.scenarios` and :mod:`.scenarios_footage`:
 * **solve** - weights RMSE with the true rigid set;
 * **tracking** - per footage kind: median error (px) over the samples that are really visible
   (a lost sample counts as an infinite error) and lost samples (%), for ``track_points`` and a plain
-  pyramidal LK that re-registers every frame to the reference frame (:func:`plain_lk`);
+  pyramidal LK that re-registers every frame to the reference frame (:func:`~.reference_trackers.plain_lk`);
 * **flow** - per footage kind: median end-point error (px) on the face of ``dense_flow`` and of
-  plain DIS from the reference to every frame (:func:`plain_dis`).
+  plain DIS from the reference to every frame (:func:`~.reference_trackers.plain_dis`).
 
 The plain references are deliberately the textbook ~20 lines (tests/core keeps its own copy).
 """
@@ -25,9 +25,10 @@ import numpy as np
 from ..capture.stable_markers import suggest_stable_markers
 from ..errors import FacecapError
 from ..pipeline import RetargetSettings, retarget
-from ..video.flow import FlowEstimator, dense_flow
+from ..video.flow import dense_flow
 from ..video.reading import Footage
 from ..video.tracking import auto_seeds, track_points
+from .reference_trackers import plain_dis, plain_lk
 from .scenarios_footage import KINDS, footage_scenario
 
 
@@ -69,44 +70,9 @@ def _rmse(w, truth):
     return float(np.sqrt(np.nanmean((w - truth) ** 2)))
 
 
-def plain_lk(path, seeds, reference=1, win=21, levels=3):
-    """Plain pyramidal LK: each frame, LK from the previous frame, then re-registered to the reference
-    frame's patch from there. (F, M, 2) positions, NaN where LK's status fails; frames from ``reference`` on."""
-    import cv2  # OpenCV: imported on first use
-
-    cap, frames = cv2.VideoCapture(str(path)), []
-    while (got := cap.read())[0]:
-        frames.append(cv2.cvtColor(got[1], cv2.COLOR_BGR2GRAY))
-    cap.release()
-    ref, crit = reference - 1, (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
-    p0 = np.float32(seeds).reshape(-1, 1, 2)
-    out = np.full((len(frames), len(seeds), 2), np.nan)
-    prev, pts = frames[ref], p0
-    for t in range(ref, len(frames)):
-        cont = cv2.calcOpticalFlowPyrLK(prev, frames[t], pts, None, winSize=(win, win), maxLevel=levels, criteria=crit)[0]
-        new, st, _ = cv2.calcOpticalFlowPyrLK(frames[ref], frames[t], p0, cont.copy(), winSize=(win, win),
-                                              maxLevel=levels, criteria=crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
-        out[t] = np.where(st.reshape(-1, 1) == 1, new.reshape(-1, 2), np.nan)
-        prev, pts = frames[t], np.where(st.reshape(-1, 1, 1) == 1, new, cont).astype(np.float32)
-    return out
-
-
-def plain_dis(path, reference=1):
-    """Plain DIS ("balanced" preset as the project's) from the reference frame to every frame: (F, H, W, 2)."""
-    import cv2  # OpenCV: imported on first use
-
-
-    cap, frames = cv2.VideoCapture(str(path)), []
-    while (got := cap.read())[0]:
-        frames.append(cv2.cvtColor(got[1], cv2.COLOR_BGR2GRAY))
-    cap.release()
-    est = FlowEstimator("dis")
-    return np.stack([est.calc(frames[reference - 1], f) for f in frames])
-
-
-def track_row(scenario, *, max_points=48, plain_tracker=None):
+def track_row(scenario, *, max_points=48):
     """Tracking figures of one :class:`~.scenarios_footage.FootageScenario` for ours and the plain LK
-    (``plain_tracker(path, seeds)``, default :func:`plain_lk`)."""
+    (:func:`~.reference_trackers.plain_lk`)."""
 
     footage = Footage(scenario.path)
     names, seeds = auto_seeds(footage.frame(1), scenario.face_box(), max_points=max_points)
@@ -117,7 +83,7 @@ def track_row(scenario, *, max_points=48, plain_tracker=None):
     t0 = time.perf_counter()
     ours = track_points(footage, points=seeds).markers.positions
     t1 = time.perf_counter()
-    plain = (plain_tracker or plain_lk)(scenario.path, seeds)
+    plain = plain_lk(scenario.path, seeds)
     t2 = time.perf_counter()
     for label, pos, secs in (("ours", ours, t1 - t0), ("plain", plain, t2 - t1)):
         err = np.linalg.norm(pos - truth, axis=2)
@@ -130,15 +96,15 @@ def track_row(scenario, *, max_points=48, plain_tracker=None):
     return row
 
 
-def flow_row(scenario, *, grid_step=1, plain_flow=None):
+def flow_row(scenario, *, grid_step=1):
     """Dense-flow end-point error on the face (median px over frames and face pixels), ours vs plain DIS
-    (``plain_flow(path)``, default :func:`plain_dis`)."""
+    (:func:`~.reference_trackers.plain_dis`)."""
 
     x, y, w, h = scenario.face_box()
     t0 = time.perf_counter()
     ours = dense_flow(scenario.path).flows
     t1 = time.perf_counter()
-    plain = (plain_flow or plain_dis)(scenario.path)
+    plain = plain_dis(scenario.path)
     t2 = time.perf_counter()
     row = {"kind": scenario.kind, "seed": scenario.seed, "size": scenario.size}
     box = (slice(y, y + h, grid_step), slice(x, x + w, grid_step))

@@ -26,8 +26,8 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import zipfile
 import tomllib
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 

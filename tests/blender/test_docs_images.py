@@ -5,9 +5,9 @@ import itertools
 import subprocess
 import sys
 
-import bpy
 import numpy as np
 import pytest
+from png_pixels import png_pixels
 
 from facecap.facecap_addon import docs_images as di
 
@@ -24,20 +24,8 @@ def _docs_images(out, engine, solved=None):
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
-def _load(path):
-    """RGB float array (H, W, 3) in 0..255, top row first, as Blender's own PNG reader decodes it."""
-    img = bpy.data.images.load(str(path))
-    try:
-        w, h = img.size
-        px = np.empty(w * h * 4, dtype=np.float32)
-        img.pixels.foreach_get(px)
-    finally:
-        bpy.data.images.remove(img)
-    return np.round(px.reshape(h, w, 4)[::-1, :, :3] * 255.0)
-
-
 def _tiles(path, picture, columns, count):
-    page = _load(path)
+    page = png_pixels(path)
     tile = di.tile_size(SIZE, picture)
     rows = -(-count // columns)
     assert page.shape == (rows * (tile[1] + di.PAD) + di.PAD, columns * (tile[0] + di.PAD) + di.PAD, 3)

@@ -10,6 +10,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 import pytest
+from png_pixels import png_pixels
 
 from facecap.facecap_addon import review as rv
 from facecap.facecap_addon.demo import SAMPLE_CONFIG
@@ -24,17 +25,10 @@ WHITE = 250
 
 
 def _pixels(png, tmp_path, name="tile.png"):
-    """(H, W, 3) 0..255 floats, top row first, decoded by Blender's own PNG reader."""
+    """(H, W, 3) 0..255 floats of PNG bytes, top row first."""
     path = tmp_path / name
     path.write_bytes(png)
-    img = bpy.data.images.load(str(path))
-    try:
-        w, h = img.size
-        px = np.empty(w * h * 4, dtype=np.float32)
-        img.pixels.foreach_get(px)
-    finally:
-        bpy.data.images.remove(img)
-    return np.round(px.reshape(h, w, 4)[::-1, :, :3] * 255.0)
+    return png_pixels(path)
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """Issue 21: right on takes nobody tuned for. Auto stable markers and LK tracking judged on the median
 and the worst case over many seeded random draws (solvers.tools.scenarios*), side by side with the true
-rigid set and with a plain pyramidal LK (tests/core/reference_trackers.py)."""
+rigid set and with a plain pyramidal LK (solvers/tools/reference_trackers.py)."""
 
 import numpy as np
 import pytest
@@ -74,11 +74,9 @@ def clips(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tracks(clips):
-    from reference_trackers import plain_lk
-
     from facecap.solvers.tools.accuracy_bench import track_row
 
-    return [track_row(sc, max_points=32, plain_tracker=plain_lk) for sc in clips]  # the textbook LK kept here
+    return [track_row(sc, max_points=32) for sc in clips]  # against the textbook LK (reference_trackers)
 
 
 def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
@@ -100,12 +98,10 @@ def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
 
 
 def test_dense_flow_matches_or_beats_plain_dis_on_every_footage_kind(clips):
-    from reference_trackers import plain_dis
-
     from facecap.solvers.tools.accuracy_bench import flow_row
     from facecap.solvers.tools.scenarios_footage import KINDS
 
-    rows = [flow_row(sc, grid_step=4, plain_flow=plain_dis) for sc in clips if sc.seed == 0]  # one per kind: time
+    rows = [flow_row(sc, grid_step=4) for sc in clips if sc.seed == 0]  # one per kind: time
     for kind in KINDS:
         k = [r for r in rows if r["kind"] == kind]
         ours, plain = np.median([r["ours_median_px"] for r in k]), np.median([r["plain_median_px"] for r in k])

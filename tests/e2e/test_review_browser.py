@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from browser_cdp import Browser, find_chromium
+from png_pixels import png_pixels
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "sample_blends"
@@ -51,19 +52,10 @@ def chromium():
 
 
 def decode_png(data, tmp_path):
-    """(H, W, 3) uint8 of PNG bytes, decoded by Blender's image reader (no imaging library here)."""
-    import bpy  # bpy: Blender starts on first import
-
+    """(H, W, 3) uint8 of PNG bytes."""
     path = tmp_path / "decoded.png"
     path.write_bytes(data)
-    img = bpy.data.images.load(str(path))
-    try:
-        w, h = img.size
-        px = np.empty(w * h * 4, dtype=np.float32)
-        img.pixels.foreach_get(px)
-    finally:
-        bpy.data.images.remove(img)
-    return np.round(px.reshape(h, w, 4)[::-1, :, :3] * 255.0).astype(np.uint8)
+    return png_pixels(path).astype(np.uint8)
 
 
 def offline(browser):
