@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import FacecapError, InputFileError
+from ..io.files import read_text_input
 from ..options import default
 from .binding import parse_target
 
@@ -67,12 +68,7 @@ def read_binding_map(path):
     a target that is neither a name, an index nor three numbers, an empty file.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputFileError(path, "file not found (a marker,target CSV for [binding] map)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot read: {exc}") from None
+    text = read_text_input(path, "file not found (a marker,target CSV for [binding] map)")
     out, first = {}, True
     for line, row in enumerate(csv.reader(text.splitlines()), start=1):
         cells = [c.strip() for c in row]

@@ -4,6 +4,9 @@ A file is written under a temporary name beside its final one (``.<name>.facecap
 and renamed into place in one step. An interrupted run (SIGINT, SIGTERM) removes its temporary file;
 one killed outright leaves it, and a later run removes it (``remove_stale_temporaries``: the process
 that wrote it is gone). Outputs get the permissions the user's umask gives new files.
+
+Small text inputs (maps, corrections, seed points) are read with ``read_text_input``: one error naming
+the file when it is missing or unreadable.
 """
 
 import contextlib
@@ -15,6 +18,8 @@ import threading
 from pathlib import Path
 
 import numpy as np
+
+from ..errors import InputFileError
 
 TMP_MARK = ".facecap-tmp."
 _STALE = re.compile(r"^\..+\.facecap-tmp\.(\d+)\.[^/]*$")
@@ -103,3 +108,14 @@ def _json_default(value):
     if isinstance(value, Path):
         return str(value)
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def read_text_input(path, missing="file not found"):
+    """The text of a small input file (UTF-8, a byte-order mark allowed). Raises InputFileError naming
+    the file: ``missing`` when it does not exist, the reason when it cannot be read or decoded."""
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputFileError(path, missing) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read: {exc}") from None

@@ -26,7 +26,7 @@ import numpy as np
 from ..character.aliases import canonical_names, name_key
 from ..character.basis import Basis
 from ..errors import FacecapError, InputFileError
-from ..io.files import new_temporary
+from ..io.files import new_temporary, read_text_input
 from ..pipeline import jsonable
 from ..strategies.options import ExamplePairs
 
@@ -245,12 +245,7 @@ def read_corrections_csv(path, shape_names=None):
     InputFileError naming the file, line and column of the first problem.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputFileError(path, "corrections file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot read: {exc}") from None
+    text = read_text_input(path, "corrections file not found")
     rows = [(i + 1, row) for i, row in enumerate(csv.reader(text.splitlines())) if any(c.strip() for c in row)]
     if not rows:
         raise InputFileError(path, "empty file; expected a header 'frame,<shape>,...'")

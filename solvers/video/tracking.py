@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import FacecapError, InputFileError
+from ..io.files import read_text_input
 from ..markers import MarkerSet
 from .reading import Footage, Job, opencv
 
@@ -52,12 +53,7 @@ class TrackResult:
 def read_seed_points(path):
     """Named 2D seed positions from a ``name,x,y`` text file (header optional): ``(names, (M, 2))``."""
     names, xy = [], []
-    try:
-        text = open(path, encoding="utf-8-sig").read().splitlines()
-    except FileNotFoundError:
-        raise InputFileError(path, "file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot read: {exc}") from None
+    text = read_text_input(path).splitlines()
     first = True
     for line_no, line in enumerate(text, 1):
         line = line.strip()
