@@ -107,6 +107,15 @@ class FACECAP_PT_take(FacecapPanel, bpy.types.Panel):
         _draw_binding(layout, s)
 
 
+def _editable_list(layout, list_type, s, prop, active, add, remove, *, rows):
+    """A UI list of ``s.<prop>`` with its add and remove buttons beside it."""
+    row = layout.row()
+    row.template_list(list_type, "", s, prop, s, active, rows=rows)
+    col = row.column(align=True)
+    col.operator(add, icon="ADD", text="")
+    col.operator(remove, icon="REMOVE", text="")
+
+
 def _draw_binding(layout, s):
     box = layout.box()
     box.prop(s, "binding_mode")
@@ -114,11 +123,8 @@ def _draw_binding(layout, s):
         box.prop(s, "binding_map")
     if s.binding_mode == "nearest":
         box.label(text="Landmarks (marker, vertex group): 3 or more, or none")
-        row = box.row()
-        row.template_list("FACECAP_UL_landmarks", "", s, "binding_landmarks", s, "active_binding_landmark", rows=3)
-        col = row.column(align=True)
-        col.operator("facecap.binding_landmark_add", icon="ADD", text="")
-        col.operator("facecap.binding_landmark_remove", icon="REMOVE", text="")
+        _editable_list(box, "FACECAP_UL_landmarks", s, "binding_landmarks", "active_binding_landmark",
+                       "facecap.binding_landmark_add", "facecap.binding_landmark_remove", rows=3)
     if s.binding_mode != "vertex_groups":
         box.prop(s, "binding_max_distance")
     row = box.row(align=True)
@@ -226,11 +232,8 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
         layout.template_list("FACECAP_UL_shapes", "", s, "shapes", s, "active_shape", rows=4)
         layout.operator("facecap.refresh_shapes", icon="FILE_REFRESH")
         if s.strategy == "geometric":
-            row = layout.row()
-            row.template_list("FACECAP_UL_regions", "", s, "regions", s, "active_region", rows=2)
-            col = row.column(align=True)
-            col.operator("facecap.region_add", icon="ADD", text="")
-            col.operator("facecap.region_remove", icon="REMOVE", text="")
+            _editable_list(layout, "FACECAP_UL_regions", s, "regions", "active_region",
+                           "facecap.region_add", "facecap.region_remove", rows=2)
         layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
         layout.operator("facecap.export_take", icon="EXPORT")
         layout.operator("facecap.export_review", icon="DOCUMENTS")
@@ -255,11 +258,8 @@ def _draw_calibration(layout, s):
     row.prop(s, "calib_neutral_last")
     row.operator("facecap.calib_neutral_from_timeline", icon="TIME", text="")
     box.label(text="Poses (name, first, last, split)")
-    row = box.row()
-    row.template_list("FACECAP_UL_calib_poses", "", s, "calib_poses", s, "active_calib_pose", rows=3)
-    col = row.column(align=True)
-    col.operator("facecap.calib_pose_add", icon="ADD", text="")
-    col.operator("facecap.calib_pose_remove", icon="REMOVE", text="")
+    _editable_list(box, "FACECAP_UL_calib_poses", s, "calib_poses", "active_calib_pose",
+                   "facecap.calib_pose_add", "facecap.calib_pose_remove", rows=3)
     row = box.row(align=True)
     row.prop(s, "calib_pose_name", text="")
     row.operator("facecap.calib_pose_add", icon="TIME")
@@ -269,11 +269,8 @@ def _draw_calibration(layout, s):
 def _draw_mapping(layout, s):
     box = layout.box()
     box.label(text="Mapping (empty rows: one-to-one by name)")
-    row = box.row()
-    row.template_list("FACECAP_UL_mapping", "", s, "mapping", s, "active_mapping", rows=3)
-    col = row.column(align=True)
-    col.operator("facecap.mapping_add", icon="ADD", text="")
-    col.operator("facecap.mapping_remove", icon="REMOVE", text="")
+    _editable_list(box, "FACECAP_UL_mapping", s, "mapping", "active_mapping",
+                   "facecap.mapping_add", "facecap.mapping_remove", rows=3)
     row = box.row(align=True)
     row.operator("facecap.mapping_fill_by_name", icon="SORTALPHA")
     row.operator("facecap.mapping_clear", icon="X")
