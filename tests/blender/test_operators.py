@@ -128,8 +128,6 @@ def test_solve_without_character_is_greyed_out(take):
     assert not bpy.ops.facecap.solve.poll()
 
 
-
-
 @pytest.mark.parametrize("panel", ["FACECAP_PT_take", "FACECAP_PT_stabilise", "FACECAP_PT_solve"])
 def test_panels_draw(take, panel):
     _import(take)
@@ -139,6 +137,24 @@ def test_panels_draw(take, panel):
     stub = type("PanelStub", (), {"layout": layout})()
     cls.draw(stub, bpy.context)
     assert layout.calls
+
+
+@pytest.mark.parametrize("setting, value, listed", [
+    ("binding_mode", "nearest", "binding_landmarks"),
+    ("strategy", "geometric", "regions"),
+    ("strategy", "calibrated", "calib_poses"),
+    ("strategy", "parallel", "mapping"),
+])
+def test_every_editable_list_is_drawn_with_its_buttons(take, setting, value, listed):
+    _import(take)
+    s = bpy.context.scene.facecap
+    setattr(s, setting, value)
+    layout = LayoutStub()
+    for panel in ("FACECAP_PT_take", "FACECAP_PT_solve"):
+        getattr(bpy.types, panel).draw(type("PanelStub", (), {"layout": layout})(), bpy.context)
+    assert ("template_list", listed) in layout.calls
+    i = layout.calls.index(("template_list", listed))
+    assert [kind for kind, _ in layout.calls[i + 1 : i + 3]] == ["operator", "operator"]  # add, remove
 
 
 def test_shape_locks_bounds_regions_from_the_panel(take):
