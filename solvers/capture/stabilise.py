@@ -315,12 +315,7 @@ def refine_rigid(markers, stab, names, predicted, *, weights):
     flagged = stab.flagged | ~rank_ok
     R = np.where(flagged[:, None, None], stab.rotations, R)
     t = np.where(flagged[:, None], stab.translations, t)
-    # The stable markers only (the same numbers as those rows of the full product, bit for bit).
-    fitted = _apply(R, t, stab.scales, _columns(markers.positions, markers.index(stab.stable_names)))
-    fitted[flagged] = np.nan
-    fitted -= stab.reference
-    err = _norm3(fitted)
-    rms = frame_rms(err)
+    rms = _stable_rms(markers, stab, R, t, stab.scales, flagged)
     reasons = dict(stab.flag_reasons)
     for f in np.flatnonzero(flagged & ~stab.flagged):
         reasons[frame_label(markers.frames[f])] = "fine refit: markers not determined"
@@ -356,6 +351,21 @@ def _refit(positions, idx, predicted, weights, scales):
     return R, t, rank_ok
 
 
+def _stable_rms(markers, stab, R, t, scales, flagged):
+    """Per-frame RMS distance of ``stab``'s stable markers, moved by the pose (R, t, scales), from
+    its reference; NaN on ``flagged`` frames. Computed on the stable markers only (the same numbers
+    as those rows of the full product, bit for bit) and in blocks of frames: no (F, M, 3) temporaries."""
+    idx = markers.index(stab.stable_names)
+    rms = np.empty(markers.n_frames)
+    for a in range(0, markers.n_frames, REFIT_BLOCK):
+        s = slice(a, a + REFIT_BLOCK)
+        fitted = _apply(R[s], t[s], None if scales is None else scales[s], _columns(markers.positions[s], idx))
+        fitted[flagged[s]] = np.nan
+        fitted -= stab.reference
+        rms[s] = frame_rms(_norm3(fitted))
+    return rms
+
+
 def smooth_head_motion(markers, stab, *, half_window, order=3):
     """Zero-phase smoothing of the per-frame head pose (head motion is slower than marker noise).
 
@@ -373,12 +383,7 @@ def smooth_head_motion(markers, stab, *, half_window, order=3):
     R = best_rotation(smooth[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1))  # the rotation nearest each average
     t = smooth[:, 9:12]
     scales = None if stab.scales is None else smooth[:, 12]
-    # The stable markers only (the same numbers as those rows of the full product, bit for bit); all
-    # of them are computed when first read.
-    fitted = _apply(R, t, scales, _columns(markers.positions, markers.index(stab.stable_names)))
-    fitted[stab.flagged] = np.nan
-    fitted -= stab.reference
-    rms = frame_rms(_norm3(fitted))
+    rms = _stable_rms(markers, stab, R, t, scales, stab.flagged)  # all markers are moved when first read
     return StabiliseResult(
         markers=_MovedMarkers(markers, R, t, scales, stab.flagged),
         stable_names=stab.stable_names,

@@ -111,7 +111,8 @@ def _retarget_markers(markers, character, settings, inputs):
                                            prepare=stages.for_other_take(settings, take))
     notes.extend(fit_notes)
     timings["fit"] = time.perf_counter() - t1
-    res, take = _solve(strategy, take, markers, settings, notes, timings)
+    handed, take = [take], None  # _solve frees the first take's (F, M, D) deltas at its first head refit
+    res, take = _solve(strategy, handed, markers, settings, notes, timings)
     notes.extend(res.warnings)
     weights = hold_locks(res.shape_names, res.weights, settings, notes)
     _refuse_flat(weights, take, settings)
@@ -133,9 +134,11 @@ def _refuse_flat(weights, take, settings):
                            f"{settings.sparsity:g}, symmetry {settings.symmetry:g}); lower them")
 
 
-def _solve(strategy, take, markers, settings, notes, timings):
-    """Solve ``take``; a strategy that predicts the markers gets ``settings.fine_iterations`` head
-    refits first (hierarchical stabilisation). Returns (StrategyResult, the PreparedTake solved)."""
+def _solve(strategy, handed, markers, settings, notes, timings):
+    """Solve the PreparedTake in the list ``handed`` (taken from it, so that no caller keeps it); a
+    strategy that predicts the markers gets ``settings.fine_iterations`` head refits first
+    (hierarchical stabilisation). Returns (StrategyResult, the PreparedTake solved)."""
+    take = handed.pop()
     refits = settings.fine_iterations if isinstance(strategy, PredictsMarkers) and take.dim == 3 else 0
     # The solves differ only in their data (same basis, priors and gaps): each gap pattern's setup
     # is done once; each solve starts from the one before (the refit moves the head a little).
@@ -153,9 +156,11 @@ def _solve(strategy, take, markers, settings, notes, timings):
         t_solve += t2 - t1
         if final:
             break
-        previous = res.weights
-        stab = _refit_head(strategy, res, take, metres, settings)
-        res = take = None  # their (F, M, D) arrays (a solve keeps its data for residuals): freed first
+        previous, used = res.weights, res.marker_names
+        idx = [take.names.index(n) for n in used]
+        predicted = [_predicted(strategy, res, take, idx)]  # handed over: _refit_head frees it once read
+        gross, res, take = take.stabilise, None, None  # their (F, M, D) arrays (a solve keeps its data): freed first
+        stab = _refit_head(gross, used, predicted, metres, settings)
         take, _ = stages.normalised(stab, settings, [])
         release_freed_memory(take.frames.size)  # long takes: the refit's freed memory, before the solve
         t_refit += time.perf_counter() - t2
@@ -165,14 +170,13 @@ def _solve(strategy, take, markers, settings, notes, timings):
     return res, take
 
 
-def _refit_head(strategy, res, take, markers, settings):
-    """The take's stabilisation refitted on every marker against ``strategy``'s prediction of them."""
-    used = res.marker_names
-    idx = [take.names.index(n) for n in used]
-    predicted = _predicted(strategy, res, take, idx)
-    stable = set(take.stabilise.stable_names)
+def _refit_head(gross, used, predicted, markers, settings):
+    """The take's stabilisation ``gross`` refitted on the markers ``used`` against the strategy's
+    prediction of them (the array in the list ``predicted``, taken from it: the smoothing does not
+    need it, so it is freed once the refit has read it)."""
+    stable = set(gross.stable_names)
     trust = np.array([1.0 if n in stable else settings.fine_weight for n in used])
-    stab = refine_rigid(markers, take.stabilise, used, predicted, weights=trust)
+    stab = refine_rigid(markers, gross, used, predicted.pop(), weights=trust)
     return smooth_head_motion(markers, stab, half_window=stages.head_half_window(settings, markers.fps))
 
 

@@ -28,6 +28,17 @@ def test_refit_in_blocks_is_the_whole_take_refit(monkeypatch, mode):
     np.testing.assert_allclose(blocks.markers.positions, whole.markers.positions, atol=1e-11, rtol=0)
 
 
+@pytest.mark.parametrize("mode", ["rigid", "similarity"])
+def test_smoothed_head_motion_in_blocks_is_the_whole_take_one(monkeypatch, mode):
+    markers = _take(F=500)
+    stab = stabilise_rigid(markers, STABLE, mode=mode)
+    whole = smooth_head_motion(markers, stab, half_window=6)
+    monkeypatch.setattr(stabilise, "REFIT_BLOCK", 64)  # the residual RMS in 8 blocks, the last one short
+    blocks = smooth_head_motion(markers, stab, half_window=6)
+    assert np.array_equal(blocks.rms, whole.rms, equal_nan=True)  # rows are independent: bit for bit
+    assert np.isfinite(whole.rms[~whole.flagged]).all()
+
+
 def test_released_markers_come_back_the_same():
     markers = _take(F=300)
     for stab in (stabilise_rigid(markers, STABLE), smooth_head_motion(markers, stabilise_rigid(markers, STABLE),
