@@ -158,8 +158,10 @@ def _solve(strategy, handed, markers, settings, notes, timings):
             break
         previous, used = res.weights, res.marker_names
         idx = [take.names.index(n) for n in used]
+        # the take's (F, M, D) deltas and the solve's copy of them are not needed to predict: freed first
+        res, take = replace(res, solve=None), replace(take, deltas=None)
         predicted = [_predicted(strategy, res, take, idx)]  # handed over: _refit_head frees it once read
-        gross, res, take = take.stabilise, None, None  # their (F, M, D) arrays (a solve keeps its data): freed first
+        gross, res, take = take.stabilise, None, None
         stab = _refit_head(gross, used, predicted, metres, settings)
         take, _ = stages.normalised(stab, settings, [])
         release_freed_memory(take.frames.size)  # long takes: the refit's freed memory, before the solve
@@ -189,7 +191,7 @@ def _predicted(strategy, res, take, idx):
     (the neutral plus its prediction, less any master offsets), NaN in frames it did not solve;
     predicted in blocks of frames."""
     F = res.weights.shape[0]
-    out = np.empty((F, len(idx), take.deltas.shape[2]))
+    out = np.empty((F, len(idx), take.neutral.shape[1]))
     for a in range(0, F, BLOCK):
         s = slice(a, a + BLOCK)
         part = take.neutral[idx][None] + strategy.predict(replace(res, weights=res.weights[s]))
