@@ -112,23 +112,23 @@ def _retarget_markers(markers, character, settings, inputs):
     notes.extend(fit_notes)
     timings["fit"] = time.perf_counter() - t1
     handed, take = [take], None  # _solve frees the first take's (F, M, D) deltas at its first head refit
-    res, take = _solve(strategy, handed, markers, settings, notes, timings)
+    res, take, motion = _solve(strategy, handed, markers, settings, notes, timings)
     notes.extend(res.warnings)
     weights = hold_locks(res.shape_names, res.weights, settings, notes)
-    _refuse_flat(weights, take, settings)
+    _refuse_flat(weights, motion, take.dim, settings)
     timings["total"] = time.perf_counter() - t0
     return assemble(strategy, res, weights, frames=take.frames, settings=settings, notes=notes, timings=timings,
                     take=take, normalise=norm_info, suggestion=suggestion)
 
 
-def _refuse_flat(weights, take, settings):
-    """A solve that holds every shape at 0 while the markers clearly move is certainly wrong: say so."""
+def _refuse_flat(weights, motion, dim, settings):
+    """A solve that holds every shape at 0 while the markers clearly move (``motion``, RMS from the
+    neutral, see ``_motion``) is certainly wrong: say so."""
     solved = weights[np.isfinite(weights)]
     if not solved.size or np.max(np.abs(solved)) > 1e-6 or settings.locks:
         return
-    motion = float(np.sqrt(np.nanmean(np.nansum(take.deltas**2, axis=2)))) if np.isfinite(take.deltas).any() else 0.0
-    if motion > (1e-3 if take.dim == 3 else 1.0):  # 1 mm, or a pixel: far above marker noise
-        unit = f"{motion * 1e3:.1f} mm" if take.dim == 3 else f"{motion:.1f} px"
+    if motion > (1e-3 if dim == 3 else 1.0):  # 1 mm, or a pixel: far above marker noise
+        unit = f"{motion * 1e3:.1f} mm" if dim == 3 else f"{motion:.1f} px"
         raise FacecapError(f"every solved weight is 0 although the markers move ({unit} RMS from the neutral): the "
                            f"priors hold every shape (regularisation {settings.regularisation:g}, sparsity "
                            f"{settings.sparsity:g}, symmetry {settings.symmetry:g}); lower them")
@@ -137,9 +137,11 @@ def _refuse_flat(weights, take, settings):
 def _solve(strategy, handed, markers, settings, notes, timings):
     """Solve the PreparedTake in the list ``handed`` (taken from it, so that no caller keeps it); a
     strategy that predicts the markers gets ``settings.fine_iterations`` head refits first
-    (hierarchical stabilisation). Returns (StrategyResult, the PreparedTake solved)."""
+    (hierarchical stabilisation), and each of its solves is given the take's deltas to work in.
+    Returns (StrategyResult, the PreparedTake solved, its markers' RMS motion from the neutral)."""
     take = handed.pop()
-    refits = settings.fine_iterations if isinstance(strategy, PredictsMarkers) and take.dim == 3 else 0
+    predicts = isinstance(strategy, PredictsMarkers)
+    refits = settings.fine_iterations if predicts and take.dim == 3 else 0
     # The solves differ only in their data (same basis, priors and gaps): each gap pattern's setup
     # is done once; each solve starts from the one before (the refit moves the head a little).
     setup = PatternSetup() if refits else None
@@ -148,18 +150,24 @@ def _solve(strategy, handed, markers, settings, notes, timings):
     for iteration in range(refits + 1):
         final = iteration == refits
         t1 = time.perf_counter()
+        if final:
+            motion = _motion(take.deltas)
+        kwargs = {"start": previous, "quick": not final} if refits else {}
+        source = take.deltas
+        if predicts:  # its solve aligns the deltas in their own memory: no second (F, M, D) array (issue 18)
+            kwargs["overwrite"] = True
+            take = take.handed_over() if final else replace(take, deltas=None)
         with warnings.catch_warnings(), (reuse_pattern_setup(setup) if setup is not None else nullcontext()):
             warnings.simplefilter("ignore", RuntimeWarning)
-            kwargs = {} if not refits else {"start": previous, "quick": not final}
-            res = strategy.solve(take.deltas, names=take.names, neutral=take.neutral, **kwargs)
+            res = strategy.solve(source, names=take.names, neutral=take.neutral, **kwargs)
+        source = None
         t2 = time.perf_counter()
         t_solve += t2 - t1
         if final:
             break
         previous, used = res.weights, res.marker_names
         idx = [take.names.index(n) for n in used]
-        # the take's (F, M, D) deltas and the solve's copy of them are not needed to predict: freed first
-        res, take = replace(res, solve=None), replace(take, deltas=None)
+        res = replace(res, solve=None)  # the solve's deltas are not needed to predict: freed first
         predicted = [_predicted(strategy, res, take, idx)]  # handed over: _refit_head frees it once read
         gross, res, take = take.stabilise, None, None
         stab = _refit_head(gross, used, predicted, metres, settings)
@@ -169,7 +177,19 @@ def _solve(strategy, handed, markers, settings, notes, timings):
     timings["solve"] = t_solve
     if refits:
         timings["stabilise"] += t_refit
-    return res, take
+    return res, take, motion
+
+
+def _motion(deltas):
+    """RMS distance of the measured markers from the neutral over the take (metres or pixels; 0
+    when nothing was measured), in blocks of frames."""
+    total, count = 0.0, 0
+    for a in range(0, deltas.shape[0], BLOCK):
+        part = deltas[a : a + BLOCK]
+        seen = np.isfinite(part).all(axis=2)
+        total += float(np.einsum("ij,ij->", part[seen], part[seen]))
+        count += int(seen.sum())
+    return float(np.sqrt(total / count)) if count else 0.0
 
 
 def _refit_head(gross, used, predicted, markers, settings):

@@ -143,7 +143,7 @@ def marker_residuals(strategy, res, take):
     engine's residuals are 0, not NaN, at gaps)."""
     fitted = res.marker_names or getattr(getattr(strategy, "actor_basis", None), "marker_names", None) or take.names
     used = tuple(n for n in fitted if n in set(take.names))
-    F, dims = take.frames.size, take.deltas.shape[2]
+    F, dims = take.frames.size, take.dim
     if res.solve is None:
         return used, np.full(len(used), np.nan), None
     r2 = res.solve.residual_norms(dims)  # (F, markers), in blocks: no (F, P) residuals (issue 18)
@@ -153,7 +153,7 @@ def marker_residuals(strategy, res, take):
     with np.errstate(invalid="ignore", divide="ignore"):
         per = np.sqrt(np.where(seen, r2, 0.0).sum(axis=0) / seen.sum(axis=0))
     cols = [fitted.index(n) for n in used]
-    observed = np.isfinite(take.deltas[:, [take.names.index(n) for n in used], 0])
+    observed = take.seen()[:, [take.names.index(n) for n in used]]
     frame_marker = np.where(observed, np.sqrt(r2[:, cols]), np.nan)
     frame_marker[~np.asarray(res.solve.solved, dtype=bool)] = np.nan
     return used, per[cols], frame_marker

@@ -20,7 +20,9 @@ Every strategy is a class with
   space as ``source``; strategies fitted in another head frame (a calibration take) align it onto
   their own neutral (rigid by default: Sony's master T-pose alignment), ``geometric`` aligns it
   onto the character by a similarity. ``confidence`` (F, M) is per-sample trust where a weight
-  solve runs.
+  solve runs. A strategy that predicts the markers themselves (``PredictsMarkers``: geometric)
+  also takes ``start``, ``quick`` and ``overwrite`` (the caller gives ``source`` up, so the
+  solve may work in its memory: one (F, M, D) array less on a long take).
 
 ``StrategyResult`` (``base.py``) carries ``weights`` (F, K) for the CHARACTER's shapes
 (``shape_names``, NaN where unsolved), ``solved`` (F,), ``warnings`` (legal but doubtful input or

@@ -5,7 +5,7 @@ See the package docstring (``solvers/strategies/__init__.py``) for the interface
 maths the strategies share lives in ``sources`` (marker deltas) and ``lowrank`` (PCA, gap filling).
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -75,12 +75,14 @@ class PredictsMarkers(Protocol):
     """A strategy whose solve predicts the markers themselves: the pipeline refits the head on every
     marker against that prediction (hierarchical stabilisation) before the final solve.
 
-    ``solve`` also takes ``start`` (weights of an earlier solve, (F, K)) and ``quick`` (a cheap
-    per-frame prediction instead of the optimum); ``predict(result)`` returns the actor-space marker
-    deltas (F, U, D) of ``result.marker_names`` that ``result`` explains.
+    ``solve`` also takes ``start`` (weights of an earlier solve, (F, K)), ``quick`` (a cheap
+    per-frame prediction instead of the optimum) and ``overwrite`` (the caller gives ``source`` up:
+    the solve may work in its memory); ``predict(result)`` returns the actor-space marker deltas
+    (F, U, D) of ``result.marker_names`` that ``result`` explains.
     """
 
-    def solve(self, source, *, names=None, neutral=None, confidence=None, start=None, quick=False): ...
+    def solve(self, source, *, names=None, neutral=None, confidence=None, start=None, quick=False,
+              overwrite=False): ...
 
     def predict(self, result): ...
 
@@ -96,6 +98,8 @@ class PreparedTake:
     frames : (F,) frame numbers
     stabilise : StabiliseResult
     offsets : (F, M, D) master T-pose offsets added to the positions, or None
+    observed : (F, M) bool, where each marker was measured, kept when ``deltas`` were handed to a
+        solve (``handed_over``; then ``deltas`` is None)
     """
 
     deltas: np.ndarray
@@ -104,10 +108,20 @@ class PreparedTake:
     frames: np.ndarray
     stabilise: object
     offsets: np.ndarray = None
+    observed: np.ndarray = None
 
     @property
     def dim(self):
-        return self.deltas.shape[2]
+        return self.neutral.shape[1]
+
+    def seen(self):
+        """(F, M) bool: where each marker was measured."""
+        return self.observed if self.deltas is None else np.isfinite(self.deltas[:, :, 0])
+
+    def handed_over(self):
+        """This take without its deltas, for a solve that may overwrite them; where each marker was
+        measured is kept."""
+        return replace(self, deltas=None, observed=self.seen())
 
 
 @dataclass(frozen=True)

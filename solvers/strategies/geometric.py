@@ -141,23 +141,26 @@ class GeometricStrategy:
     def marker_names(self):
         return self.basis.marker_names
 
-    def solve(self, source, *, names=None, neutral=None, confidence=None, start=None, quick=False):
+    def solve(self, source, *, names=None, neutral=None, confidence=None, start=None, quick=False,
+              overwrite=False):
         """Character weights for actor-space deltas ``source`` (F, M, D) named ``names``.
 
         ``neutral`` (M, D), the take's neutral, aligns the take onto the bound points (a similarity);
         without it the deltas must already be in character space. ``start`` (F, K): weights of an
         earlier solve to start from; ``quick``: a cheap per-frame prediction (no temporal smoothing,
-        a few active-set iterations), as the head refits use.
+        a few active-set iterations), as the head refits use. ``overwrite``: the caller gives
+        ``source`` up (its contents are undefined afterwards), so the aligned deltas are made in its
+        memory instead of in a second (F, M, D) array (issue 18).
         """
         if self.basis is None:
             raise FacecapError("geometric: call fit() before solve()")
-        deltas = as_deltas(source)
+        deltas = as_deltas(source, overwrite=overwrite)
         names = tuple(self.basis.marker_names if names is None else names)
         idx = [names.index(n) for n in self.basis.marker_names]
         alignment, residual = None, None
         if neutral is not None:
             alignment, residual = self._align(np.asarray(neutral, dtype=np.float64)[idx])
-        deltas = _taken(deltas, idx, alignment)
+        deltas = _taken(deltas, idx, alignment, overwrite=overwrite)
         if confidence is not None:
             confidence = np.take(np.nan_to_num(np.asarray(confidence, dtype=np.float64)), idx, axis=1)
         options = replace(self.options, smoothing=(0.0, 0.0)) if quick else self.options
@@ -224,11 +227,22 @@ def bound_markers(character, names, *, source="take"):
 BLOCK = 8192
 
 
-def _taken(deltas, idx, alignment):
+def _taken(deltas, idx, alignment, *, overwrite=False):
     """``deltas[:, idx]`` (F, U, D), carried by ``alignment`` when given, in blocks of frames; np.take
-    keeps the frame-major layout (deltas[:, idx] would be marker-major, 2x slower later)."""
-    out = np.empty((deltas.shape[0], len(idx), deltas.shape[2]))
-    for a in range(0, deltas.shape[0], BLOCK):
+    keeps the frame-major layout (deltas[:, idx] would be marker-major, 2x slower later).
+
+    With ``overwrite`` the result is written over ``deltas`` (U <= M). That is safe block by block:
+    each block is copied out before it is written, and it is written no further into the array than
+    where its own rows started, so no later block has been overwritten yet."""
+    F, M, D = deltas.shape
+    U = len(idx)
+    if alignment is None and list(idx) == list(range(M)):
+        return deltas if overwrite else deltas.copy()
+    if overwrite and deltas.flags.c_contiguous:
+        out = deltas.reshape(-1)[: F * U * D].reshape(F, U, D)
+    else:
+        out = np.empty((F, U, D))
+    for a in range(0, F, BLOCK):
         part = np.take(deltas[a : a + BLOCK], idx, axis=1)
         out[a : a + BLOCK] = part if alignment is None else alignment.apply_vectors(part)
     return out

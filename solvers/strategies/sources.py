@@ -14,8 +14,10 @@ def clamp_to(target, weights):
     return clipped, changed.sum(axis=1)
 
 
-def as_deltas(source, *, what="source"):
-    """Validate marker deltas: (F, M, D) float array (D = 2 or 3), NaN for gaps."""
+def as_deltas(source, *, what="source", overwrite=False):
+    """Validate marker deltas: (F, M, D) float array (D = 2 or 3), NaN for gaps (a sample with one
+    NaN coordinate is a gap in all of them). The array is copied only when such a sample must be
+    made whole, and not even then with ``overwrite`` (the caller gives the array up)."""
     deltas = np.asarray(source, dtype=np.float64)
     if deltas.ndim == 2 and deltas.shape[0] > 0:
         raise FacecapError(f"`{what}` must have shape (F, M, 3) marker deltas; got {deltas.shape} (weights go to `parallel`)")
@@ -23,10 +25,11 @@ def as_deltas(source, *, what="source"):
         raise FacecapError(f"`{what}` must have shape (F, M, 3); got {deltas.shape}")
     if np.isinf(deltas).any():
         raise FacecapError(f"`{what}` contains infinite values")
-    gap = np.isnan(deltas).any(axis=2)
-    if gap.any():
-        deltas = deltas.copy()
-        deltas[gap] = np.nan
+    nan = np.isnan(deltas)
+    partial = nan.any(axis=2) & ~nan.all(axis=2)
+    if partial.any():
+        deltas = deltas if overwrite else deltas.copy()
+        deltas[partial] = np.nan
     return deltas
 
 
