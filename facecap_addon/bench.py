@@ -207,8 +207,8 @@ def bench_batch(takes=20, frames=720, jobs=2, repeat=3):
 
 #: Takes of the memory case (frames): 10 and 100 minutes at 60 fps.
 MEMORY_FRAMES = (36000, 360000)
-#: Goal for the process tree's peak on the longest take (bytes).
-MEMORY_GOAL = 3 << 30
+#: Goal for the process tree's peak PSS on the 360,000-frame take (bytes): "about 3 GB" (issue 18).
+MEMORY_GOAL = 3_000_000_000
 
 
 def bench_memory(frames=MEMORY_FRAMES):
@@ -245,6 +245,7 @@ def bench_memory(frames=MEMORY_FRAMES):
         (n0, a), (n1, b) = peaks[0], peaks[-1]
         per = {k: (b[k] - a[k]) / (n1 - n0) / 1024 for k in ("tree_pss", "tree_rss", "main_rss")}
         rows.append(dict(line=(f"memory growth {n0} -> {n1} frames: {per['tree_pss']:.2f} KiB a frame (tree PSS), "
-                               f"{per['tree_rss']:.2f} (summed RSS), {per['main_rss']:.2f} (main process); goal "
-                               f"<= {MEMORY_GOAL / 2**30:.0f} GiB at {n1} frames, linear growth")))
+                               f"{per['tree_rss']:.2f} (summed RSS), {per['main_rss']:.2f} (main process); goal: "
+                               f"linear growth, and about {MEMORY_GOAL / 1e9:.0f} GB of tree PSS at 360000 frames "
+                               f"({MEMORY_GOAL / 2**30:.2f} GiB); {n1} frames: {b['tree_pss'] / 1e9:.2f} GB")))
     return rows
