@@ -141,10 +141,7 @@ def fetch_assets(assets, cache_dir=None, *, log=print):
     store.mkdir(parents=True, exist_ok=True)
     out = {}
     for a in assets:
-        path = store / a.file
-        if not (path.is_file() and sha256_of(path) == a.sha256):
-            log(f"downloading {a.file} ({a.size / 1e6:.1f} MB)")
-            _download(LockedWheel(a.name, a.version, "any", a.file, a.sha256, a.size), store)
+        path = _cached(LockedWheel(a.name, a.version, "any", a.file, a.sha256, a.size), store, log)
         with zipfile.ZipFile(path) as z:
             try:
                 out[a] = z.read(a.member)
@@ -174,12 +171,17 @@ def fetch_wheels(wheels, cache_dir=None, *, log=print):
     store.mkdir(parents=True, exist_ok=True)
     paths = {}
     for w in wheels:
-        path = store / w.file
-        if not (path.is_file() and sha256_of(path) == w.sha256):
-            log(f"downloading {w.file} ({w.size / 1e6:.1f} MB)")
-            _download(w, store)
-        paths[w.file] = path
+        paths[w.file] = _cached(w, store, log)
     return paths
+
+
+def _cached(wheel, store, log):
+    """The LockedWheel's file in ``store``: downloaded unless it is there with its locked hash."""
+    path = store / wheel.file
+    if not (path.is_file() and sha256_of(path) == wheel.sha256):
+        log(f"downloading {wheel.file} ({wheel.size / 1e6:.1f} MB)")
+        _download(wheel, store)
+    return path
 
 
 def _download(wheel, store):

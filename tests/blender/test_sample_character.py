@@ -2,12 +2,12 @@
 
 import json
 import re
-import sys
 from pathlib import Path
 
 import bpy
 import numpy as np
 import pytest
+from sample_geometry import geometry_module
 
 SAMPLE_DIR = Path(__file__).resolve().parents[2] / "sample_blends"
 BLEND = SAMPLE_DIR / "character.blend"
@@ -65,16 +65,6 @@ class Character:
         ids, ws = self.groups[name]
         p = self.basis if positions is None else positions
         return np.average(p[ids], axis=0, weights=ws)
-
-
-def _geometry_module():
-    """The numpy-only generator module (sample_blends is not a package)."""
-    sys.path.insert(0, str(SAMPLE_DIR))
-    try:
-        import character_geometry
-    finally:
-        sys.path.remove(str(SAMPLE_DIR))
-    return character_geometry
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +163,7 @@ def test_blink_left_closes_the_left_upper_lid(char):
     assert lid[2] < -0.003
     assert np.abs(d[char.basis[:, 0] < 0.0]).max() == 0.0
     # at full blink the upper lid edge reaches the lower lid edge
-    topo = _geometry_module().build_character().topology
+    topo = geometry_module().build_character().topology
     closed = char.basis[topo.upper_edge] + d[topo.upper_edge]
     assert np.abs(closed - char.basis[topo.lower_edge]).max() < 0.0005
     assert np.all(d[topo.upper_edge, 2] < 0.0) and d[topo.upper_edge, 2].min() < -0.005
@@ -239,7 +229,7 @@ def test_marker_basis_is_well_posed(char):
 
 
 def test_geometry_is_deterministic():
-    cg = _geometry_module()
+    cg = geometry_module()
     a, b = cg.build_character(), cg.build_character()
     assert np.array_equal(a.vertices, b.vertices)
     assert a.faces == b.faces
@@ -251,7 +241,7 @@ def test_geometry_is_deterministic():
 
 
 def test_blend_matches_the_generator(char):
-    geo = _geometry_module().build_character()
+    geo = geometry_module().build_character()
     np.testing.assert_allclose(char.basis, geo.vertices, atol=1e-7)
     for name in ARKIT:
         np.testing.assert_allclose(char.deltas[name], geo.shape_keys[name], atol=1e-6, err_msg=name)

@@ -1,12 +1,12 @@
 """Binding markers to any character's surface (``map`` and ``nearest``), on the sample character with
 known truth: markers placed on its surface, moved by an actor's scale, rotation, translation and noise."""
 
-import sys
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
+from realdata_corpus import CORPUS
+from sample_geometry import geometry_module
 
 from facecap.solvers.character.alignment import rodrigues
 from facecap.solvers.character.binding import bind_map, bind_nearest, parse_target, sample_basis
@@ -20,20 +20,14 @@ from facecap.solvers.character.surface import (
 )
 from facecap.solvers.errors import FacecapError
 
-SAMPLE = Path(__file__).resolve().parents[2] / "sample_blends"
-FACIAL_SING = Path("/work/shared/data/realdata/c3d/c3dorg_29_Facial-Sing.c3d")
+FACIAL_SING = CORPUS / "c3d" / "c3dorg_29_Facial-Sing.c3d"
 NOISE_MM = 0.3
 
 
 @pytest.fixture(scope="module")
 def face():
     """(vertices (V, 3) m, triangles (T, 3), names, true bound points (M, 3), vertex per marker, shape deltas)."""
-    sys.path.insert(0, str(SAMPLE))
-    try:
-        import character_geometry
-    finally:
-        sys.path.remove(str(SAMPLE))
-    g = character_geometry.build_character()
+    g = geometry_module().build_character()
     tris = triangulate(g.faces)
     centroids = np.array([(np.asarray(m.weights)[:, None] * g.vertices[list(m.vertices)]).sum(0) / sum(m.weights)
                           for m in g.markers])

@@ -13,11 +13,9 @@ Target (issue 20): weights RMSE of ``nearest`` within 1.3x of binding by vertex 
 median and the worst draw. Measured (SEEDS below): see docs/binding.md.
 """
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from sample_geometry import geometry_module
 
 from facecap.solvers.character.binding_map import BindingSettings
 from facecap.solvers.character.mesh import CharacterMesh, group_sampling, sampled_basis
@@ -27,7 +25,6 @@ from facecap.solvers.pipeline import RetargetSettings, retarget
 from facecap.solvers.pipeline.binding import bind_character
 from facecap.solvers.tools.synth import performance_weights, synthesize_take
 
-SAMPLE = Path(__file__).resolve().parents[2] / "sample_blends"
 SEEDS = (0, 1, 2)
 N_FRAMES = 480
 LANDMARKS = ("nose_tip_C", "chin_C", "brow_inner_L", "brow_inner_R")
@@ -41,12 +38,7 @@ def character():
 
 def load_character():
     """(mesh with vertex groups, the same mesh without, the vertex-group Basis, stable marker names)."""
-    sys.path.insert(0, str(SAMPLE))
-    try:
-        import character_geometry
-    finally:
-        sys.path.remove(str(SAMPLE))
-    g = character_geometry.build_character()
+    g = geometry_module().build_character()
     shapes = list(g.shape_keys)
     deltas = np.stack([g.shape_keys[k] for k in shapes])
     groups = {m.name: (np.asarray(m.vertices), np.asarray(m.weights, dtype=np.float64)) for m in g.markers}
