@@ -30,7 +30,11 @@ from . import markers_2d, stages
 from .result import RetargetResult, assemble, jsonable
 from .settings import STRATEGIES, RetargetSettings
 
-__all__ = ["RetargetResult", "RetargetSettings", "STRATEGIES", "hold_locks", "jsonable", "retarget", "shape_target"]
+#: Strategies that sample the character's shapes at the bound points (they need a binding).
+SAMPLES_CHARACTER = ("geometric", "semantic")
+
+__all__ = ["RetargetResult", "RetargetSettings", "SAMPLES_CHARACTER", "STRATEGIES", "hold_locks", "jsonable", "retarget",
+           "shape_target"]
 
 
 def retarget(markers, character, settings, *, inputs=None):
@@ -59,9 +63,13 @@ def retarget(markers, character, settings, *, inputs=None):
     if settings.strategy not in STRATEGIES:
         raise FacecapError(f"unknown strategy '{settings.strategy}'; available: {', '.join(STRATEGIES)}")
     inputs = StrategyInputs() if inputs is None else inputs
-    if settings.strategy == "geometric":
+    if settings.strategy == "semantic" and markers is not None and markers.dim == 2:
+        settings = replace(settings, strategy="geometric")  # image tracks: the projected character's shapes
+        inputs = replace(inputs, notes=tuple(inputs.notes) + (
+            "2D take: the semantic solve needs 3D markers; solved with the geometric strategy",))
+    if settings.strategy in SAMPLES_CHARACTER:
         if not isinstance(character, Basis):
-            raise FacecapError("strategy 'geometric' needs the character's shapes at the bound points (a Basis)")
+            raise FacecapError(f"strategy '{settings.strategy}' needs the character's shapes at the bound points (a Basis)")
     else:
         require_inputs(settings.strategy, inputs, settings)
     if settings.strategy == "parallel":
@@ -89,7 +97,7 @@ def _retarget_markers(markers, character, settings, inputs):
     t0 = time.perf_counter()
     if markers.dim == 2:
         markers_2d.check_2d(settings, inputs)
-    if settings.strategy == "geometric":  # a binding problem is named before any work
+    if settings.strategy in SAMPLES_CHARACTER:  # a binding problem is named before any work
         bound_markers(character, markers.names, source=markers.source or "take")
     markers = stages.usable_markers(markers, settings, notes,
                                     bound=character.marker_names if settings.strategy == "geometric" else None)

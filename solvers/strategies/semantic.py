@@ -1,0 +1,168 @@
+"""The ``semantic`` strategy (the default): solve what the ACTOR does, shape by shape, against the actor's own
+face as well as it is known (``actor_model``: calibration, poses, a performer profile, a human template, or
+nothing but the character), and key those activations on the character's shapes of the same name.
+
+The solve is the engine's bounded, sparse, temporally smooth least squares in actor space, with:
+
+* shapes no marker sees held at rest (``ActorModel.unseen``);
+* opposing shapes kept exclusive (``jawLeft``/``jawRight``, gaze in/out, blink/wide, ...): a first solve
+  decides, frame by frame (smoothed), which side of each pair is active, and the final solve holds the other
+  side at 0, so a pair never cancels itself to explain motion neither side makes;
+* priors relative to each shape's own size, so a subtle shape (``mouthLowerDown``) is not damped more than
+  a large one (``jawOpen``).
+
+It predicts the markers (``PredictsMarkers``), so the pipeline refits the head against it as for
+``geometric``.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..character.shape_options import resolve_bounds, resolve_locks
+from ..engine import solve_bounded
+from ..errors import FacecapError
+from ..options import default
+from .actor_model import ActorKnowledge, build_actor_model
+from .base import StrategyResult, as_target
+from .geometric import QUICK_SOLVE, symmetric_pairs
+from .sources import as_deltas
+
+#: Pairs of shapes that act against each other: at most one of each is active in a frame.
+OPPOSING = (
+    ("jawLeft", "jawRight"), ("mouthLeft", "mouthRight"),
+    ("eyeLookInLeft", "eyeLookOutLeft"), ("eyeLookInRight", "eyeLookOutRight"),
+    ("eyeLookUpLeft", "eyeLookDownLeft"), ("eyeLookUpRight", "eyeLookDownRight"),
+    ("eyeBlinkLeft", "eyeWideLeft"), ("eyeBlinkRight", "eyeWideRight"),
+)
+#: Frames over which a pair's active side is decided (a running mean of their difference).
+DECIDE_FRAMES = 9
+#: Per-shape priors use each shape's own squared size, but never less than this share of the mean.
+SIZE_FLOOR = 0.05
+
+
+def opposing_pairs(shape_names):
+    """Index pairs of ``OPPOSING`` shapes that ``shape_names`` has."""
+    index = {n: i for i, n in enumerate(shape_names)}
+    return [(index[a], index[b]) for a, b in OPPOSING if a in index and b in index]
+
+
+def exclusive_locks(weights, pairs, locks):
+    """``locks`` (F, K) with the weaker side of every pair held at 0, decided on a running mean of the
+    pair's difference in ``weights`` (F, K) (a side may take over only smoothly)."""
+    out = locks.copy()
+    kernel = np.ones(DECIDE_FRAMES) / DECIDE_FRAMES
+    for a, b in pairs:
+        diff = np.nan_to_num(weights[:, a] - weights[:, b])
+        diff = np.convolve(np.pad(diff, DECIDE_FRAMES // 2, mode="edge"), kernel, mode="valid")
+        out[:, b] = np.where((diff > 0) & np.isnan(out[:, b]), 0.0, out[:, b])
+        out[:, a] = np.where((diff <= 0) & np.isnan(out[:, a]), 0.0, out[:, a])
+    return out
+
+
+class SemanticStrategy:
+    """Solve the actor's activations of the character's (semantic) shapes against the actor model.
+
+    Parameters (keyword-only): the priors ``regularisation``, ``sparsity``, ``symmetry``, ``smoothing`` (as
+    ``geometric``, here relative to each shape's own size); ``exclusive`` keeps opposing shapes apart.
+    """
+
+    name = "semantic"
+    source_kind = "markers"
+
+    def __init__(self, *, regularisation=default("solve.regularisation"), sparsity=default("solve.sparsity"),
+                 symmetry=default("solve.symmetry"), smoothing=default("solve.smoothing"), exclusive=True):
+        for key, value in (("regularisation", regularisation), ("sparsity", sparsity), ("symmetry", symmetry)):
+            if not value >= 0:
+                raise FacecapError(f"semantic: `{key}` must be >= 0; got {value}")
+        self.regularisation, self.sparsity, self.symmetry = float(regularisation), float(sparsity), float(symmetry)
+        self.smoothing = (float(smoothing[0]), float(smoothing[1]))
+        self.exclusive = bool(exclusive)
+        self.model = None
+        self.notes = ()
+
+    def fit(self, character, *, names, neutral, knowledge=ActorKnowledge(), character_deltas=None, deltas=None,
+            bounds=(), locks=()):
+        """Build the actor model (``actor_model.build_actor_model``) for the take's markers ``names`` with
+        neutral ``neutral`` (M, 3); ``bounds``/``locks`` are the ``[solve]`` shape options."""
+        target = as_target(character)
+        self.model = build_actor_model(character, tuple(names), np.asarray(neutral, dtype=np.float64), knowledge,
+                                       character_deltas=character_deltas, deltas=deltas)
+        self.lower, self.upper = resolve_bounds(target.names, target.lower, target.upper, bounds)
+        self.lock_patterns = tuple(locks)
+        self.notes = self.model.notes
+        return self
+
+    @property
+    def marker_names(self):
+        return self.model.basis.marker_names
+
+    def _priors(self, A):
+        """Per-shape ridge and L1 (K,), relative to each shape's own squared size (floored)."""
+        size = np.einsum("pk,pk->k", A, A)
+        mean = float(size.mean()) or 1.0
+        own = np.maximum(size, SIZE_FLOOR * mean)
+        return self.regularisation * own, self.sparsity * own
+
+    def solve(self, source, *, names=None, neutral=None, confidence=None, start=None, quick=False,
+              overwrite=False):
+        """Character weights for actor-space deltas ``source`` (F, M, 3) named ``names`` (see ``geometric``
+        for ``start``, ``quick`` and ``overwrite``; ``neutral`` is not needed: the model is in actor space)."""
+        if self.model is None:
+            raise FacecapError("semantic: call fit() before solve()")
+        basis = self.model.basis
+        deltas = as_deltas(source, overwrite=overwrite)
+        names = tuple(basis.marker_names if names is None else names)
+        missing = [n for n in basis.marker_names if n not in names]
+        if missing:
+            raise FacecapError(f"semantic: the take has no marker(s) {missing[:8]} of the actor model")
+        idx = [names.index(n) for n in basis.marker_names]
+        D = np.take(deltas, idx, axis=1)
+        F, U, _ = D.shape
+        if confidence is not None:
+            confidence = np.take(np.nan_to_num(np.asarray(confidence, dtype=np.float64)), idx, axis=1)
+        A = basis.matrix()
+        ridge, l1 = self._priors(A)
+        locks = resolve_locks(basis.shape_names, self.lock_patterns, n_frames=F)
+        locks = np.broadcast_to(locks, (F, basis.n_shapes)).copy() if locks.ndim == 1 else locks.copy()
+        for n in self.model.unseen:
+            locks[:, basis.shape_names.index(n)] = 0.0
+        pairs = symmetric_pairs(basis.shape_names) if self.symmetry > 0 else ()
+        kwargs = dict(mask=confidence, dims=3, lower=self.lower, upper=self.upper, regularisation=ridge,
+                      sparsity=l1, symmetry=pairs, symmetry_weight=self.symmetry * float(np.mean(ridge) or 1.0)
+                      / max(self.regularisation, 1e-12) if self.symmetry else 0.0, relative=False)
+        smoothing = (0.0, 0.0) if quick else self.smoothing
+        scale = float(np.mean(np.einsum("pk,pk->k", A, A))) or 1.0
+        kwargs["smoothing"] = (smoothing[0] * scale, smoothing[1] * scale)
+        extra = QUICK_SOLVE if quick else {}
+        flat = D.reshape(F, U * 3)
+        opposing = opposing_pairs(basis.shape_names) if self.exclusive and not quick else []
+        if opposing:
+            first = solve_bounded(A, flat, locks=locks, start=start, **kwargs, **extra)
+            locks = exclusive_locks(first.weights, opposing, locks)
+            start = first.weights
+        res = solve_bounded(A, flat, locks=None if np.isnan(locks).all() else locks, start=start, **kwargs, **extra)
+        rms = _residual_rms(res.weights, basis.deltas, D)
+        rms[~res.solved] = np.nan
+        info = {"mode": res.mode, "actor_model": self.model.report()}
+        return StrategyResult(weights=res.weights, shape_names=basis.shape_names, solved=res.solved,
+                              warnings=tuple(self.notes) + tuple(res.warnings), residual_rms=rms,
+                              clamped=np.zeros(F, dtype=int), info=info, solve=res, marker_names=basis.marker_names)
+
+    def predict(self, result):
+        """Actor-space deltas (F, U, 3) of ``result.marker_names`` that ``result``'s weights explain."""
+        K, U, D = self.model.basis.deltas.shape
+        return (np.nan_to_num(result.weights) @ self.model.basis.deltas.reshape(K, U * D)).reshape(-1, U, D)
+
+
+def _residual_rms(weights, basis_deltas, deltas):
+    """RMS residual per frame (F,) over the observed markers."""
+    K, M, D = basis_deltas.shape
+    res = (np.nan_to_num(weights) @ basis_deltas.reshape(K, M * D)).reshape(-1, M, D) - deltas
+    seen = np.isfinite(deltas[:, :, 0])
+    sq = np.where(seen, np.nansum(res**2, axis=2), 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(sq.sum(axis=1) / seen.sum(axis=1))
+
+
+__all__ = ["SemanticStrategy", "OPPOSING", "opposing_pairs", "exclusive_locks", "replace"]
