@@ -26,7 +26,7 @@ from ..strategies.base import PredictsMarkers
 from ..strategies.geometric import bound_markers
 from ..strategies.options import StrategyInputs
 from ..strategies.wiring import fit_parallel, fit_strategy, require_inputs, shape_target
-from . import markers_2d, stages
+from . import markers_2d, plausibility, stages
 from .result import RetargetResult, assemble, jsonable
 from .settings import STRATEGIES, RetargetSettings
 
@@ -119,14 +119,30 @@ def _retarget_markers(markers, character, settings, inputs):
                                            prepare=stages.for_other_take(settings, take))
     notes.extend(fit_notes)
     timings["fit"] = time.perf_counter() - t1
+    noise = plausibility.marker_noise(take.deltas) if take.dim == 3 else float("nan")
     handed, take = [take], None  # _solve frees the first take's (F, M, D) deltas at its first head refit
     res, take, motion = _solve(strategy, handed, markers, settings, notes, timings)
     notes.extend(res.warnings)
     weights = hold_locks(res.shape_names, res.weights, settings, notes)
     _refuse_flat(weights, motion, take.dim, settings)
+    info = {}
+    if take.dim == 3:
+        info["plausibility"], warning = plausibility.check(
+            weights, res.shape_names, getattr(strategy, "upper", np.ones(len(res.shape_names))), res.residual_rms,
+            noise, held=_held(strategy, settings, res.shape_names))
+        if warning:
+            notes.append(warning)
     timings["total"] = time.perf_counter() - t0
     return assemble(strategy, res, weights, frames=take.frames, settings=settings, notes=notes, timings=timings,
-                    take=take, normalise=norm_info, suggestion=suggestion)
+                    take=take, normalise=norm_info, suggestion=suggestion, info=info)
+
+
+def _held(strategy, settings, names):
+    """Shapes the solve held (locks, and the semantic solve's unseen shapes): not judged for pinning."""
+    locks = resolve_locks(names, settings.locks, n_frames=1)
+    held = {n for n, v in zip(names, np.atleast_2d(locks)[0]) if np.isfinite(v)}
+    model = getattr(strategy, "model", None)
+    return held | set(getattr(model, "unseen", ()))
 
 
 def _refuse_flat(weights, motion, dim, settings):

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..character.aliases import name_key
 from ..character.basis import Basis
+from ..engine import solve_bounded
 from ..errors import FacecapError
 from ..transforms import fit_similarity
 
@@ -36,6 +37,8 @@ FULL_SHARE = 0.9
 TRANSFER_RIDGE = 0.5
 #: Range normalisation gains stay within this factor of 1.
 MAX_GAIN = 4.0
+#: Fit ratios (residual over noise) between which the range normalisation goes from none to all.
+NORMALISE_FROM, NORMALISE_FULL = 1.6, 2.4
 
 STATEMENTS = {
     "calibration": "solved against the actor's own calibration poses",
@@ -81,6 +84,7 @@ class ActorModel:
     unseen: tuple
     notes: tuple = field(default_factory=tuple)
     gains: np.ndarray = None  # per-marker range normalisation of the "character" tier, else None
+    mismatch: float = 0.0  # "character" tier: 0 (its shapes explain the actor) .. 1 (they do not: normalised)
 
     def statement(self):
         measured = sum(s == "measured" for s in self.sources)
@@ -96,6 +100,7 @@ class ActorModel:
                "sources": dict(zip(self.basis.shape_names, self.sources))}
         if self.gains is not None:
             out["range_gains"] = [round(float(np.percentile(self.gains, q)), 3) for q in (5, 50, 95)]
+            out["character_mismatch"] = round(self.mismatch, 3)
         return out
 
 
@@ -160,7 +165,34 @@ def range_gains(prior, deltas):
     return np.clip(gains, 1.0 / MAX_GAIN, MAX_GAIN)
 
 
-def build_actor_model(character, names, neutral, knowledge, *, character_deltas=None, deltas=None):
+def fit_ratio(basis, deltas, noise, *, frames=600):
+    """How far the shapes ``basis`` (K, M, 3) are from explaining ``deltas`` (F, M, 3): the median marker
+    residual of a quick per-frame bounded solve on up to ``frames`` frames, over the markers' ``noise``
+    (metres per coordinate; ~1 when the shapes describe the face, 2.5-3 for a stylised character's
+    shapes against a human actor)."""
+    F = deltas.shape[0]
+    sel = np.unique(np.linspace(0, F - 1, min(F, frames)).astype(int))
+    D = deltas[sel]
+    K = basis.shape[0]
+    res = solve_bounded(basis.reshape(K, -1).T, D.reshape(len(sel), -1), dims=3, regularisation=1e-3,
+                        sparsity=1e-3, relative=True, lower=0.0, upper=1.0)
+    r2 = res.residual_norms(3)
+    seen = np.isfinite(D[:, :, 0])
+    if not seen.any() or not noise > 0:
+        return float("nan")
+    return float(np.sqrt(np.median(r2[seen])) / (noise * np.sqrt(3.0)))
+
+
+def normalisation_share(ratio):
+    """How much of the range normalisation to apply for a ``fit_ratio``: none while the character's shapes
+    explain the actor's motion (a self-retarget, a character of the actor's own shape family: ratio below
+    ``NORMALISE_FROM``), all of it from ``NORMALISE_FULL`` up."""
+    if not np.isfinite(ratio):
+        return 1.0
+    return float(np.clip((ratio - NORMALISE_FROM) / (NORMALISE_FULL - NORMALISE_FROM), 0.0, 1.0))
+
+
+def build_actor_model(character, names, neutral, knowledge, *, character_deltas=None, deltas=None, noise=None):
     """The actor's shapes for ``character``'s shape names at the take's markers.
 
     Parameters
@@ -216,13 +248,18 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
             filled, label = prior, prior_name
         for k in np.flatnonzero(~known):
             basis[k], sources[k] = filled[k], label
-    gains = None
+    size = np.linalg.norm(basis[:, usable], axis=2).max(axis=1) if usable.any() else np.zeros(K)
+    gains, share = None, 0.0
     if prior_name == "character" and not known.any():
         tier = "character"
         if knowledge.normalise and deltas is not None:
-            gains = range_gains(basis[:, usable], deltas[:, usable])
+            ratio = fit_ratio(basis[:, usable], deltas[:, usable], noise if noise is not None else float("nan"))
+            share = normalisation_share(ratio)
+            notes.append(f"nothing is known of the actor: the character's shapes explain the markers to "
+                         f"{ratio:.1f}x their noise; " + (f"the actor's motion is normalised per marker to the "
+                         f"character's range ({100 * share:.0f}%)" if share > 0 else "used as they are"))
             full = np.ones(M)
-            full[usable] = gains
+            full[usable] = np.exp(share * np.log(range_gains(basis[:, usable], deltas[:, usable])))
             basis = basis / full[None, :, None]  # the character's range mapped back onto the actor's
             gains = full
     elif known.any():
@@ -235,7 +272,6 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
     if missing:
         notes.append(f"{len(missing)} shape(s) have no source and stay at rest: {missing[:8]}")
         sources = [s or "none" for s in sources]
-    size = np.linalg.norm(basis[:, usable], axis=2).max(axis=1) if usable.any() else np.zeros(K)
     unseen = tuple(shapes[k] for k in range(K) if size[k] * 1e3 < knowledge.unseen_mm)
     if unseen and knowledge.unseen == "rest":
         notes.append(f"{len(unseen)} shape(s) move no marker by {knowledge.unseen_mm:g} mm and are held at rest: "
@@ -249,4 +285,4 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
     used = tuple(n for n, u in zip(names, usable) if u)
     actor = Basis(shapes, used, neutral[usable], basis[:, usable], lower, upper)
     return ActorModel(actor, tuple(sources), tier, unseen if knowledge.unseen == "rest" else (), tuple(notes),
-                      None if gains is None else gains[usable])
+                      None if gains is None else gains[usable], share)

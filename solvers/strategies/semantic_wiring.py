@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 
 from ..capture.align import align_actor
+from ..capture.noise import marker_noise
 from ..character.basis import Basis
 from ..errors import FacecapError
 from .actor_model import ActorKnowledge
@@ -92,5 +93,5 @@ def fit_semantic(settings, character, inputs, take, *, priors):
                            "[actor] profile or [actor] template)")
     s = SemanticStrategy(**priors, exclusive=a.exclusive)
     s.fit(character, names=take.names, neutral=take.neutral, knowledge=knowledge, character_deltas=char_deltas,
-          deltas=take.deltas, bounds=settings.bounds, locks=settings.locks)
+          deltas=take.deltas, noise=marker_noise(take.deltas), bounds=settings.bounds, locks=settings.locks)
     return s, notes

@@ -35,10 +35,10 @@ class Perturbation:
     identity : sigma of the identity mode coefficients
     """
 
-    gain: float = 0.15
-    scale: float = 0.25
-    displacement: float = 0.25
-    combination: float = 0.35
+    gain: float = 0.1
+    scale: float = 0.15
+    displacement: float = 0.15
+    combination: float = 0.25
     length: float = 0.025
     placement: float = 0.0015
     identity: float = 1.0

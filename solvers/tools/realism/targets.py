@@ -9,7 +9,7 @@ dense layout's markers (the landmark layout binds by position):
   hinge), so neither the human's nor the sample's motion patterns.
 """
 
-import importlib
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -25,11 +25,9 @@ TARGETS = ("sample", "ict", "toon")
 
 def sample_character():
     """The sample character's mesh, 52 ARKit shape keys and 68 marker vertex groups."""
-    sys.path.insert(0, str(SAMPLE_DIR))
-    try:
-        geometry = importlib.import_module("character_geometry")
-    finally:
-        sys.path.remove(str(SAMPLE_DIR))
+    spec = importlib.util.spec_from_file_location("facecap_sample_geometry", SAMPLE_DIR / "character_geometry.py")
+    geometry = sys.modules.setdefault(spec.name, importlib.util.module_from_spec(spec))
+    spec.loader.exec_module(geometry)  # the checkout's numpy generator (sample_blends is not in the extension)
     g = geometry.build_character()
     names = tuple(g.shape_keys)
     groups = {m.name: (np.asarray(m.vertices), np.asarray(m.weights, dtype=np.float64)) for m in g.markers}
