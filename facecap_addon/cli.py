@@ -69,6 +69,7 @@ from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.realism.bench import main as realism_main  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
@@ -157,6 +158,8 @@ def _cmd_convert(args):
 
 
 def _cmd_bench(args):
+    if args.realism is not None:  # the cross-character benchmark (solvers/tools/realism/bench.py): its own options
+        return realism_main(args.realism)
     if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
         return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
     if args.memory:  # the memory case on its own (it takes minutes per take)
@@ -237,6 +240,11 @@ def build_parser():
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.add_argument("--accuracy", action="store_true", help="accuracy over random scenarios instead (stabilisation, "
                    "solve, tracking, flow) side by side with plain references")
+    p.add_argument("--realism", nargs=argparse.REMAINDER, metavar="OPTION",
+                   help="the cross-character benchmark: a human face model performing real iPhone recordings, solved "
+                        "onto other characters by every strategy and knowledge tier (docs/accuracy.md); its own "
+                        "options follow it (--draws, --frames, --targets, --layouts, --methods, --real, --json; "
+                        "`bench --realism --help`)")
     p.add_argument("--draws", default="30", help="--accuracy: random marker takes (default 30)")
     p.add_argument("--clips", default="3", help="--accuracy: clips per footage kind (default 3)")
     p.add_argument("--size", default="640x480", help="--accuracy: footage resolution (default 640x480)")

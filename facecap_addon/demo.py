@@ -43,11 +43,12 @@ def run_demo(out):
     ok = ~result.stabilise.flagged
     rot_err = rotation_angle_deg(result.stabilise.head_rotations()[ok] @ true_rot[ok].transpose(0, 2, 1))
 
-    print("facecap demo: sample take -> sample character (strategy: geometric)")
+    print(f"facecap demo: sample take -> sample character (strategy: {result.strategy})")
     print(f"  frames {result.frames.size}, shapes {len(result.shape_names)}, markers {len(result.marker_names)}")
     print(f"  weights vs ground truth: RMSE {rmse:.4f}, max |error| {worst[k]:.4f} ({result.shape_names[k]})")
     print(f"  head rotation vs ground truth: median {np.median(rot_err):.3f} deg, max {rot_err.max():.3f} deg")
-    print(f"  actor-to-character scale {result.alignment.scale:.4f}")
+    if result.alignment is not None:
+        print(f"  actor-to-character scale {result.alignment.scale:.4f}")
     print(f"  mean residual {np.nanmean(result.residual_rms) * 1e3:.3f} mm, solve {result.timings['solve']:.3f} s")
     for key, value in outputs.items():
         print(f"  {key}: {value}")

@@ -26,7 +26,9 @@ from ..solvers.io import import_markers
 from ..solvers.io.csv import write_weights_csv
 from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
 from ..solvers.markers import UNIT_SCALE
+from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve_job
+from ..solvers.strategies.actor_model import profile_of
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import ProgressLine, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
@@ -81,6 +83,11 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
         extra["flow"] = result.info["flow"]
     if config.output_actor_basis is not None:
         _write_actor_basis(config, result, outputs)
+    if config.output_profile is not None:
+        _write_profile(config, result, outputs)
+    statement = result.info.get("actor_model", {}).get("statement")
+    if statement:
+        say(f"actor: {statement}")
     if config.output_blend is not None:
         extra["output_blend"] = base.report()
     # The take's (F, M, 3) arrays are not needed for keying, whose F-curves (and Blender's copy of
@@ -251,7 +258,7 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     # Only geometric samples the character at bound points; the others need its shape names and ranges.
     # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
     # on the take (its neutral): bound every run, and stored on the character for the output .blend.
-    names = take.markers.names if settings.strategy == "geometric" else None
+    names = take.markers.names if settings.strategy in SAMPLES_CHARACTER else None
 
     def sample():
         if names is None:
@@ -263,8 +270,8 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     bound = None if names is None else made
     character = made if names is None else made.basis
     if names is None and binding.by_position:
-        take.notes = tuple(take.notes) + (f"[binding] mode \"{binding.mode}\" applies to the geometric strategy; "
-                                          f"'{settings.strategy}' does not sample the character",)
+        take.notes = tuple(take.notes) + (f"[binding] mode \"{binding.mode}\" applies to the geometric and semantic "
+                                          f"strategies; '{settings.strategy}' does not sample the character",)
     if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
         import bpy  # bpy: Blender starts on first import
 
@@ -370,6 +377,18 @@ def _write_actor_basis(config, result, outputs):
     config.output_actor_basis.parent.mkdir(parents=True, exist_ok=True)
     actor_basis.save_npz(config.output_actor_basis)
     outputs["actor_basis"] = str(config.output_actor_basis)
+
+
+def _write_profile(config, result, outputs):
+    model = getattr(result.fitted, "model", None)
+    profile = None if model is None else profile_of(model)
+    if profile is None:
+        raise ConfigError("a performer profile holds measured calibration poses: give [calibration] poses (and "
+                          "markers, or frames of this take) with the semantic strategy", path=config.path,
+                          key="output.profile")
+    config.output_profile.parent.mkdir(parents=True, exist_ok=True)
+    profile.save_npz(config.output_profile)
+    outputs["profile"] = str(config.output_profile)
 
 
 def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields, fps=None):

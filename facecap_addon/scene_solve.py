@@ -11,6 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve
 from . import anim, layers, take
 from .scene_camera import projection_from_sidebar
@@ -28,7 +29,7 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     strategy = settings.strategy if footage is None else settings.video.flow_strategy
     markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
     rsettings = replace(take.retarget_settings(settings), strategy=strategy)
-    if strategy == "geometric":  # a stored binding by position is used as it is; none yet: bound and stored
+    if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
         character = bound.basis

@@ -63,6 +63,8 @@ class TakeConfig:
     examples_markers_path: Path | None = None  # [examples] markers (the take they belong to; default this one)
     training_path: Path | None = None  # [refine] training (default: the take itself)
     output_actor_basis: Path | None = None  # [output] actor_basis: the actor library used (refine: refined)
+    actor_profile_path: Path | None = None  # [actor] profile: this performer's stored profile (semantic)
+    output_profile: Path | None = None  # [output] profile: the profile this take's calibration measured
     projection: str = "front"  # [solve] projection for 2D takes: "front" or "camera"
     camera_name: str | None = None  # [solve] camera: camera object (None: the scene camera)
     tuning: object = None  # [tuning]: TuningConfig (solvers.config.tuning)
@@ -206,6 +208,8 @@ def load_take_config(path, data=None):
         examples_markers_path=resolve(get("examples", "markers")),
         training_path=resolve(get("refine", "training")),
         output_actor_basis=resolve(get("output", "actor_basis")),
+        actor_profile_path=resolve(get("actor", "profile")),
+        output_profile=resolve(get("output", "profile")),
         output_gltf=_export_path(path, "gltf", resolve(get("output", "gltf"))),
         output_fbx=_export_path(path, "fbx", resolve(get("output", "fbx"))),
         output_html=resolve(get("output", "html")),

@@ -84,9 +84,14 @@ class ActorModel:
     unseen: tuple
     notes: tuple = field(default_factory=tuple)
     gains: np.ndarray = None  # per-marker range normalisation of the "character" tier, else None
+    fit_ratio: float = float("nan")  # "character" tier: its shapes' marker residual over the markers' noise
     mismatch: float = 0.0  # "character" tier: 0 (its shapes explain the actor) .. 1 (they do not: normalised)
 
     def statement(self):
+        if self.tier == "character" and self.mismatch == 0.0 and np.isfinite(self.fit_ratio):
+            return (f"nothing is known about the actor's face, but the character's shapes explain the markers to "
+                    f"{self.fit_ratio:.1f}x their noise: they are taken as the actor's (a character of the actor's "
+                    "own proportions and expressions)")
         measured = sum(s == "measured" for s in self.sources)
         prior = "human template" if "template" in self.sources or any(
             s == "transferred (template)" for s in self.sources) else "character's shapes"
@@ -101,6 +106,7 @@ class ActorModel:
         if self.gains is not None:
             out["range_gains"] = [round(float(np.percentile(self.gains, q)), 3) for q in (5, 50, 95)]
             out["character_mismatch"] = round(self.mismatch, 3)
+            out["character_fit_to_noise"] = None if not np.isfinite(self.fit_ratio) else round(self.fit_ratio, 2)
         return out
 
 
@@ -249,15 +255,12 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
         for k in np.flatnonzero(~known):
             basis[k], sources[k] = filled[k], label
     size = np.linalg.norm(basis[:, usable], axis=2).max(axis=1) if usable.any() else np.zeros(K)
-    gains, share = None, 0.0
+    gains, share, ratio = None, 0.0, float("nan")
     if prior_name == "character" and not known.any():
         tier = "character"
         if knowledge.normalise and deltas is not None:
             ratio = fit_ratio(basis[:, usable], deltas[:, usable], noise if noise is not None else float("nan"))
             share = normalisation_share(ratio)
-            notes.append(f"nothing is known of the actor: the character's shapes explain the markers to "
-                         f"{ratio:.1f}x their noise; " + (f"the actor's motion is normalised per marker to the "
-                         f"character's range ({100 * share:.0f}%)" if share > 0 else "used as they are"))
             full = np.ones(M)
             full[usable] = np.exp(share * np.log(range_gains(basis[:, usable], deltas[:, usable])))
             basis = basis / full[None, :, None]  # the character's range mapped back onto the actor's
@@ -285,4 +288,16 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
     used = tuple(n for n, u in zip(names, usable) if u)
     actor = Basis(shapes, used, neutral[usable], basis[:, usable], lower, upper)
     return ActorModel(actor, tuple(sources), tier, unseen if knowledge.unseen == "rest" else (), tuple(notes),
-                      None if gains is None else gains[usable], share)
+                      None if gains is None else gains[usable], ratio, share)
+
+
+def profile_of(model):
+    """The performer profile an ActorModel gives (a Basis of its measured shapes, actor space), or None when
+    nothing of it was measured. A later take reads it with ``[actor] profile``; the shapes it lacks are
+    completed there as in that take's own tier."""
+    keep = [k for k, s in enumerate(model.sources) if s in ("measured", "profile")]
+    if not keep:
+        return None
+    b = model.basis
+    return Basis(tuple(b.shape_names[k] for k in keep), b.marker_names, b.neutral, b.deltas[keep],
+                 b.lower[keep], b.upper[keep])

@@ -90,9 +90,12 @@ class SemanticStrategy:
         self.notes = ()
 
     def fit(self, character, *, names, neutral, knowledge=ActorKnowledge(), character_deltas=None, deltas=None,
-            noise=None, bounds=(), locks=()):
+            noise=None, alignment=None, alignment_names=(), bounds=(), locks=()):
         """Build the actor model (``actor_model.build_actor_model``) for the take's markers ``names`` with
-        neutral ``neutral`` (M, 3); ``bounds``/``locks`` are the ``[solve]`` shape options."""
+        neutral ``neutral`` (M, 3); ``bounds``/``locks`` are the ``[solve]`` shape options; ``alignment`` (the
+        actor -> character alignment of the markers ``alignment_names``, for the report) is returned with every
+        solve."""
+        self.alignment, self.alignment_names = alignment, tuple(alignment_names)
         target = as_target(character)
         self.model = build_actor_model(character, tuple(names), np.asarray(neutral, dtype=np.float64), knowledge,
                                        character_deltas=character_deltas, deltas=deltas, noise=noise)
@@ -101,7 +104,10 @@ class SemanticStrategy:
         self.notes = self.model.notes
         self.noise = float("nan") if noise is None else float(noise)
         # measured shapes are the actor's own: only a template's or the character's carry model error
-        self.error = 0.0 if self.model.tier in ("calibration", "profile") else self.model_error
+        # (all of it for a template's; for the character's, as far as they fail to explain the markers)
+        tier = self.model.tier
+        self.error = 0.0 if tier in ("calibration", "profile") else \
+            self.model_error * (self.model.mismatch if tier == "character" else 1.0)
         # shapes taken from a character that does not describe the actor are uncertain: firmer priors (all of
         # them when nothing is known and the character's shapes do not explain the markers; the ones completed
         # from the character when some are measured)
@@ -167,7 +173,15 @@ class SemanticStrategy:
         info = {"mode": res.mode, "actor_model": self.model.report()}
         return StrategyResult(weights=res.weights, shape_names=basis.shape_names, solved=res.solved,
                               warnings=tuple(self.notes) + tuple(res.warnings), residual_rms=rms,
-                              clamped=np.zeros(F, dtype=int), info=info, solve=res, marker_names=basis.marker_names)
+                              clamped=np.zeros(F, dtype=int), info=info, solve=res, marker_names=basis.marker_names,
+                              alignment=self.alignment, alignment_residual=self._alignment_residual(basis.marker_names))
+
+    def _alignment_residual(self, names):
+        """Each of ``names``' distance from its bound point after the alignment (NaN where not bound)."""
+        if self.alignment is None:
+            return None
+        bound = list(self.alignment_names)
+        return np.array([self.alignment.residual[bound.index(n)] if n in bound else np.nan for n in names])
 
     def predict(self, result):
         """Actor-space deltas (F, U, 3) of ``result.marker_names`` that ``result``'s weights explain."""

@@ -21,19 +21,20 @@ TEMPLATE_START_MM = 3.0
 
 def character_in_actor_space(character, names, neutral, settings):
     """(the character's shapes at the take's markers in actor space (K, M, 3), NaN rows for markers not bound
-    on the character; the actor -> character Alignment), or (None, None) when ``character`` has no geometry."""
+    on the character; the actor -> character Alignment; the bound markers it aligns), or (None, None, ()) when
+    ``character`` has no geometry."""
     if not isinstance(character, Basis):
-        return None, None
+        return None, None, ()
     bound = [n for n in character.marker_names if n in set(names)]
     if len(bound) < 3:
-        return None, None
+        return None, None, ()
     idx = [names.index(n) for n in bound]
     align = align_actor(neutral[idx], character.subset_markers(bound).neutral, tuple(bound),
                         regions=settings.align_regions, flag_mm=settings.align_flag_mm)
     out = np.full((character.n_shapes, len(names), 3), np.nan)
     cols = [character.marker_names.index(n) for n in bound]
     out[:, idx] = align.inverse_vectors(character.deltas[:, cols])
-    return out, align
+    return out, align, tuple(bound)
 
 
 def poses_in_take(take, poses):
@@ -80,7 +81,7 @@ def fit_semantic(settings, character, inputs, take, *, priors):
     elif cal.poses:
         measured = poses_in_take(take, cal.pose_table())
     profile = inputs.profile if inputs.profile is not None else inputs.actor_basis
-    char_deltas, align = character_in_actor_space(character, take.names, take.neutral, settings)
+    char_deltas, align, bound = character_in_actor_space(character, take.names, take.neutral, settings)
     template = None
     if inputs.template is not None:
         template = fit_template(inputs.template, take.names, take.neutral, align)
@@ -93,5 +94,6 @@ def fit_semantic(settings, character, inputs, take, *, priors):
                            "[actor] profile or [actor] template)")
     s = SemanticStrategy(**priors, exclusive=a.exclusive)
     s.fit(character, names=take.names, neutral=take.neutral, knowledge=knowledge, character_deltas=char_deltas,
-          deltas=take.deltas, noise=marker_noise(take.deltas), bounds=settings.bounds, locks=settings.locks)
+          deltas=take.deltas, noise=marker_noise(take.deltas), alignment=align, alignment_names=bound,
+          bounds=settings.bounds, locks=settings.locks)
     return s, notes
