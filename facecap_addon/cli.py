@@ -22,6 +22,8 @@ bench [--quick] [--accuracy] [--batch] [--memory]
                               sequential retarget runs; --memory: peak memory of the CLI's process tree on
                               long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
+template convert PATH         install the optional human template from a copy of ICT-FaceKit (hash-checked);
+                              `template info` says where it is ([actor] template, docs/strategies.md)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
 
@@ -69,7 +71,7 @@ from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
-from ..solvers.tools.realism.bench import main as realism_main  # noqa: E402
+from ..solvers.tools.template import main as template_main  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
@@ -159,6 +161,8 @@ def _cmd_convert(args):
 
 def _cmd_bench(args):
     if args.realism is not None:  # the cross-character benchmark (solvers/tools/realism/bench.py): its own options
+        from ..solvers.tools.realism.bench import main as realism_main  # scipy: loaded when the benchmark runs
+
         return realism_main(args.realism)
     if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
         return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
@@ -265,6 +269,10 @@ def build_parser():
                    help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
     p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
     p.set_defaults(func=_cmd_docs_images)
+    p = sub.add_parser("template", help="install the optional human template from a copy of ICT-FaceKit "
+                       "(`template convert PATH`), or say where it is (`template info`)", add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=lambda args: template_main(args.rest))
     p = sub.add_parser("build-extension", help="build the Blender extension zips (one per platform, wheels bundled)",
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -307,7 +315,7 @@ def _interrupt(signum, frame):
 
 
 #: Commands that pass their own options on to their tool
-FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension")
+FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension", "template")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
 BATCH_COMMANDS = ("retarget", "tune", "demo", "batch-worker")

@@ -48,8 +48,12 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
 
 
 def solve_take(settings, scene, **kwargs):
-    """Solve the sidebar's take (controls applied); returns RetargetResult."""
-    return solve(request_from_scene(settings, scene, **kwargs))
+    """Solve the sidebar's take (controls applied); returns RetargetResult. A semantic solve's tier (what it
+    knew of the actor's face) is shown in the Solve panel."""
+    result = solve(request_from_scene(settings, scene, **kwargs))
+    actor = result.info.get("actor_model")
+    settings.actor_tier = f"{actor['tier']}: {actor['statement']}" if actor else ""
+    return result
 
 
 def _layered_locks(settings, frames):

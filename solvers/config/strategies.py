@@ -12,6 +12,7 @@ import numpy as np
 
 from ..capture.cleaning import clean
 from ..character.basis import Basis
+from ..character.template import HumanTemplate, template_path
 from ..errors import ConfigError, FacecapError, InputFileError
 from ..io import import_markers
 from ..io.csv import read_weights_csv
@@ -290,8 +291,6 @@ def _semantic_inputs(config, need, read_markers, notes):
             out[key] = Basis.load_npz(need(path, f"[{'calibration] basis' if key == 'actor_basis' else 'actor] profile'}"))
     template = config.settings.actor.template
     if template != "none":
-        from ..character.template import HumanTemplate, template_path  # the template is read only when asked for
-
         path = template_path() if template == "auto" else config.path.parent / template
         if template == "auto" and not path.is_file():
             return out

@@ -51,6 +51,8 @@ def check(weights, shape_names, upper, residual_rms, noise, *, held=()):
             problems.append(f"{100 * share:.1f}% of the weights sit at their upper bound ({listed} of frames)")
     opposed = []
     for a, b in opposing_pairs(shape_names):
+        if not (free[a] and free[b]):
+            continue
         both = float(np.mean((W[rows, a] > OPPOSED_LEVEL) & (W[rows, b] > OPPOSED_LEVEL))) if rows.any() else 0.0
         if both > OPPOSED_SHARE:
             opposed.append((shape_names[a], shape_names[b], both))

@@ -29,6 +29,7 @@ from ..character.basis import Basis
 from ..engine import solve_bounded
 from ..errors import FacecapError
 from ..transforms import fit_similarity
+from .base import as_target
 
 TIERS = ("calibration", "poses", "profile", "template", "character")
 #: A shape is measured well enough for the "calibration" tier when this share of the seen shapes is posed.
@@ -214,7 +215,8 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
     -------
     ActorModel
     """
-    shapes = tuple(character.shape_names if hasattr(character, "shape_names") else character.names)
+    target = as_target(character)
+    shapes = target.names
     K, M = len(shapes), len(names)
     notes = []
     basis = np.zeros((K, M, 3))
@@ -283,8 +285,7 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
     if not usable.any():
         raise FacecapError("no marker of the take is known to every shape (bind the markers on the character, or "
                            "give calibration poses that include them)")
-    lower = getattr(character, "lower", np.zeros(K))
-    upper = getattr(character, "upper", np.ones(K))
+    lower, upper = target.lower, target.upper
     used = tuple(n for n, u in zip(names, usable) if u)
     actor = Basis(shapes, used, neutral[usable], basis[:, usable], lower, upper)
     return ActorModel(actor, tuple(sources), tier, unseen if knowledge.unseen == "rest" else (), tuple(notes),

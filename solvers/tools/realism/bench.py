@@ -17,7 +17,7 @@ import numpy as np
 from ...character.face_model import load_ict
 from .actors import Perturbation
 from .layouts import LAYOUTS
-from .methods import METHODS, run_method
+from .methods import METHODS, load_template, run_method
 from .metrics import REGIONS, compare
 from .scenario import make_draw
 from .takes import load_performances
@@ -33,8 +33,7 @@ def run(shared, *, draws=5, frames=1200, targets=("sample",), layouts=("dense",)
     shared = Path(shared)
     model = load_ict(shared / "data" / "ict-facekit")
     performances = load_performances(shared / "data" / "realdata" / "llf", model.shape_names)
-    from .methods import load_template  # the template is the same model, converted as a user would
-    template = load_template(shared / "data" / "ict-facekit")
+    template = load_template(shared / "data" / "ict-facekit")  # the same model, as a user's template
     meshes = {t: make_target(t, model) for t in targets}
     rows = []
     for seed in range(first_seed, first_seed + draws):
