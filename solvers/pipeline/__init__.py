@@ -23,6 +23,7 @@ from ..engine.frames import PatternSetup, reuse_pattern_setup
 from ..engine.split import release_freed_memory
 from ..errors import FacecapError
 from ..strategies.base import PredictsMarkers
+from ..strategies.gaze import GAZE, gaze_from_eye_angles
 from ..strategies.geometric import bound_markers
 from ..strategies.options import StrategyInputs
 from ..strategies.wiring import fit_parallel, fit_strategy, require_inputs, shape_target
@@ -246,13 +247,24 @@ def _predicted(strategy, res, take, idx):
     return out
 
 
+def with_gaze(track):
+    """``track`` with the eight gaze channels derived from its eye angles when it has angles but no gaze
+    channels (``strategies.gaze``), and the note saying so (a list)."""
+    if track.eyes is None or any(n.startswith("eyeLook") for n in track.names) or \
+            not np.isfinite(track.eyes[:, [0, 1, 3, 4]]).any():
+        return track, []
+    values = np.concatenate([track.values, gaze_from_eye_angles(track.eyes)], axis=1)
+    return replace(track, names=tuple(track.names) + GAZE, values=values), [
+        "gaze (eyeLook*) from the take's eye angles: the take has no gaze channels"]
+
+
 def _retarget_weights(character, settings, inputs):
     """parallel: map the solved weights of ``inputs.weights`` (a WeightTrack) onto the shapes."""
     t0 = time.perf_counter()
-    track = inputs.weights
+    track, gaze_note = with_gaze(inputs.weights)
     strategy = fit_parallel(settings, shape_target(character, settings), track)
     res = strategy.solve(track.values, names=track.names)
-    notes = list(inputs.notes) + list(res.warnings)
+    notes = list(inputs.notes) + list(res.warnings) + gaze_note
     weights = hold_locks(res.shape_names, res.weights, settings, notes)
     elapsed = time.perf_counter() - t0
     return assemble(strategy, res, weights, frames=track.frames, settings=settings, notes=notes,
