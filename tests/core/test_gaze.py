@@ -24,7 +24,7 @@ def test_eye_angles_give_the_recorded_gaze(track):
     ok = np.isfinite(recorded).all(axis=1) & np.isfinite(derived).all(axis=1)
     err = np.sqrt(np.mean((derived[ok] - recorded[ok]) ** 2, axis=0))
     r = [np.corrcoef(derived[ok, k], recorded[ok, k])[0, 1] for k in range(8) if recorded[ok, k].std() > 0.02]
-    assert err.max() < 0.06 and np.median(err) < 0.04, dict(zip(GAZE, err.round(3)))  # measured: 0.016-0.043
+    assert err.max() < 0.03 and np.median(err) < 0.015, dict(zip(GAZE, err.round(3)))  # measured: 0.003-0.017
     assert min(r) > 0.9, r
 
 
