@@ -24,7 +24,7 @@ from ..errors import FacecapError
 from ..options import default
 from ..transforms import Similarity, rotation_angle_deg
 from .alignment import CANDIDATES, SEARCH_SCALE_RANGE, SEARCH_SCALES, align_automatic, align_landmarks, refine
-from .surface import closest_points, interpolate, make_surface
+from .surface import closest_points, interpolate, make_surface, skin_triangles, triangulate
 
 #: A bound marker farther than this from the surface (mm) stays unbound (the default).
 MAX_DISTANCE_MM = default("binding.max_distance_mm")
@@ -250,7 +250,8 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
         ``similarity`` maps actor marker units to mesh units.
     """
 
-    surface = make_surface(vertices, triangles)
+    tris = np.asarray(triangles) if isinstance(triangles, np.ndarray) else triangulate(triangles)
+    surface = make_surface(vertices, skin_triangles(len(vertices), tris))  # not the eyeballs or the tongue
     names = tuple(names)
     markers = np.asarray(markers, dtype=np.float64)
     if markers.shape != (len(names), 3):

@@ -36,12 +36,17 @@ OPPOSING = (
 #: How wrong the actor model is, relative to the motion it predicts (the trust of a marker sample falls as the
 #: motion predicted there passes noise / MODEL_ERROR).
 MODEL_ERROR = 0.1
+#: The noise the model error is compared with is at least this (metres): filtered captures show less.
+NOISE_FLOOR = 2e-4
 #: The priors' factor when nothing is known of the actor and the character's shapes do not explain the markers
 #: (the solve then shrinks towards rest: 0.197 -> 0.158 weights RMSE on the realism benchmark, nothing pinned).
 UNCERTAIN_PRIORS = 10.0
 #: The priors' factor on shapes completed from the character's through measured poses (12 poses on the sample
 #: character: 0.187 -> 0.178 weights RMSE against 10x, mean per-shape r 0.23 -> 0.38).
 TRANSFERRED_PRIORS = 3.0
+#: A shape of an approximate actor model at its upper limit in more than this share of frames is solved again
+#: with its priors this much firmer (a held limit for seconds is a model that cannot explain the motion).
+PINNED_SHARE, PINNED_PRIORS = 0.2, 10.0
 #: Frames over which a pair's active side is decided (a running mean of their difference).
 DECIDE_FRAMES = 9
 
@@ -125,8 +130,11 @@ class SemanticStrategy:
         says, and its model error is not explained by other shapes (a jaw open turned into ``jawRight``)."""
         K, U, _ = deltas.shape
         motion = np.linalg.norm((np.nan_to_num(weights) @ deltas.reshape(K, -1)).reshape(-1, U, 3), axis=2)
-        trust = 1.0 / (1.0 + (self.error * motion / self.noise) ** 2)
-        trust[~np.isfinite(D[:, :, 0])] = 0.0
+        noise = max(self.noise, NOISE_FLOOR)  # a capture system's filtering can hide most of its noise
+        trust = 1.0 / (1.0 + (self.error * motion / noise) ** 2)
+        seen = np.isfinite(D[:, :, 0])
+        trust[~seen] = 0.0
+        trust /= trust[seen].mean() if seen.any() else 1.0  # the same total trust: the priors keep their weight
         return trust if confidence is None else trust * confidence
 
     def solve(self, source, *, names=None, neutral=None, confidence=None, start=None, quick=False,
@@ -167,14 +175,29 @@ class SemanticStrategy:
             if reweight:
                 kwargs["mask"] = self._model_error_confidence(first.weights, basis.deltas, kwargs["mask"], D)
             start = first.weights
-        res = solve_bounded(A, flat, locks=None if np.isnan(locks).all() else locks, start=start, **kwargs, **extra)
+        locks = None if np.isnan(locks).all() else locks
+        res = solve_bounded(A, flat, locks=locks, start=start, **kwargs, **extra)
+        notes = []
+        pinned = self._pinned(res.weights) if not quick and self.error > 0 else []
+        if pinned:  # an approximate actor model pins shapes to explain what it cannot: firmer priors on them
+            factor = np.where(np.isin(np.arange(basis.n_shapes), pinned), PINNED_PRIORS, 1.0) * self.prior_scale
+            kwargs.update(regularisation=self.regularisation * factor, sparsity=self.sparsity * factor)
+            res = solve_bounded(A, flat, locks=locks, start=res.weights, **kwargs, **extra)
+            notes.append(f"{len(pinned)} shape(s) sat at their upper limit in more than {100 * PINNED_SHARE:.0f}% of "
+                         f"frames and were solved again with firmer priors (the actor model does not explain what "
+                         f"drives them): {[basis.shape_names[k] for k in pinned]}")
         rms = _residual_rms(res.weights, basis.deltas, D)
         rms[~res.solved] = np.nan
         info = {"mode": res.mode, "actor_model": self.model.report()}
         return StrategyResult(weights=res.weights, shape_names=basis.shape_names, solved=res.solved,
-                              warnings=tuple(self.notes) + tuple(res.warnings), residual_rms=rms,
+                              warnings=tuple(self.notes) + tuple(notes) + tuple(res.warnings), residual_rms=rms,
                               clamped=np.zeros(F, dtype=int), info=info, solve=res, marker_names=basis.marker_names,
                               alignment=self.alignment, alignment_residual=self._alignment_residual(basis.marker_names))
+
+    def _pinned(self, weights):
+        """Shapes at their upper limit in more than ``PINNED_SHARE`` of the frames."""
+        top = np.nan_to_num(weights) >= np.asarray(self.upper)[None] - 1e-3
+        return [k for k in np.flatnonzero(top.mean(axis=0) > PINNED_SHARE)]
 
     def _alignment_residual(self, names):
         """Each of ``names``' distance from its bound point after the alignment (NaN where not bound)."""
