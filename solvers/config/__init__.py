@@ -172,6 +172,7 @@ def load_take_config(path, data=None):
     markers_path = resolve(get("source", "markers"))
     weights_path = resolve(get("source", "weights"))
     strategy_options = strategy_settings(path, data, strategy)
+    _check_profile_output(path, data, strategy)
     cal_units = get("calibration", "units")
     cal_fps = get("calibration", "fps")
     return TakeConfig(
@@ -221,6 +222,17 @@ def load_take_config(path, data=None):
         video=video,
         binding=binding,
     )
+
+
+def _check_profile_output(path, data, strategy):
+    """``[output] profile`` stores measured shapes of the actor: the semantic strategy with calibration poses (or a
+    stored library or profile to pass on)."""
+    if "profile" not in data.get("output", {}):
+        return
+    cal, actor = data.get("calibration", {}), data.get("actor", {})
+    if strategy != "semantic" or not ("poses" in cal or "basis" in cal or "profile" in actor):
+        raise ConfigError("a performer profile holds the actor's measured shapes: give [calibration] poses (with "
+                          "markers, or frames of this take) and the semantic strategy", path=path, key="output.profile")
 
 
 def _projection(path, solve):

@@ -5,9 +5,12 @@ nothing but the character), and key those activations on the character's shapes 
 The solve is the engine's bounded, sparse, temporally smooth least squares in actor space, with:
 
 * shapes no marker sees held at rest (``ActorModel.unseen``);
-* opposing shapes kept exclusive (``jawLeft``/``jawRight``, gaze in/out, blink/wide, ...): a first solve
-  decides, frame by frame (smoothed), which side of each pair is active, and the final solve holds the other
-  side at 0, so a pair never cancels itself to explain motion neither side makes;
+* opposing shapes kept exclusive (``jawLeft``/``jawRight``, gaze in/out, blink/wide, ...): a quick per-frame
+  solve (or the head refits' last one) decides, frame by frame (smoothed), which side of each pair is active,
+  and the final solve holds the other side at 0, so a pair never cancels itself to explain motion neither
+  side makes;
+* an approximate actor model (template, character) trusts a marker less where it predicts large motion
+  (its error grows with the motion), and shapes it pins at their limit are solved again with firmer priors;
 * the priors of ``geometric`` (relative to the mean size of the shapes: per-shape priors let marker noise
   into the subtle shapes and measured worse on self-retargets).
 
@@ -169,12 +172,14 @@ class SemanticStrategy:
         opposing = opposing_pairs(basis.shape_names) if self.exclusive and not quick else []
         reweight = self.error > 0 and not quick and np.isfinite(self.noise) and self.noise > 0
         if opposing or reweight:
-            first = solve_bounded(A, flat, locks=locks, start=start, **kwargs, **extra)
+            # what each frame does, roughly: the head refits' last quick solve, or a quick per-frame one
+            guess = start if start is not None else solve_bounded(
+                A, flat, locks=locks, **{**kwargs, "smoothing": (0.0, 0.0)}, **QUICK_SOLVE).weights
             if opposing:
-                locks = exclusive_locks(first.weights, opposing, locks)
+                locks = exclusive_locks(guess, opposing, locks)
             if reweight:
-                kwargs["mask"] = self._model_error_confidence(first.weights, basis.deltas, kwargs["mask"], D)
-            start = first.weights
+                kwargs["mask"] = self._model_error_confidence(guess, basis.deltas, kwargs["mask"], D)
+            start = guess
         locks = None if np.isnan(locks).all() else locks
         res = solve_bounded(A, flat, locks=locks, start=start, **kwargs, **extra)
         notes = []

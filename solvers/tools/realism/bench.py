@@ -17,8 +17,10 @@ import numpy as np
 from ...character.face_model import load_ict
 from .actors import Perturbation
 from .layouts import LAYOUTS
-from .methods import METHODS, load_template, run_method
+from .methods import METHODS, base_settings, bound_character, load_template, run_method
 from .metrics import REGIONS, compare
+from .real_captures import markdown as real_markdown
+from .real_captures import run_real
 from .scenario import make_draw
 from .takes import load_performances
 from .targets import TARGETS, make_target
@@ -40,10 +42,17 @@ def run(shared, *, draws=5, frames=1200, targets=("sample",), layouts=("dense",)
         for layout in layouts:
             draw = make_draw(model, performances, seed, layout=layout, frames=frames, perturbation=perturbation)
             for target in targets:
+                try:  # bound once for every method (a binding by position takes seconds)
+                    character, bind_error = bound_character(meshes[target], draw, base_settings(draw)), ""
+                except Exception as exc:  # noqa: BLE001  (a binding that fails fails every method's row)
+                    character, bind_error = None, f"binding: {type(exc).__name__}: {exc}"
                 for method in methods:
                     t0 = time.perf_counter()
                     try:
-                        weights, names, upper, notes = run_method(method, draw, meshes[target], template)
+                        if character is None:
+                            raise RuntimeError(bind_error)
+                        weights, names, upper, notes = run_method(method, draw, meshes[target], template,
+                                                                  character=character)
                         metrics = compare(weights, names, draw.truth, draw.shape_names, upper=upper,
                                           frames=draw.performance_frames)
                         error = ""
@@ -116,6 +125,8 @@ def main(argv=None):
     parser.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated of {', '.join(METHODS)}")
     parser.add_argument("--exact-actor", action="store_true", help="actors with the model's own expressions "
                         "(a best case for the template)")
+    parser.add_argument("--real", action="store_true", help="also the real captures (Facial-Sing, blenderFace) onto "
+                        "the sample character, judged by how plausible their weights are (no truth)")
     parser.add_argument("--json", help="write every row and the summary here")
     args = parser.parse_args(argv)
     perturbation = Perturbation.none() if args.exact_actor else Perturbation()
@@ -133,7 +144,11 @@ def main(argv=None):
     summary = summarise(rows)
     print()
     print(markdown(summary))
+    real = run_real(args.shared) if args.real else []
+    if real:
+        print()
+        print(real_markdown(real))
     if args.json:
-        Path(args.json).write_text(json.dumps({"rows": rows, "summary": {" / ".join(k): v for k, v in summary.items()}},
-                                              indent=1))
+        Path(args.json).write_text(json.dumps({"rows": rows, "summary": {" / ".join(k): v for k, v in summary.items()},
+                                               "real": real}, indent=1))
     return 0

@@ -38,10 +38,16 @@ def bound_character(mesh, draw, settings):
     return bind_character(mesh, draw.markers, settings, BindingSettings(mode=mode)).basis
 
 
-def run_method(name, draw, mesh, template):
-    """(weights (F, K), shape names, upper bounds (K,), notes) of method ``name`` on ``draw`` onto ``mesh``."""
-    settings = RetargetSettings(stable_markers=draw.layout.stable, neutral_frames=(1, REST))
-    character = bound_character(mesh, draw, settings)
+def base_settings(draw):
+    """The take settings every method starts from: the layout's stable markers, the neutral hold."""
+    return RetargetSettings(stable_markers=draw.layout.stable, neutral_frames=(1, REST))
+
+
+def run_method(name, draw, mesh, template, *, character=None):
+    """(weights (F, K), shape names, upper bounds (K,), notes) of method ``name`` on ``draw`` onto ``mesh``
+    (``character``: its shapes at the draw's markers when already bound, ``bound_character``)."""
+    settings = base_settings(draw)
+    character = bound_character(mesh, draw, settings) if character is None else character
     if name == "zero":
         return np.zeros((len(draw.truth), character.n_shapes)), character.shape_names, character.upper, ()
     if name == "plain":
