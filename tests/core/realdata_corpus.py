@@ -1,6 +1,6 @@
 """facecap's readers on the real capture corpus, compared file by file with reference readers.
 
-The corpus is ``/work/shared/data/realdata`` (C3D, TRC and Live Link Face files from 15+ vendors,
+The corpus is ``shared/data/realdata`` beside the checkout (``tests/shared_data.py``) (C3D, TRC and Live Link Face files from 15+ vendors,
 ``SOURCES.md`` there). References: ezc3d and py-c3d (``c3d`` on PyPI, both in the ``test`` extra)
 for C3D, a plain ``csv``-module parse of the rows for TRC, ``np.interp`` of the raw rows for Live
 Link Face. ``test_realdata.py`` asserts every outcome; this module also writes the table of
@@ -15,7 +15,6 @@ malformed file, which must not take the test run with it.
 import argparse
 import csv
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -26,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-CORPUS = Path(os.environ.get("FACECAP_REALDATA", "/work/shared/data/realdata"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: shared_data, also when run as a script
+from shared_data import REALDATA as CORPUS  # noqa: E402
 #: Seconds a reference reader may take on one file before it counts as failing (ezc3d needs ~20 s to
 #: give up on two files it cannot read; the others take under 1 s on a quiet machine).
 REFERENCE_SECONDS = 15.0
