@@ -225,6 +225,12 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=None, segment
     dim = positions.shape[-1] if positions.ndim == 3 else 0
     segments = dict(segments or {})
     chosen = normalise_units(units) or normalise_units(file_units, what="file units")
+    said = UNIT_ALIASES.get(str(file_units).strip().lower()) if file_units is not None else None
+    if units is not None and said is not None and chosen != said:  # the user's word wins, but not silently
+        factor = UNIT_SCALE.get(chosen, 1.0) / UNIT_SCALE.get(said, 1.0) if chosen in UNIT_SCALE else None
+        notes.append(f"warning: the file says its units are {said}, read as {chosen} as asked ([source] units, "
+                     f"--units)" + (f": {factor:g} times the size the file gives" if factor else "")
+                     + "; drop the units option to use the file's")
     if chosen is None:
         if dim == 2:
             chosen = "px"

@@ -72,8 +72,12 @@ def render():
     return "\n".join(out).rstrip() + "\n"
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(prog="facecap config-docs", description=__doc__.splitlines()[0])
+DESCRIPTION = ("Write the config reference (docs/config.md) from the option tables of the take, track and batch "
+               "configs, so it cannot drift from what the code accepts.")
+
+
+def main(argv=None, *, parents=()):
+    parser = argparse.ArgumentParser(prog="facecap config-docs", description=DESCRIPTION, parents=list(parents))
     parser.add_argument("--out", help="write here (default: print)")
     args = parser.parse_args(argv)
     text = render()

@@ -121,9 +121,13 @@ def describe_weights(track):
     return "\n".join(lines)
 
 
-def parser(prog="facecap inspect", description="Describe a capture file."):
-    """The reading options shared by ``inspect`` and ``convert``."""
-    p = argparse.ArgumentParser(prog=prog, description=description)
+DESCRIPTION = ("Describe a capture file (markers or solved weights): markers, frames, rate, units, gaps per "
+               "marker and segments, or one line saying why it cannot be read.")
+
+
+def parser(prog="facecap inspect", description=DESCRIPTION, parents=()):
+    """The reading options shared by ``inspect`` and ``convert`` (``parents``: the command line's -q / -v)."""
+    p = argparse.ArgumentParser(prog=prog, description=description, parents=list(parents))
     p.add_argument("--units", default=None, help="what the file's numbers are: m, cm, mm, bu (with --unit-scale) or px")
     p.add_argument("--unit-scale", type=float, default=None, help="metres per unit for --units bu")
     p.add_argument("--fps", type=float, default=None, help="frame rate (weights: resample to it)")
@@ -143,9 +147,9 @@ def read_capture(args):
     return "markers", import_markers(args.file, units=args.units, fps=args.fps, **options)
 
 
-def main(argv=None):
+def main(argv=None, *, parents=()):
     """Entry point for ``facecap inspect``; returns the exit code (0 ok, 1 bad file, 2 usage)."""
-    p = parser()
+    p = parser(parents=parents)
     p.add_argument("file")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     args = p.parse_args(argv)
