@@ -76,11 +76,13 @@ def _decode_error(path, exc):
     return InputFileError(path, f"not a text file ({exc.reason} at byte {exc.start})")
 
 
-def sniff(path, *, delimiter=None, decimal=None):
+def sniff(path, *, delimiter=None, decimal=None, columns=None):
     """Find the header line, delimiter and decimal separator of a delimited text file.
 
     The header line is read whole, however long (a 1,000-marker header is ~190 KB); the decimal
     separator is detected from the next 49 lines (their first SNIFF_BYTES characters each).
+    ``columns``: the names of a file without a header row (``header_columns``); its first
+    non-blank line is then data.
     """
     path = Path(path)
     with _open_text(path) as fh:
@@ -90,6 +92,8 @@ def sniff(path, *, delimiter=None, decimal=None):
             raise _decode_error(path, exc) from None
     if header_text is None:
         raise InputFileError(path, "empty file; expected a header line", line=1)
+    if columns is not None:  # no header row: the first line is data, part of the sample
+        sample = [header_text] + sample
     if delimiter is None:
         counts = [header_text.count(d) for d in DELIMITERS]
         delimiter = DELIMITERS[int(np.argmax(counts))] if max(counts) else ","
@@ -107,9 +111,34 @@ def sniff(path, *, delimiter=None, decimal=None):
         raise FacecapError(f"`decimal` must be '.' or ','; got {decimal!r}")
     if decimal == "," and delimiter == ",":
         raise FacecapError("`decimal` ',' needs a delimiter other than ','")
+    if columns is not None:
+        first = next(csv.reader([header_text], delimiter=delimiter), [])
+        header = header_columns(path, columns, len(first))
+        return Sniffed(path, delimiter, decimal, header, header_line - 1)
     header = next(csv.reader([header_text], delimiter=delimiter), [])
     header = tuple(h.strip() for h in header)
     return Sniffed(path, delimiter, decimal, header, header_line)
+
+
+def header_columns(path, columns, width):
+    """The header of a CSV without one, from ``columns`` (``[source] columns``): ``frame`` or ``time`` (or
+    another time header), then marker names; a plain marker name stands for its ``_x``, ``_y``, ``_z``
+    columns, ``name_x``-style names for one column each (2D tracks: ``name_x``, ``name_y``). ``width``:
+    the fields of the first data row, which the columns must match."""
+    if isinstance(columns, str) or not all(isinstance(c, str) and c.strip() for c in columns):
+        raise FacecapError(f"{path}: `columns` must be a list of column names; got {columns!r}")
+    header = []
+    for c in (c.strip() for c in columns):
+        low = c.lower()
+        if low in FRAME_HEADERS or low in TIME_HEADERS or c.rpartition("_")[2].lower() in AXES:
+            header.append(c)
+        else:
+            header += [f"{c}_{a}" for a in "xyz"]
+    if len(header) != width:
+        raise InputFileError(path, f"`columns` describe {len(header)} columns ({', '.join(header[:6])}"
+                             f"{', ...' if len(header) > 6 else ''}); the first row has {width} fields "
+                             "(a plain marker name stands for 3 columns, x y z)", line=1)
+    return tuple(header)
 
 
 def _head_lines(fh):
@@ -317,6 +346,10 @@ def wide_layout(sn):
     """Column roles of a wide marker CSV; InputFileError for a header that cannot be one."""
     header = list(sn.header)
     path = sn.path
+    if header and all(_is_float(h) or h.lower() in GAP_TOKENS for h in header):
+        raise InputFileError(path, "no header row: line 1 holds numbers; name the columns in the take config, "
+                             "e.g. [source] columns = [\"frame\", \"nose\", \"chin\"] (a marker name stands for its "
+                             "x, y, z columns)", line=sn.header_line)
     dup = duplicate_names(header)
     if dup:
         raise InputFileError(path, f"duplicate columns {_shorten(dup)}", line=sn.header_line)
@@ -349,8 +382,8 @@ def wide_layout(sn):
     return WideLayout(key_col, time_scale, names, dim, columns, tuple(extra))
 
 
-def _parse_wide(path, *, delimiter=None, decimal=None):
-    sn = sniff(path, delimiter=delimiter, decimal=decimal)
+def _parse_wide(path, *, delimiter=None, decimal=None, columns=None):
+    sn = sniff(path, delimiter=delimiter, decimal=decimal, columns=columns)
     lay = wide_layout(sn)
     lines, values = read_numeric_columns(sn, (lay.key_col,) + lay.columns)
     if values.shape[0] == 0:
@@ -392,7 +425,7 @@ def _data_line_numbers(sn):
 
 
 def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, delimiter=None,
-                  decimal=None, notes=None):
+                  decimal=None, columns=None, notes=None):
     """Read a wide marker CSV (see the module docstring) with units, axis and timing applied.
 
     Parameters
@@ -407,6 +440,8 @@ def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, 
     up_axis : {"Z", "Y", None}
     delimiter, decimal : str or None
         Override detection.
+    columns : list of str or None
+        The column names of a file without a header row (see :func:`header_columns`).
     notes : list or None
         Receives a line per thing detected or done.
 
@@ -416,7 +451,9 @@ def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, 
     """
     notes = [] if notes is None else notes
     sn, lay, key, positions, labels, numeric_extra, text_extra = _parse_wide(
-        path, delimiter=delimiter, decimal=decimal)
+        path, delimiter=delimiter, decimal=decimal, columns=columns)
+    if columns is not None:
+        notes.append(f"no header row: columns from `columns` ({len(sn.header)} columns)")
     if sn.delimiter != "," or sn.decimal != ".":
         notes.append(f"delimiter {sn.delimiter!r}, decimal {sn.decimal!r}")
     if numeric_extra:

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from .arkit import ARKIT_52
 from .csv import TIME_HEADERS, data_rows, duplicate_names, read_numeric_columns, read_text_columns, sniff, time_column
-from .timing import MAX_BRIDGE, bridged_gaps, check_frame_range, frames_from_times, resample
+from .timing import MAX_BRIDGE, bridged_gaps, check_frame_range, frames_from_times, grid_offset, resample
 
 HEAD_CHANNELS = ("HeadYaw", "HeadPitch", "HeadRoll")
 EYE_CHANNELS = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
@@ -194,7 +194,9 @@ def _on_frames(path, times, values, fps, notes):
     except FacecapError as exc:
         raise InputFileError(path, str(exc)) from None
     dropped = bridged_gaps(times, rate)
-    notes.append(f"irregular timestamps resampled (linear) to {rate:.6g} fps: {len(times)} rows -> "
+    drift = grid_offset(times * rate)
+    notes.append(f"irregular timestamps (rows up to {drift:.2g} frame off the frame grid) resampled (linear) to "
+                 f"{rate:.6g} fps: {len(times)} rows -> "
                  f"{len(frames)} frames" + (f"; {dropped} frame(s) in dropouts longer than {MAX_BRIDGE:g} "
                                             "frames left as gaps" if dropped else ""))
     return frames, resampled[:, 0, :], rate

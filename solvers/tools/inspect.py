@@ -133,6 +133,9 @@ def parser(prog="facecap inspect", description=DESCRIPTION, parents=()):
     p.add_argument("--fps", type=float, default=None, help="frame rate (weights: resample to it)")
     p.add_argument("--up-axis", choices=("Y", "Z"), default=None, help="Y converts a Y-up file to Blender's Z-up")
     p.add_argument("--weights", action="store_true", help="read a solved-weights CSV (detected from the header otherwise)")
+    p.add_argument("--columns", default=None, metavar="NAMES",
+                   help="a marker CSV without a header row: its columns, comma-separated (frame,nose,chin: a marker "
+                        "name stands for its x, y, z columns), as [source] columns")
     return p
 
 
@@ -143,7 +146,9 @@ def read_capture(args):
         if args.units is not None or args.unit_scale is not None or args.up_axis is not None:
             raise FacecapError(f"{args.file}: a weights file has no units or axes; drop --units/--unit-scale/--up-axis")
         return "weights", read_weights(args.file, fps=args.fps)
-    options = {k: v for k, v in (("unit_scale", args.unit_scale), ("up_axis", args.up_axis)) if v is not None}
+    columns = None if getattr(args, "columns", None) is None else [c.strip() for c in args.columns.split(",")]
+    options = {k: v for k, v in (("unit_scale", args.unit_scale), ("up_axis", args.up_axis), ("columns", columns))
+               if v is not None}
     return "markers", import_markers(args.file, units=args.units, fps=args.fps, **options)
 
 

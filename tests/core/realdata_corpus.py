@@ -223,7 +223,9 @@ def _read(path):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             result = import_markers(path, units="mm")  # numbers as the file holds them
-        return result.markers, tuple(result.notes), ""
+        # "mm" is given only to keep the numbers: the note that it overrides the file's units is not the file's
+        notes = tuple(n for n in result.notes if not n.startswith("warning: the file says its units are"))
+        return result.markers, notes, ""
     except FacecapError as exc:
         return None, (), str(exc).replace(str(path), path.name)
 
@@ -257,10 +259,13 @@ def c3d_outcomes(files=None):
 
 
 def trc_rows(path):
-    """A TRC file's coordinates by a plain tab split: (F, M, 3), NaN for empty cells; M = the named
-    markers of line 4 or, when the rows hold more, as many as they hold."""
+    """A TRC file's coordinates by a plain tab (or, for a comma-separated file, comma) split: (F, M, 3),
+    NaN for empty cells and for samples written as 0, 0, 0 (a missing marker, as OpenSim writes it); M =
+    the named markers of line 4 or, when the rows hold more, as many as they hold."""
     with open(path, newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh, delimiter="\t"))
+        first = fh.readline()
+        fh.seek(0)
+        rows = list(csv.reader(fh, delimiter="," if "\t" not in first and "," in first else "\t"))
     named = sum(1 for c in rows[3][2:] if c.strip())
     rows = [r for r in rows[5:] if any(c.strip() for c in r)]
     cells = [[c.strip() for c in r[2:]] for r in rows]
@@ -270,7 +275,9 @@ def trc_rows(path):
     for i, c in enumerate(cells):
         c = c[:width]
         out[i, :len(c)] = [float(x) if x else np.nan for x in c]
-    return out.reshape(len(rows), -1, 3)
+    out = out.reshape(len(rows), -1, 3)
+    out[(out == 0.0).all(axis=2)] = np.nan
+    return out
 
 
 def trc_outcomes(files=None):
