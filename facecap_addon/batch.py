@@ -58,7 +58,8 @@ def run_batch(args, *, out=None, err=None):
         raise FacecapError(f"--jobs must be at least 1; got {args.jobs}")
     takes = collect_takes(args.takes)
     if not takes:
-        raise ConfigError("no take configs found in " + ", ".join(map(str, args.takes)))
+        raise ConfigError("no take configs (.toml) in " + ", ".join(map(str, args.takes)) + " nor in the folders "
+                          "one level down; name take configs, folders of them, or a batch file")
     summary_path = Path(os.path.expanduser(args.summary or DEFAULT_SUMMARY)).resolve()
     records, planned = plan(takes, open_blend=_open_blend())
     check_summary_path(summary_path, planned)
