@@ -102,7 +102,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
                             report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=fps)
     if config.output_html is not None:
         outputs["html"] = str(write_take_review(config, obj, settings, result, notes=take.notes,
-                                                timings=timings, truth=truth, options=review, say=say))
+                                                timings=timings, truth=truth, options=review, say=say,
+                                                weights_track=getattr(take.inputs, "weights", None),
+                                                footage=take.footage))
     return result, outputs
 
 

@@ -35,17 +35,11 @@ from .csv_vector import vector_numeric as _vector_numeric
 
 # The writers live in csv_write; imported here so `from .csv import write_markers_csv` keeps working.
 from .csv_write import AXES, segment_labels, write_markers_csv, write_weights_csv  # noqa: F401
+from .csv_columns import FRAME_HEADERS, TIME_HEADERS, header_columns
 from .timing import check_markerset, finish_arrays, segments_from_labels
 
 GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
 _GAP_SPELLINGS = ("", "NA", "na", "N/A", "n/a", "null", "NULL", "None", "none")  # nan: parsed by numpy
-FRAME_HEADERS = ("frame", "frames", "frame_number", "frame#", "frame_no", "frameno")
-TIME_HEADERS = {
-    "time": 1.0, "times": 1.0, "t": 1.0, "time_s": 1.0, "time (s)": 1.0, "time[s]": 1.0, "seconds": 1.0,
-    "timestamp": 1.0, "timestamps": 1.0, "time_sec": 1.0,
-    "time_ms": 1e-3, "time (ms)": 1e-3, "timestamp_ms": 1e-3, "ms": 1e-3,
-    "time_us": 1e-6, "timestamp_us": 1e-6,
-}
 DELIMITERS = (",", ";", "\t", "|")
 SNIFF_BYTES = 1 << 16
 
@@ -118,27 +112,6 @@ def sniff(path, *, delimiter=None, decimal=None, columns=None):
     header = next(csv.reader([header_text], delimiter=delimiter), [])
     header = tuple(h.strip() for h in header)
     return Sniffed(path, delimiter, decimal, header, header_line)
-
-
-def header_columns(path, columns, width):
-    """The header of a CSV without one, from ``columns`` (``[source] columns``): ``frame`` or ``time`` (or
-    another time header), then marker names; a plain marker name stands for its ``_x``, ``_y``, ``_z``
-    columns, ``name_x``-style names for one column each (2D tracks: ``name_x``, ``name_y``). ``width``:
-    the fields of the first data row, which the columns must match."""
-    if isinstance(columns, str) or not all(isinstance(c, str) and c.strip() for c in columns):
-        raise FacecapError(f"{path}: `columns` must be a list of column names; got {columns!r}")
-    header = []
-    for c in (c.strip() for c in columns):
-        low = c.lower()
-        if low in FRAME_HEADERS or low in TIME_HEADERS or c.rpartition("_")[2].lower() in AXES:
-            header.append(c)
-        else:
-            header += [f"{c}_{a}" for a in "xyz"]
-    if len(header) != width:
-        raise InputFileError(path, f"`columns` describe {len(header)} columns ({', '.join(header[:6])}"
-                             f"{', ...' if len(header) > 6 else ''}); the first row has {width} fields "
-                             "(a plain marker name stands for 3 columns, x y z)", line=1)
-    return tuple(header)
 
 
 def _head_lines(fh):
