@@ -47,8 +47,6 @@ def short(value, limit=12):
     if isinstance(value, dict):
         value = tuple(value.items())
     if isinstance(value, (list, tuple)):
-        if all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in value) and len(value) <= 3:
-            return " to ".join(short(v) for v in value) if len(value) == 2 else ", ".join(short(v) for v in value)
         items = [_item(v) for v in value]
         text = ", ".join(items[:limit])
         return f"{text}, ... ({len(items)} in all)" if len(items) > limit else text
