@@ -62,7 +62,10 @@ if __name__ == "__main__" and not __package__:
 
 # Imported here, after the script guard: as a script this file has no package for them.
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import ctypes  # noqa: E402
+import io  # noqa: E402
+import os  # noqa: E402
 import signal  # noqa: E402
 import threading  # noqa: E402
 import tomllib  # noqa: E402
@@ -132,7 +135,27 @@ def _cmd_compare(args):
 
 
 def _cmd_config_docs(args):
-    return config_docs.main(args.rest, parents=[OUTPUT_OPTIONS])
+    return config_docs.main(args.rest, parents=[OUTPUT_OPTIONS], commands=command_helps)
+
+
+def command_helps(width=100):
+    """[(command, its --help text)]: the top level ("") then every command, as a terminal ``width`` wide
+    shows them (the command reference, docs/commands.md)."""
+    previous = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = str(width)  # argparse wraps to the terminal's width
+    try:
+        out = []
+        for command in ["", *COMMANDS]:
+            text = io.StringIO()
+            with contextlib.redirect_stdout(text), contextlib.suppress(SystemExit):
+                main([command, "--help"] if command else ["--help"])
+            out.append((command, text.getvalue()))
+        return out
+    finally:
+        if previous is None:
+            os.environ.pop("COLUMNS", None)
+        else:
+            os.environ["COLUMNS"] = previous
 
 
 def _cmd_track(args):

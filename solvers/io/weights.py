@@ -41,9 +41,11 @@ class WeightTrack:
     values : ndarray (F, K)
         Weights, usually in [0, 1]; NaN for a missing cell.
     head : ndarray (F, 3) or None
-        Head yaw, pitch, roll (radians, as Live Link Face writes them).
+        Head yaw, pitch, roll in radians, as Live Link Face writes them (``HEAD_CHANNELS``), on ``frames``
+        (resampled with the weights); None when the file has no head columns.
     eyes : ndarray (F, 6) or None
-        Left eye yaw/pitch/roll then right eye yaw/pitch/roll.
+        Left eye yaw, pitch, roll then right eye yaw, pitch, roll in radians (``EYE_CHANNELS``): what
+        the gaze shapes follow; None when the file has no eye columns.
     source : str
     format : str
         "livelinkface", "mediapipe" or "weights".
@@ -62,6 +64,18 @@ class WeightTrack:
     format: str = "weights"
     timecode: str = ""
     notes: tuple = field(default_factory=tuple)
+
+    #: The columns of ``head`` and ``eyes``, in order (not fields: the same for every track)
+    HEAD_CHANNELS = HEAD_CHANNELS
+    EYE_CHANNELS = EYE_CHANNELS
+
+    def angles(self):
+        """{column name: (F,) radians} of the head and eye angles the file has (empty without any)."""
+        out = {}
+        for names, values in ((HEAD_CHANNELS, self.head), (EYE_CHANNELS, self.eyes)):
+            if values is not None:
+                out.update({n: np.asarray(values)[:, j] for j, n in enumerate(names)})
+        return out
 
 
 def parse_timecode(text, rate):

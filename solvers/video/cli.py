@@ -57,12 +57,39 @@ except ImportError:  # a Blender without the pip dependencies: plain progress li
 
 log = logging.getLogger(__name__)
 
-SCHEMA = {
-    "source": {"video", "first", "last", "step", "scale", "fps", "frame_offset"},
-    "tracking": {"points", "region", "method", "reference", "max_points", "reregister", "reseed", "drift",
-                 "win_size", "fb_threshold", "levels", "preset"},
-    "output": {"markers", "confidence", "report"},
+#: Every key of a track config: {section: {key: (default, what it means)}} (``facecap config-docs`` writes
+#: it into docs/config.md; the config is checked against it).
+TRACK_KEYS = {
+    "source": {
+        "video": ("", "Video file, image folder, glob or printf pattern. **Required.**"),
+        "first": ("the first frame", "First footage frame read (frame 1 is the first of the footage)"),
+        "last": ("the last frame", "Last footage frame read"),
+        "step": ("1", "Read every n-th frame"),
+        "scale": ("1", "Downscale factor in (0, 1] before tracking"),
+        "fps": ("the video's (image sequences: 24)", "Frame rate"),
+        "frame_offset": ("", "Removed: frames count from 1 (an error that says so)"),
+    },
+    "tracking": {
+        "points": ("", "`name,x,y` file of the points at the reference frame (source pixels); or `region`"),
+        "region": ("", "[x, y, w, h] in source pixels: automatic features in this box; or `points`"),
+        "method": ("`lk`", "`lk` (Lucas-Kanade points), or dense flow: `dis`, `farneback`, `tvl1`"),
+        "reference": ("the first frame read", "The neutral frame the points are given at"),
+        "max_points": ("100", "`region`: the most features found"),
+        "reregister": ("`true`", "`lk`: drift control by re-registration to the reference"),
+        "reseed": ("`true`", "`lk`: re-acquire lost points from the reference patch"),
+        "win_size": ("21", "`lk`: window size (working pixels)"),
+        "levels": ("3", "`lk`: pyramid levels"),
+        "fb_threshold": ("1", "`lk`: forward-backward error (working pixels) above which a point is lost"),
+        "drift": ("`fuse`", "Dense flow: `fuse` (chained and direct), `direct` (to the reference) or `none`"),
+        "preset": ("`balanced`", "`dis`: `ultrafast`, `fast` or `balanced` (speed against quality)"),
+    },
+    "output": {
+        "markers": ("", "The 2D tracks: `frame,<name>_x,<name>_y` in pixels (origin top left). **Required.**"),
+        "confidence": ("", "Per-sample confidence in [0, 1]: `frame,<name>,...`"),
+        "report": ("", "JSON: summary, losses, re-acquisitions, footage"),
+    },
 }
+SCHEMA = {section: set(keys) for section, keys in TRACK_KEYS.items()}
 METHODS = ("lk", "dis", "farneback", "tvl1")
 
 

@@ -82,6 +82,9 @@ def test_live_link_face_rows_off_the_frame_grid_are_resampled(name, drift):
     np.testing.assert_allclose(track.head, reference(("HeadYaw", "HeadPitch", "HeadRoll")), rtol=0, atol=1e-9)
     np.testing.assert_allclose(track.eyes, reference(("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw",
                                                       "RightEyePitch", "RightEyeRoll")), rtol=0, atol=1e-9)
+    angles = track.angles()  # named columns, radians, on the track's frames
+    assert list(angles) == list(track.HEAD_CHANNELS + track.EYE_CHANNELS)
+    np.testing.assert_array_equal(angles["RightEyePitch"], track.eyes[:, 4])
     note = next(n for n in track.notes if "resampled" in n)
     assert f"rows up to {drift:.2g} frame off the frame grid" in note, note
     if name.startswith("llf_jmtechart"):  # the case that was read unresampled: rows rounded to frames

@@ -54,18 +54,25 @@ def test_demo_prints_only_facecap_lines_and_its_verbosity_levels(tmp_path):
     assert any("Read blend" in line for line in blender) and any("Saved copy" in line for line in blender), err_v
 
 
+def readme_real_capture_config():
+    """The README's real-capture take config (the TOML block after "**A real capture.**")."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    return re.search(r"\*\*A real capture\.\*\*.*?```toml\n(.*?)```", text, re.S).group(1)
+
+
 @pytest.mark.skipif(not FACIAL_SING.is_file(), reason=f"no real-data corpus at {REALDATA}")
 def test_the_readme_real_capture_example_prints_one_line_per_fact(tmp_path):
     config = tmp_path / "facial_sing.toml"
-    config.write_text(
-        f'[target]\nblend = "{(ROOT / "sample_blends" / "character.blend").as_posix()}"\nobject = "Face"\n'
-        f'[source]\nmarkers = "{FACIAL_SING.as_posix()}"\n'
-        '[stabilise]\nmarkers = ["root-1", "root-2", "root-3", "root-4", "root-5", "root-6"]\n'
-        '[neutral]\nframes = [1, 100]\n[binding]\nmode = "nearest"\n'
-        '[output]\nblend = "out/facial_sing.blend"\nreport = "out/facial_sing.json"\n')
+    text = readme_real_capture_config()
+    for name, path in (("sample_blends/character.blend", ROOT / "sample_blends" / "character.blend"),
+                       ("Facial-Sing.c3d", FACIAL_SING)):
+        assert f'"{name}"' in text
+        text = text.replace(f'"{name}"', f'"{path.as_posix()}"')
+    config.write_text(text)
     out, err = run(["retarget", "--config", str(config)], tmp_path)
     warnings = assert_only_facecap_lines(out, err)
     # Unlabeled1 (no neutral) and the head band (off the face) each named once, with what to do
     assert sum("Unlabeled1" in w for w in warnings) == 1, warnings
     assert sum("root-1" in w for w in warnings) == 1, warnings
     assert any("root-1" in w and "max_distance_mm" in w for w in warnings), warnings
+    assert (tmp_path / "out" / "facial_sing.blend").is_file()
