@@ -368,13 +368,13 @@ def main(argv=None):
                     return args.func(args)
             return args.func(args)
     except FacecapError as exc:
-        if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written
-            console.log.error(f"{exc}; nothing written")
+        if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written (not an error)
+            print(f"facecap: {exc}; nothing written", file=sys.stderr)
             return 130
         console.log.error(str(exc))
         return 1
     except KeyboardInterrupt:
-        console.log.error("interrupted; outputs not finished were not written")
+        print("facecap: interrupted; outputs not finished were not written", file=sys.stderr)
         return 130
     finally:
         if main_thread:

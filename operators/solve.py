@@ -5,12 +5,13 @@ import numpy as np
 
 from ..facecap_addon import scene_solve
 from ..solvers.errors import FacecapError
+from .video import ClipJobOperator  # its cancel and _stop: Blender ending the operator, the timer and status bar
 
 
 TICK_SECONDS = 0.1  # how often the sidebar looks at a running solve
 
 
-class FACECAP_OT_solve(bpy.types.Operator):
+class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
     """Solve shape-key weights for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept). The status bar shows what is solving and for how long; Esc cancels with the scene untouched"""
 
     bl_idname = "facecap.solve"
@@ -63,21 +64,6 @@ class FACECAP_OT_solve(bpy.types.Operator):
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-
-    def cancel(self, context):
-        """Blender ends the operator (file load, window closed): stop without keying."""
-        self._stop(context)
-
-    def _stop(self, context):
-        wm = context.window_manager
-        if getattr(self, "_timer", None) is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-        session = getattr(self, "_session", None)
-        if session is not None:
-            session.cancel()
-            if context.workspace is not None:
-                context.workspace.status_text_set(None)
 
     def _write(self, context, session):
         """Key the finished solve and report it (a FacecapError of the solve is raised here)."""
