@@ -8,14 +8,17 @@ conversion is hash-checked, so the accuracy figures in docs/accuracy.md hold for
 """
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..character.template import HumanTemplate, convert, template_path
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m facecap template",
-                                     description="install or describe the optional human template")
+def main(argv=None, *, parents=()):
+    parser = argparse.ArgumentParser(
+        prog="facecap template", parents=list(parents),
+        description="Install the optional human template from a copy of ICT-FaceKit (hash-checked), or say where "
+                    "the installed one is; the semantic strategy fits it to the actor when nothing else is known.")
     sub = parser.add_subparsers(dest="action", required=True)
     p = sub.add_parser("convert", help="convert a copy of the ICT-FaceKit face region (ict_face.npz, or the folder "
                                        "holding it) into facecap's template")
@@ -27,7 +30,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.action == "convert":
         out = convert(Path(args.source).expanduser(), None if args.out is None else Path(args.out).expanduser())
-        print(f"facecap: human template written to {out}")
+        print(f"facecap: human template written to {out}", file=sys.stdout)
         return 0
     path = Path(args.path).expanduser() if args.path else template_path()
     if not path.exists():
