@@ -27,12 +27,12 @@ from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json
 from ..solvers.markers import UNIT_SCALE
 from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve_job
-from ..solvers.strategies.actor_model import profile_of
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import FrameProgress, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
 from . import console
+from .actor_outputs import write_actor_basis, write_profile
 from .review import read_review_truth, write_take_review
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -88,9 +88,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     if take.footage is not None:
         extra["flow"] = result.info["flow"]
     if config.output_actor_basis is not None:
-        _write_actor_basis(config, result, outputs)
+        write_actor_basis(config, result, outputs)
     if config.output_profile is not None:
-        _write_profile(config, result, outputs)
+        write_profile(config, result, outputs)
     statement = result.info.get("actor_model", {}).get("statement")
     if statement:
         say(f"actor: {statement}")
@@ -390,28 +390,6 @@ def _store_retune(config, tuned):
     if tuned.changed:
         saved["version"] = str(save_version(tuned.version, folder))
     return {**tuned.report(), "files": saved, "corrections_file": str(config.tuning.corrections)}
-
-
-def _write_actor_basis(config, result, outputs):
-    actor_basis = getattr(result.fitted, "actor_basis", None)
-    if actor_basis is None:
-        raise ConfigError(f"strategy '{result.strategy}' has no actor basis to store (calibrated and refine do)",
-                          path=config.path, key="output.actor_basis")
-    config.output_actor_basis.parent.mkdir(parents=True, exist_ok=True)
-    actor_basis.save_npz(config.output_actor_basis)
-    outputs["actor_basis"] = str(config.output_actor_basis)
-
-
-def _write_profile(config, result, outputs):
-    model = getattr(result.fitted, "model", None)
-    profile = None if model is None else profile_of(model)
-    if profile is None:
-        raise ConfigError("a performer profile holds measured calibration poses: give [calibration] poses (and "
-                          "markers, or frames of this take) with the semantic strategy", path=config.path,
-                          key="output.profile")
-    config.output_profile.parent.mkdir(parents=True, exist_ok=True)
-    profile.save_npz(config.output_profile)
-    outputs["profile"] = str(config.output_profile)
 
 
 def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields, fps=None):

@@ -59,7 +59,7 @@ def skin_triangles(n_vertices, triangles):
     """The triangles of the largest connected piece of a mesh (by triangle count): a face's skin, without the
     eyeballs, teeth or tongue that characters model as separate pieces (a marker never sits on those)."""
     from scipy.sparse import coo_matrix  # scipy: only binding by position needs it
-    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.csgraph import connected_components  # scipy, as above
 
     tris = np.asarray(triangles, dtype=np.int64)
     rows = np.concatenate([tris[:, 0], tris[:, 1]])

@@ -27,7 +27,7 @@ def median(summary, target, method, figure="rmse", region="all"):
 
 def test_the_default_is_safe_on_a_stylised_character(table):
     _, s = table
-    # measured (2 draws x 600 frames): geometric 0.33, nothing known 0.17, all weights 0: 0.21
+    # measured (2 draws x 600 frames): geometric 0.343, nothing known 0.184, all weights 0: 0.210
     assert median(s, "sample", "nothing") < 0.7 * median(s, "sample", "geometric")
     assert median(s, "sample", "nothing") < median(s, "sample", "zero")
     assert median(s, "sample", "nothing", "at_upper") <= 0.01  # nothing pinned (geometric: 7-13%)
@@ -38,8 +38,8 @@ def test_the_default_is_safe_on_a_stylised_character(table):
 
 def test_each_tier_of_knowledge_of_the_actor_improves_the_solve(table):
     _, s = table
-    # measured: nothing 0.17, template 0.12, calibration 0.07
-    assert median(s, "sample", "calibration") < 0.09
+    # measured: nothing 0.184, template 0.127, calibration 0.086
+    assert median(s, "sample", "calibration") < 0.10
     assert median(s, "sample", "calibration") < median(s, "sample", "template") < median(s, "sample", "nothing")
     assert median(s, "sample", "calibration", "r") > 0.75
     assert median(s, "sample", "template", "r") > median(s, "sample", "nothing", "r")
@@ -47,7 +47,8 @@ def test_each_tier_of_knowledge_of_the_actor_improves_the_solve(table):
 
 def test_a_character_of_the_actors_family_is_not_harmed(table):
     _, s = table
-    # the ICT target's shapes are the actor's (perturbed): the default stays with the geometric solve
+    # the ICT target's shapes are the actor's (perturbed): the default stays with the geometric solve (measured:
+    # 0.134 both)
     assert median(s, "ict", "nothing") <= 1.05 * median(s, "ict", "geometric")
 
 
