@@ -91,8 +91,8 @@ def markdown(summary):
     """The summary as Markdown tables: overall per target and layout, then per region."""
     lines = []
     keys = sorted(summary, key=lambda k: (k[0], k[1], list(METHODS).index(k[2]) if k[2] in METHODS else 99))
-    lines.append("| layout | target | method | draws | RMSE (median) | RMSE (worst) | mean per-shape r | at upper | "
-                 "jitter (truth) |")
+    lines.append("| layout | target | method | draws | RMSE (median) | RMSE (worst) | mean per-shape r (shapes moved) | "
+                 "at upper | jitter (truth) |")
     lines.append("|---|---|---|---|---|---|---|---|---|")
     for key in keys:
         s = summary[key]
@@ -101,7 +101,7 @@ def markdown(summary):
             continue
         m, w = s["median"]["all"], s["worst"]["all"]
         lines.append(f"| {key[0]} | {key[1]} | {key[2]} | {s['n'] - s['errors']}/{s['n']} | {m['rmse']:.3f} | "
-                     f"{w['rmse']:.3f} | {m['r']:.2f} | {100 * m['at_upper']:.1f}% | {m['jitter']:.4f} "
+                     f"{w['rmse']:.3f} | {m['r']:.2f} ({m['r_moved']:.2f}) | {100 * m['at_upper']:.1f}% | {m['jitter']:.4f} "
                      f"({m['truth_jitter']:.4f}) |")
     regions = [r for r, _ in REGIONS]
     lines += ["", "Weights RMSE per region (median over draws; mean per-shape r in brackets):", "",

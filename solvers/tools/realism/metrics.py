@@ -1,5 +1,6 @@
-"""How a solve compares with the truth, per face region: weights RMSE, mean per-shape correlation, the
-share of weights at the upper bound, and jitter (RMS second difference), each beside the truth's own."""
+"""How a solve compares with the truth, per face region: weights RMSE, mean per-shape correlation (a shape the
+solve holds at rest counts as 0; ``r_moved`` leaves those out), the share of weights at the upper bound, and
+jitter (RMS second difference), each beside the truth's own."""
 
 import numpy as np
 
@@ -26,15 +27,18 @@ def region_of(name):
 def _stats(w, t, upper):
     """Metrics of solved ``w`` against truth ``t`` (F, K); ``upper`` (K,) the solve's upper bounds."""
     err = np.nan_to_num(w, nan=0.0) - t
-    rs = []
+    rs, moved = [], []
     for k in range(t.shape[1]):
         if t[:, k].std() >= MIN_STD:
             wk = np.nan_to_num(w[:, k])
             rs.append(0.0 if wk.std() < 1e-9 else float(np.corrcoef(wk, t[:, k])[0, 1]))
+            if wk.std() >= 1e-9:
+                moved.append(rs[-1])
     jitter = float(np.sqrt(np.mean(np.diff(np.nan_to_num(w), 2, axis=0) ** 2))) if len(w) > 2 else 0.0
     return {
         "rmse": float(np.sqrt(np.mean(err**2))),
-        "r": float(np.mean(rs)) if rs else float("nan"),
+        "r": float(np.mean(rs)) if rs else float("nan"),  # a shape held at rest counts as r = 0
+        "r_moved": float(np.mean(moved)) if moved else float("nan"),  # over the shapes the solve moves
         "at_upper": float(np.mean(np.nan_to_num(w) >= upper[None] - 1e-3)),
         "jitter": jitter,
         "truth_jitter": float(np.sqrt(np.mean(np.diff(t, 2, axis=0) ** 2))) if len(t) > 2 else 0.0,
