@@ -51,12 +51,8 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
 
 
 def solve_take(settings, scene, **kwargs):
-    """Solve the sidebar's take (controls applied); returns RetargetResult. A semantic solve's tier (what it
-    knew of the actor's face) is shown in the Solve panel."""
-    result = solve(request_from_scene(settings, scene, **kwargs))
-    actor = result.info.get("actor_model")
-    settings.actor_tier = f"{actor['tier']}: {actor['statement']}" if actor else ""
-    return result
+    """Solve the sidebar's take (controls applied); returns RetargetResult."""
+    return solve(request_from_scene(settings, scene, **kwargs))
 
 
 def _layered_locks(settings, frames):
@@ -87,6 +83,8 @@ def key_solve(settings, result):
     A locked shape keeps its previous solve-layer curve: the solve held it at what the animator saw
     (solve layer + their keys), so re-keying that value under their keys would count them twice.
     """
+    actor = result.info.get("actor_model")  # what a semantic solve knew of the actor: shown in the Solve panel
+    settings.actor_tier = f"{actor['tier']}: {actor['statement']}" if actor else ""
     key = settings.target.data.shape_keys
     locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
     if locked and key is not None and layers.solved_action(key) is not None:
