@@ -253,7 +253,7 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
     """
 
     tris = np.asarray(triangles) if isinstance(triangles, np.ndarray) else triangulate(triangles)
-    surface = make_surface(vertices, skin_triangles(len(vertices), tris))  # not the eyeballs or the tongue
+    surface = make_surface(vertices, tris)  # the alignment sees the whole face, eyeballs in their sockets too
     names = tuple(names)
     markers = np.asarray(markers, dtype=np.float64)
     if markers.shape != (len(names), 3):
@@ -285,7 +285,8 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
                      f"{after.mean():.1f} mm after ICP (worst {after.max():.1f} mm)")
     m = len(names)
     tri, bary, dist = np.full(m, -1), np.full((m, 3), np.nan), np.full(m, np.nan)
-    t, b, _, d = closest_points(surface, sim.apply(markers[have]))
+    skin = make_surface(vertices, skin_triangles(len(vertices), tris))  # a marker sits on skin: not an eyeball
+    t, b, _, d = closest_points(skin, sim.apply(markers[have]))
     tri[have], bary[have], dist[have] = t, b, d * mm_per_unit
     bound = have.copy()
     far = bound & (dist > max_distance_mm)
@@ -293,7 +294,7 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
         notes.append(_far_note(names, dist, far, max_distance_mm, "marker"))
         tri[far], bary[far] = -1, np.nan
         bound &= ~far
-    return Binding(names, tri, bary, dist, bound, sim, mode, surface.triangles, tuple(notes))
+    return Binding(names, tri, bary, dist, bound, sim, mode, skin.triangles, tuple(notes))
 
 
 #: The automatic alignment's scale may end this close (relative) to the ends of its search before the pose
