@@ -247,6 +247,8 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
         unbound = ~np.isfinite(character_deltas).all(axis=(0, 2))
         if unbound.any() and not all(sources):
             usable &= ~unbound
+            notes.append(f"{int(unbound.sum())} marker(s) have no binding on the character and are not solved from: "
+                         f"{[n for n, u in zip(names, unbound) if u]}")
     known = np.array([bool(s) for s in sources])
     if prior is not None and not known.all():
         if known.sum() >= 3:
