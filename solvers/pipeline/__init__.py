@@ -87,8 +87,9 @@ def hold_locks(names, weights, settings, notes):
     if held.any():
         rows = ~np.isnan(weights).all(axis=1)
         weights = np.where(held & rows[:, None], locks, weights)
-    if settings.regions and settings.strategy != "geometric":
-        notes.append(f"[solve] regions apply to the geometric strategy only; ignored by '{settings.strategy}'")
+    if settings.regions and settings.strategy not in SAMPLES_CHARACTER:
+        notes.append(f"[solve] regions apply to the semantic and geometric strategies; ignored by "
+                     f"'{settings.strategy}'")
     return weights
 
 
@@ -101,7 +102,7 @@ def _retarget_markers(markers, character, settings, inputs):
     if settings.strategy in SAMPLES_CHARACTER:  # a binding problem is named before any work
         bound_markers(character, markers.names, source=markers.source or "take")
     markers = stages.usable_markers(markers, settings, notes,
-                                    bound=character.marker_names if settings.strategy == "geometric" else None)
+                                    bound=character.marker_names if _needs_binding(settings, inputs) else None)
     take, suggestion, norm_info = stages.prepare_take(markers, settings, notes)
     if take.dim == 3 and take.stabilise.flagged.any():
         bridged = any(settings.smoothing)
@@ -130,7 +131,7 @@ def _retarget_markers(markers, character, settings, inputs):
     if take.dim == 3:
         info["plausibility"], warning = plausibility.check(
             weights, res.shape_names, getattr(strategy, "upper", np.ones(len(res.shape_names))), res.residual_rms,
-            noise, held=_held(strategy, settings, res.shape_names))
+            noise, held=_held(strategy, settings, res.shape_names, weights.shape[0]))
         if warning:
             notes.append(warning)
     timings["total"] = time.perf_counter() - t0
@@ -138,12 +139,23 @@ def _retarget_markers(markers, character, settings, inputs):
                     take=take, normalise=norm_info, suggestion=suggestion, info=info)
 
 
-def _held(strategy, settings, names):
+def _held(strategy, settings, names, frames):
     """Shapes the solve held (locks, and the semantic solve's unseen shapes): not judged for pinning."""
-    locks = resolve_locks(names, settings.locks, n_frames=1)
-    held = {n for n, v in zip(names, np.atleast_2d(locks)[0]) if np.isfinite(v)}
+    locks = np.atleast_2d(resolve_locks(names, settings.locks, n_frames=frames))
+    held = {n for n, column in zip(names, locks.T) if np.isfinite(column).all()}  # held over the whole take
     model = getattr(strategy, "model", None)
     return held | set(getattr(model, "unseen", ()))
+
+
+def _needs_binding(settings, inputs):
+    """Whether a marker must be bound on the character to be solved from: geometric, and semantic when
+    nothing else is known of the actor (calibration poses, a profile or library, the template know unbound
+    markers too)."""
+    if settings.strategy == "geometric":
+        return True
+    knows = (settings.calibration.poses or inputs.calibration is not None or inputs.profile is not None
+             or inputs.actor_basis is not None or inputs.template is not None)
+    return settings.strategy == "semantic" and not knows
 
 
 def _refuse_flat(weights, motion, dim, settings):

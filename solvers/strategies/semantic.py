@@ -20,13 +20,14 @@ It predicts the markers (``PredictsMarkers``), so the pipeline refits the head a
 
 import numpy as np
 
-from ..character.shape_options import resolve_bounds, resolve_locks
+from ..character.shape_options import resolve_bounds, resolve_locks, resolve_regions
 from ..engine import solve_bounded
 from ..errors import FacecapError
 from ..options import default
 from .actor_model import ActorKnowledge, build_actor_model
 from .base import StrategyResult, as_target
 from .geometric import QUICK_SOLVE, symmetric_pairs
+from .mapping import Mapping
 from .sources import as_deltas
 
 #: Pairs of shapes that act against each other: at most one of each is active in a frame.
@@ -98,7 +99,7 @@ class SemanticStrategy:
         self.notes = ()
 
     def fit(self, character, *, names, neutral, knowledge=ActorKnowledge(), character_deltas=None, deltas=None,
-            noise=None, alignment=None, alignment_names=(), bounds=(), locks=()):
+            noise=None, alignment=None, alignment_names=(), bounds=(), locks=(), regions=()):
         """Build the actor model (``actor_model.build_actor_model``) for the take's markers ``names`` with
         neutral ``neutral`` (M, 3); ``bounds``/``locks`` are the ``[solve]`` shape options; ``alignment`` (the
         actor -> character alignment of the markers ``alignment_names``, for the report) is returned with every
@@ -109,7 +110,10 @@ class SemanticStrategy:
                                        character_deltas=character_deltas, deltas=deltas, noise=noise)
         self.lower, self.upper = resolve_bounds(target.names, target.lower, target.upper, bounds)
         self.lock_patterns = tuple(locks)
-        self.notes = self.model.notes
+        basis = self.model.basis
+        self.regions, held = resolve_regions(basis.shape_names, basis.marker_names, regions, dims=3)
+        self.notes = self.model.notes + ((f"{len(held)} shape(s) are in no region and are held: {list(held)}",)
+                                         if held else ())
         self.noise = float("nan") if noise is None else float(noise)
         # measured shapes are the actor's own: only a template's or the character's carry model error
         # (all of it for a template's; for the character's, as far as they fail to explain the markers)
@@ -126,6 +130,19 @@ class SemanticStrategy:
     @property
     def marker_names(self):
         return self.model.basis.marker_names
+
+    # What the feedback loop retunes (``tuning.take``): the actor model as an actor library, solved one-to-one
+    # onto the shapes of the same name, in the take's own head frame.
+    align = "none"
+
+    @property
+    def actor_basis(self):
+        return None if self.model is None else self.model.basis
+
+    @property
+    def mapping(self):
+        names = self.model.basis.shape_names
+        return Mapping.by_name(names, names, aliases=False)
 
     def _model_error_confidence(self, weights, deltas, confidence, D):
         """(F, U) trust per marker sample: the actor model is wrong by about ``self.error`` of the motion it
@@ -163,7 +180,10 @@ class SemanticStrategy:
         for name in self.model.unseen:
             locks[:, basis.shape_names.index(name)] = 0.0
         pairs = symmetric_pairs(basis.shape_names) if self.symmetry > 0 else ()
-        kwargs = dict(mask=confidence, dims=3, lower=self.lower, upper=self.upper,
+        if self.regions:  # a coupled pair must share a region
+            region_of = {int(k): i for i, (shapes, _) in enumerate(self.regions) for k in shapes}
+            pairs = [(a, b) for a, b in pairs if region_of.get(a, -1) == region_of.get(b, -2)]
+        kwargs = dict(mask=confidence, dims=3, lower=self.lower, upper=self.upper, regions=self.regions,
                       regularisation=self.regularisation * self.prior_scale,
                       sparsity=self.sparsity * self.prior_scale, symmetry=pairs,
                       symmetry_weight=self.symmetry, smoothing=(0.0, 0.0) if quick else self.smoothing, relative=True)
@@ -195,6 +215,7 @@ class SemanticStrategy:
         rms[~res.solved] = np.nan
         info = {"mode": res.mode, "actor_model": self.model.report()}
         return StrategyResult(weights=res.weights, shape_names=basis.shape_names, solved=res.solved,
+                              source_weights=res.weights, source_names=basis.shape_names,
                               warnings=tuple(self.notes) + tuple(notes) + tuple(res.warnings), residual_rms=rms,
                               clamped=np.zeros(F, dtype=int), info=info, solve=res, marker_names=basis.marker_names,
                               alignment=self.alignment, alignment_residual=self._alignment_residual(basis.marker_names))

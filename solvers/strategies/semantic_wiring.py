@@ -95,5 +95,5 @@ def fit_semantic(settings, character, inputs, take, *, priors):
     s = SemanticStrategy(**priors, exclusive=a.exclusive)
     s.fit(character, names=take.names, neutral=take.neutral, knowledge=knowledge, character_deltas=char_deltas,
           deltas=take.deltas, noise=marker_noise(take.deltas), alignment=align, alignment_names=bound,
-          bounds=settings.bounds, locks=settings.locks)
+          bounds=settings.bounds, locks=settings.locks, regions=settings.regions)
     return s, notes
