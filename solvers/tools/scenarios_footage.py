@@ -134,7 +134,7 @@ def _apply_h(H, pts):
     return x / z[..., None]
 
 
-def random_motion(rng, size, *, head="similarity", speed=1.0, leave=False):
+def random_motion(rng, size, *, head="similarity", speed=1.0, leave=False, warp=1.0):
     """A random :class:`HeadMotion` for a ``size`` = (width, height) clip."""
     w, h = size
     s = min(w, h)
@@ -145,7 +145,7 @@ def random_motion(rng, size, *, head="similarity", speed=1.0, leave=False):
     radii = np.array([0.16, 0.08, 0.08, 0.09, 0.09, 0.12]) * s * rng.uniform(0.8, 1.2, size=6)
     directions = rng.normal(size=(6, 2)) + np.array([[0, 1], [-0.7, -0.7], [0.7, -0.7], [0, -1], [0, -1], [0, 0.5]])
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    amplitudes = rng.uniform(0.01, 0.04, size=6) * s  # 5-19 px at 480 lines
+    amplitudes = rng.uniform(0.01, 0.04, size=6) * s * warp  # 5-19 px at 480 lines (warp = 1)
     periods = rng.uniform(25, 60, size=6) / speed
     rot, scale, shift = np.radians(rng.uniform(1.0, 4.0)), rng.uniform(0.01, 0.04), rng.uniform(0.01, 0.03) * s
     persp = rng.uniform(0.02, 0.06) if head == "perspective" else 0.0
@@ -418,7 +418,8 @@ def footage_scenario(seed, kind, directory, *, size=None, n_frames=60, fps=30.0)
     spec = KINDS[kind]
     rng = np.random.default_rng([21, 7, int(seed), _SEED_ORDER.index(kind)])
     size = tuple(SIZES[int(rng.integers(len(SIZES)))]) if size is None else tuple(int(v) for v in size)
-    motion = random_motion(rng, size, head=spec["head"], speed=spec.get("speed", 1.0), leave=spec.get("leave", False))
+    motion = random_motion(rng, size, head=spec["head"], speed=spec.get("speed", 1.0), leave=spec.get("leave", False),
+                           warp=spec.get("warp", 1.0))
     tex = texture(spec["texture"], size, rng)
     occ = None
     if spec.get("occluder"):
