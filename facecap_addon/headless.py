@@ -29,7 +29,8 @@ from ..solvers.markers import UNIT_SCALE
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import ProgressLine, sigint_cancels
-from ..solvers.video.flow_config import check_against_footage
+from ..solvers.video.flow_config import LandmarkTake, check_against_footage
+from ..solvers.video.landmarks import metric_take, track_landmarks_job
 from ..solvers.video.reading import Footage
 from .review import read_review_truth, write_take_review
 
@@ -63,7 +64,7 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     timings = {}
     base = preflight(config, tune=tune, replace=replace)
     truth = read_review_truth(config)  # a bad --truth file fails before the solve
-    take, obj, timings["read"], t_open = _read_and_open(config, say, base)
+    take, obj, timings["read"], t_open = _read_and_open(config, say, base, quiet=quiet)
     check_against_take(config, take.markers, take.inputs)
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
@@ -170,14 +171,14 @@ class _Take:
         return f"{len(self.inputs.weights.frames)} frames of {len(self.inputs.weights.names)} solved channels"
 
 
-def _read_and_open(config, say, base):
+def _read_and_open(config, say, base, *, quiet=False):
     """(take, target object, read seconds, open seconds). A big marker file is read in a forked
     child while Blender starts and opens the character (measured on a 36,000-frame CSV take: 1.0-1.5 s
     of reading beside 0.8-1.0 s of start-up); a bad file is read again here, so its error is raised here."""
 
     def read():
         t = time.perf_counter()
-        return read_take(config, say), time.perf_counter() - t
+        return read_take(config, say, quiet=quiet), time.perf_counter() - t
 
     def open_blend():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
@@ -192,10 +193,13 @@ def _read_and_open(config, say, base):
     return take, obj, t_read, t_open
 
 
-def read_take(config, say):
-    """Read the take's source (markers cleaned as ``[clean]`` says, footage, or solved weights) and
-    the strategy's inputs."""
+def read_take(config, say, *, quiet=True):
+    """Read the take's source (markers cleaned as ``[clean]`` says, footage, face landmarks, or
+    solved weights) and the strategy's inputs. Landmarks show progress on stderr unless ``quiet``."""
     inputs = load_strategy_inputs(config)
+    if isinstance(config.video, LandmarkTake):
+        say(f"[1/5] face landmarks in {config.video.path}")
+        return _landmark_take(config, inputs, say, quiet)
     if config.video is not None:
         say(f"[1/5] reading footage {config.video.path}")
         footage = Footage(config.video.path, **config.video.footage)
@@ -219,6 +223,34 @@ def read_take(config, say):
     markers = dataclasses.replace(markers, positions=np.ascontiguousarray(markers.positions))
     return _Take(markers=markers, inputs=inputs, source={"format": imported.format, "units": imported.markers.units},
                  notes=notes, cleaning=tuple(cleaned.report.summary().splitlines()))
+
+
+def _landmark_take(config, inputs, say, quiet):
+    """The footage's face landmarks as a marker take in metres; Ctrl-C stops between two frames
+    (``Cancelled``: nothing written)."""
+    video = config.video
+    footage = Footage(video.path, **video.footage, color=True)
+    job = track_landmarks_job(footage, smoothing=video.smoothing, iris=video.iris, models=video.models)
+    shown = None if quiet else ProgressLine(sys.stderr, "landmarks")
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            found = job.run(progress)
+        finally:
+            if shown is not None:
+                shown.close_line()
+    say(found.summary())
+    info = footage.info
+    source = {"format": "video landmarks", "units": "m", "kind": info.kind, "fps": info.fps, "width": info.width,
+              "height": info.height, "scale": info.scale, "landmarks": found.report()}
+    notes = tuple(inputs.notes)
+    if not found.found.all():
+        notes += (f"{int((~found.found).sum())} frame(s) without a face are gaps",)
+    return _Take(markers=metric_take(found), inputs=inputs, source=source, notes=notes)
 
 
 def open_target(config, say, base=None):
@@ -303,6 +335,8 @@ def _corrections(config, names):
 
 def _source_fields(config, take):
     """Where the take came from, for the report."""
+    if take.markers is not None and isinstance(config.video, LandmarkTake):
+        return {"video_file": config.video.path, "source": {**take.source, "fps": take.markers.fps}}
     if take.markers is not None:
         m = take.markers
         return {"markers_file": str(config.markers_path),
