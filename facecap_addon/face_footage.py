@@ -109,8 +109,8 @@ def skin_colours(neutral, openings):
     for eye in (openings.right_eye, openings.left_eye):
         e = neutral[eye]
         c, half = e.mean(axis=0), np.ptp(e[:, 0]) / 2
-        bx = (neutral[:, 0] - c[0]) / (1.25 * half)
-        bz = (neutral[:, 2] - (c[2] + 0.62 * half)) / (0.2 * half)
+        bx = (neutral[:, 0] - c[0] - 0.25 * half * np.sign(c[0])) / (2.0 * half)
+        bz = (neutral[:, 2] - (c[2] + 2.1 * half) + 0.35 * half * bx**2) / (0.55 * half)  # an arch
         front = neutral[:, 1] < c[1] + half
         w = np.sqrt(np.clip(1.0 - bx**2 - bz**2, 0, 1)) * front
         cols = cols * (1 - w[:, None]) + brows * w[:, None]
@@ -190,8 +190,8 @@ class _Set:
             _srgb_to_linear(CAVITY), (len(d), 1)), (24, 16)))
         m = neutral[openings.mouth]
         width = np.ptp(m[:, 0])
-        cavity.location = tuple(m.mean(axis=0) + np.array([0.0, 0.45 * width, 0.0]))
-        cavity.scale = (0.5 * width, 0.25 * width, 0.3 * width)
+        cavity.location = tuple(m.mean(axis=0) + np.array([0.0, 0.65 * width, -0.3 * width]))
+        cavity.scale = (0.6 * width, 0.55 * width, 0.75 * width)  # dark behind the lips however wide the jaw opens
         for obj in [face, *self.eyes, cavity]:
             obj.parent = head
             scene.collection.objects.link(obj)
@@ -228,7 +228,7 @@ class _Set:
         shading.show_shadows, shading.shadow_intensity = True, 0.6
         shading.show_specular_highlight = True
         shading.studiolight_rotate_z = math.radians(shot.light)
-        scene.display.render_aa = "8"
+        scene.display.render_aa = shot.extras.get("aa", "FXAA")
         scene.view_settings.view_transform = "Standard"
         scene.world = world = bpy.data.worlds.new("FaceCap Face Footage")
         world.color = (0.05, 0.06, 0.08)
