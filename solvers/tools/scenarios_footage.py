@@ -134,19 +134,27 @@ def _apply_h(H, pts):
     return x / z[..., None]
 
 
-def random_motion(rng, size, *, head="similarity", speed=1.0, leave=False, warp=1.0):
-    """A random :class:`HeadMotion` for a ``size`` = (width, height) clip."""
+def random_motion(rng, size, *, head="similarity", speed=1.0, leave=False, warp=1.0, field=False):
+    """A random :class:`HeadMotion` for a ``size`` = (width, height) clip: bumps at mouth, brows,
+    cheeks, or with ``field`` a smooth random warp of the whole frame (wide overlapping bumps on a grid)."""
     w, h = size
     s = min(w, h)
     cx, cy = w / 2, h / 2
-    centres = np.array([[cx, cy + 0.3 * s], [cx - 0.12 * s, cy + 0.22 * s], [cx + 0.12 * s, cy + 0.22 * s],
-                        [cx - 0.14 * s, cy - 0.2 * s], [cx + 0.14 * s, cy - 0.2 * s], [cx, cy + 0.05 * s]])
-    centres += rng.normal(0, 0.02 * s, size=centres.shape)
-    radii = np.array([0.16, 0.08, 0.08, 0.09, 0.09, 0.12]) * s * rng.uniform(0.8, 1.2, size=6)
-    directions = rng.normal(size=(6, 2)) + np.array([[0, 1], [-0.7, -0.7], [0.7, -0.7], [0, -1], [0, -1], [0, 0.5]])
+    if field:
+        gx, gy = np.meshgrid(np.linspace(0.15, 0.85, 4) * w, np.linspace(0.15, 0.85, 4) * h)
+        centres = np.column_stack([gx.ravel(), gy.ravel()]) + rng.normal(0, 0.03 * s, size=(16, 2))
+        radii = 0.22 * s * rng.uniform(0.8, 1.2, size=16)
+        directions = rng.normal(size=(16, 2))
+    else:
+        centres = np.array([[cx, cy + 0.3 * s], [cx - 0.12 * s, cy + 0.22 * s], [cx + 0.12 * s, cy + 0.22 * s],
+                            [cx - 0.14 * s, cy - 0.2 * s], [cx + 0.14 * s, cy - 0.2 * s], [cx, cy + 0.05 * s]])
+        centres += rng.normal(0, 0.02 * s, size=centres.shape)
+        radii = np.array([0.16, 0.08, 0.08, 0.09, 0.09, 0.12]) * s * rng.uniform(0.8, 1.2, size=6)
+        directions = rng.normal(size=(6, 2)) + np.array([[0, 1], [-0.7, -0.7], [0.7, -0.7], [0, -1], [0, -1], [0, 0.5]])
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    amplitudes = rng.uniform(0.01, 0.04, size=6) * s * warp  # 5-19 px at 480 lines (warp = 1)
-    periods = rng.uniform(25, 60, size=6) / speed
+    k = len(centres)
+    amplitudes = rng.uniform(0.01, 0.04, size=k) * s * warp  # 5-19 px at 480 lines (warp = 1)
+    periods = rng.uniform(25, 60, size=k) / speed
     rot, scale, shift = np.radians(rng.uniform(1.0, 4.0)), rng.uniform(0.01, 0.04), rng.uniform(0.01, 0.03) * s
     persp = rng.uniform(0.02, 0.06) if head == "perspective" else 0.0
     if leave:
@@ -419,7 +427,7 @@ def footage_scenario(seed, kind, directory, *, size=None, n_frames=60, fps=30.0)
     rng = np.random.default_rng([21, 7, int(seed), _SEED_ORDER.index(kind)])
     size = tuple(SIZES[int(rng.integers(len(SIZES)))]) if size is None else tuple(int(v) for v in size)
     motion = random_motion(rng, size, head=spec["head"], speed=spec.get("speed", 1.0), leave=spec.get("leave", False),
-                           warp=spec.get("warp", 1.0))
+                           warp=spec.get("warp", 1.0), field=spec.get("field", False))
     tex = texture(spec["texture"], size, rng)
     occ = None
     if spec.get("occluder"):

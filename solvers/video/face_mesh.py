@@ -121,23 +121,36 @@ class FaceMesh:
 
     def __call__(self, image):
         """``image``: (H, W, 3) BGR uint8 (a grey (H, W) frame is used as it is, in three channels)."""
+        face, rgb = self.follow(image)
+        if face.points is not None:
+            self.finish(rgb, face.points)
+        return face
+
+    def follow(self, image):
+        """The face mesh of ``image`` (detected when none is followed), eyes not refined yet:
+        ``(FaceFrame, the RGB frame for`` :meth:`finish` ``)``. The next frame's region comes from this
+        mesh, so :meth:`finish` of this frame can run beside :meth:`follow` of the next."""
         rgb = self._rgb(image)
         detected = self.region is None
         if detected:
             self.region = self.detect(rgb)
             if self.region is None:
-                return FaceFrame(None, 0.0, True)
+                return FaceFrame(None, 0.0, True), rgb
         points, presence = self.mesh(rgb, self.region)
         if presence < self.presence:
             self.region = None
-            return FaceFrame(None, presence, detected)
+            return FaceFrame(None, presence, detected), rgb
+        self.region = region_around(points[:N_MESH, :2], points[33, :2], points[263, :2], 1.5)
+        return FaceFrame(points, presence, detected), rgb
+
+    def finish(self, rgb, points):
+        """Eyelids and irises of a followed face's ``points`` (in place): the iris model, or without it
+        the middle of each eye's lids."""
         if self.iris:
             self.refine_eyes(rgb, points)
         else:
             for k, contour in enumerate(EYE_CONTOUR):
                 points[N_MESH + 5 * k: N_MESH + 5 * k + 5] = points[list(contour[:16])].mean(axis=0)
-        self.region = region_around(points[:N_MESH, :2], points[33, :2], points[263, :2], 1.5)
-        return FaceFrame(points, presence, detected)
 
     @staticmethod
     def _rgb(image):

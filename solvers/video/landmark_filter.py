@@ -20,25 +20,35 @@ import numpy as np
 MIN_WIDTH, MAX_WIDTH, KNEE = 0.02, 0.12, 1.0
 
 
-def _fits(x, valid, sigma):
-    """Local quadratic fits at every frame with Gaussian weights of ``sigma`` frames over the valid
-    frames of ``x`` (F, N) (fewer neighbours near the ends): (value (F, N), slope per frame (F, N))."""
+def _kernel(sigma, half, before, after):
+    """(value, slope) weights over the offsets -half..half of a local quadratic fit with Gaussian
+    weights, when only ``before`` frames before and ``after`` after the frame exist."""
+    k = np.arange(-half, half + 1, dtype=np.float64)
+    w = np.exp(-0.5 * (k / sigma) ** 2) * ((k >= -before) & (k <= after))
+    basis = np.stack([w, w * k, w * k * k])  # (3, 2h+1)
+    inv = np.linalg.pinv(basis @ np.stack([np.ones_like(k), k, k * k]).T)  # a 1-2 frame run stays solvable
+    return inv[0] @ basis, inv[1] @ basis
+
+
+def _fit(x, sigma, want_slope=False):
+    """Local quadratic fits of the rows of ``x`` (N, F) (frames along the last axis, all valid):
+    (value (N, F), slope per frame (N, F) or None). One correlation for the interior; the frames
+    within the kernel's reach of an end (fewer neighbours) are fitted on their own."""
     from scipy.ndimage import correlate1d  # scipy: loaded with the filter only
 
+    n = x.shape[1]
     half = max(1, int(np.ceil(3 * sigma)))
-    k = np.arange(-half, half + 1, dtype=np.float64)
-    w = np.exp(-0.5 * (k / sigma) ** 2)
-    v = valid.astype(np.float64)
-    xv = np.where(valid[:, None], x, 0.0)
-    # weight moments S_j = sum w k^j over valid neighbours, data moments T_j = sum w k^j x
-    S = [correlate1d(v, w * k**j, mode="constant") for j in range(5)]
-    T = [correlate1d(xv, w * k**j, axis=0, mode="constant") for j in range(3)]
-    A = np.stack([np.stack([S[i + j] for j in range(3)], -1) for i in range(3)], -2)  # (F, 3, 3)
-    A = A + np.eye(3) * 1e-9 * np.maximum(S[0], 1.0)[:, None, None]
-    inv = np.linalg.pinv(A)  # a frame with few neighbours (an edge, beside a gap) stays solvable
-    value = inv[:, 0, 0, None] * T[0] + inv[:, 0, 1, None] * T[1] + inv[:, 0, 2, None] * T[2]
-    slope = inv[:, 1, 0, None] * T[0] + inv[:, 1, 1, None] * T[1] + inv[:, 1, 2, None] * T[2]
-    return value, slope
+    kinds = (0, 1) if want_slope else (0,)
+    inner = _kernel(sigma, half, half, half)
+    outs = [correlate1d(x, inner[i], axis=-1, mode="constant") for i in kinds]
+    offsets = np.arange(-half, half + 1)
+    for t in sorted(set(range(min(half, n))) | set(range(max(n - half, 0), n))):
+        kernels = _kernel(sigma, half, t, n - 1 - t)
+        idx = t + offsets
+        ok = (idx >= 0) & (idx < n)
+        for out, i in zip(outs, kinds):
+            out[:, t] = x[:, idx[ok]] @ kernels[i][ok]
+    return outs[0], (outs[1] if want_slope else None)
 
 
 def smooth_landmarks(positions, fps, *, min_width=MIN_WIDTH, max_width=MAX_WIDTH, knee=KNEE, levels=5):
@@ -65,28 +75,28 @@ def smooth_landmarks(positions, fps, *, min_width=MIN_WIDTH, max_width=MAX_WIDTH
     valid = np.isfinite(positions).all(axis=(1, 2))
     edges = np.flatnonzero(np.diff(np.r_[0, valid.astype(np.int8), 0]))
     for a, b in zip(edges[::2], edges[1::2]):  # each run of frames with a face on its own
-        out[a:b] = _smooth_run(positions[a:b].reshape(b - a, M * D), fps, min_width, max_width, knee,
-                               levels).reshape(b - a, M, D)
+        tracks = np.ascontiguousarray(positions[a:b].reshape(b - a, M * D).T)  # (N, F): frames contiguous
+        out[a:b] = _smooth_run(tracks, fps, min_width, max_width, knee, levels).T.reshape(b - a, M, D)
     return out
 
 
 def _smooth_run(x, fps, min_width, max_width, knee, levels):
-    """:func:`smooth_landmarks` on (F, N) frames that all have a face."""
-    F = len(x)
-    if F < 3:
+    """:func:`smooth_landmarks` on (N, F) tracks (frames along the last axis) that all have a face."""
+    if x.shape[1] < 3:
         return x.copy()
-    valid = np.ones(F, bool)
     sigmas = np.geomspace(max(min_width * fps, 0.5), max(max_width * fps, 0.5), int(levels))
-    fits = [_fits(x, valid, s) for s in sigmas]
-    base = fits[0][0]
-    noise = 1.4826 * np.median(np.abs(x - base), axis=0) * np.sqrt(3.0)  # the fit absorbs part of it
+    base = _fit(x, sigmas[0])[0]
+    noise = 1.4826 * np.median(np.abs(x - base), axis=1, keepdims=True) * np.sqrt(3.0)  # the fit absorbs part
     noise = np.maximum(noise, 1e-6 * max(float(np.max(noise)), 1e-6))
-    slope = fits[len(fits) // 2][1]  # speed from a middle width: the narrowest one's slope is mostly noise
-    speed = np.abs(slope) / (knee * noise)
-    want = np.clip(sigmas[-1] / (1.0 + speed), sigmas[0], sigmas[-1])
-    pos = np.interp(np.log(want), np.log(sigmas), np.arange(len(sigmas)))  # fractional level
-    lo = np.minimum(pos.astype(int), len(sigmas) - 2)
-    frac = pos - lo
-    values = np.stack([v for v, _ in fits])  # (L, F, N)
-    rows, cols = np.indices(lo.shape)
-    return (1 - frac) * values[lo, rows, cols] + frac * values[lo + 1, rows, cols]
+    middle = len(sigmas) // 2  # speed from a middle width: the narrowest one's slope is mostly noise
+    slope = _fit(x, sigmas[middle], want_slope=True)[1]
+    want = np.clip(sigmas[-1] / (1.0 + np.abs(slope) / (knee * noise)), sigmas[0], sigmas[-1])
+    del slope
+    level = np.interp(np.log(want), np.log(sigmas), np.arange(len(sigmas)))  # fractional level per sample
+    del want
+    out = np.zeros_like(x)
+    for i, sigma in enumerate(sigmas):  # each sample blends its two nearest levels (hat weights)
+        weight = np.clip(1.0 - np.abs(level - i), 0.0, 1.0)
+        if weight.any():
+            out += weight * (base if i == 0 else _fit(x, sigma)[0])
+    return out

@@ -15,6 +15,7 @@ position accept; :data:`RIGID` are the points that move with the skull (stabilis
 """
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -116,6 +117,8 @@ def track_landmarks_job(footage, *, models=None, smoothing=True, iris=True):
 
 
 def _landmark_steps(footage, mesh, smoothing):
+    """Generator: per frame the mesh on this thread, the eyes of the frame before on a second one
+    (two cores: the iris model is the larger half of the work)."""
     info = footage.info
     F = info.n_frames
     pos = np.full((F, N_POINTS, 3), np.nan)
@@ -123,19 +126,27 @@ def _landmark_steps(footage, mesh, smoothing):
     detections = []
     t_model, t0 = 0.0, time.perf_counter()
     reader = iter(footage)
-    try:
-        for i, (f, img) in enumerate(reader):
-            t1 = time.perf_counter()
-            face = mesh(img)
-            t_model += time.perf_counter() - t1
-            if face.detected and face.points is not None:
-                detections.append(int(f))
-            if face.points is not None:
-                pos[i] = face.points
-                conf[i] = face.presence
-            yield f
-    finally:
-        reader.close()
+    pending = None
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="facecap-eyes") as eyes:
+        try:
+            for i, (f, img) in enumerate(reader):
+                t1 = time.perf_counter()
+                face, rgb = mesh.follow(img)
+                if pending is not None:
+                    pending.result()  # the eyes of the frame before: at most one frame in flight
+                pending = None
+                if face.points is not None:
+                    pos[i] = face.points  # filled in place by the eyes' thread
+                    conf[i] = face.presence
+                    pending = eyes.submit(mesh.finish, rgb, pos[i])
+                    if face.detected:
+                        detections.append(int(f))
+                t_model += time.perf_counter() - t1
+                yield f
+            if pending is not None:
+                pending.result()
+        finally:
+            reader.close()
     t_all = time.perf_counter() - t0
     raw = pos.copy()
     raw[..., :2] = (raw[..., :2] + 0.5) / info.scale - 0.5  # working -> source pixels
