@@ -162,11 +162,12 @@ def _landmark_steps(footage, mesh, smoothing):
 
 
 def metric_take(result, *, eye_corners_m=EYE_CORNERS_M):
-    """The landmarks as a 3D take in metres: X right, Y up, Z towards the camera (the face looks
-    along +Z), each frame scaled so the rigid points keep their typical spread (the face's distance to
-    the camera taken out) and the whole take so the outer eye corners are ``eye_corners_m`` apart."""
+    """The landmarks as a 3D take in metres, in the characters' convention (Z up, the face looking down
+    -Y, +X the subject's left: image x, the model's depth, image y up), each frame scaled so the rigid
+    points keep their typical spread (the face's distance to the camera taken out) and the whole take so
+    the outer eye corners are ``eye_corners_m`` apart."""
     markers = result.markers if isinstance(result, LandmarkResult) else result
-    p = markers.positions * np.array([1.0, -1.0, -1.0])
+    p = markers.positions[..., [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
     rigid = [markers.names.index(n) for n in RIGID]
     core = p[:, rigid]
     spread = np.sqrt(np.nanmean(np.sum((core - np.nanmean(core, axis=1, keepdims=True)) ** 2, axis=2), axis=1))
