@@ -62,21 +62,24 @@ def find_models(models=None):
     ------
     LandmarkModelsMissing naming where it looked and what to install.
     """
+    if models is not None:  # a folder the user named is the only place looked
+        paths = {role: Path(models).expanduser() / name for role, name in MODEL_FILES.items()}
+        missing = [p.name for p in paths.values() if not p.is_file()]
+        if missing:
+            raise FacecapError(f"{models}: no {', '.join(missing)} in this folder (the face-landmark models)")
+        return paths
     candidates, looked = [], []
-    for folder in (models, os.environ.get(ENVIRONMENT) or None, BUNDLED, cache_models_dir()):
+    for folder in (os.environ.get(ENVIRONMENT) or None, BUNDLED, cache_models_dir()):
         if folder is not None:
             folder = Path(folder).expanduser()
             candidates.append((str(folder), {role: folder / name for role, name in MODEL_FILES.items()}))
-    candidates += [(f"the installed mediapipe package ({paths['mesh'].parents[2]})", paths)
-                   for paths in _mediapipe_dirs()]
+    mediapipe = _mediapipe_dirs()
+    candidates += [(f"the installed mediapipe package ({paths['mesh'].parents[2]})", paths) for paths in mediapipe]
     for where, paths in candidates:
         if all(p.is_file() for p in paths.values()):
             return paths
         looked.append(where)
-    if models is not None:
-        missing = [n for n, p in zip(MODEL_FILES.values(), candidates[0][1].values()) if not p.is_file()]
-        raise FacecapError(f"{models}: no {', '.join(missing)} in this folder (the face-landmark models)")
-    raise LandmarkModelsMissing(looked + ["no mediapipe package"] * (not _mediapipe_dirs()))
+    raise LandmarkModelsMissing(looked + ([] if mediapipe else ["no mediapipe package"]))
 
 
 def load_networks(models=None):
