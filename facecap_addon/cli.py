@@ -24,6 +24,8 @@ bench [--quick] [--accuracy] [--batch] [--memory]
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
+landmark-models               put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
+                              facecap cache, for [tracking] method = "landmarks" outside Blender
 
 Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
 stderr naming the file and field; there is no traceback for those.
@@ -70,6 +72,7 @@ from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
+from ..solvers.tools.landmark_models import main as landmark_models_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
@@ -178,6 +181,10 @@ def _cmd_build_extension(args):
     return build_extension_main(args.rest)
 
 
+def _cmd_landmark_models(args):
+    return landmark_models_main([])
+
+
 def _bench_line(row):
     ratio = f"{row['ratio']:.0f}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
     return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
@@ -261,6 +268,8 @@ def build_parser():
                        add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)
     p.set_defaults(func=_cmd_build_extension)
+    p = sub.add_parser("landmark-models", help="put the face-landmark models into the facecap cache (outside Blender)")
+    p.set_defaults(func=_cmd_landmark_models)
     return parser
 
 

@@ -28,7 +28,7 @@ from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json
 from ..solvers.markers import UNIT_SCALE
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
-from ..solvers.video.cli import ProgressLine, sigint_cancels
+from ..solvers.video.cli import run_showing_progress
 from ..solvers.video.flow_config import LandmarkTake, check_against_footage
 from ..solvers.video.landmarks import metric_take, track_landmarks_job
 from ..solvers.video.reading import Footage
@@ -231,18 +231,7 @@ def _landmark_take(config, inputs, say, quiet):
     video = config.video
     footage = Footage(video.path, **video.footage, color=True)
     job = track_landmarks_job(footage, smoothing=video.smoothing, iris=video.iris, models=video.models)
-    shown = None if quiet else ProgressLine(sys.stderr, "landmarks")
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            found = job.run(progress)
-        finally:
-            if shown is not None:
-                shown.close_line()
+    found = run_showing_progress(job, "landmarks", quiet=quiet)
     say(found.summary())
     info = footage.info
     source = {"format": "video landmarks", "units": "m", "kind": info.kind, "fps": info.fps, "width": info.width,
@@ -359,19 +348,7 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.footage is None:
         return job.run()
-    shown = None if quiet else ProgressLine(sys.stderr, f"flow ({request.flow.method})")
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            result = job.run(progress)
-        finally:
-            if shown is not None:
-                shown.close_line()
-    return result
+    return run_showing_progress(job, f"flow ({request.flow.method})", quiet=quiet)
 
 
 def versions_folder(config):

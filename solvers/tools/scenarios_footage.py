@@ -19,6 +19,8 @@ chosen quality, mp4 (MPEG-4 part 2 at OpenCV's fixed rate control) or VP8.
 Frame numbers follow the project's convention: frame 1 is the first frame of the clip.
 """
 
+import importlib.util
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -224,8 +226,6 @@ def dead_leaves(size, rng):
 def photograph_files():
     """Real photographs to texture footage with: the CC0 studio-light panoramas that ship in the bpy
     wheel (Poly Haven; forest, city, courtyard, interior, ...), found without importing bpy."""
-    import importlib.util  # deferred: only the "photo" texture needs it
-
     spec = importlib.util.find_spec("bpy")
     roots = list(spec.submodule_search_locations or []) if spec else []
     files = sorted(f for r in roots for f in Path(r).glob("*/datafiles/studiolights/world/*.exr"))
@@ -238,8 +238,6 @@ def photograph_files():
 def photograph(size, rng):
     """A crop of a real photograph (one of :func:`photograph_files`, tone-mapped to grey levels) filling
     ``size`` (float32, 0..255)."""
-    import os  # deferred: only the "photo" texture needs it
-
     os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # OpenCV reads EXR only when asked to
     cv2 = _cv2()
     files = photograph_files()

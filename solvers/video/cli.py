@@ -244,6 +244,23 @@ def sigint_cancels():
             signal.signal(signal.SIGINT, restore)
 
 
+def run_showing_progress(job, label, *, quiet=False):
+    """Run a :class:`~.reading.Job` with a progress line on stderr (unless ``quiet``); Ctrl-C stops it
+    between two frames with :class:`~.reading.Cancelled` (nothing written)."""
+    shown = None if quiet else ProgressLine(sys.stderr, label)
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            return job.run(progress)
+        finally:
+            if shown is not None:
+                shown.close_line()
+
+
 def main(argv=None):
     """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 cancelled).
 
