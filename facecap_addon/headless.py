@@ -30,6 +30,7 @@ from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import run_showing_progress
 from ..solvers.video.flow_config import LandmarkTake, check_against_footage
+from ..solvers.video.gaze import with_gaze
 from ..solvers.video.landmarks import metric_take, track_landmarks_job
 from ..solvers.video.reading import Footage
 from .review import read_review_truth, write_take_review
@@ -72,6 +73,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
+    if take.landmarks is not None:  # the eyes' look from the irises: skin points cannot drive it
+        result, gazed = with_gaze(result, take.landmarks.markers.positions)
+        take.notes = tuple(take.notes) + ((f"gaze from the irises: {', '.join(gazed)}",) if gazed else ())
     outputs, extra = {}, {}
     if request.version is not None:
         extra["library"] = {"file": str(config.tuning.library), "version": request.version.name,
@@ -154,6 +158,7 @@ class _Take:
     source: dict = None  # format, units... for the report
     notes: tuple = ()
     cleaning: tuple = ()
+    landmarks: object = None  # LandmarkResult of a landmark take (pixels: the gaze)
 
     def fps(self):
         if self.markers is not None:
@@ -239,7 +244,7 @@ def _landmark_take(config, inputs, say, quiet):
     notes = tuple(inputs.notes)
     if not found.found.all():
         notes += (f"{int((~found.found).sum())} frame(s) without a face are gaps",)
-    return _Take(markers=metric_take(found), inputs=inputs, source=source, notes=notes)
+    return _Take(markers=metric_take(found, iris=False), inputs=inputs, source=source, notes=notes, landmarks=found)
 
 
 def open_target(config, say, base=None):

@@ -122,7 +122,7 @@ class ClipLandmarks(_ClipJob):
 
     @property
     def take(self):
-        return metric_take(self.result)
+        return metric_take(self.result, iris=False)  # the irises sit on the eyeballs, not on skin
 
 
 def use_landmark_defaults(settings):

@@ -136,9 +136,9 @@ class FACECAP_OT_track_clip(ClipJobOperator, bpy.types.Operator):
 
 
 class FACECAP_OT_track_face_landmarks(ClipJobOperator, bpy.types.Operator):
-    """Find the face in every frame of the scene's movie clip (no markers, no seeds) and add its 478 landmarks as
-    a 3D take, set up to solve: the head-rigid landmarks stable, the neutral detected, the binding automatic;
-    progress shows in the status bar, Esc cancels"""
+    """Find the face in every frame of the scene's movie clip (no markers, no seeds) and add its 468 skin
+    landmarks as a 3D take, set up to solve: the head-rigid landmarks stable, the neutral detected, the
+    binding automatic; progress shows in the status bar, Esc cancels"""
 
     bl_idname = "facecap.track_face_landmarks"
     bl_label = "Track Face Landmarks"

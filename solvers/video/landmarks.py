@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..markers import MarkerSet
-from .face_mesh import N_POINTS, FaceMesh
+from .face_mesh import N_MESH, N_POINTS, FaceMesh
 from .landmark_filter import smooth_landmarks
 from .reading import Footage, Job
 
@@ -161,12 +161,15 @@ def _landmark_steps(footage, mesh, smoothing):
                           smoothing={"applied": used is not None, **(used or {})}, timings=timings)
 
 
-def metric_take(result, *, eye_corners_m=EYE_CORNERS_M):
+def metric_take(result, *, eye_corners_m=EYE_CORNERS_M, iris=True):
     """The landmarks as a 3D take in metres, in the characters' convention (Z up, the face looking down
     -Y, +X the subject's left: image x, the model's depth, image y up), each frame scaled so the rigid
     points keep their typical spread (the face's distance to the camera taken out) and the whole take so
-    the outer eye corners are ``eye_corners_m`` apart."""
+    the outer eye corners are ``eye_corners_m`` apart. ``iris=False`` leaves the iris points out (they
+    sit on the eyeballs, not on the skin a solve binds to)."""
     markers = result.markers if isinstance(result, LandmarkResult) else result
+    if not iris:
+        markers = markers.subset(NAMES[:N_MESH])
     p = markers.positions[..., [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
     rigid = [markers.names.index(n) for n in RIGID]
     core = p[:, rigid]

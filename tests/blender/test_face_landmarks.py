@@ -73,7 +73,7 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
     scene.active_clip = clip
     assert bpy.ops.facecap.track_face_landmarks() == {"FINISHED"}
     settings = scene.facecap
-    assert len(settings.markers) == 478 and settings.take_name == "face.mp4 landmarks"
+    assert len(settings.markers) == 468 and settings.take_name == "face.mp4 landmarks"  # no irises: not on skin
     assert {m.name for m in settings.markers if m.stable} == set(RIGID)
     assert settings.neutral_mode == "DETECT" and settings.binding_mode == "nearest"
     empties = settings.marker_collection.objects

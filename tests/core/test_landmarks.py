@@ -148,3 +148,23 @@ def test_track_config_for_landmarks_needs_no_seeds_and_refuses_them(tmp_path):
                     '[output]\nmarkers = "lm.csv"\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=r"\['win_size'\] do not apply"):
         load_track_config(path)
+
+
+def test_gaze_weights_follow_the_irises_as_arkit_sets_them():
+    from facecap.solvers.video.gaze import EYEBALL, gaze_weights
+
+    F = 30
+    p = np.zeros((F, len(NAMES), 3))
+    p[:, 33, :2], p[:, 133, :2] = [100.0, 100.0], [130.0, 100.0]  # the subject's right eye (image left)
+    p[:, 362, :2], p[:, 263, :2] = [170.0, 100.0], [200.0, 100.0]
+    p[:, 468, :2], p[:, 473, :2] = [115.0, 100.0], [185.0, 100.0]
+    look = np.arange(F) >= 20  # the last 10 frames look 20 degrees to the subject's left (image right)
+    shift = 30.0 * EYEBALL * np.sin(np.radians(20.0))
+    p[look, 468, 0] += shift
+    p[look, 473, 0] += shift
+    w = gaze_weights(p)
+    np.testing.assert_allclose(w["eyeLookOutLeft"][look], 20 / 35, atol=1e-9)  # the left eye looks out
+    np.testing.assert_allclose(w["eyeLookInRight"][look], 20 / 35, atol=1e-9)  # the right eye looks in
+    for name in ("eyeLookInLeft", "eyeLookOutRight", "eyeLookUpLeft", "eyeLookDownRight"):
+        assert np.all(w[name] == 0), name
+    assert np.all(w["eyeLookOutLeft"][~look] == 0)
