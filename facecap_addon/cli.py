@@ -16,11 +16,11 @@ tune --config take.toml       retune what the strategy learned from [tuning] cor
 batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
   [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
   [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
-bench [--quick] [--accuracy] [--batch] [--memory]
+bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks]
                               time the solve, the keying and the whole CLI, with ratios to naive baselines;
                               --accuracy: accuracy over random scenarios; --batch: batch --jobs 2 against
                               sequential retarget runs; --memory: peak memory of the CLI's process tree on
-                              long takes
+                              long takes; --landmarks: face landmarks on rendered footage of a real face
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
@@ -82,6 +82,7 @@ from .batch_worker import serve  # noqa: E402
 from .bench import MEMORY_FRAMES, bench_batch, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
 from .demo import run_demo  # noqa: E402
 from .headless import progress_line, run_take  # noqa: E402
+from .landmark_bench import main as landmark_bench_main  # noqa: E402
 from .review import review_flags  # noqa: E402
 
 
@@ -160,6 +161,8 @@ def _cmd_convert(args):
 
 
 def _cmd_bench(args):
+    if args.landmarks:  # renders a real face performing a recording, then retargets the footage (minutes)
+        return landmark_bench_main(["--frames", args.frames if args.frames != "60" else "300"])
     if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
         return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
     if args.memory:  # the memory case on its own (it takes minutes per take)
@@ -244,6 +247,8 @@ def build_parser():
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.add_argument("--accuracy", action="store_true", help="accuracy over random scenarios instead (stabilisation, "
                    "solve, tracking, flow) side by side with plain references")
+    p.add_argument("--landmarks", action="store_true", help="face landmarks on rendered footage of the ICT face "
+                   "performing a Live Link Face recording, retargeted onto another identity and the sample character")
     p.add_argument("--draws", default="30", help="--accuracy: random marker takes (default 30)")
     p.add_argument("--clips", default="3", help="--accuracy: clips per footage kind (default 3)")
     p.add_argument("--size", default="640x480", help="--accuracy: footage resolution (default 640x480)")
