@@ -111,6 +111,7 @@ def run(out_dir, *, frames=300, start=1500, hold=45, recording="llf_alex_rom_3.c
     t = time.perf_counter()
     render_face_clip(clip, neutral, quads, deltas, weights, head=head, gaze=gaze, shot=Shot(distance=0.5))
     log(f"rendered {len(weights)} frames in {time.perf_counter() - t:.0f} s: {clip}")
+    log(speed_line(clip))
     person = _ict_character(out / "person.blend", neutral, quads, names, deltas, identity, identity_seed)
     sample = Path(__file__).resolve().parents[1] / "sample_blends" / "character.blend"
     tables = {}
@@ -125,6 +126,18 @@ def run(out_dir, *, frames=300, start=1500, hold=45, recording="llf_alex_rom_3.c
         log(f"{label}: " + ", ".join(f"{k} {v:.3f}" for k, v in tables[label].items())
             + f" ({time.perf_counter() - t0:.0f} s, CPU {time.process_time() - c0:.0f} s)")
     return tables
+
+
+def speed_line(clip):
+    """Landmarks of ``clip`` timed: frames/s (decoding included) and CPU ms per frame of the process."""
+    from ..solvers.video.landmarks import track_landmarks
+
+    c0, t0 = time.process_time(), time.perf_counter()
+    found = track_landmarks(clip, smoothing=False)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    n = len(found.found)
+    return (f"landmarks: {n / wall:.0f} frames/s ({n} frames, decoding included), {1000 * cpu / n:.1f} ms of CPU "
+            f"per frame over all threads, {os.cpu_count()} cores")
 
 
 def _ict_character(path, neutral, quads, names, deltas, identity, seed, modes=20):
