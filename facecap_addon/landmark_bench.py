@@ -75,7 +75,7 @@ def performance(path, names, *, start, frames, hold, fps=30.0):
     head = np.zeros((len(rows), 6))
     head[:, :3] = np.nan_to_num(track.head[rows]) * [1.0, -1.0, 1.0]  # yaw, pitch, roll as the renderer turns
     eyes = np.nan_to_num(track.eyes[rows])  # left yaw/pitch/roll, right yaw/pitch/roll
-    gaze = np.stack([eyes[:, [3, 4]], eyes[:, [0, 1]]], axis=1) * [-1.0, 1.0]  # right, left: yaw to the left, pitch down
+    gaze = np.stack([eyes[:, [3, 4]], eyes[:, [0, 1]]], axis=1) * [-1.0, 1.0]  # right, left; yaw to the left
     return weights * ease, head * ease, gaze * ease[..., None]
 
 

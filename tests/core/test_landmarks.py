@@ -90,8 +90,8 @@ def test_rigid_landmarks_are_named_landmarks():
 
 
 # -- configs ---------------------------------------------------------------------------------------------
-FOUR = '[target]\nblend = "c.blend"\nobject = "Face"\n[source]\nvideo = "clip.mp4"\n[tracking]\nmethod = "landmarks"\n' \
-       '[output]\nweights = "w.csv"\n'
+FOUR = ('[target]\nblend = "c.blend"\nobject = "Face"\n[source]\nvideo = "clip.mp4"\n'
+        '[tracking]\nmethod = "landmarks"\n[output]\nweights = "w.csv"\n')
 
 
 def test_four_sections_make_a_geometric_take_with_landmark_defaults(tmp_path):
@@ -112,8 +112,8 @@ def test_a_landmark_take_keeps_what_the_config_says(tmp_path):
     from facecap.solvers.config import load_take_config
 
     path = tmp_path / "take.toml"
-    path.write_text(FOUR + '[neutral]\nframes = [1, 15]\n[stabilise]\nmarkers = ["lm010", "lm168", "lm234"]\n'
-                    '[tracking.x]\n'.replace("[tracking.x]\n", ""), encoding="utf-8")
+    path.write_text(FOUR + '[neutral]\nframes = [1, 15]\n[stabilise]\nmarkers = ["lm010", "lm168", "lm234"]\n',
+                    encoding="utf-8")
     s = load_take_config(path).settings
     assert s.neutral_frames == (1, 15) and not s.neutral_detect and s.stable_markers == ("lm010", "lm168", "lm234")
 
