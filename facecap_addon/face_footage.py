@@ -13,7 +13,7 @@ afterwards; the command line runs it headless (``python -m facecap render-face``
 """
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +27,7 @@ SCLERA, IRIS, PUPIL, CAVITY = (0.92, 0.90, 0.88), (0.30, 0.20, 0.12), (0.02, 0.0
 @dataclass(frozen=True)
 class Shot:
     """How a clip is filmed: resolution, rate, camera (azimuth and elevation in degrees from the face's
-    front, distance in metres, lens mm), key light turn (degrees), codec and quality."""
+    front, distance in metres, lens mm), key light turn (degrees), codec and quality, antialiasing."""
 
     size: tuple = (640, 480)
     fps: float = 30.0
@@ -38,7 +38,7 @@ class Shot:
     light: float = 40.0
     codec: str = "H264"  # Blender's FFmpeg codec: "H264", "MPEG4", "FFV1"
     quality: str = "MEDIUM"  # constant rate factor: "HIGH", "MEDIUM", "LOW", "VERYLOW", "LOWEST"
-    extras: dict = field(default_factory=dict)
+    antialiasing: str = "FXAA"  # Workbench's samples: "FXAA" (one render), "5", "8" (that many)
 
 
 def _srgb_to_linear(c):
@@ -228,7 +228,7 @@ class _Set:
         shading.show_shadows, shading.shadow_intensity = True, 0.6
         shading.show_specular_highlight = True
         shading.studiolight_rotate_z = math.radians(shot.light)
-        scene.display.render_aa = shot.extras.get("aa", "FXAA")
+        scene.display.render_aa = shot.antialiasing
         scene.view_settings.view_transform = "Standard"
         scene.world = world = bpy.data.worlds.new("FaceCap Face Footage")
         world.color = (0.05, 0.06, 0.08)
