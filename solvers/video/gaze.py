@@ -19,16 +19,20 @@ from ..character.aliases import match_names
 EYEBALL = 0.42
 #: Degrees of yaw and pitch at which ARKit's eye-look weights reach 1.
 YAW_FULL, PITCH_FULL = 35.0, 30.0
-#: (iris centre, outer corner, inner corner, ARKit side) per eye; image x runs to the subject's left.
-EYES = ((468, 33, 133, "Right"), (473, 263, 362, "Left"))
+#: (iris centre, outer corner, inner corner, upper lid, lower lid, ARKit side) per eye; image x runs to the
+#: subject's left.
+EYES = ((468, 33, 133, 159, 145, "Right"), (473, 263, 362, 386, 374, "Left"))
+#: An eye whose lids are closer than this fraction of their usual gap hides its iris: its gaze is held.
+CLOSED = 0.5
 SHAPES = tuple(f"eyeLook{d}{side}" for side in ("Left", "Right") for d in ("Up", "Down", "In", "Out"))
 
 
 def eye_angles(positions):
     """{side: (yaw towards the subject's left, pitch downwards) in degrees, each (F,)} from landmark
-    pixels (F, 478, >=2), relative to the eye's median pose (looking ahead most of the time)."""
+    pixels (F, 478, >=2), relative to the eye's median pose (looking ahead most of the time). While the
+    lids are closed (a blink hides the iris) the angles are carried over from the open frames around."""
     out = {}
-    for iris, outer, inner, side in EYES:
+    for iris, outer, inner, upper, lower, side in EYES:
         p = positions[..., :2]
         a, b = p[:, outer], p[:, inner]
         axis = a - b if side == "Left" else b - a  # image left -> right across the eye
@@ -38,6 +42,12 @@ def eye_angles(positions):
         d = p[:, iris] - 0.5 * (a + b)
         u, v = np.sum(d * x, axis=1) / width, np.sum(d * y, axis=1) / width
         u, v = u - np.nanmedian(u), v - np.nanmedian(v)
+        lids = np.linalg.norm(p[:, upper] - p[:, lower], axis=1) / width
+        shut = ~(lids >= CLOSED * np.nanmedian(lids))  # NaN (no face) counts as shut
+        if shut.any() and (~shut).any():
+            frames = np.arange(len(u))
+            u = np.interp(frames, frames[~shut], u[~shut])
+            v = np.interp(frames, frames[~shut], v[~shut])
         out[side] = (np.degrees(np.arcsin(np.clip(u / EYEBALL, -1, 1))),
                      np.degrees(np.arcsin(np.clip(v / EYEBALL, -1, 1))))
     return out

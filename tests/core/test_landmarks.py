@@ -158,6 +158,8 @@ def test_gaze_weights_follow_the_irises_as_arkit_sets_them():
     p[:, 33, :2], p[:, 133, :2] = [100.0, 100.0], [130.0, 100.0]  # the subject's right eye (image left)
     p[:, 362, :2], p[:, 263, :2] = [170.0, 100.0], [200.0, 100.0]
     p[:, 468, :2], p[:, 473, :2] = [115.0, 100.0], [185.0, 100.0]
+    p[:, 159, :2], p[:, 145, :2] = [115.0, 95.0], [115.0, 105.0]  # open lids
+    p[:, 386, :2], p[:, 374, :2] = [185.0, 95.0], [185.0, 105.0]
     look = np.arange(F) >= 20  # the last 10 frames look 20 degrees to the subject's left (image right)
     shift = 30.0 * EYEBALL * np.sin(np.radians(20.0))
     p[look, 468, 0] += shift
@@ -168,3 +170,6 @@ def test_gaze_weights_follow_the_irises_as_arkit_sets_them():
     for name in ("eyeLookInLeft", "eyeLookOutRight", "eyeLookUpLeft", "eyeLookDownRight"):
         assert np.all(w[name] == 0), name
     assert np.all(w["eyeLookOutLeft"][~look] == 0)
+    p[25, 386, 1] = p[25, 374, 1] = 100.0  # a blink: the iris model's guess behind the lid is not used
+    p[25, 473, 0] -= 8.0
+    assert gaze_weights(p)["eyeLookOutLeft"][25] == pytest.approx(20 / 35)
