@@ -112,7 +112,7 @@ def run(out_dir, *, frames=300, start=1500, hold=45, recording="llf_alex_rom_3.c
     render_face_clip(clip, neutral, quads, deltas, weights, head=head, gaze=gaze, shot=Shot(distance=0.5))
     log(f"rendered {len(weights)} frames in {time.perf_counter() - t:.0f} s: {clip}")
     log(speed_line(clip))
-    person = _ict_character(out / "person.blend", neutral, quads, names, deltas, identity, identity_seed)
+    person = ict_character(out / "person.blend", neutral, quads, names, deltas, identity, identity_seed)
     sample = Path(__file__).resolve().parents[1] / "sample_blends" / "character.blend"
     tables = {}
     for label, blend, obj in (("ICT identity", person, "ICT"), ("sample character", sample, "Face")):
@@ -140,14 +140,16 @@ def speed_line(clip):
             f"per frame over all threads, {os.cpu_count()} cores")
 
 
-def _ict_character(path, neutral, quads, names, deltas, identity, seed, modes=20):
+def ict_character(path, neutral, quads, names, deltas, identity, seed, modes=20, name="ICT"):
+    """Save the ICT identity drawn from ``seed`` (``modes`` coefficients) as a .blend with one object
+    ``name`` and a shape key per expression (Blender starts afresh); returns the path."""
     import bpy  # bpy: Blender starts on first import
 
     person = neutral + np.einsum("i,ivd->vd", np.random.default_rng(seed).normal(size=modes), identity[:modes])
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    mesh = bpy.data.meshes.new("ICT")
+    mesh = bpy.data.meshes.new(name)
     mesh.from_pydata(person.tolist(), [], quads.tolist())
-    obj = bpy.data.objects.new("ICT", mesh)
+    obj = bpy.data.objects.new(name, mesh)
     bpy.context.scene.collection.objects.link(obj)
     obj.shape_key_add(name="Basis")
     for name, delta in zip(names, deltas):

@@ -2,7 +2,7 @@
 headless, H.264 through Blender's own FFmpeg).
 
 The face is the ICT-FaceKit face region from ``shared/data/ict-facekit`` (``shared_data.ICT_FACEKIT``),
-its expressions under ARKit names (``browInnerUp`` and ``cheekPuff`` are ICT's two halves summed). A
+read as the landmark benchmark reads it, its expressions under ARKit names. A
 clip is a rest hold, then blinks, a jaw opening, a smile, brows, and a look to the side, with the head
 turning; ``ict_character`` writes another ICT identity as a character .blend (shape keys with the same
 names) to retarget onto.
@@ -15,11 +15,6 @@ import numpy as np
 
 from shared_data import ICT_FACEKIT
 
-#: ICT (Y up, looking along +Z, cm) -> the characters' axes (Z up, looking down -Y, metres).
-ICT_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]) * 0.01
-MERGED = ("browInnerUp", "cheekPuff")
-
-
 @dataclass(frozen=True, eq=False)
 class Face:
     neutral: np.ndarray  # (V, 3) metres
@@ -30,20 +25,10 @@ class Face:
 
 
 def ict_face(path=ICT_FACEKIT / "ict_face.npz"):
-    """The ICT face in the characters' axes with ARKit shape names."""
-    arrays = np.load(path)
-    names, deltas = [], []
-    for name, d in zip((str(n) for n in arrays["expression_names"]), arrays["expression_deltas_cm"]):
-        arkit = name[:-2] + "Left" if name.endswith("_L") else name[:-2] + "Right" if name.endswith("_R") else name
-        base = next((m for m in MERGED if arkit.startswith(m)), None)
-        if base in names:
-            deltas[names.index(base)] = deltas[names.index(base)] + d
-            continue
-        names.append(base or arkit)
-        deltas.append(d.astype(np.float64))
-    return Face(arrays["neutral_cm"].astype(np.float64) @ ICT_AXES.T, np.asarray(arrays["quads"]), tuple(names),
-                np.einsum("kvi,ji->kvj", np.stack(deltas), ICT_AXES),
-                np.einsum("kvi,ji->kvj", arrays["identity_deltas_cm"].astype(np.float64), ICT_AXES))
+    """The ICT face in the characters' axes with ARKit shape names (``landmark_bench.ict_arrays``)."""
+    from facecap.facecap_addon.landmark_bench import ict_arrays
+
+    return Face(*ict_arrays(path))
 
 
 def _bump(n, start, rise, hold, value=1.0):
@@ -94,21 +79,9 @@ def render_test_clip(path, face, *, n=N_FRAMES):
 def ict_character(path, face, *, seed=7, modes=20, name="ICT"):
     """Save another ICT identity (``modes`` identity coefficients drawn from ``seed``) as a .blend with one
     object ``name`` and a shape key per expression; returns the path."""
-    import bpy
+    from facecap.facecap_addon.landmark_bench import ict_character as save
 
-    c = np.random.default_rng(seed).normal(size=modes)
-    neutral = face.neutral + np.einsum("i,ivd->vd", c, face.identity[:modes])
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    mesh = bpy.data.meshes.new(name)
-    mesh.from_pydata(neutral.tolist(), [], face.polygons.tolist())
-    obj = bpy.data.objects.new(name, mesh)
-    bpy.context.scene.collection.objects.link(obj)
-    obj.shape_key_add(name="Basis")
-    for shape, delta in zip(face.shape_names, face.deltas):
-        key = obj.shape_key_add(name=shape)
-        key.data.foreach_set("co", (neutral + delta).astype(np.float32).ravel())
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    return Path(path)
+    return save(path, face.neutral, face.polygons, face.shape_names, face.deltas, face.identity, seed, modes, name)
 
 
 def landmark_models():
