@@ -18,8 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..solvers.config import load_take_config
 from ..solvers.io.weights import read_weights
+from ..solvers.video.landmarks import track_landmarks
 from .face_footage import Shot, render_face_clip
+from .headless import run_take
 
 #: Face regions and the ARKit shapes whose weights are judged in each.
 REGIONS = {
@@ -99,9 +102,6 @@ def region_table(solved_path, truth, names, *, skip=0):
 
 def run(out_dir, *, frames=300, start=1500, hold=45, recording="llf_alex_rom_3.csv", identity_seed=7, log=print):
     """Render, retarget onto another ICT identity and the sample character, print and return the tables."""
-    from .headless import run_take
-    from ..solvers.config import load_take_config
-
     shared = shared_folder() / "data"
     neutral, quads, names, deltas, identity = ict_arrays(shared / "ict-facekit" / "ict_face.npz")
     weights, head, gaze = performance(shared / "realdata" / "llf" / recording, names, start=start, frames=frames,
@@ -130,8 +130,6 @@ def run(out_dir, *, frames=300, start=1500, hold=45, recording="llf_alex_rom_3.c
 
 def speed_line(clip):
     """Landmarks of ``clip`` timed: frames/s (decoding included) and CPU ms per frame of the process."""
-    from ..solvers.video.landmarks import track_landmarks
-
     c0, t0 = time.process_time(), time.perf_counter()
     found = track_landmarks(clip, smoothing=False)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
