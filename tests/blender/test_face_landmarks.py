@@ -126,3 +126,25 @@ def test_a_four_section_config_retargets_the_footage_onto_another_person(rendere
     assert max(np.abs(v[rest]).max() for v in got.values()) <= 0.1  # the rest is neutral
     # Blinks and the inner brow raise are seen by the landmarks (test above) but not yet solved onto the
     # shapes (measured blink peaks 0.01-0.25 for 1.0, browInnerUp 0.0 for 0.8): docs/accuracy.md.
+
+
+def test_track_writes_the_landmarks_with_their_depth(rendered):
+    """``python -m facecap track`` with method = "landmarks": the wide CSV with x, y, z, the face's
+    confidence per frame, the report."""
+    import json
+
+    from facecap.solvers.io import read_markers
+    from facecap.solvers.video.cli import load_track_config, run_track
+
+    folder = rendered["folder"]
+    config = folder / "track.toml"
+    config.write_text('[source]\nvideo = "face.mp4"\n[tracking]\nmethod = "landmarks"\n[output]\n'
+                      'markers = "lm.csv"\nconfidence = "conf.csv"\nreport = "lm.json"\n', encoding="utf-8")
+    run_track(load_track_config(config))
+    header = (folder / "lm.csv").read_text(encoding="utf-8").splitlines()[0].split(",")
+    assert header[:4] == ["frame", "lm000_x", "lm000_y", "lm000_z"] and len(header) == 1 + 478 * 3
+    report = json.loads((folder / "lm.json").read_text(encoding="utf-8"))
+    assert report["frames_with_face"] == report["frames"] == 58 and report["detections"] == [1]
+    assert report["frame_numbering"] == "frame 1 is the first frame of the footage"
+    markers = read_markers(folder / "lm.csv", units="px")
+    assert markers.n_frames == 58 and markers.dim == 3
