@@ -30,7 +30,7 @@ from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import run_showing_progress
 from ..solvers.video.flow_config import LandmarkTake, check_against_footage
-from ..solvers.video.gaze import with_gaze
+from ..solvers.video.gaze import gaze_locks
 from ..solvers.video.landmarks import metric_take, track_landmarks_job
 from ..solvers.video.reading import Footage
 from .review import read_review_truth, write_take_review
@@ -73,9 +73,6 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
-    if take.landmarks is not None:  # the eyes' look from the irises: skin points cannot drive it
-        result, gazed = with_gaze(result, take.landmarks.markers.positions)
-        take.notes = tuple(take.notes) + ((f"gaze from the irises: {', '.join(gazed)}",) if gazed else ())
     outputs, extra = {}, {}
     if request.version is not None:
         extra["library"] = {"file": str(config.tuning.library), "version": request.version.name,
@@ -307,6 +304,12 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
                            footage=take.footage, flow=getattr(config.video, "flow", None), version=version,
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
+    if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
+        gazed = gaze_locks(_shape_names(character), take.landmarks.markers.positions)
+        settings = dataclasses.replace(request.settings, locks=tuple(request.settings.locks) + gazed)
+        request = dataclasses.replace(request, settings=settings)
+        if gazed:
+            take.notes = tuple(take.notes) + (f"gaze from the irises: {', '.join(n for n, _ in gazed)}",)
     fields = _source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()

@@ -9,8 +9,6 @@ about 35 degrees of yaw, look up minus look down = 1 at about 30 degrees of pitc
 Face recordings, which write both: correlation 0.999).
 """
 
-from dataclasses import replace
-
 import numpy as np
 
 from ..character.aliases import match_names
@@ -65,15 +63,10 @@ def gaze_weights(positions):
     return weights
 
 
-def with_gaze(result, positions):
-    """``result`` (a RetargetResult) with the character's eye-look shapes (matched to :data:`SHAPES` by
-    name or alias) set from the landmarks' irises; returns (result, names of the shapes set)."""
-    pairs, _, _ = match_names(SHAPES, result.shape_names)
-    if not pairs:
-        return result, ()
-    weights = np.array(result.weights, dtype=np.float64, copy=True)
+def gaze_locks(shape_names, positions):
+    """Per-frame locks ``((shape name, (F,) weights), ...)`` holding the character's eye-look shapes
+    (:data:`SHAPES` matched by name or alias) at the irises' gaze: the solve then explains the lids'
+    motion by what is left (blinks, squints) instead of by a look it cannot see."""
+    pairs, _, _ = match_names(SHAPES, shape_names)
     gaze = gaze_weights(positions)
-    for i, j in pairs:
-        solved = np.isfinite(weights[:, j])
-        weights[solved, j] = np.nan_to_num(gaze[SHAPES[i]][solved], nan=0.0)
-    return replace(result, weights=weights), tuple(result.shape_names[j] for _, j in pairs)
+    return tuple((shape_names[j], gaze[SHAPES[i]]) for i, j in pairs)
