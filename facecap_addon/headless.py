@@ -29,10 +29,9 @@ from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import run_showing_progress
 from ..solvers.video.flow_config import LandmarkTake, check_against_footage
-from ..solvers.video.gaze import gaze_locks
-from ..solvers.video.landmarks import metric_take, track_landmarks_job
 from ..solvers.video.reading import Footage
 from . import console
+from .landmark_take import hold_gaze, read_landmarks
 from .review import read_review_truth, write_take_review
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -222,7 +221,8 @@ def read_take(config, say, *, quiet=True):
     inputs = load_strategy_inputs(config)
     if isinstance(config.video, LandmarkTake):
         say(f"[1/5] face landmarks in {config.video.path}")
-        return _landmark_take(config, inputs, say, quiet)
+        markers, source, notes, found = read_landmarks(config.video, inputs, say, quiet=quiet)
+        return _Take(markers=markers, inputs=inputs, source=source, notes=notes, landmarks=found)
     if config.video is not None:
         say(f"[1/5] reading footage {config.video.path}")
         footage = Footage(config.video.path, **config.video.footage)
@@ -246,23 +246,6 @@ def read_take(config, say, *, quiet=True):
     markers = dataclasses.replace(markers, positions=np.ascontiguousarray(markers.positions))
     return _Take(markers=markers, inputs=inputs, source={"format": imported.format, "units": imported.markers.units},
                  notes=notes, cleaning=tuple(cleaned.report.summary().splitlines()))
-
-
-def _landmark_take(config, inputs, say, quiet):
-    """The footage's face landmarks as a marker take in metres; Ctrl-C stops between two frames
-    (``Cancelled``: nothing written)."""
-    video = config.video
-    footage = Footage(video.path, **video.footage, color=True)
-    job = track_landmarks_job(footage, smoothing=video.smoothing, iris=video.iris, models=video.models)
-    found = run_showing_progress(job, "landmarks", quiet=quiet or console.quiet())
-    say(found.summary())
-    info = footage.info
-    source = {"format": "video landmarks", "units": "m", "kind": info.kind, "fps": info.fps, "width": info.width,
-              "height": info.height, "scale": info.scale, "landmarks": found.report()}
-    notes = tuple(inputs.notes)
-    if not found.found.all():
-        notes += (f"{int((~found.found).sum())} frame(s) without a face are gaps",)
-    return _Take(markers=metric_take(found, iris=False), inputs=inputs, source=source, notes=notes, landmarks=found)
 
 
 def open_target(config, say, base=None):
@@ -326,11 +309,8 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
     if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
-        gazed = gaze_locks(_shape_names(character), take.landmarks.markers.positions)
-        settings = dataclasses.replace(request.settings, locks=tuple(request.settings.locks) + gazed)
-        request = dataclasses.replace(request, settings=settings)
-        if gazed:
-            take.notes = tuple(take.notes) + (f"gaze from the irises: {', '.join(n for n, _ in gazed)}",)
+        request, note = hold_gaze(request, _shape_names(character), take.landmarks)
+        take.notes = tuple(take.notes) + ((note,) if note else ())
     fields = _source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()
