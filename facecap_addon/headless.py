@@ -28,11 +28,12 @@ from ..solvers.markers import UNIT_SCALE
 from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
-from ..solvers.video.cli import FrameProgress, sigint_cancels
-from ..solvers.video.flow_config import check_against_footage
+from ..solvers.video.cli import run_showing_progress
+from ..solvers.video.flow_config import LandmarkTake, check_against_footage
 from ..solvers.video.reading import Footage
 from . import console
 from .actor_outputs import write_actor_basis, write_profile
+from .landmark_take import hold_gaze, read_landmarks
 from .review import read_review_truth, write_take_review
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -69,7 +70,7 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     timings = {}
     base = preflight(config, tune=tune, replace=replace)
     truth = read_review_truth(config)  # a bad --truth file fails before the solve
-    take, obj, timings["read"], t_open = _read_and_open(config, say, base)
+    take, obj, timings["read"], t_open = _read_and_open(config, say, base, quiet=quiet)
     check_against_take(config, take.markers, take.inputs)
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
@@ -181,6 +182,7 @@ class _Take:
     notes: tuple = ()
     cleaning: tuple = ()
     repeats: tuple = ()  # solve notes that only repeat the notes above
+    landmarks: object = None  # LandmarkResult of a landmark take (pixels: the gaze)
 
     def fps(self):
         if self.markers is not None:
@@ -198,14 +200,14 @@ class _Take:
         return f"{len(self.inputs.weights.frames)} frames of {len(self.inputs.weights.names)} solved channels"
 
 
-def _read_and_open(config, say, base):
+def _read_and_open(config, say, base, *, quiet=False):
     """(take, target object, read seconds, open seconds). A big marker file is read in a forked
     child while Blender starts and opens the character (measured on a 36,000-frame CSV take: 1.0-1.5 s
     of reading beside 0.8-1.0 s of start-up); a bad file is read again here, so its error is raised here."""
 
     def read():
         t = time.perf_counter()
-        return read_take(config, say), time.perf_counter() - t
+        return read_take(config, say, quiet=quiet), time.perf_counter() - t
 
     def open_blend():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
@@ -220,10 +222,14 @@ def _read_and_open(config, say, base):
     return take, obj, t_read, t_open
 
 
-def read_take(config, say):
-    """Read the take's source (markers cleaned as ``[clean]`` says, footage, or solved weights) and
-    the strategy's inputs."""
+def read_take(config, say, *, quiet=True):
+    """Read the take's source (markers cleaned as ``[clean]`` says, footage, face landmarks, or
+    solved weights) and the strategy's inputs. Landmarks show progress on stderr unless ``quiet``."""
     inputs = load_strategy_inputs(config)
+    if isinstance(config.video, LandmarkTake):
+        say(f"[1/5] face landmarks in {config.video.path}")
+        markers, source, notes, found = read_landmarks(config.video, inputs, say, quiet=quiet)
+        return _Take(markers=markers, inputs=inputs, source=source, notes=notes, landmarks=found)
     if config.video is not None:
         say(f"[1/5] reading footage {config.video.path}")
         footage = Footage(config.video.path, **config.video.footage)
@@ -309,6 +315,9 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
                            footage=take.footage, flow=getattr(config.video, "flow", None), version=version,
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
+    if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
+        request, note = hold_gaze(request, _shape_names(character), take.landmarks)
+        take.notes = tuple(take.notes) + ((note,) if note else ())
     fields = _source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()
@@ -333,6 +342,8 @@ def _corrections(config, names):
 
 def _source_fields(config, take):
     """Where the take came from, for the report."""
+    if take.markers is not None and isinstance(config.video, LandmarkTake):
+        return {"video_file": config.video.path, "source": {**take.source, "fps": take.markers.fps}}
     if take.markers is not None:
         m = take.markers
         return {"markers_file": str(config.markers_path),
@@ -355,19 +366,7 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.footage is None:
         return job.run()
-    shown = None if quiet or console.quiet() else FrameProgress(f"flow ({request.flow.method})")
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            result = job.run(progress)
-        finally:
-            if shown is not None:
-                shown.close()
-    return result
+    return run_showing_progress(job, f"flow ({request.flow.method})", quiet=quiet or console.quiet())
 
 
 def versions_folder(config):

@@ -48,6 +48,7 @@ class FaceModel:
     deltas: np.ndarray
     identity: np.ndarray
     landmarks68: np.ndarray
+    polygons: np.ndarray = None  # (Q, 4) the source's quads (a renderer's faces), when it has them
     source: str = ""
     digest: str = ""  # SHA-256 of the source's float32 arrays (``source_digest``)
 
@@ -103,7 +104,7 @@ def from_ict_arrays(arrays, *, source=""):
     return FaceModel(
         neutral=neutral @ to.T, triangles=triangles, shape_names=tuple(shapes),
         deltas=np.einsum("kvi,ji->kvj", np.stack(deltas), to), identity=np.einsum("kvi,ji->kvj", ident, to),
-        landmarks68=np.asarray(arrays["landmarks_multipie68"], dtype=np.int64), source=source,
+        landmarks68=np.asarray(arrays["landmarks_multipie68"], dtype=np.int64), polygons=quads, source=source,
         digest=source_digest(arrays))
 
 

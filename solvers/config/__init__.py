@@ -30,7 +30,8 @@ from ..character.shape_options import Region
 from ..errors import ConfigError, FacecapError
 from ..options import BY_NAME, OPTIONS, SECTIONS, default
 from ..pipeline import RetargetSettings
-from ..video.flow_config import split_video_sections, video_take
+from ..video.flow_config import is_landmark_take, landmark_defaults, split_video_sections, video_take
+from ..video.landmarks import RIGID as LANDMARK_RIGID
 from .binding import parse_binding
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
@@ -138,6 +139,9 @@ def load_take_config(path, data=None):
     free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by config.tuning
 
     video_raw = split_video_sections(data)  # [source] video, [tracking], [flow]: a markerless video take
+    landmarks = is_landmark_take(video_raw)  # ... whose face landmarks are solved like markers
+    if landmarks:
+        landmark_defaults(data, LANDMARK_RIGID)
     base = path.parent
 
     def get(section, key, default=None):
@@ -153,13 +157,16 @@ def load_take_config(path, data=None):
     if units == "bu" and "unit_scale" not in read_options:
         raise ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale")
     clean = _clean_settings(path, data.get("clean", {}))
-    strategy = get("solve", "strategy", default("solve.strategy") if video_raw is None else "linear")
+    # a landmark take solves like markers, on geometric (measured there); a flow take on posed examples
+    strategy = get("solve", "strategy", default("solve.strategy") if video_raw is None else
+                   "geometric" if landmarks else "linear")
     video = None if video_raw is None else video_take(path, video_raw, data, strategy)
     if video is None:
         _check_source(path, data, strategy)
     stable, frames = (), [1, 1]
     normalise = {}
-    if video is None and (strategy != "parallel" or "markers" in data.get("stabilise", {}) or data.get("neutral")):
+    if (video is None or landmarks) and (strategy != "parallel" or "markers" in data.get("stabilise", {})
+                                         or data.get("neutral")):
         stable, frames, normalise = _stabilise_neutral(path, data, resolve)
     numbers = {key: get(section, key, default(f"{section}.{key}")) for section, key in (
         ("solve", "regularisation"), ("solve", "sparsity"), ("solve", "symmetry"),

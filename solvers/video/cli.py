@@ -13,7 +13,7 @@ Config (paths relative to the config file)::
     [tracking]
     points = "points2d.csv"     # name,x,y at the reference frame (source pixels) ...
     region = [x, y, w, h]       # ... or automatic features in this box
-    method = "lk"               # "lk" | "dis" | "farneback" | "tvl1"
+    method = "lk"               # "lk" | "dis" | "farneback" | "tvl1" | "landmarks" (no points or region)
     reference = 1               # neutral reference frame (default: first frame read)
     max_points = 100            # automatic features
     reregister = true           # lk: drift control by re-registration to the reference
@@ -21,9 +21,13 @@ Config (paths relative to the config file)::
     drift = "fuse"              # dense: "fuse" | "direct" | "none"
     win_size = 21               # lk window
     fb_threshold = 1.0          # lk forward-backward threshold (working pixels)
+    smoothing = true            # landmarks: temporal filtering of the detector's jitter
+    iris = true                 # landmarks: eyelids and irises from the iris model
+    models = "folder"           # landmarks: where the three model files are (default: found)
 
     [output]
-    markers = "tracks.csv"      # frame,<name>_x,<name>_y (pixels, origin top-left; frame 1 = first frame)
+    markers = "tracks.csv"      # frame,<name>_x,<name>_y (pixels, origin top-left; frame 1 = first frame);
+                                # landmarks also <name>_z (the model's relative depth, pixels)
     confidence = "conf.csv"     # optional: frame,<name> per-sample confidence in [0, 1]
     report = "track.json"       # optional: summary, losses, re-acquisitions, footage info
 
@@ -42,10 +46,13 @@ import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import ConfigError, FacecapError
 from ..io.csv import write_markers_csv, write_weights_csv
 from ..io.files import write_json_atomic
 from .flow import track_with_flow_job
+from .landmarks import track_landmarks_job
 from .reading import Cancelled, Footage
 from .tracking import track_points_job
 from .flow_config import frame_number_error
@@ -72,7 +79,8 @@ TRACK_KEYS = {
     "tracking": {
         "points": ("", "`name,x,y` file of the points at the reference frame (source pixels); or `region`"),
         "region": ("", "[x, y, w, h] in source pixels: automatic features in this box; or `points`"),
-        "method": ("`lk`", "`lk` (Lucas-Kanade points), or dense flow: `dis`, `farneback`, `tvl1`"),
+        "method": ("`lk`", "`lk` (Lucas-Kanade points), dense flow: `dis`, `farneback`, `tvl1`, or `landmarks` "
+                           "(the face's landmarks: no `points` or `region`)"),
         "reference": ("the first frame read", "The neutral frame the points are given at"),
         "max_points": ("100", "`region`: the most features found"),
         "reregister": ("`true`", "`lk`: drift control by re-registration to the reference"),
@@ -82,15 +90,20 @@ TRACK_KEYS = {
         "fb_threshold": ("1", "`lk`: forward-backward error (working pixels) above which a point is lost"),
         "drift": ("`fuse`", "Dense flow: `fuse` (chained and direct), `direct` (to the reference) or `none`"),
         "preset": ("`balanced`", "`dis`: `ultrafast`, `fast` or `balanced` (speed against quality)"),
+        "smoothing": ("`true`", "`landmarks`: filter the detector's jitter (zero lag, fast lip motion kept)"),
+        "iris": ("`true`", "`landmarks`: eyelids and irises from the iris model"),
+        "models": ("found", "`landmarks`: folder of the three model files"),
     },
     "output": {
-        "markers": ("", "The 2D tracks: `frame,<name>_x,<name>_y` in pixels (origin top left). **Required.**"),
+        "markers": ("", "The 2D tracks: `frame,<name>_x,<name>_y` in pixels (origin top left; `landmarks` adds "
+                        "`<name>_z`, the model's depth). **Required.**"),
         "confidence": ("", "Per-sample confidence in [0, 1]: `frame,<name>,...`"),
         "report": ("", "JSON: summary, losses, re-acquisitions, footage"),
     },
 }
 SCHEMA = {section: set(keys) for section, keys in TRACK_KEYS.items()}
-METHODS = ("lk", "dis", "farneback", "tvl1")
+METHODS = ("lk", "dis", "farneback", "tvl1", "landmarks")
+LANDMARK_OPTIONS = {"smoothing", "iris", "models"}
 
 
 def load_track_config(path):
@@ -117,12 +130,16 @@ def load_track_config(path):
         raise ConfigError("missing `video` (a video file or image sequence)", path=path, key="source")
     if "markers" not in out:
         raise ConfigError("missing `markers` (the output CSV)", path=path, key="output")
-    if ("points" in trk) == ("region" in trk):
-        raise ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
-                          path=path, key="tracking")
     method = str(trk.get("method", "lk")).lower()
     if method not in METHODS:
         raise ConfigError(f"`method` must be one of {', '.join(METHODS)}; got {trk.get('method')!r}",
+                          path=path, key="tracking")
+    if method == "landmarks":
+        if "points" in trk or "region" in trk:
+            raise ConfigError("method \"landmarks\" finds the face itself: no `points` or `region`", path=path,
+                              key="tracking")
+    elif ("points" in trk) == ("region" in trk):
+        raise ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
                           path=path, key="tracking")
     region = trk.get("region")
     if region is not None and (not isinstance(region, list) or len(region) != 4
@@ -144,7 +161,16 @@ def load_track_config(path):
     footage = {k: src[k] for k in ("first", "last", "step", "scale", "fps") if k in src}
     options = {k: trk[k] for k in trk if k not in ("points", "region", "method", "reference")}
     lk_only, dense_only = {"reregister", "reseed", "win_size", "fb_threshold", "levels"}, {"drift", "preset"}
-    wrong = sorted(set(options) & (dense_only if method == "lk" else lk_only))
+    others = {"lk": dense_only | LANDMARK_OPTIONS, "landmarks": lk_only | dense_only | {"max_points"}}
+    wrong = sorted(set(options) & others.get(method, lk_only | LANDMARK_OPTIONS))
+    if method == "landmarks":
+        for key in ("smoothing", "iris"):
+            if key in options and not isinstance(options[key], bool):
+                raise ConfigError(f"expected true or false; got {options[key]!r}", path=path, key=f"tracking.{key}")
+        if "models" in options:
+            options["models"] = resolve(options["models"], "tracking.models")
+        if "reference" in trk:
+            raise ConfigError("method \"landmarks\" has no reference frame", path=path, key="tracking.reference")
     if wrong:
         raise ConfigError(f"{wrong} do not apply to method {method!r}", path=path, key="tracking")
     return {
@@ -199,9 +225,11 @@ class FrameProgress:
 def tracking_job(settings):
     """The :class:`~.reading.Job` described by ``load_track_config`` output (seeds read and checked)."""
 
-    footage = Footage(settings["video"], **settings["footage"])
+    footage = Footage(settings["video"], **settings["footage"], color=settings["method"] == "landmarks")
     common = dict(points=settings["points"], region=settings["region"], reference=settings["reference"])
     try:
+        if settings["method"] == "landmarks":
+            return track_landmarks_job(footage, **settings["options"])
         if settings["method"] == "lk":
             return track_points_job(footage, **common, **settings["options"])
         return track_with_flow_job(footage, method=settings["method"], **common, **settings["options"])
@@ -212,15 +240,23 @@ def tracking_job(settings):
 def write_outputs(settings, result, info):
     """Write the markers CSV (and the confidence CSV and JSON report when asked), each atomically."""
     write_markers_csv(settings["markers"], result.markers)
+    confidence = result.confidence
+    if confidence.ndim == 1:  # landmarks: one confidence per frame, the face's
+        confidence = np.repeat(confidence[:, None], result.markers.n_markers, axis=1)
     if settings["confidence"]:
-        write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, result.confidence)
-    if settings["report"]:
+        write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, confidence)
+    footage = {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
+               "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames}
+    if settings["report"] and settings["method"] == "landmarks":
+        write_json_atomic(settings["report"], {"summary": result.summary(), **result.report(),
+                                               "frame_numbering": "frame 1 is the first frame of the footage",
+                                               "footage": footage, "markers": list(result.markers.names)})
+    elif settings["report"]:
         write_json_atomic(settings["report"], {
             "summary": result.summary(), "method": result.method, "reference": result.reference,
             "frame_numbering": "frame 1 is the first frame of the footage",
-            "footage": {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
-                        "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames},
-            "markers": list(result.markers.names), "lost": result.lost, "reseeded": result.reseeded,
+            "footage": footage, "markers": list(result.markers.names), "lost": result.lost,
+            "reseeded": result.reseeded,
         })
 
 
@@ -257,6 +293,23 @@ def sigint_cancels():
     finally:
         if restore is not None:
             signal.signal(signal.SIGINT, restore)
+
+
+def run_showing_progress(job, label, *, quiet=False):
+    """Run a :class:`~.reading.Job` with its progress shown (:class:`FrameProgress`, unless ``quiet``);
+    Ctrl-C stops it between two frames with :class:`~.reading.Cancelled` (nothing written)."""
+    shown = None if quiet else FrameProgress(label)
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            return job.run(progress)
+        finally:
+            if shown is not None:
+                shown.close()
 
 
 DESCRIPTION = ("Track 2D markers in video footage (Lucas-Kanade points, or dense optical flow over the face) and "
