@@ -108,7 +108,9 @@ class RigModel:
         C, M, D = self.linear.shape
         L = self.linear.reshape(C, -1).T  # (P, C)
         S = self.square.reshape(C, -1).T
-        J = L[None] + 2.0 * u[:, None, :] * S[None]
+        J = np.repeat(L[None], u.shape[0], axis=0)
+        if self.square.any():
+            J += 2.0 * u[:, None, :] * S[None]
         for q, (a, b) in enumerate(self.pairs):
             P = self.pair_deltas[q].reshape(-1)
             J[:, :, a] += u[:, b, None] * P[None]

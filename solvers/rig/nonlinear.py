@@ -82,9 +82,9 @@ class _Problem:
         for a in range(0, F, BLOCK):
             s = slice(a, a + BLOCK)
             J = self.model.jacobian(u[s])
-            cJ = J * self.c[s, :, None]
-            H[s] = np.einsum("fpi,fpj->fij", cJ, J)
-            g[s] = np.einsum("fpi,fp->fi", cJ, r[s])
+            cJt = (J * self.c[s, :, None]).transpose(0, 2, 1)
+            H[s] = cJt @ J  # batched BLAS: 10x einsum's time on (512, P, C) blocks
+            g[s] = (cJt @ r[s][:, :, None])[:, :, 0]
         g += self.ridge * u + self.temporal_mul(u) + self.l1
         return H, g
 
@@ -113,9 +113,21 @@ def _band(H, temporal, free, damping, ridge):
     return ab
 
 
-def solve_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks=None, regularisation=1e-3,
-                    sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-7):
-    """Solve a take's control offsets through the rig model ``model`` (``RigModel``).
+def solve_nonlinear(model, deltas, **options):
+    """Solve a take's control offsets through the rig model ``model`` (``RigModel``); the options
+    are those of ``iterate_nonlinear``. Returns a NonlinearResult."""
+    steps = iterate_nonlinear(model, deltas, **options)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+
+
+def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks=None, regularisation=1e-3,
+                      sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-7):
+    """``solve_nonlinear`` as a generator that yields the iteration number after each Gauss-Newton
+    step (so a job can report progress and stop between steps) and returns the NonlinearResult.
 
     Parameters
     ----------
@@ -128,7 +140,7 @@ def solve_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks
     max_iter, tol : Gauss-Newton iterations at most; stop when the objective falls by less than
         ``tol`` of itself
 
-    Returns
+    Returns (from the generator)
     -------
     NonlinearResult
     """
@@ -160,7 +172,8 @@ def solve_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks
     cost = cost0 = prob.cost(u, r)
     damping, converged, it = 1e-6, False, 0
     for it in range(1, max_iter + 1):
-        H, g = prob.normal(u, r)
+        with single_blas_thread():  # small batched products: threads only contend on a busy machine
+            H, g = prob.normal(u, r)
         at_lo = (u <= lower + 1e-12) & (g > 0)
         at_hi = (u >= upper - 1e-12) & (g < 0)
         free = ~(held | at_lo | at_hi)
@@ -189,6 +202,7 @@ def solve_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks
             break
         drop = cost - c_trial
         u, r, cost = trial, r_trial, c_trial
+        yield it
         if drop <= tol * max(cost, 1e-300):
             converged = True
             break
