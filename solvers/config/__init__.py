@@ -32,6 +32,7 @@ from ..options import BY_NAME, OPTIONS, SECTIONS, default
 from ..pipeline import RetargetSettings
 from ..video.flow_config import split_video_sections, video_take
 from .binding import parse_binding
+from .rig import parse_rig
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
 
@@ -74,6 +75,7 @@ class TakeConfig:
     output_html: Path | None = None  # [output] html: the review page (solvers.tools.report)
     truth_path: Path | None = None  # retarget --truth: known weights the review page overlays (no config key)
     binding: object = None  # [binding]: BindingSettings (solvers.character.binding_map)
+    rig: object = None  # [rig]: RigSettings (solvers.config.rig), None when the target is the shape keys
 
     @property
     def binding_map_path(self):
@@ -216,6 +218,7 @@ def load_take_config(path, data=None):
         controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
         binding=binding,
+        rig=parse_rig(path, data.get("rig")),
     )
 
 
