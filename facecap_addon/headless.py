@@ -68,7 +68,8 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
     timings["load_character"] = time.perf_counter() - t1 + t_open
-    say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
+    columns = request.rig.control_names if request.rig is not None else _shape_names(request.character)
+    say(f"[3/5] solving {take.describe()} x {len(columns)} {'controls' if request.rig is not None else 'shapes'} "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
     outputs, extra = {}, {}
@@ -247,6 +248,8 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     from .take import character_target  # loads bpy
 
     settings = config.settings
+    if config.rig is not None:
+        return _rig_request(config, obj, take, tune=tune)
     binding = config.binding or BindingSettings()
     # Only geometric samples the character at bound points; the others need its shape names and ranges.
     # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
@@ -286,6 +289,28 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
         fields["binding"] = bound.report()
         take.notes = tuple(take.notes) + tuple(n.removeprefix("warning: ") for n in bound.notes
                                                if n.startswith("warning"))
+    return request, fields
+
+
+def _rig_request(config, obj, take, *, tune):
+    """The SolveRequest of a take whose target is a rig (``[rig]``): its controls are the shapes."""
+    from .rig_solve import build_rig_target  # loads bpy
+
+    if take.markers is None or config.settings.strategy != "geometric" and config.rig.method == "probed":
+        raise ConfigError("a rig's controls are solved from a marker take with the geometric strategy, or through a "
+                          "pose library (method = \"poses\") with any strategy", path=config.path, key="rig.method")
+    target, controls = build_rig_target(obj, take.markers.names, config.rig, say=progress_line)
+    tuning, version = config.tuning, None
+    if tuning is not None and tuning.library is not None:
+        version = load_version(tuning.library)
+    corrections = _corrections(config, target.control_names) if tune else None
+    request = SolveRequest(character=None, settings=config.settings, inputs=take.inputs, markers=take.markers,
+                           version=version, corrections=corrections, mu=None if tuning is None else tuning.mu,
+                           parent="" if version is None else version.name, controls=config.controls or None,
+                           rig=target)
+    fields = _source_fields(config, take)
+    fields["rig"] = {"method": config.rig.method, "preset": config.rig.preset, "object": config.rig.object,
+                     "controls": [c.name for c in controls]}
     return request, fields
 
 
@@ -388,7 +413,13 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     def key_and_save():
         t3 = time.perf_counter()
         say("[4/5] keying")
-        action = key_weights(obj, result, anim.unique_action_name(config.action_name))
+        if config.rig is not None:
+            from .rig_keying import key_controls  # loads bpy
+            from .rig_solve import rig_controls  # loads bpy
+
+            action = key_controls(rig_controls(config.rig, obj), result, config.action_name)[0]
+        else:
+            action = key_weights(obj, result, anim.unique_action_name(config.action_name))
         fit_scene_to_take(bpy.context.scene, result.frames, fps)
         timings["key"] = time.perf_counter() - t3
         say("[5/5] writing outputs")

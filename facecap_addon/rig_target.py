@@ -67,6 +67,7 @@ class Control:
         obj, attr = self._target()
         if obj is None:
             self.owner[attr] = value
+            self.owner.update_tag()  # a custom property set from Python does not tag its drivers' readers
             return
         if self.index < 0:
             setattr(obj, attr, value)

@@ -2,10 +2,10 @@
 
 For control offsets u = c - rest (C,) the bound points move by::
 
-    x(u) = sum_i u_i L_i + sum_i u_i^2 S_i + sum_q u_a(q) u_b(q) P_q          (M, D) each
+    x(u) = sum_i (u_i L_i + u_i^2 S_i + u_i^3 T_i) + sum_q u_a(q) u_b(q) P_q          (M, D) each
 
-``L`` is the first-order effect of each control, ``S`` its own curvature (a driver's ``s * s``, a
-bone's rotation, an in-between shape) and ``P`` the pairwise terms (a corrective or combination
+``L`` is the first-order effect of each control, ``S`` and ``T`` its own curvature (a driver's
+``s * s`` or smoothstep, a bone's rotation, an in-between shape) and ``P`` the pairwise terms (a corrective or combination
 shape firing on ``w_a * w_b``, a product driver, a bone's rotation acting on another's offset).
 The model is fitted from probes of the real rig (``fit_model``) or written down directly from
 shape keys and their corrective drivers. ``solvers.rig.nonlinear`` solves it; its secant ``basis``
@@ -29,7 +29,7 @@ class RigModel:
     control_names : tuple of str, length C
     marker_names : tuple of str, length M
     neutral : ndarray (M, D), the bound points with every control at rest
-    linear, square : ndarray (C, M, D)
+    linear, square, cube : ndarray (C, M, D)
     pairs : ndarray (Q, 2) of control indices (a < b)
     pair_deltas : ndarray (Q, M, D)
     rest, lower, upper : ndarray (C,), the controls' rest values and limits (raw control values)
@@ -40,6 +40,7 @@ class RigModel:
     neutral: np.ndarray
     linear: np.ndarray
     square: np.ndarray
+    cube: np.ndarray
     pairs: np.ndarray
     pair_deltas: np.ndarray
     rest: np.ndarray
@@ -54,7 +55,7 @@ class RigModel:
         D = neutral.shape[1]
         pairs = np.asarray(self.pairs, dtype=np.intp).reshape(-1, 2)
         fields = {"neutral": neutral, "pairs": pairs}
-        for name, shape in (("linear", (C, M, D)), ("square", (C, M, D)), ("pair_deltas", (len(pairs), M, D))):
+        for name, shape in (("linear", (C, M, D)), ("square", (C, M, D)), ("cube", (C, M, D)), ("pair_deltas", (len(pairs), M, D))):
             arr = np.asarray(getattr(self, name), dtype=np.float64)
             if arr.shape != shape:
                 raise FacecapError(f"rig model: {name} must have shape {shape}; got {arr.shape}")
@@ -96,7 +97,8 @@ class RigModel:
         """The bound points' displacement (F, M, D) for control offsets ``u`` (F, C)."""
         u = np.atleast_2d(np.asarray(u, dtype=np.float64))
         C, M, D = self.linear.shape
-        flat = u @ self.linear.reshape(C, -1) + (u * u) @ self.square.reshape(C, -1)
+        flat = u @ self.linear.reshape(C, -1) + (u * u) @ self.square.reshape(C, -1) \
+            + (u * u * u) @ self.cube.reshape(C, -1)
         if len(self.pairs):
             prod = u[:, self.pairs[:, 0]] * u[:, self.pairs[:, 1]]
             flat += prod @ self.pair_deltas.reshape(len(self.pairs), -1)
@@ -107,10 +109,11 @@ class RigModel:
         u = np.atleast_2d(np.asarray(u, dtype=np.float64))
         C, M, D = self.linear.shape
         L = self.linear.reshape(C, -1).T  # (P, C)
-        S = self.square.reshape(C, -1).T
         J = np.repeat(L[None], u.shape[0], axis=0)
         if self.square.any():
-            J += 2.0 * u[:, None, :] * S[None]
+            J += 2.0 * u[:, None, :] * self.square.reshape(C, -1).T[None]
+        if self.cube.any():
+            J += 3.0 * (u * u)[:, None, :] * self.cube.reshape(C, -1).T[None]
         for q, (a, b) in enumerate(self.pairs):
             P = self.pair_deltas[q].reshape(-1)
             J[:, :, a] += u[:, b, None] * P[None]
@@ -119,8 +122,8 @@ class RigModel:
 
     def secant(self):
         """(C, M, D): each control's displacement at full span (towards its farther limit) / span."""
-        side = np.where(self.upper - self.rest >= self.rest - self.lower, 1.0, -1.0)
-        return self.linear + self.square * (self.span * side)[:, None, None]
+        t = (self.span * np.where(self.upper - self.rest >= self.rest - self.lower, 1.0, -1.0))[:, None, None]
+        return self.linear + self.square * t + self.cube * t * t
 
     def basis(self):
         """The rig as a linear solve sees it: a ``Basis`` over the control offsets (bounds shifted by rest)."""
@@ -135,19 +138,19 @@ class RigModel:
             raise FacecapError(f"rig model: no bound point for marker(s) {missing}")
         idx = [lookup[n] for n in names]
         return RigModel(self.control_names, tuple(names), self.neutral[idx], self.linear[:, idx], self.square[:, idx],
-                        self.pairs, self.pair_deltas[:, idx], self.rest, self.lower, self.upper)
+                        self.cube[:, idx], self.pairs, self.pair_deltas[:, idx], self.rest, self.lower, self.upper)
 
     def is_linear(self, tol=0.0):
         """True when no square or pairwise term exceeds ``tol`` (metres at unit offsets)."""
-        curv = [np.abs(self.square).max(initial=0.0), np.abs(self.pair_deltas).max(initial=0.0)]
+        curv = [np.abs(a).max(initial=0.0) for a in (self.square, self.cube, self.pair_deltas)]
         return max(curv) <= tol
 
 
 def features(u, pairs):
-    """The model's regressors for offsets ``u`` (N, C): [u, u^2, u_a u_b] -> (N, 2C + Q)."""
+    """The model's regressors for offsets ``u`` (N, C): [u, u^2, u^3, u_a u_b] -> (N, 3C + Q)."""
     u = np.atleast_2d(np.asarray(u, dtype=np.float64))
     pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
-    return np.hstack([u, u * u, u[:, pairs[:, 0]] * u[:, pairs[:, 1]]])
+    return np.hstack([u, u * u, u * u * u, u[:, pairs[:, 0]] * u[:, pairs[:, 1]]])
 
 
 def fit_model(control_names, marker_names, neutral, offsets, deltas, *, pairs=(), rest, lower, upper, ridge=1e-9):
@@ -182,6 +185,7 @@ def fit_model(control_names, marker_names, neutral, offsets, deltas, *, pairs=()
     rms = float(np.sqrt(np.mean((X @ coef - Y) ** 2)))
     _, M, D = deltas.shape
     Q = len(pairs)
-    model = RigModel(control_names, marker_names, neutral, coef[:C].reshape(C, M, D), coef[C:2 * C].reshape(C, M, D),
-                     pairs, coef[2 * C:].reshape(Q, M, D), rest, lower, upper)
+    part = [coef[k * C:(k + 1) * C].reshape(C, M, D) for k in range(3)]
+    model = RigModel(control_names, marker_names, neutral, *part, pairs, coef[3 * C:].reshape(Q, M, D), rest, lower,
+                     upper)
     return model, rms

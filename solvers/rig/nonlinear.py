@@ -125,7 +125,7 @@ def solve_nonlinear(model, deltas, **options):
 
 
 def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks=None, regularisation=1e-3,
-                      sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-7):
+                      sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-5):
     """``solve_nonlinear`` as a generator that yields the iteration number after each Gauss-Newton
     step (so a job can report progress and stop between steps) and returns the NonlinearResult.
 

@@ -3,11 +3,11 @@
 Blender evaluates (``facecap_addon.rig_eval``); this module only plans and fits. ``probe_rig`` takes
 ``evaluate(offsets (N, C)) -> deltas (N, M, D)`` and
 
-1. moves each control alone to 1/4, 1/2 and all of its span on each side it has (its linear and
-   own-curvature terms; the *checked step*: the quadratic through the 1/4 and 1/2 probes must
-   predict the full-span probe within ``step_tol``, else the control is reported as uneven, its
-   response is not quadratic there, e.g. an in-between or a clamp, and the refinement through the
-   rig matters),
+1. moves each control alone to 1/4, 1/2, 3/4 and all of its span on each side it has (its linear
+   and own-curvature terms; the *checked step*: the cubic through rest and the 1/4, 1/2 and full
+   probes must predict the 3/4 probe within ``step_tol``, else the control is reported as uneven,
+   its response is not a cubic there, e.g. an in-between or a clamp, and the refinement through
+   the rig matters),
 2. tests every candidate pair (the rig's product drivers, plus, with ``find_pairs``, every two
    controls that move a common bound point) at the corner of their spans: the pair gets a term when
    the mixed difference x(a, b) - x(a, 0) - x(0, b) is above ``pair_tol`` of the larger one alone,
@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import FacecapError
 from .model import fit_model
 
-STEPS = (0.25, 0.5, 1.0)
+STEPS = (0.25, 0.5, 0.75, 1.0)
 
 
 @dataclass(frozen=True)
@@ -145,22 +145,22 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, up
 
 
 def _uneven(axis_d, which, C, tol, names):
-    """Controls whose response is not quadratic (the checked step): on each side, the quadratic
-    through rest and the 1/4 and 1/2 probes must predict the full-span probe within ``tol`` of it."""
+    """Controls whose response is not a cubic (the checked step): on each side, the cubic through
+    rest and the 1/4, 1/2 and full-span probes must predict the 3/4 probe within ``tol`` of its size."""
     at = {(i, t): axis_d[row] for row, (i, t) in enumerate(which)}
     out = []
     for i in range(C):
         for sign in (1.0, -1.0):
             side = sorted((t for (j, t) in at if j == i and t * sign > 0), key=abs)
-            if len(side) < 3:
+            if len(side) < 4:
                 continue
-            h = side[0]  # x(t) = t a + t^2 b through x(h), x(2h); predicted at 4h
-            x1, x2, x4 = at[(i, side[0])], at[(i, side[1])], at[(i, side[2])]
-            b = (x2 - 2 * x1) / (2 * h * h)
-            a = (x1 - h * h * b) / h
-            predicted = 4 * h * a + 16 * h * h * b
-            ref = np.abs(x4).max()
-            if ref > 0 and np.abs(predicted - x4).max() > tol * ref:
+            ts = np.array([side[0], side[1], side[3]])
+            V = np.stack([ts, ts ** 2, ts ** 3], axis=1)  # x(t) = a t + b t^2 + c t^3
+            coef = np.linalg.solve(V, np.stack([at[(i, t)].ravel() for t in ts]))
+            t = side[2]
+            predicted = (coef.T @ np.array([t, t * t, t ** 3])).reshape(at[(i, t)].shape)
+            ref = np.abs(at[(i, side[3])]).max()
+            if ref > 0 and np.abs(predicted - at[(i, t)]).max() > tol * ref:
                 out.append(names[i])
                 break
     return tuple(out)
