@@ -10,6 +10,7 @@ Blender's own evaluated mesh on a few poses when it is built and evaluates the w
 
 import numpy as np
 
+from ..solvers.engine.threads import single_blas_thread
 from ..solvers.errors import FacecapError
 from .scene_data import vertex_group_bindings
 
@@ -134,16 +135,18 @@ class RigEvaluator:
     def rest(self):
         return np.array([c.rest for c in self.controls], dtype=np.float64)
 
-    def apply(self, values):
-        for c, v in zip(self.controls, values):
-            c.set(float(v))
+    def apply(self, values, previous=None):
+        """Set the controls to ``values``; with ``previous`` (what they hold now) only those that change."""
+        for i, (c, v) in enumerate(zip(self.controls, values)):
+            if previous is None or v != previous[i]:
+                c.set(float(v))
 
     # -- evaluation --------------------------------------------------------------------------------
     def _points_numpy(self):
         co = self.base
         if self.blocks:
             vals = np.array([b.value for b in self.blocks])
-            co = co + np.tensordot(vals, self.block_deltas, axes=1)
+            co = co + (vals @ self.block_deltas.reshape(len(vals), -1)).reshape(co.shape)
         if self.armature is not None and self.bones:
             n = len(self.armature.pose.bones)
             buf = np.empty(n * 16, dtype=np.float32)
@@ -195,16 +198,19 @@ class RigEvaluator:
         saved = self.current()
         out = np.empty((len(values), len(self.marker_names), 3))
         update = self.bpy.context.view_layer.update
+        held = saved
         try:
-            for i, row in enumerate(values):
-                if self.mode == "numpy":
-                    self.apply(row)
-                    update()
-                    out[i] = self._points_numpy()
-                else:
-                    out[i] = self._points_blender(row)
-                if progress is not None and i % 64 == 63 and progress(i + 1, len(values)) is False:
-                    raise FacecapError("rig evaluation cancelled")
+            with single_blas_thread():  # tiny products per pose: BLAS threads only contend
+                for i, row in enumerate(values):
+                    if self.mode == "numpy":
+                        self.apply(row, held)
+                        held = row
+                        update()
+                        out[i] = self._points_numpy()
+                    else:
+                        out[i] = self._points_blender(row)
+                    if progress is not None and i % 64 == 63 and progress(i + 1, len(values)) is False:
+                        raise FacecapError("rig evaluation cancelled")
         finally:
             self.apply(saved)
             update()

@@ -108,12 +108,18 @@ class RigModel:
         """d deltas / d u at ``u`` (F, C): shape (F, M * D, C)."""
         u = np.atleast_2d(np.asarray(u, dtype=np.float64))
         C, M, D = self.linear.shape
-        L = self.linear.reshape(C, -1).T  # (P, C)
-        J = np.repeat(L[None], u.shape[0], axis=0)
-        if self.square.any():
-            J += 2.0 * u[:, None, :] * self.square.reshape(C, -1).T[None]
-        if self.cube.any():
-            J += 3.0 * (u * u)[:, None, :] * self.cube.reshape(C, -1).T[None]
+        F = u.shape[0]
+        J = np.empty((F, M * D, C))
+        J[:] = self.linear.reshape(C, -1).T
+        tmp = np.empty_like(J)
+        for k, coef in ((2.0, self.square), (3.0, self.cube)):
+            live = np.flatnonzero(np.abs(coef).reshape(C, -1).max(axis=1) > 0)
+            if not live.size:
+                continue
+            power = u[:, live] if k == 2.0 else u[:, live] ** 2
+            part = tmp[:, :, : live.size]
+            np.multiply(power[:, None, :], (k * coef[live].reshape(live.size, -1).T)[None], out=part)
+            J[:, :, live] += part
         for q, (a, b) in enumerate(self.pairs):
             P = self.pair_deltas[q].reshape(-1)
             J[:, :, a] += u[:, b, None] * P[None]

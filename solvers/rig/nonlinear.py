@@ -56,7 +56,8 @@ class _Problem:
         self.lower, self.upper = lower, upper
 
     def residual(self, u):
-        return self.model.deltas(u).reshape(u.shape[0], -1) - self.target
+        with single_blas_thread():
+            return self.model.deltas(u).reshape(u.shape[0], -1) - self.target
 
     def cost(self, u, r=None):
         r = self.residual(u) if r is None else r
