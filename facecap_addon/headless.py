@@ -299,7 +299,11 @@ def _rig_request(config, obj, take, *, tune):
     if take.markers is None or config.settings.strategy != "geometric" and config.rig.method == "probed":
         raise ConfigError("a rig's controls are solved from a marker take with the geometric strategy, or through a "
                           "pose library (method = \"poses\") with any strategy", path=config.path, key="rig.method")
-    target, controls = build_rig_target(obj, take.markers.names, config.rig, say=progress_line)
+    from .rig_solve import rig_binding  # loads bpy
+
+    sampling = rig_binding(obj, take.markers, config.settings, config.binding)
+    target, controls = build_rig_target(obj, take.markers.names, config.rig, say=progress_line, binding=sampling,
+                                        n_frames=take.markers.n_frames)
     tuning, version = config.tuning, None
     if tuning is not None and tuning.library is not None:
         version = load_version(tuning.library)

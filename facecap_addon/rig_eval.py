@@ -127,6 +127,9 @@ class RigEvaluator:
         self.skin = W[:, keep]
         self.bone_index = [self.armature.pose.bones.find(b) for b in self.bones]
         self.rest_inv = np.array([np.linalg.inv(_matrix(self.armature.data.bones[b].matrix_local)) for b in self.bones])
+        total = self.skin.sum(axis=1)  # the Armature modifier divides by the total weight where it is > 0
+        self.skinned = total > 1e-4
+        self.skin_normalised = self.skin / np.where(self.skinned, total, 1.0)[:, None]
 
     # -- controls ----------------------------------------------------------------------------------
     def current(self):
@@ -153,13 +156,10 @@ class RigEvaluator:
             self.armature.pose.bones.foreach_get("matrix", buf)
             pose = buf.reshape(n, 4, 4).transpose(0, 2, 1).astype(np.float64)[self.bone_index]
             to_arm = np.linalg.inv(_matrix(self.armature.matrix_world)) @ _matrix(self.mesh.matrix_world)
-            skin = np.einsum("ij,bjk,kl->bil", np.linalg.inv(to_arm), pose @ self.rest_inv, to_arm)
-            h = np.c_[co, np.ones(len(co))]
-            moved = np.einsum("bij,vj->vbi", skin[:, :3, :], h)  # (V, B, 3)
-            total = self.skin.sum(axis=1)
-            blended = np.einsum("vb,vbi->vi", self.skin, moved)
-            weighted = total > 1e-4
-            co = np.where(weighted[:, None], blended / np.maximum(total, 1e-12)[:, None], co)
+            skin = np.linalg.inv(to_arm) @ (pose @ self.rest_inv) @ to_arm  # (B, 4, 4), mesh space
+            per_vertex = (self.skin_normalised @ skin.reshape(len(skin), 16)).reshape(-1, 4, 4)
+            moved = (per_vertex[:, :3, :3] @ co[:, :, None])[:, :, 0] + per_vertex[:, :3, 3]
+            co = np.where(self.skinned[:, None], moved, co)
         return self.sample @ co
 
     def _points_blender(self, values):

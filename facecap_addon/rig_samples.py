@@ -136,13 +136,14 @@ def marker_points(mesh):
 def skin(mesh, armature, *, sigma=0.009, mouth_z=None, eye_z=None, fallback=None, reach=4):
     """Weight ``mesh`` to the deforming bones of ``armature`` by distance and add its Armature modifier.
 
-    Each vertex takes its ``reach`` nearest deforming bones with weight exp(-(d / sigma)^2); near the
+    Each vertex takes its ``reach`` nearest deforming bones (of those at rest in the rest pose) with weight exp(-(d / sigma)^2); near the
     mouth (eye) line upper and lower vertices take only bones of their side ("lip.T" / "lip.B",
     "lid.T" / "lid.B"; jaw and chin count as lower). Vertices far from every bone go to ``fallback``.
     """
     co = _coords(mesh.data)
     to_mesh = np.linalg.inv(np.array(mesh.matrix_world)) @ np.array(armature.matrix_world)
-    bones = [b for b in armature.data.bones if b.use_deform]
+    bpy.context.view_layer.update()
+    bones = [b for b in armature.data.bones if b.use_deform and _at_rest(armature.pose.bones[b.name])]
     if fallback is None:
         fallback = bones[0].name
     heads = np.array([(to_mesh @ np.r_[b.head_local, 1.0])[:3] for b in bones])
@@ -184,6 +185,13 @@ def skin(mesh, armature, *, sigma=0.009, mouth_z=None, eye_z=None, fallback=None
     return mod
 
 
+def _at_rest(pbone, tol=1e-4):
+    """True when the deforming bone sits at its rest placement in the rest pose (Rigify's stretched
+    chin and nostril bones do not when the file's rig scripts are not run)."""
+    moved = np.array(pbone.matrix) @ np.linalg.inv(np.array(pbone.bone.matrix_local)) - np.eye(4)
+    return np.abs(moved).max() <= tol
+
+
 def _side(name):
     n = name.lower()
     if "lip.t" in n or "lip_upper" in n:
@@ -204,13 +212,14 @@ def face_lines(points):
     return mouth, eye
 
 
-def bone_only_copy(mesh, name):
-    """A copy of ``mesh`` (same vertices and marker groups) without shape keys."""
+def bone_only_copy(mesh, name, *, keep_keys=False):
+    """A copy of ``mesh`` (same vertices and marker groups), without its shape keys unless ``keep_keys``
+    (idle keys: a binding by position samples the mesh through them)."""
     data = mesh.data.copy()
     obj = bpy.data.objects.new(name, data)
     for coll in mesh.users_collection:
         coll.objects.link(obj)
     obj.matrix_world = mesh.matrix_world
-    if data.shape_keys is not None:
+    if data.shape_keys is not None and not keep_keys:
         obj.shape_key_clear()
     return obj

@@ -4,6 +4,7 @@ generated headless from the metarig that ships with Blender (see ``rig_samples``
 import addon_utils
 import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ..solvers.errors import FacecapError
 from ..solvers.transforms import fit_similarity
@@ -81,6 +82,7 @@ def build_rigify_face(mesh, *, say=None):
     bpy.ops.object.select_all(action="DESELECT")
     bpy.ops.object.armature_human_metarig_add()
     meta = bpy.context.active_object
+    meta.matrix_world = np.eye(4).tolist()
     keep = {b.name for b in meta.data.bones["spine.006"].children_recursive} | set(RIGIFY_KEEP)
     eb = _edit(meta)
     for b in list(eb):
@@ -91,23 +93,21 @@ def build_rigify_face(mesh, *, say=None):
     bpy.ops.object.mode_set(mode="OBJECT")
     meta.pose.bones["spine.004"].rigify_parameters.connect_chain = False
     target = np.array([points[m] for _, _, m in RIGIFY_LANDMARKS])
-    world = np.array(mesh.matrix_world)
-    target = target @ world[:3, :3].T + world[:3, 3]
-    sim = fit_similarity(landmarks, target)
-    M = np.eye(4)
-    M[:3, :3], M[:3, 3] = sim.scale * np.asarray(sim.rotation), sim.translation
-    meta.matrix_world = [list(r) for r in M]
-    bpy.ops.object.transform_apply(location=True, rotation=True, scale=True)
+    sim = fit_similarity(target, landmarks)  # the face's own space -> the metarig's (at the origin)
     if say:
-        say(f"rigify: metarig fitted to '{mesh.name}' (scale {sim.scale:.3f}); generating")
+        say(f"rigify: the face placed on the metarig (scale {sim.scale:.3f}); generating")
     bpy.ops.pose.rigify_generate()
     rig = meta.data.rigify_target_rig
     if rig is None:
         raise FacecapError("Rigify generated no rig")
     meta.hide_set(True)
-    face = bone_only_copy(mesh, mesh.name + "Rigify")
+    face = bone_only_copy(mesh, mesh.name + "Rigify", keep_keys=True)
+    face.parent = rig
+    face.matrix_parent_inverse = np.eye(4).tolist()
+    M = np.eye(4)  # the face keeps its own units in its data; its object transform puts it on the rig
+    M[:3, :3], M[:3, 3] = sim.scale * np.asarray(sim.rotation), sim.translation
+    face.matrix_world = Matrix(M.tolist())
+    bpy.context.view_layer.update()
     mouth, eye = face_lines(points)
     skin(face, rig, mouth_z=mouth, eye_z=eye, fallback="DEF-spine.006", sigma=0.008)
-    face.parent = rig
-    face.matrix_parent_inverse = np.linalg.inv(np.array(rig.matrix_world)).tolist()
     return face, rig

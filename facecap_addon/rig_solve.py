@@ -13,6 +13,7 @@ import bpy
 import numpy as np
 
 from ..solvers.errors import FacecapError
+from ..solvers.pipeline.binding import from_record
 from ..solvers.rig import PoseLibrary, RigTarget, probe_rig
 from . import anim
 from .rig_eval import RigEvaluator
@@ -75,12 +76,33 @@ def pose_library(action, controls):
                        np.array([c.upper for c in controls]))
 
 
-def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=None):
+#: Rig evaluations per refinement round at most: longer takes are evaluated on every n-th frame.
+REFINE_EVALUATIONS = 400
+
+
+def rig_binding(mesh, markers, settings, binding):
+    """{marker: (vertex indices, weights)} where the take's markers sit on ``mesh``: its vertex groups,
+    or a binding by position (``[binding]`` map / nearest; the mesh needs its shape keys for it)."""
+    if binding is None or not binding.by_position:
+        return None
+    from .scene_binding import geometric_character  # the binding by position of the shape-key path
+
+    if mesh.data.shape_keys is None:
+        raise FacecapError(f"[binding] mode \"{binding.mode}\" binds on a mesh with shape keys; '{mesh.name}' has "
+                           "none: name vertex groups after the markers instead")
+    bound = geometric_character(mesh, markers, settings, binding, rebind=True)
+    sampling, _, _ = from_record(bound.record, len(mesh.data.vertices), markers.names)
+    return {n: (np.asarray(c, dtype=np.intp), np.asarray(w, dtype=np.float64)) for n, (c, w) in sampling.items()}
+
+
+def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=None, binding=None, n_frames=None):
     """(RigTarget, controls) of ``mesh``'s rig at the markers ``marker_names``; ``say`` gets a line
-    on what was probed, ``progress(done, total) -> bool`` sees the probes (False cancels)."""
+    on what was probed, ``progress(done, total) -> bool`` sees the probes (False cancels);
+    ``binding``: {marker: (vertices, weights)} (default: vertex groups named after the markers);
+    ``n_frames``: the take's length (long takes are refined through the rig on every n-th frame)."""
     t0 = time.perf_counter()
     controls = rig_controls(rig_settings, mesh)
-    evaluator = RigEvaluator(mesh, controls, marker_names)
+    evaluator = RigEvaluator(mesh, controls, marker_names, binding=binding)
     names = tuple(c.name for c in controls)
     rest = evaluator.rest()
     lower = np.array([c.lower for c in controls])
@@ -106,5 +128,7 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
         say(f"rig: {len(controls)} controls probed with {report.probes} poses in {info['seconds']:.1f} s "
             f"({len(report.pairs)} pairwise terms; model error {report.holdout_rms * 1e3:.3f} mm on held-out poses)")
     evaluate = evaluator.deltas if rig_settings.refine else None
-    target = RigTarget("probed", model=model, nonlinear=rig_settings.nonlinear, evaluate=evaluate, info=info)
+    stride = max(1, -(-int(n_frames or 0) // REFINE_EVALUATIONS))
+    target = RigTarget("probed", model=model, nonlinear=rig_settings.nonlinear, evaluate=evaluate,
+                       refine_stride=stride, info=info)
     return target, controls

@@ -35,6 +35,7 @@ class RigTarget:
     refine_mm : frames where the rig and the model differ by more than this (mm, RMS over the
         markers) are refined through the rig
     refine_rounds : refinement rounds at most
+    refine_stride : the rig is evaluated on every n-th frame of a refinement round (1: every frame)
     max_iter : Gauss-Newton iterations per solve
     info : what building the target found (probing report), carried into ``info["rig"]``
     """
@@ -47,6 +48,7 @@ class RigTarget:
     evaluate: object = None
     refine_mm: float = 0.05
     refine_rounds: int = 2
+    refine_stride: int = 1
     max_iter: int = 20
     info: dict = field(default_factory=dict)
 
@@ -123,7 +125,8 @@ class RigTarget:
         u, rms, refined = nl.offsets, nl.residual_rms, 0
         evaluate = self.evaluate
         for _ in range(self.refine_rounds if evaluate is not None else 0):
-            defect, bad = rig_defect(evaluate, model, u, self.model.marker_names, result.marker_names, self.refine_mm)
+            defect, bad = rig_defect(evaluate, model, u, self.model.marker_names, result.marker_names, self.refine_mm,
+                                     self.refine_stride)
             if not bad.any():
                 break
             refined = max(refined, int(bad.sum()))
@@ -146,13 +149,24 @@ def _mean_mm(values):
     return round(float(values.mean() * 1e3), 6) if values.size else None
 
 
-def rig_defect(evaluate, model, u, all_markers, used, refine_mm):
+def rig_defect(evaluate, model, u, all_markers, used, refine_mm, stride=1):
     """What the real rig adds to ``model`` at offsets ``u`` (F, C), on the frames where it matters:
-    (defect (F, M, D) zero elsewhere, those frames (F,) bool). The rig is evaluated on every frame
-    (its bone matrices or driven values, then the bound points in numpy), once per round."""
+    (defect (F, M, D) zero elsewhere, those frames (F,) bool). The rig is evaluated on every
+    ``stride``-th frame (and the last) and the defect interpolated between them: the controls move
+    smoothly, and so does what the model misses."""
     idx = [list(all_markers).index(n) for n in used]
-    real = evaluate(u)[:, idx]
-    defect = real - model.deltas(u)
+    F = u.shape[0]
+    at = np.unique(np.r_[np.arange(0, F, max(int(stride), 1)), F - 1])
+    real = evaluate(u[at])[:, idx]
+    sampled = real - model.deltas(u[at])
+    if len(at) == F:
+        defect = sampled
+    else:
+        flat = sampled.reshape(len(at), -1)
+        defect = np.empty((F, flat.shape[1]))
+        for j in range(flat.shape[1]):
+            defect[:, j] = np.interp(np.arange(F), at, flat[:, j])
+        defect = defect.reshape((F,) + sampled.shape[1:])
     size = np.sqrt((defect ** 2).sum(axis=2).mean(axis=1))
     bad = size > refine_mm * 1e-3
     defect[~bad] = 0.0
