@@ -11,8 +11,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..solvers.config.rig import RigSettings
+from ..solvers.errors import FacecapError
 from ..solvers.solve import SolveRequest, solve
 from . import anim, layers, take
+from .rig_keying import key_controls
+from .rig_solve import build_rig_target, rig_binding, rig_controls
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -28,6 +32,8 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     strategy = settings.strategy if footage is None else settings.video.flow_strategy
     markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
     rsettings = replace(take.retarget_settings(settings), strategy=strategy)
+    if settings.rig_preset != "NONE" and footage is None:
+        return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu)
     if strategy == "geometric":  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
@@ -44,6 +50,27 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
                         parent=settings.library_active or "", controls=shape_controls(settings), fps=settings.fps)
+
+
+def rig_settings(settings):
+    """``RigSettings`` of the Solve panel's rig target (None: the shape keys)."""
+    if settings.rig_preset == "NONE":
+        return None
+    return RigSettings(preset=settings.rig_preset, object=settings.rig_object.name if settings.rig_object else None,
+                       method=settings.rig_method, poses=settings.rig_poses.name if settings.rig_poses else None,
+                       nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
+
+
+def _rig_request(settings, markers, rsettings, *, corrections, mu):
+    if markers is None:
+        raise FacecapError("a rig's controls are solved from a marker take")
+    if rsettings.strategy != "geometric" and settings.rig_method == "probed":
+        raise FacecapError("a probed rig is solved with the geometric strategy; use a pose library for the others")
+    rig = rig_settings(settings)
+    sampling = rig_binding(settings.target, markers, rsettings, binding_from_sidebar(settings))
+    target, _ = build_rig_target(settings.target, markers.names, rig, binding=sampling, n_frames=markers.n_frames)
+    return SolveRequest(character=None, settings=rsettings, markers=markers, corrections=corrections, mu=mu,
+                        controls=shape_controls(settings), fps=settings.fps, rig=target)
 
 
 def solve_take(settings, scene, **kwargs):
@@ -79,6 +106,13 @@ def key_solve(settings, result):
     A locked shape keeps its previous solve-layer curve: the solve held it at what the animator saw
     (solve layer + their keys), so re-keying that value under their keys would count them twice.
     """
+    name = settings.take_name or "FaceCap"
+    rig = rig_settings(settings)
+    if rig is not None:
+        action = key_controls(rig_controls(rig, settings.target), result, anim.unique_action_name(name),
+                              take_name=name)[0]
+        settings.last_action = action.name
+        return action
     key = settings.target.data.shape_keys
     locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
     if locked and key is not None and layers.solved_action(key) is not None:
@@ -88,7 +122,6 @@ def key_solve(settings, result):
             if not np.isnan(previous[:, j]).all():
                 weights[:, result.shape_names.index(n)] = previous[:, j]
         result = replace(result, weights=weights)
-    name = settings.take_name or "FaceCap"
     action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
     settings.last_action = action.name
     return action
