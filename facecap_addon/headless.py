@@ -294,28 +294,17 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
 
 def _rig_request(config, obj, take, *, tune):
     """The SolveRequest of a take whose target is a rig (``[rig]``): its controls are the shapes."""
-    from .rig_solve import build_rig_target  # loads bpy
+    from .rig_solve import rig_target_for_take  # loads bpy
 
-    if take.markers is None or config.settings.strategy != "geometric" and config.rig.method == "probed":
-        raise ConfigError("a rig's controls are solved from a marker take with the geometric strategy, or through a "
-                          "pose library (method = \"poses\") with any strategy", path=config.path, key="rig.method")
-    from .rig_solve import rig_binding  # loads bpy
-
-    sampling = rig_binding(obj, take.markers, config.settings, config.binding)
-    target, controls = build_rig_target(obj, take.markers.names, config.rig, say=progress_line, binding=sampling,
-                                        n_frames=take.markers.n_frames)
+    target, fields = rig_target_for_take(config, obj, take.markers, say=progress_line)
     tuning, version = config.tuning, None
     if tuning is not None and tuning.library is not None:
         version = load_version(tuning.library)
-    corrections = _corrections(config, target.control_names) if tune else None
     request = SolveRequest(character=None, settings=config.settings, inputs=take.inputs, markers=take.markers,
-                           version=version, corrections=corrections, mu=None if tuning is None else tuning.mu,
-                           parent="" if version is None else version.name, controls=config.controls or None,
-                           rig=target)
-    fields = _source_fields(config, take)
-    fields["rig"] = {"method": config.rig.method, "preset": config.rig.preset, "object": config.rig.object,
-                     "controls": [c.name for c in controls]}
-    return request, fields
+                           version=version, corrections=_corrections(config, target.control_names) if tune else None,
+                           mu=None if tuning is None else tuning.mu, parent="" if version is None else version.name,
+                           controls=config.controls or None, rig=target)
+    return request, {**_source_fields(config, take), "rig": fields}
 
 
 def _shape_names(character):
@@ -418,10 +407,9 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         t3 = time.perf_counter()
         say("[4/5] keying")
         if config.rig is not None:
-            from .rig_keying import key_controls  # loads bpy
-            from .rig_solve import rig_controls  # loads bpy
+            from .rig_solve import key_rig  # loads bpy
 
-            action = key_controls(rig_controls(config.rig, obj), result, config.action_name)[0]
+            action = key_rig(config.rig, obj, result, anim.unique_action_name(config.action_name))
         else:
             action = key_weights(obj, result, anim.unique_action_name(config.action_name))
         fit_scene_to_take(bpy.context.scene, result.frames, fps)

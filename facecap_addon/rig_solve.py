@@ -12,12 +12,14 @@ import time
 import bpy
 import numpy as np
 
-from ..solvers.errors import FacecapError
+from ..solvers.errors import ConfigError, FacecapError
 from ..solvers.pipeline.binding import from_record
 from ..solvers.rig import PoseLibrary, RigTarget, probe_rig
 from . import anim
 from .rig_eval import RigEvaluator
+from .rig_keying import key_controls
 from .rig_target import driver_pairs, preset_controls, spec_controls
+from .scene_binding import geometric_character
 
 
 def rig_controls(rig_settings, mesh):
@@ -85,8 +87,6 @@ def rig_binding(mesh, markers, settings, binding):
     or a binding by position (``[binding]`` map / nearest; the mesh needs its shape keys for it)."""
     if binding is None or not binding.by_position:
         return None
-    from .scene_binding import geometric_character  # the binding by position of the shape-key path
-
     if mesh.data.shape_keys is None:
         raise FacecapError(f"[binding] mode \"{binding.mode}\" binds on a mesh with shape keys; '{mesh.name}' has "
                            "none: name vertex groups after the markers instead")
@@ -132,3 +132,21 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
     target = RigTarget("probed", model=model, nonlinear=rig_settings.nonlinear, evaluate=evaluate,
                        refine_stride=stride, info=info)
     return target, controls
+
+
+def key_rig(rig_settings, mesh, result, action_name, *, take_name=""):
+    """Key ``result`` (over the controls of ``rig_settings``) as the solve layer of the IDs the
+    controls live on; returns the first new action (the one with the diagnostics)."""
+    return key_controls(rig_controls(rig_settings, mesh), result, action_name, take_name=take_name)[0]
+
+
+def rig_target_for_take(config, mesh, markers, *, say=None):
+    """(RigTarget, report fields) of a take config's ``[rig]``: bound as ``[binding]`` says."""
+    rig = config.rig
+    if markers is None or (config.settings.strategy != "geometric" and rig.method == "probed"):
+        raise ConfigError("a rig's controls are solved from a marker take with the geometric strategy, or through a "
+                          "pose library (method = \"poses\") with any strategy", path=config.path, key="rig.method")
+    sampling = rig_binding(mesh, markers, config.settings, config.binding)
+    target, controls = build_rig_target(mesh, markers.names, rig, say=say, binding=sampling, n_frames=markers.n_frames)
+    fields = {"method": rig.method, "preset": rig.preset, "object": rig.object, "controls": [c.name for c in controls]}
+    return target, fields

@@ -15,8 +15,7 @@ from ..solvers.config.rig import RigSettings
 from ..solvers.errors import FacecapError
 from ..solvers.solve import SolveRequest, solve
 from . import anim, layers, take
-from .rig_keying import key_controls
-from .rig_solve import build_rig_target, rig_binding, rig_controls
+from .rig_solve import build_rig_target, key_rig, rig_binding
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -109,8 +108,7 @@ def key_solve(settings, result):
     name = settings.take_name or "FaceCap"
     rig = rig_settings(settings)
     if rig is not None:
-        action = key_controls(rig_controls(rig, settings.target), result, anim.unique_action_name(name),
-                              take_name=name)[0]
+        action = key_rig(rig, settings.target, result, anim.unique_action_name(name), take_name=name)
         settings.last_action = action.name
         return action
     key = settings.target.data.shape_keys
