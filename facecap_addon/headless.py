@@ -417,7 +417,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         say("[5/5] writing outputs")
         if config.output_blend is not None:
             _save_blend_atomic(config.output_blend)
-        _export(config, obj, fps)
+        _export(config, obj, fps, result.frames)
         return action
 
     def write_weights():
@@ -455,12 +455,15 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     return outputs
 
 
-def _export(config, obj, fps):
-    """[output] gltf / fbx: the character and the keyed take through Blender's exporters."""
+def _export(config, obj, fps, frames=None):
+    """[output] gltf / fbx: the character and the keyed take through Blender's exporters (a rig: its bones)."""
     from .export import export_take  # loads bpy
+    from .rig_export import export_rig_take  # loads bpy
 
     for path in (config.output_gltf, config.output_fbx):
-        if path is not None:
+        if path is not None and config.rig is not None:
+            export_rig_take(obj, path, frames=frames, take_name=config.action_name)
+        elif path is not None:
             export_take(obj, path, head_target=config.settings.head_target, fps=fps, take_name=config.action_name)
 
 

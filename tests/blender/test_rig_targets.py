@@ -1,0 +1,166 @@
+"""A rig as the target, on the three test rigs with ground truth (small takes; ``python -m facecap bench
+--rig`` gives the full figures): the sample character's control rig (sliders driving its shape keys
+through nonlinear drivers, plus corrective and in-between shapes), a bone-only face, and a Rigify face
+generated headless from the metarig that ships with Blender. Each is driven by known control curves,
+made into a marker take (head motion, noise, gaps), solved back from a take config, and compared on
+the controls and on the mesh at the bound points."""
+
+import json
+from pathlib import Path
+
+import bpy
+import numpy as np
+import pytest
+
+from facecap.facecap_addon import rig_samples, rig_samples_rigs, rig_target
+from facecap.facecap_addon.headless import run_take
+from facecap.facecap_addon.rig_eval import RigEvaluator
+from facecap.solvers.config import load_take_config
+from facecap.solvers.io import read_markers, write_markers
+from facecap.solvers.io.csv_write import write_weights_csv
+from facecap.solvers.tools.synth import performance_weights, synthesize_points
+
+ROOT = Path(__file__).resolve().parents[2]
+CHARACTER = ROOT / "sample_blends" / "character.blend"
+STABLE = ["head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",
+          "head_nose_bridge_C", "head_side_L", "head_side_R"]
+FRAMES = 400
+
+
+def open_character():
+    bpy.ops.wm.open_mainfile(filepath=str(CHARACTER))
+    return bpy.data.objects["Face"]
+
+
+def control_curves(controls, n_frames, *, seed=0, rest=60):
+    """Known control curves: a few smooth bumps per control within 60 % of its range, at rest at both ends."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames)
+    out = np.zeros((n_frames, len(controls)))
+    for j, c in enumerate(controls):
+        for _ in range(2):
+            centre, width = rng.uniform(rest + 30, n_frames - rest - 30), rng.uniform(30, 80)
+            side = c.upper if rng.uniform() < 0.5 or c.lower == c.rest else c.lower
+            out[:, j] += 0.6 * rng.uniform(0.3, 1.0) * (side - c.rest) * np.exp(-0.5 * ((t - centre) / (width / 4)) ** 2)
+    lo, hi = np.array([c.lower for c in controls]), np.array([c.upper for c in controls])
+    return np.clip(out + np.array([c.rest for c in controls]), lo, hi)
+
+
+def write_take(folder, mesh, controls, values, *, seed=5):
+    """The marker take of the rig on ``mesh`` performing control ``values`` (F, C); returns its bound points."""
+    evaluator = RigEvaluator(mesh, controls, [g.name for g in mesh.vertex_groups])
+    points = evaluator.evaluate(values)
+    take = synthesize_points(evaluator.marker_names, points, values, stable=STABLE, seed=seed)
+    write_markers(folder / "take.csv", take.markers)
+    return evaluator, points
+
+
+def config(folder, name, obj, rig="", outputs=""):
+    path = folder / f"{name}.toml"
+    path.write_text(f'[target]\nblend = "rig.blend"\nobject = "{obj}"\n[source]\nmarkers = "take.csv"\nunits = "mm"\n'
+                    f'fps = 60\n[stabilise]\nmarkers = {json.dumps(STABLE)}\n[neutral]\nframes = [1, 50]\n{rig}'
+                    f'[output]\nweights = "{name}.csv"\n{outputs}')
+    return load_take_config(path)
+
+
+def solved(result, names):
+    index = [result.shape_names.index(n) for n in names]
+    return result.weights[:, index]
+
+
+def rmse(a, b):
+    return float(np.sqrt(np.nanmean((np.asarray(a) - np.asarray(b)) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def control_rig(tmp_path_factory):
+    """Sliders -> shape keys through nonlinear drivers; the same take solved to the rig and to the keys."""
+    folder = tmp_path_factory.mktemp("control_rig")
+    mesh = open_character()
+    ctrl = rig_samples.build_control_rig(mesh, correctives=False)
+    controls = rig_target.preset_controls("arkit_sliders", mesh, ctrl)
+    names = [c.name for c in controls]
+    weights = performance_weights(names, FRAMES, seed=4)
+    sliders = rig_samples.sliders_for_weights(names, weights)
+    write_take(folder, mesh, controls, sliders)
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+    rig = run_take(config(folder, "rig", "Face", '[rig]\npreset = "arkit_sliders"\nobject = "FaceControls"\n'
+                          'probes = 300\n', 'blend = "rig_out.blend"\n'), quiet=True)[0]
+    plain = run_take(config(folder, "plain", "Face"), quiet=True)[0]
+    return folder, names, weights, sliders, rig, plain
+
+
+def test_control_rig_controls_are_solved_as_well_as_the_plain_shape_keys(control_rig):
+    """Controls RMSE within 1.2x of solving the same take to the plain shape keys."""
+    _, names, weights, sliders, rig, plain = control_rig
+    rig_error, plain_error = rmse(solved(rig, names), sliders), rmse(solved(plain, names), weights)
+    assert rig_error <= 1.2 * plain_error, (rig_error, plain_error)
+    info = rig.info["rig"]
+    assert info["method"] == "probed" and info["nonlinear"] and info["holdout_rms"] < 1e-6  # drivers fitted exactly
+    assert info["pairs"] == [] and info["unseen_controls"] == ["tongueOut"]
+
+
+def test_control_rig_is_keyed_on_the_solve_layer_and_plays_back(control_rig):
+    folder, names, _, _, rig, _ = control_rig
+    bpy.ops.wm.open_mainfile(filepath=str(folder / "rig_out.blend"))
+    ctrl, key = bpy.data.objects["FaceControls"], bpy.data.objects["Face"].data.shape_keys
+    track = ctrl.animation_data.nla_tracks["FaceCap Solve"]
+    assert track.lock and ctrl.animation_data.action is None  # the animator's layer is left free
+    frame = int(rig.frames[np.nanargmax(solved(rig, ["jawOpen"])[:, 0])])
+    bpy.context.scene.frame_set(frame)
+    k = list(rig.shape_names).index("jawOpen")
+    assert ctrl["jawOpen"] == pytest.approx(rig.weights[list(rig.frames).index(frame), k], abs=1e-5)
+    s = ctrl["jawOpen"]
+    assert key.key_blocks["jawOpen"].value == pytest.approx(s * s * (3 - 2 * s), abs=1e-5)  # through its driver
+
+
+@pytest.fixture(scope="module")
+def corrective_rig(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("corrective_rig")
+    mesh = open_character()
+    ctrl = rig_samples.build_control_rig(mesh, correctives=True)
+    controls = rig_target.preset_controls("arkit_sliders", mesh, ctrl)
+    names = [c.name for c in controls]
+    sliders = rig_samples.sliders_for_weights(names, performance_weights(names, FRAMES, seed=4))
+    write_take(folder, mesh, controls, sliders)
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+    results = {nl: run_take(config(folder, f"nl{nl}", "Face", f'[rig]\npreset = "arkit_sliders"\nobject = '
+                                   f'"FaceControls"\nprobes = 300\nnonlinear = {str(nl).lower()}\n'), quiet=True)[0]
+               for nl in (False, True)}
+    return names, sliders, results
+
+
+def test_correctives_firing_are_solved_with_half_the_linear_error(corrective_rig):
+    names, sliders, results = corrective_rig
+    index = {n: i for i, n in enumerate(names)}
+    firing = np.zeros(len(sliders), dtype=bool)
+    for _, (a, b), _ in rig_samples.CORRECTIVES:
+        firing |= sliders[:, index[a]] * sliders[:, index[b]] > 0.05
+    assert firing.sum() > 30
+    errors = {nl: rmse(solved(r, names)[firing], sliders[firing]) for nl, r in results.items()}
+    assert errors[True] <= 0.5 * errors[False], errors
+    info = results[True].info["rig"]
+    assert {tuple(p) for p in info["pairs"]} == {tuple(sorted(pair, key=names.index)) for _, pair, _ in
+                                                 rig_samples.CORRECTIVES}
+    assert info["uneven_controls"] == ["jawOpen"]  # the in-between on its middle is not a cubic
+
+
+def test_bone_only_face_is_solved_back_on_the_mesh(tmp_path):
+    mesh = open_character()
+    face, _ = rig_samples_rigs.build_bone_face(mesh)
+    specs = rig_samples_rigs.bone_face_controls()
+    controls = rig_target.spec_controls(specs, face)
+    truth = control_curves(controls, FRAMES, seed=2)
+    evaluator, points = write_take(tmp_path, face, controls, truth)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "rig.blend"))
+    rig_text = "[rig]\nprobes = 300\ncontrols = [" + ", ".join(
+        "{object = \"%s\", path = '%s'%s}" % (s["object"], s["path"], f", axes = {s['axes']}" if "axes" in s else "")
+        for s in specs) + "]\n"
+    result = run_take(config(tmp_path, "bones", face.name, rig_text), quiet=True)[0]
+    names = [c.name for c in controls]
+    got = solved(result, names)
+    span = np.array([c.upper - c.lower for c in controls])
+    assert rmse(got / span, truth / span) < 0.05  # within 5 % of each control's range
+    mesh_error = np.sqrt(np.mean(np.sum((evaluator.evaluate(got) - points) ** 2, axis=2)))
+    assert mesh_error < 0.4e-3, mesh_error  # at the bound points: about the marker noise (0.3 mm per axis)
+    assert result.info["rig"]["evaluation"] == "numpy"
