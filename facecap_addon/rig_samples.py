@@ -24,11 +24,13 @@ from ..solvers.transforms import fit_similarity
 from .scene_data import vertex_group_bindings
 
 CONTROL_OBJECT = "FaceControls"
-#: The drivers' response curves (slider s -> shape value), used in turn over the ARKit names, and their inverses.
+#: The drivers' response curves (slider s -> shape value), used in turn over the ARKit names: an S
+#: curve, ease-out and ease-in, each rising from rest (a driver flat at rest, like s * s, leaves small
+#: slider values unseen by any marker: only the priors can place them).
 RESPONSES = (
-    ("s*s*(3-2*s)", lambda w: _smoothstep_inverse(w)),
-    ("s*(2-s)", lambda w: 1.0 - np.sqrt(np.clip(1.0 - w, 0.0, 1.0))),
-    ("s*s", lambda w: np.sqrt(np.clip(w, 0.0, 1.0))),
+    ("0.4*s + 0.6*s*s*(3 - 2*s)", lambda s: 0.4 * s + 0.6 * s * s * (3 - 2 * s)),
+    ("s*(2 - s)", lambda s: s * (2 - s)),
+    ("s*(0.5 + 0.5*s)", lambda s: s * (0.5 + 0.5 * s)),
 )
 #: Corrective keys: (name, (slider a, slider b), strength): fires on a * b, moving back part of what
 #: the two keys do together (the usual "jaw open + smile" fix-up), plus a sideways push.
@@ -41,15 +43,15 @@ CORRECTIVES = (
 INBETWEEN = ("jawOpen_mid", "jawOpen", "max(0, 1 - abs(2*s - 1))", 0.35)
 
 
-def _smoothstep_inverse(w):
-    w = np.clip(np.asarray(w, dtype=np.float64), 0.0, 1.0)
-    return 0.5 - np.sin(np.arcsin(1.0 - 2.0 * w) / 3.0)
-
-
 def response_inverse(shape_names):
     """{shape: inverse of its driver's response}: the slider value that gives a shape value."""
-    names = [n for n in ARKIT_52]
-    return {n: RESPONSES[names.index(n) % len(RESPONSES)][1] for n in shape_names if n in names}
+    grid = np.linspace(0.0, 1.0, 20001)
+    out = {}
+    for n in shape_names:
+        if n in ARKIT_52:
+            curve = RESPONSES[ARKIT_52.index(n) % len(RESPONSES)][1](grid)
+            out[n] = lambda w, curve=curve: np.interp(np.clip(w, 0.0, 1.0), curve, grid)
+    return out
 
 
 def sliders_for_weights(shape_names, weights):

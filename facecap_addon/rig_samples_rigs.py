@@ -10,7 +10,7 @@ from ..solvers.errors import FacecapError
 from ..solvers.transforms import fit_similarity
 from .rig_samples import bone_only_copy, face_lines, marker_points, skin
 
-BONE_FACE = "FaceBones"
+BONE_FACE = "FaceBoneRig"
 #: (bone, marker it sits on, parent): the bone-only face; each bone points 1 cm out of the face.
 FACE_BONES = (
     ("lip_upper", "lip_upper_C", "head"), ("lip_lower", "lip_lower_C", "jaw"),
