@@ -120,10 +120,13 @@ class RigModel:
             part = tmp[:, :, : live.size]
             np.multiply(power[:, None, :], (k * coef[live].reshape(live.size, -1).T)[None], out=part)
             J[:, :, live] += part
-        for q, (a, b) in enumerate(self.pairs):
-            P = self.pair_deltas[q].reshape(-1)
-            J[:, :, a] += u[:, b, None] * P[None]
-            J[:, :, b] += u[:, a, None] * P[None]
+        if len(self.pairs):
+            P = self.pair_deltas.reshape(len(self.pairs), -1)
+            for c in np.unique(self.pairs):  # d(u_a u_b)/du_c = the other one: a (F, k) @ (k, P) product per control
+                rows_a = np.flatnonzero(self.pairs[:, 0] == c)
+                rows_b = np.flatnonzero(self.pairs[:, 1] == c)
+                other = np.concatenate([self.pairs[rows_a, 1], self.pairs[rows_b, 0]])
+                J[:, :, c] += u[:, other] @ P[np.concatenate([rows_a, rows_b])]
         return J
 
     def secant(self):

@@ -25,6 +25,8 @@ CHARACTER = ROOT / "sample_blends" / "character.blend"
 STABLE = ["head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",
           "head_nose_bridge_C", "head_side_L", "head_side_R"]
 FRAMES = 400
+#: The Rigify face: a shorter take (its rig evaluates slowest)
+RIGIFY_FRAMES = 300
 
 
 def open_character():
@@ -169,3 +171,66 @@ def test_bone_only_face_is_solved_back_on_the_mesh(tmp_path):
     mesh_error = np.sqrt(np.mean(np.sum((evaluator.evaluate(got) - points) ** 2, axis=2)))
     assert mesh_error < 0.4e-3, mesh_error  # at the bound points: about the marker noise (0.3 mm per axis)
     assert result.info["rig"]["evaluation"] == "numpy"
+
+
+@pytest.fixture(scope="module")
+def rigify_face(tmp_path_factory):
+    """Rigify's face generated headless on the sample character; known control curves solved back."""
+    folder = tmp_path_factory.mktemp("rigify")
+    mesh = open_character()
+    face, rig = rig_samples_rigs.build_rigify_face(mesh)
+    controls = rig_target.preset_controls("rigify_face", face, rig)
+    truth = control_curves(controls, RIGIFY_FRAMES, seed=3)
+    evaluator, points = write_take(folder, face, controls, truth)
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+    face_name, names, markers = face.name, [c.name for c in controls], list(evaluator.marker_names)
+    result = run_take(config(folder, "rigify", face_name, '[rig]\npreset = "rigify_face"\nobject = "rig"\nprobes = 100\n',
+                             'blend = "rig_out.blend"\ngltf = "rig_out.glb"\n'), quiet=True)[0]
+    return folder, face_name, names, truth, markers, points, result
+
+
+def test_rigify_face_is_solved_back_on_the_mesh(rigify_face):
+    folder, face_name, names, truth, markers, points, result = rigify_face
+    bpy.ops.wm.open_mainfile(filepath=str(folder / "rig.blend"))
+    face = bpy.data.objects[face_name]
+    evaluator = RigEvaluator(face, rig_target.preset_controls("rigify_face", face, bpy.data.objects["rig"]), markers)
+    mesh_error = np.sqrt(np.mean(np.sum((evaluator.evaluate(solved(result, names)) - points) ** 2, axis=2)))
+    assert mesh_error < 0.52e-3, mesh_error  # the marker noise: 0.3 mm per axis, 0.52 mm per marker in 3D
+    assert result.info["rig"]["evaluation"] == "numpy" and result.info["rig"]["controls"] == 70
+
+
+def test_rigify_face_keyed_plays_back_and_exports_bone_animation(rigify_face):
+    folder, face_name, names, *_ , result = rigify_face
+    bpy.ops.wm.open_mainfile(filepath=str(folder / "rig_out.blend"))
+    rig = bpy.data.objects["rig"]
+    assert rig.animation_data.nla_tracks["FaceCap Solve"].strips[0].action.get("facecap_solve")
+    k = names.index("jaw_master.rot_x")
+    busy = int(result.frames[np.nanargmax(np.abs(result.weights[:, list(result.shape_names).index(names[k])]))])
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    rest = np.array(rig.pose.bones["DEF-jaw"].matrix)
+    scene.frame_set(busy)
+    assert np.abs(np.array(rig.pose.bones["DEF-jaw"].matrix) - rest).max() > 1e-3  # the jaw moves on playback
+    data = (folder / "rig_out.glb").read_bytes()
+    size = int.from_bytes(data[12:16], "little")
+    gltf = json.loads(data[20:20 + size])
+    channels = [c for a in gltf["animations"] for c in a["channels"]]
+    joints = {n for s in gltf["skins"] for n in s["joints"]}
+    assert {"rotation", "translation"} <= {c["target"]["path"] for c in channels}
+    assert sum(c["target"]["node"] in joints for c in channels) > 50  # the deforming bones are animated
+
+
+def test_rigify_face_residual_is_within_1_5x_of_the_shape_keys_on_the_sample_take(rigify_face, tmp_path):
+    """The same performance (the bundled sample take) onto the Rigify face and onto the shape keys."""
+    folder, face_name, *_ = rigify_face
+    take = read_markers(ROOT / "sample_blends" / "sample_take.csv", units="mm", fps=60.0)
+    short = take.__class__(take.names, take.frames[:RIGIFY_FRAMES], take.positions[:RIGIFY_FRAMES], fps=60.0,
+                           units=take.units,
+                           source="sample take")
+    write_markers(tmp_path / "take.csv", short)
+    (tmp_path / "rig.blend").symlink_to(folder / "rig.blend")
+    rig = run_take(config(tmp_path, "rig", face_name, '[rig]\npreset = "rigify_face"\nobject = "rig"\nprobes = 100\n'),
+                   quiet=True)[0]
+    keys = run_take(config(tmp_path, "keys", "Face"), quiet=True)[0]
+    ratio = np.nanmean(rig.residual_rms) / np.nanmean(keys.residual_rms)
+    assert ratio <= 1.5, ratio
