@@ -22,6 +22,7 @@ bench [--quick] [--accuracy] [--batch] [--memory]
                               sequential retarget runs; --memory: peak memory of the CLI's process tree on
                               long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
+rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
 
@@ -58,6 +59,7 @@ if __name__ == "__main__" and not __package__:
 
 # Imported here, after the script guard: as a script this file has no package for them.
 import argparse  # noqa: E402
+import json  # noqa: E402
 import ctypes  # noqa: E402
 import signal  # noqa: E402
 import threading  # noqa: E402
@@ -149,6 +151,15 @@ def _cmd_docs_images(args):
     written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, say=progress_line)
     for name, path in written.items():
         print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)")
+    return 0
+
+
+def _cmd_rig_bench(args):
+    from .rig_bench import rig_bench  # imports bpy at once: only for this command
+
+    figures = rig_bench(capture=args.capture, frames=args.frames, sample_frames=args.sample_frames, docs=args.docs,
+                        say=progress_line)
+    print(json.dumps(figures, indent=2))
     return 0
 
 
@@ -250,6 +261,13 @@ def build_parser():
                    help="only the memory case: peak memory of `retarget`'s process tree on 36,000- and 360,000-frame "
                         "takes (with --quick 3,600 and 36,000); about 20 minutes")
     p.set_defaults(func=_cmd_bench)
+    p = sub.add_parser("rig-bench", help="the test rigs' figures (control rig, correctives, Rigify face from a capture)")
+    p.add_argument("--capture", type=Path, help="a real capture solved onto the Rigify face and the shape keys "
+                   "(e.g. c3dorg_29_Facial-Sing.c3d, bound by position)")
+    p.add_argument("--frames", type=int, default=3600, help="frames of the long Rigify take (default 3600)")
+    p.add_argument("--sample-frames", type=int, default=600, help="frames of the control-rig takes (default 600)")
+    p.add_argument("--docs", type=Path, help="also render the Rigify face from the capture to DIR/rigify_face.png")
+    p.set_defaults(func=_cmd_rig_bench)
     p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
     p.add_argument("--size", type=int, default=280, help="tile height in pixels (default: 280)")
