@@ -14,64 +14,23 @@ import pytest
 
 from facecap.facecap_addon import rig_samples, rig_samples_rigs, rig_target
 from facecap.facecap_addon.headless import run_take
+from facecap.facecap_addon.rig_bench import columns, control_curves, open_character, rmse, take_config, write_take
 from facecap.facecap_addon.rig_eval import RigEvaluator
-from facecap.solvers.config import load_take_config
 from facecap.solvers.io import read_markers, write_markers
-from facecap.solvers.io.csv_write import write_weights_csv
-from facecap.solvers.tools.synth import performance_weights, synthesize_points
+from facecap.solvers.tools.synth import performance_weights
 
 ROOT = Path(__file__).resolve().parents[2]
-CHARACTER = ROOT / "sample_blends" / "character.blend"
-STABLE = ["head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",
-          "head_nose_bridge_C", "head_side_L", "head_side_R"]
 FRAMES = 400
 #: The Rigify face: a shorter take (its rig evaluates slowest)
 RIGIFY_FRAMES = 300
 
 
-def open_character():
-    bpy.ops.wm.open_mainfile(filepath=str(CHARACTER))
-    return bpy.data.objects["Face"]
-
-
-def control_curves(controls, n_frames, *, seed=0, rest=60):
-    """Known control curves: a few smooth bumps per control within 60 % of its range, at rest at both ends."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n_frames)
-    out = np.zeros((n_frames, len(controls)))
-    for j, c in enumerate(controls):
-        for _ in range(2):
-            centre, width = rng.uniform(rest + 30, n_frames - rest - 30), rng.uniform(30, 80)
-            side = c.upper if rng.uniform() < 0.5 or c.lower == c.rest else c.lower
-            out[:, j] += 0.6 * rng.uniform(0.3, 1.0) * (side - c.rest) * np.exp(-0.5 * ((t - centre) / (width / 4)) ** 2)
-    lo, hi = np.array([c.lower for c in controls]), np.array([c.upper for c in controls])
-    return np.clip(out + np.array([c.rest for c in controls]), lo, hi)
-
-
-def write_take(folder, mesh, controls, values, *, seed=5):
-    """The marker take of the rig on ``mesh`` performing control ``values`` (F, C); returns its bound points."""
-    evaluator = RigEvaluator(mesh, controls, [g.name for g in mesh.vertex_groups])
-    points = evaluator.evaluate(values)
-    take = synthesize_points(evaluator.marker_names, points, values, stable=STABLE, seed=seed)
-    write_markers(folder / "take.csv", take.markers)
-    return evaluator, points
-
-
 def config(folder, name, obj, rig="", outputs=""):
-    path = folder / f"{name}.toml"
-    path.write_text(f'[target]\nblend = "rig.blend"\nobject = "{obj}"\n[source]\nmarkers = "take.csv"\nunits = "mm"\n'
-                    f'fps = 60\n[stabilise]\nmarkers = {json.dumps(STABLE)}\n[neutral]\nframes = [1, 50]\n{rig}'
-                    f'[output]\nweights = "{name}.csv"\n{outputs}')
-    return load_take_config(path)
+    return take_config(folder, name, obj, rig=rig, outputs=outputs)
 
 
 def solved(result, names):
-    index = [result.shape_names.index(n) for n in names]
-    return result.weights[:, index]
-
-
-def rmse(a, b):
-    return float(np.sqrt(np.nanmean((np.asarray(a) - np.asarray(b)) ** 2)))
+    return columns(result, names)
 
 
 @pytest.fixture(scope="module")
