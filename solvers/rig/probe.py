@@ -23,6 +23,8 @@ from ..errors import FacecapError
 from .model import fit_model
 
 STEPS = (0.25, 0.5, 0.75, 1.0)
+#: A control's support: the points it moves by at least this share of its own largest reach.
+SUPPORT = 0.05
 
 
 @dataclass(frozen=True)
@@ -98,8 +100,11 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, up
     reach = np.zeros((C, len(marker_names)))
     for row, (i, _) in enumerate(which):
         reach[i] = np.maximum(reach[i], size[row])
-    moved = reach > 1e-3 * max(reach.max(), 1e-300)
-    unseen = tuple(control_names[i] for i in range(C) if not moved[i].any())
+    seen = reach > 1e-3 * max(reach.max(), 1e-300)
+    unseen = tuple(control_names[i] for i in range(C) if not seen[i].any())
+    # where a control acts: the points it moves by 5 % of its own largest reach (its fringe of
+    # skinning weights would make nearly every two face controls a candidate pair)
+    moved = seen & (reach >= SUPPORT * reach.max(axis=1, keepdims=True))
     uneven = _uneven(axis_d, which, C, step_tol, control_names)
 
     candidates = {(min(a, b), max(a, b)) for a, b in pairs if a != b}
