@@ -158,7 +158,7 @@ def rigify_figures(folder, capture, frames, say, docs=None):
     return out
 
 
-def render_rigify(blend, face_name, result, path, *, count=5, size=(260, 300)):
+def render_rigify(blend, face_name, result, path, *, count=5, size=(190, 216)):
     """Frames of the keyed Rigify face (Workbench, front view), the busiest of the take, side by side."""
     bpy.ops.wm.open_mainfile(filepath=str(blend), load_ui=False)
     scene = bpy.context.scene
