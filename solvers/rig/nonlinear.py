@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..engine import basis_scale
-from ..engine.temporal import temporal_operator
 from ..engine.threads import single_blas_thread
 from ..errors import FacecapError
 
@@ -146,6 +145,8 @@ def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, loc
     NonlinearResult
     """
     from scipy.linalg import solveh_banded  # scipy: loaded with the first rig solve, not with the package
+
+    from ..engine.temporal import temporal_operator  # loads scipy (the banded kernels): not with the package
 
     deltas = np.asarray(deltas, dtype=np.float64)
     F, M, D = deltas.shape
