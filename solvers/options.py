@@ -393,6 +393,30 @@ OPTIONS = (
       ui="facecap.video.flow_components"),
     O("flow", "variance", "float", above=0.0, high=1.0, doc="Keep the fewest components explaining this share instead",
       headless="the sidebar sets the component count"),
+    # -- [rig] (a rig's controls as the target) ----------------------------------------------------
+    O("rig", "preset", "choice", choices=("rigify_face", "arkit_sliders", "shape_keys"),
+      doc="Solve a rig's controls instead of the shape keys: a Rigify face, a control object whose ARKit-named "
+          "sliders drive the face, or the undriven shape keys (correctives fire through their drivers)",
+      ui="facecap.rig_preset"),
+    O("rig", "object", "str", doc="The rig: the Rigify armature or the sliders' control object (presets)",
+      ui="facecap.rig_object"),
+    O("rig", "controls", "list",
+      doc="Controls named one by one: [{object, path, axes, lower, upper}], path 'pose.bones[\"b\"].location' "
+          "or '.rotation', '[\"property\"]' or 'key_blocks[\"shape\"].value' (added to the preset's)",
+      headless="the sidebar solves a preset's controls"),
+    O("rig", "method", "choice", default="probed", choices=("probed", "poses"),
+      doc="How the solver sees the rig: probed (evaluated around rest, a model with its pairwise terms) or a "
+          "pose library (one control pose per shape)", ui="facecap.rig_method"),
+    O("rig", "poses", "str", doc="method = \"poses\": the action holding one pose per frame, named by its pose "
+      "markers (ARKit / FACS names)", ui="facecap.rig_poses"),
+    O("rig", "nonlinear", "bool", default=True,
+      doc="Solve the rig's curvature and combination terms after the linear solve (bounded Gauss-Newton)",
+      ui="facecap.rig_nonlinear"),
+    O("rig", "refine", "bool", default=True,
+      doc="Refine the frames where the real rig differs from its model, through the rig itself",
+      ui="facecap.rig_refine"),
+    O("rig", "probes", "int", default=600, low=0, high=100_000,
+      doc="Random poses probed besides the single-control and pairwise probes", ui="facecap.rig_probes"),
     # -- [tuning] and [controls] ------------------------------------------------------------------
     O("tuning", "corrections", "path", doc="frame,<shape>,... corrected weights (the `tune` command)",
       ui="facecap.tuning_frames"),

@@ -33,6 +33,7 @@ from ..pipeline import RetargetSettings
 from ..video.flow_config import is_landmark_take, landmark_defaults, split_video_sections, video_take
 from ..video.landmarks import RIGID as LANDMARK_RIGID
 from .binding import parse_binding
+from .rig import parse_rig
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
 
@@ -77,6 +78,7 @@ class TakeConfig:
     output_html: Path | None = None  # [output] html: the review page (solvers.tools.report)
     truth_path: Path | None = None  # retarget --truth: known weights the review page overlays (no config key)
     binding: object = None  # [binding]: BindingSettings (solvers.character.binding_map)
+    rig: object = None  # [rig]: RigSettings (solvers.config.rig), None when the target is the shape keys
 
     @property
     def binding_map_path(self):
@@ -157,9 +159,11 @@ def load_take_config(path, data=None):
     if units == "bu" and "unit_scale" not in read_options:
         raise ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale")
     clean = _clean_settings(path, data.get("clean", {}))
-    # a landmark take solves like markers, on geometric (measured there); a flow take on posed examples
-    strategy = get("solve", "strategy", default("solve.strategy") if video_raw is None else
-                   "geometric" if landmarks else "linear")
+    # a landmark take solves like markers, on geometric (measured there); a flow take on posed examples; a
+    # probed rig's controls on geometric (its model stands for the character's shapes)
+    probed_rig = isinstance(data.get("rig"), dict) and data["rig"].get("method", default("rig.method")) == "probed"
+    strategy = get("solve", "strategy", ("geometric" if probed_rig else default("solve.strategy")) if video_raw is None
+                   else "geometric" if landmarks else "linear")
     video = None if video_raw is None else video_take(path, video_raw, data, strategy)
     if video is None:
         _check_source(path, data, strategy)
@@ -228,6 +232,7 @@ def load_take_config(path, data=None):
         controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
         binding=binding,
+        rig=parse_rig(path, data.get("rig")),
     )
 
 
