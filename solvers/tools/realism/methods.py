@@ -9,6 +9,7 @@ from scipy.optimize import lsq_linear
 
 from ...character.binding_map import BindingSettings
 from ...character.template import HumanTemplate
+from ...errors import FacecapError
 from ...pipeline import RetargetSettings, retarget
 from ...pipeline.binding import bind_character
 from ...strategies.options import ActorSettings, CalibrationSettings, StrategyInputs
@@ -33,9 +34,17 @@ def _poses(table):
 
 
 def bound_character(mesh, draw, settings):
-    """The character's shapes at the draw's markers (vertex groups, or nearest for a layout bound by position)."""
-    mode = "nearest" if draw.layout.by_position else "vertex_groups"
-    return bind_character(mesh, draw.markers, settings, BindingSettings(mode=mode)).basis
+    """The character's shapes at the draw's markers: vertex groups, or for a layout bound by position the
+    automatic binding and, when it refuses (ambiguous, no fit), the layout's landmark pairs, as a user would."""
+    if not draw.layout.by_position:
+        return bind_character(mesh, draw.markers, settings, BindingSettings(mode="vertex_groups")).basis
+    try:
+        return bind_character(mesh, draw.markers, settings, BindingSettings(mode="nearest")).basis
+    except FacecapError:
+        if not draw.layout.landmarks:
+            raise
+        landmarks = BindingSettings(mode="nearest", landmarks=draw.layout.landmarks)
+        return bind_character(mesh, draw.markers, settings, landmarks).basis
 
 
 def base_settings(draw):
