@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from ...character.basis import Basis
 from ...character.binding_map import BindingSettings
 from ...character.template import HumanTemplate
 from ...errors import FacecapError
@@ -26,6 +27,7 @@ METHODS = {
     "poses12+template": "semantic, 12 calibration poses and the human template",
     "template": "semantic, the human template (no calibration)",
     "calibration": "semantic, one calibration pose per shape",
+    "oracle": "semantic with the actor's true (linear) shapes as its profile: the floor of this benchmark",
 }
 
 
@@ -78,6 +80,9 @@ def run_method(name, draw, mesh, template, *, character=None):
             inputs = replace(inputs, calibration=draw.calibration)
         if name in ("template", "poses12+template"):
             inputs = replace(inputs, template=template)
+        if name == "oracle":  # the actor's own shapes, as no user can know them (combination terms left out)
+            a = draw.actor
+            inputs = replace(inputs, profile=Basis(a.shape_names, a.names, a.neutral, a.deltas))
     res = retarget(draw.markers, character, settings, inputs=inputs)
     return res.weights, res.shape_names, character.upper, tuple(res.warnings)
 
