@@ -237,8 +237,9 @@ class Workflow:
         r = bpy.ops.facecap.export_review(filepath=path, render=True)
         text = open(path, encoding="utf-8").read() if os.path.isfile(path) else ""
         tiles = re.findall(r'<img id="tile-(\d+)" src="data:image/png;base64,([^"]+)"', text)
-        return {"result": sorted(r), "bytes": len(text), "plotly_package": importlib.util.find_spec("plotly") is not None,
-                "has_plotly_js": "plotly.js v" in text, "tiles": len(tiles), "binding_tile": 'id="tile-binding"' in text,
+        return {"result": sorted(r), "bytes": len(text), "has_plotly_js": "plotly.js v" in text,
+                "plotly_package": importlib.util.find_spec("plotly") is not None, "tiles": len(tiles),
+                "binding_tile": 'id="tile-binding"' in text,
                 "face_fraction": [self.face_fraction(base64.b64decode(png)) for _, png in tiles]}
 
     @staticmethod
