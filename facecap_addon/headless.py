@@ -8,7 +8,6 @@ exit status 1.
 
 import contextlib
 import dataclasses
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -28,9 +27,10 @@ from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json
 from ..solvers.markers import UNIT_SCALE
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
-from ..solvers.video.cli import ProgressLine, sigint_cancels
+from ..solvers.video.cli import FrameProgress, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
+from . import console
 from .review import read_review_truth, write_take_review
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -41,7 +41,11 @@ PARALLEL_WRITE_VALUES = 200_000
 
 
 def progress_line(message):
-    print(f"facecap: {message}", file=sys.stderr, flush=True)
+    """The command line's ``say``: a progress line, or (``warning: ...``) a warning, through logging."""
+    if message.startswith("warning: "):
+        console.log.warning(message.removeprefix("warning: "))
+    else:
+        console.log.info(message)
 
 
 def run_take(config, *, quiet=False, tune=False, replace=False, say=None, characters=None, review=None):
@@ -71,6 +75,8 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
+    if take.repeats:
+        result = dataclasses.replace(result, warnings=tuple(_once(result.warnings, take.repeats)))
     outputs, extra = {}, {}
     if request.version is not None:
         extra["library"] = {"file": str(config.tuning.library), "version": request.version.name,
@@ -96,7 +102,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
                             report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=fps)
     if config.output_html is not None:
         outputs["html"] = str(write_take_review(config, obj, settings, result, notes=take.notes,
-                                                timings=timings, truth=truth, options=review, say=say))
+                                                timings=timings, truth=truth, options=review, say=say,
+                                                weights_track=getattr(take.inputs, "weights", None),
+                                                footage=take.footage))
     return result, outputs
 
 
@@ -143,6 +151,18 @@ def check_blend_file(path, key, config_path):
         raise ConfigError(f"{key} {path}: not a .blend file", path=config_path)
 
 
+#: Binding notes the solve says again in its own words (``stages.usable_markers``: no sample over the
+#: neutral frames): one line per fact, so the binding's is left out.
+SAID_BY_THE_SOLVE = ("have no neutral position and stay unbound",)
+#: Solve notes that repeat a binding by position's own (which gives each unbound marker's distance).
+REPEATS_OF_THE_BINDING = ("have no binding on the character and are not solved from",)
+
+
+def _once(notes, repeats):
+    """``notes`` without those that contain one of ``repeats`` (said already, with more detail)."""
+    return [n for n in notes if not any(r in n for r in repeats)]
+
+
 @dataclasses.dataclass
 class _Take:
     """What was read of a take config's source."""
@@ -153,6 +173,7 @@ class _Take:
     source: dict = None  # format, units... for the report
     notes: tuple = ()
     cleaning: tuple = ()
+    repeats: tuple = ()  # solve notes that only repeat the notes above
 
     def fps(self):
         if self.markers is not None:
@@ -284,8 +305,10 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     fields = _source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()
-        take.notes = tuple(take.notes) + tuple(n.removeprefix("warning: ") for n in bound.notes
-                                               if n.startswith("warning"))
+        said = _once([n for n in bound.notes if n.startswith("warning")], SAID_BY_THE_SOLVE)
+        take.notes = tuple(take.notes) + tuple(n.removeprefix("warning: ") for n in said)
+        if binding.by_position:  # the binding named its unbound markers, each with why (distance, map)
+            take.repeats = REPEATS_OF_THE_BINDING
     return request, fields
 
 
@@ -325,7 +348,7 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.footage is None:
         return job.run()
-    shown = None if quiet else ProgressLine(sys.stderr, f"flow ({request.flow.method})")
+    shown = None if quiet or console.quiet() else FrameProgress(f"flow ({request.flow.method})")
     with sigint_cancels() as stop:
         def progress(done, total):
             if shown is not None:
@@ -336,7 +359,7 @@ def _run(request, *, quiet):
             result = job.run(progress)
         finally:
             if shown is not None:
-                shown.close_line()
+                shown.close()
     return result
 
 
@@ -428,7 +451,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         write_json_atomic(config.output_report, report)
         outputs["report"] = str(config.output_report)
     for note in list(notes) + list(result.warnings):
-        say(f"warning: {note}")
+        say(f"warning: {note.removeprefix('warning: ')}")
     return outputs
 
 

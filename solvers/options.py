@@ -147,6 +147,9 @@ OPTIONS = (
       headless="detected on import"),
     O("source", "decimal", "choice", choices=(".", ","), doc="CSV decimal mark (default: detected)",
       headless="detected on import"),
+    O("source", "columns", "names", doc="A marker CSV without a header row: its columns, `frame` or `time` then "
+      "marker names (a name stands for its x, y, z columns; `name_x`, `name_y` for 2D tracks)",
+      headless="File > Import reads CSVs with a header row"),
     O("source", "first", "int", doc="Video takes: first footage frame read",
       headless="the Movie Clip's frame range"),
     O("source", "last", "int", doc="Video takes: last footage frame read", headless="the Movie Clip's frame range"),

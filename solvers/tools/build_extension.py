@@ -408,10 +408,10 @@ def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=Non
     return built
 
 
-def main(argv=None):
+def main(argv=None, *, parents=()):
     """Entry point for ``facecap build-extension``; returns the exit code."""
     parser = argparse.ArgumentParser(
-        prog="facecap build-extension",
+        prog="facecap build-extension", parents=list(parents),
         description="Build and validate the Blender extension zips (one per Blender generation and platform, "
                     "scipy and OpenCV bundled).")
     parser.add_argument("--out", default="dist", help="output folder (default: ./dist)")

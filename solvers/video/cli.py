@@ -34,6 +34,7 @@ the removed ``frame_offset`` key are errors that say so.
 
 import argparse
 import contextlib
+import logging
 import signal
 import sys
 import threading
@@ -49,12 +50,46 @@ from .reading import Cancelled, Footage
 from .tracking import track_points_job
 from .flow_config import frame_number_error
 
-SCHEMA = {
-    "source": {"video", "first", "last", "step", "scale", "fps", "frame_offset"},
-    "tracking": {"points", "region", "method", "reference", "max_points", "reregister", "reseed", "drift",
-                 "win_size", "fb_threshold", "levels", "preset"},
-    "output": {"markers", "confidence", "report"},
+try:
+    from tqdm import tqdm
+except ImportError:  # a Blender without the pip dependencies: plain progress lines
+    tqdm = None
+
+log = logging.getLogger(__name__)
+
+#: Every key of a track config: {section: {key: (default, what it means)}} (``facecap config-docs`` writes
+#: it into docs/config.md; the config is checked against it).
+TRACK_KEYS = {
+    "source": {
+        "video": ("", "Video file, image folder, glob or printf pattern. **Required.**"),
+        "first": ("the first frame", "First footage frame read (frame 1 is the first of the footage)"),
+        "last": ("the last frame", "Last footage frame read"),
+        "step": ("1", "Read every n-th frame"),
+        "scale": ("1", "Downscale factor in (0, 1] before tracking"),
+        "fps": ("the video's (image sequences: 24)", "Frame rate"),
+        "frame_offset": ("", "Removed: frames count from 1 (an error that says so)"),
+    },
+    "tracking": {
+        "points": ("", "`name,x,y` file of the points at the reference frame (source pixels); or `region`"),
+        "region": ("", "[x, y, w, h] in source pixels: automatic features in this box; or `points`"),
+        "method": ("`lk`", "`lk` (Lucas-Kanade points), or dense flow: `dis`, `farneback`, `tvl1`"),
+        "reference": ("the first frame read", "The neutral frame the points are given at"),
+        "max_points": ("100", "`region`: the most features found"),
+        "reregister": ("`true`", "`lk`: drift control by re-registration to the reference"),
+        "reseed": ("`true`", "`lk`: re-acquire lost points from the reference patch"),
+        "win_size": ("21", "`lk`: window size (working pixels)"),
+        "levels": ("3", "`lk`: pyramid levels"),
+        "fb_threshold": ("1", "`lk`: forward-backward error (working pixels) above which a point is lost"),
+        "drift": ("`fuse`", "Dense flow: `fuse` (chained and direct), `direct` (to the reference) or `none`"),
+        "preset": ("`balanced`", "`dis`: `ultrafast`, `fast` or `balanced` (speed against quality)"),
+    },
+    "output": {
+        "markers": ("", "The 2D tracks: `frame,<name>_x,<name>_y` in pixels (origin top left). **Required.**"),
+        "confidence": ("", "Per-sample confidence in [0, 1]: `frame,<name>,...`"),
+        "report": ("", "JSON: summary, losses, re-acquisitions, footage"),
+    },
 }
+SCHEMA = {section: set(keys) for section, keys in TRACK_KEYS.items()}
 METHODS = ("lk", "dis", "farneback", "tvl1")
 
 
@@ -126,28 +161,39 @@ def load_track_config(path):
     }
 
 
-class ProgressLine:
-    """``label: done/total frames (rate)`` on one self-overwriting stderr line, at most twice a second."""
+class FrameProgress:
+    """Frames done of a long job: a tqdm bar (rate, ETA) on a terminal; elsewhere (a log file, CI) a plain
+    ``label: done/total frames`` line after the first frame, at most every ``every`` seconds and at the
+    end, through :mod:`logging` (``--quiet`` hides them).
 
-    def __init__(self, stream, label):
-        self.stream, self.label = stream, label
-        self.last, self.start = 0.0, time.monotonic()
-        self.open_line = False  # a "\r"-ended line is showing
+    tqdm is a dependency of the pip package; a Blender without it (the extension zip) gets the plain lines.
+    """
+
+    def __init__(self, label, *, stream=None, every=10.0):
+        self.label, self.every = label, every
+        self.stream = stream if stream is not None else sys.stderr
+        self.last, self.start = time.monotonic(), time.monotonic()
+        self.bar = None
+        self.use_bar = tqdm is not None and getattr(self.stream, "isatty", lambda: False)()
 
     def __call__(self, done, total):
+        if self.use_bar:
+            if self.bar is None:
+                self.bar = tqdm(total=total, desc=self.label, unit="frame", file=self.stream, dynamic_ncols=True,
+                                leave=True)
+            self.bar.update(done - self.bar.n)
+            return True
         now = time.monotonic()
-        if done == total or now - self.last >= 0.5:
+        if done in (1, total) or now - self.last >= self.every:
             self.last = now
             rate = done / max(now - self.start, 1e-9)
-            end = "\n" if done == total else "\r"
-            print(f"{self.label}: {done}/{total} frames ({rate:.0f} frames/s)", end=end, file=self.stream, flush=True)
-            self.open_line = done != total
+            log.info(f"{self.label}: {done}/{total} frames ({rate:.0f} frames/s)")
         return True
 
-    def close_line(self):
-        if self.open_line:
-            print(file=self.stream, flush=True)
-            self.open_line = False
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 def tracking_job(settings):
@@ -213,7 +259,11 @@ def sigint_cancels():
             signal.signal(signal.SIGINT, restore)
 
 
-def main(argv=None):
+DESCRIPTION = ("Track 2D markers in video footage (Lucas-Kanade points, or dense optical flow over the face) and "
+               "write them as a CSV of pixel positions, with their confidence and a report if asked.")
+
+
+def main(argv=None, *, parents=()):
     """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 cancelled).
 
     Ctrl-C (SIGINT) stops tracking between two frames: one line ``cancelled at frame N``, exit
@@ -222,9 +272,10 @@ def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["track"]:
         argv = argv[1:]
-    parser = argparse.ArgumentParser(prog="facecap track", description="Track 2D markers in footage.")
-    parser.add_argument("--config", required=True, help="take config (.toml) with [source], [tracking], [output]")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser = argparse.ArgumentParser(prog="facecap track", description=DESCRIPTION, parents=list(parents))
+    parser.add_argument("--config", required=True, help="track config (.toml) with [source], [tracking], [output]")
+    if not parents:  # run on its own (python -m facecap.solvers.video.cli); the command line gives -q / -v
+        parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
     with sigint_cancels() as stop:
         return _main(args, stop)
@@ -234,30 +285,28 @@ def _main(args, stop):
     shown = None
     try:
         settings = load_track_config(args.config)
-        shown = None if args.quiet else ProgressLine(sys.stderr, f"track ({settings['method']})")
+        shown = None if getattr(args, "quiet", False) else FrameProgress(f"track ({settings['method']})")
 
         def progress(done, total):
             if shown is not None:
                 shown(done, total)
             return not stop.is_set()
 
-        result = run_track(settings, progress=progress)
+        try:
+            result = run_track(settings, progress=progress)
+        finally:
+            if shown is not None:
+                shown.close()
     except Cancelled as exc:
-        if shown is not None:
-            shown.close_line()
         print(f"facecap: {exc}; nothing written", file=sys.stderr)
         return 130
     except FacecapError as exc:
-        if shown is not None:
-            shown.close_line()
         print(f"facecap: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        if shown is not None:
-            shown.close_line()
         print("facecap: interrupted", file=sys.stderr)
         return 130
-    print(f"{result.summary()}; wrote {settings['markers']}", file=sys.stderr)
+    print(f"{result.summary()}; wrote {settings['markers']}")
     return 0
 
 
