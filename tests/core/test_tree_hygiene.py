@@ -23,7 +23,8 @@ def tree_files():
     """Every text file of the checkout (what a clone holds, plus untracked work in progress)."""
     for path in sorted(ROOT.rglob("*")):
         rel = path.relative_to(ROOT)
-        if any(part in SKIP_DIRS for part in rel.parts) or not path.is_file():
+        # .venv-3.13 and the like: a second Python's environment (CI makes one for the core tests)
+        if any(part in SKIP_DIRS or part.startswith(".venv") for part in rel.parts) or not path.is_file():
             continue
         if path.suffix.lower() in TEXT_SUFFIXES and path.stat().st_size < 5_000_000:
             yield path
