@@ -111,8 +111,8 @@ class HumanTemplate:
                                                "`python -m facecap template convert`)")
                 model = FaceModel(z["neutral"].astype(np.float64), z["triangles"].astype(np.int64),
                                   tuple(str(n) for n in z["shape_names"]), z["deltas"].astype(np.float64),
-                                  z["identity"].astype(np.float64), z["landmarks68"].astype(np.int64), str(path),
-                                  str(z["digest"]))
+                                  z["identity"].astype(np.float64), z["landmarks68"].astype(np.int64),
+                                  source=str(path), digest=str(z["digest"]))
         except FileNotFoundError:
             raise InputFileError(path, "file not found") from None
         except (OSError, ValueError, KeyError) as exc:

@@ -277,12 +277,12 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
         tier = prior_name or "character"
     missing = [shapes[k] for k in range(K) if not sources[k]]
     if missing:
-        notes.append(f"{len(missing)} shape(s) have no source and stay at rest: {missing[:8]}")
+        notes.append(f"{len(missing)} shape(s) have no source and stay at rest: {', '.join(missing[:8])}")
         sources = [s or "none" for s in sources]
     unseen = tuple(shapes[k] for k in range(K) if size[k] * 1e3 < knowledge.unseen_mm)
     if unseen and knowledge.unseen == "rest":
         notes.append(f"{len(unseen)} shape(s) move no marker by {knowledge.unseen_mm:g} mm and are held at rest: "
-                     f"{list(unseen)[:10]}{' ...' if len(unseen) > 10 else ''}; "
+                     f"{', '.join(unseen[:10])}{' ...' if len(unseen) > 10 else ''}; "
                      '[solve] unseen_shapes = "solve" solves them anyway')
     if not usable.any():
         raise FacecapError("no marker of the take is known to every shape (bind the markers on the character, or "

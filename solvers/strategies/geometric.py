@@ -132,7 +132,7 @@ class GeometricStrategy:
         self.lock_patterns = tuple(locks)
         self.regions, held = resolve_regions(character.shape_names, used, regions, dims=character.neutral.shape[1])
         if held:
-            notes.append(f"{len(held)} shape(s) are in no region and are held: {list(held)}")
+            notes.append(f"{len(held)} shape(s) are in no region and are held: {', '.join(held)}")
         notes.extend(dict.fromkeys(basis_warnings(self.basis.matrix(), self.basis.shape_names)))
         self.notes = tuple(notes)
         return self

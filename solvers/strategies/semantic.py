@@ -114,7 +114,7 @@ class SemanticStrategy:
         self.lock_patterns = tuple(locks)
         basis = self.model.basis
         self.regions, held = resolve_regions(basis.shape_names, basis.marker_names, regions, dims=3)
-        self.notes = self.model.notes + ((f"{len(held)} shape(s) are in no region and are held: {list(held)}",)
+        self.notes = self.model.notes + ((f"{len(held)} shape(s) are in no region and are held: {', '.join(held)}",)
                                          if held else ())
         self.noise = float("nan") if noise is None else float(noise)
         # measured shapes are the actor's own: only a template's or the character's carry model error
@@ -212,7 +212,7 @@ class SemanticStrategy:
             res = solve_bounded(A, flat, locks=locks, start=res.weights, **kwargs, **extra)
             notes.append(f"{len(pinned)} shape(s) sat at their upper limit in more than {100 * PINNED_SHARE:.0f}% of "
                          f"frames and were solved again with firmer priors (the actor model does not explain what "
-                         f"drives them): {[basis.shape_names[k] for k in pinned]}")
+                         f"drives them): {', '.join(basis.shape_names[k] for k in pinned)}")
         rms = residual_rms(res.weights, basis.deltas, D)
         rms[~res.solved] = np.nan
         info = {"mode": res.mode, "actor_model": self.model.report()}

@@ -12,8 +12,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from facecap.solvers.io.csv import read_weights_csv
 from shared_data import BLENDERFACE, REALDATA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -75,7 +77,12 @@ def test_facial_sing_binds_by_position_and_retargets(tmp_path, landmarks):
     assert max(distances) <= 8.0 and sorted(distances)[len(distances) // 2] < 2.0
     assert report["markers_file"] == str(FACIAL_SING) and "Unlabeled1" not in report["markers_used"]
     assert any("no sample over the neutral frames and are left out: Unlabeled1 (" in w for w in report["warnings"])
-    assert mean < 4.0, mean  # a few millimetres: the stylised character is not the actor's face
+    # the default (semantic, nothing known of the actor) fits looser than the character's shapes allow
+    # (priors): a binding gone wrong leaves tens of mm; the weights a user keys: <= 2 % at 1.0, no gaze
+    assert mean < 5.0, mean
+    _, header, weights = read_weights_csv(tmp_path / "out" / "weights.csv")
+    assert np.mean(weights >= 0.999) <= 0.02
+    assert np.abs(weights[:, [i for i, n in enumerate(header) if n.startswith("eyeLook")]]).max() < 1e-3
     stored = stored_binding(tmp_path / "out" / "take.blend")
     assert stored["mode"] == binding["mode"] and sum(stored["bound"]) == binding["bound"]
 

@@ -43,7 +43,9 @@ def test_demo_prints_only_facecap_lines_and_its_verbosity_levels(tmp_path):
     assert out[0].startswith("facecap demo: ") and any("RMSE" in line for line in out)
     assert any(line.startswith("facecap: [5/5]") for line in err)
     # the conditioning warnings say what to do, with the config line that does it
-    assert any(w.endswith("[solve] locks = { eyeLookOutLeft = 0 }") for w in warnings), warnings
+    # (the default semantic solve holds the shapes no marker sees, gaze on skin markers, at rest)
+    assert any("held at rest: eyeLookDownLeft, " in w and w.endswith('[solve] unseen_shapes = "solve" solves them '
+                                                                     "anyway") for w in warnings), warnings
 
     out_q, err_q = run(["demo", "--out", "quiet", "--quiet"], tmp_path)
     assert all(line.startswith("facecap: warning: ") for line in err_q) and len(err_q) == len(warnings), err_q

@@ -1,21 +1,23 @@
-"""The extension zips carry the face-landmark models, byte for byte the files of the locked mediapipe wheel,
-with its licence, and nothing else of mediapipe (no wheel, no Python code)."""
+"""Every extension zip (each Blender generation, each platform) carries the face-landmark models, byte for byte
+the files of the locked mediapipe wheel, with its licence, and nothing else of mediapipe (no wheel, no Python
+code)."""
 
 import zipfile
 
 import pytest
 
-from facecap.solvers.tools.build_extension import PLATFORMS, fetch_assets, read_assets
+from facecap.solvers.extension_builds import BUILDS
+from facecap.solvers.tools.build_extension import fetch_assets, read_assets
 from facecap.solvers.video.face_models import MODEL_FILES
 
 
-@pytest.mark.parametrize("platform", PLATFORMS)
-def test_each_zip_carries_the_face_landmark_models(extension_zips, platform):
+@pytest.mark.parametrize("build, platform", [(b.name, p) for b in BUILDS for p in b.platforms])
+def test_each_zip_carries_the_face_landmark_models(extension_zips, build, platform):
     assets = [a for a in read_assets() if a.name == "mediapipe"]
     files = sorted(a.target.rsplit("/", 1)[1] for a in assets)
     assert files == sorted([*MODEL_FILES.values(), "LICENSE-mediapipe.txt"])
     expected = fetch_assets(assets)
-    with zipfile.ZipFile(extension_zips["zips"][platform]) as z:
+    with zipfile.ZipFile(extension_zips["zips"][(build, platform)]) as z:
         for asset, data in expected.items():
             assert z.read(asset.target) == data, asset.target
         assert not [n for n in z.namelist() if "mediapipe" in n.lower() and not n.endswith("LICENSE-mediapipe.txt")]
