@@ -26,6 +26,7 @@ from ..solvers.config import load_take_config
 from ..solvers.errors import FacecapError
 from ..solvers.tools.batch_summary import iso_time, one_line, result_fields
 from ..solvers.tools.report.page import shared_plotly_js
+from .blend_files import start_blender
 from .headless import run_take
 from .review import ReviewOptions
 
@@ -106,7 +107,7 @@ def serve(fd_in, fd_out):
     """The worker's loop: start Blender, say ready, then run every take spec received on ``fd_in``
     and send its record on ``fd_out`` until the pipe closes (or None arrives). Returns the exit status:
     0, or 130 when interrupted (SIGINT / SIGTERM: the take running then is reported cancelled)."""
-    import bpy  # bpy: Blender starts here, once for every take this worker runs
+    bpy = start_blender()  # once for every take this worker runs
 
     requests, replies = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
     replies.send(("ready", {"pid": os.getpid(), "blender": bpy.app.version_string}))

@@ -59,6 +59,7 @@ if __name__ == "__main__" and not __package__:
 # Imported here, after the script guard: as a script this file has no package for them.
 import argparse  # noqa: E402
 import ctypes  # noqa: E402
+import os  # noqa: E402
 import signal  # noqa: E402
 import threading  # noqa: E402
 
@@ -84,7 +85,7 @@ from .review import review_flags  # noqa: E402
 
 def _cmd_retarget(args):
     config = review_flags(load_take_config(args.config), args.html, args.truth)
-    result, outputs = run_take(config, replace=args.replace)
+    result, outputs = run_take(config, replace=args.replace, overwrite=args.overwrite)
 
     ok = np.isfinite(result.residual_rms)
     residual = (f"mean residual {np.mean(result.residual_rms[ok]) * 1e3:.3f} mm ({result.residual_space} space)"
@@ -128,7 +129,7 @@ def _cmd_track(args):
 
 def _cmd_tune(args):
     config = load_take_config(args.config)
-    result, outputs = run_take(config, tune=True)
+    result, outputs = run_take(config, tune=True, overwrite=args.overwrite)
     tuned = result.retune
     v = tuned.version
     print(f"retuned '{result.strategy}' from {len(tuned.frames)} corrected frame(s): corrected RMSE "
@@ -183,6 +184,12 @@ def _bench_line(row):
     return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
 
 
+def _overwrite_flag(parser):
+    parser.add_argument("--overwrite", action="store_true",
+                        help="let outputs replace existing files facecap did not write (default: refused; "
+                             "facecap's own earlier outputs are always replaced)")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="facecap", description="Performance-driven facial retargeting.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -192,6 +199,7 @@ def build_parser():
                    help="start from [target] blend even when the output .blend exists (default: add the solve to it)")
     p.add_argument("--html", default=None, help="write the review page here (overrides [output] html)")
     p.add_argument("--truth", default=None, help="known weights CSV (frame,<shape>,...) the review page overlays")
+    _overwrite_flag(p)
     p.set_defaults(func=_cmd_retarget)
     p = sub.add_parser("batch", help="run many takes, each isolated, here (--jobs) or on a Dask farm (--scheduler)")
     p.add_argument("takes", nargs="+", metavar="TAKES",
@@ -204,6 +212,7 @@ def build_parser():
     p.add_argument("--resume", action="store_true",
                    help="skip takes the summary records as done with the same inputs and config, outputs present")
     p.add_argument("--replace", action="store_true", help="as retarget --replace, for every take")
+    _overwrite_flag(p)
     p.set_defaults(func=_cmd_batch)
     p = sub.add_parser("batch-worker")  # started by batch, not by hand: no help line
     p.add_argument("--fds", required=True)
@@ -228,6 +237,7 @@ def build_parser():
     p.set_defaults(func=_cmd_track)
     p = sub.add_parser("tune", help="retune the strategy from an animator's corrected frames and re-solve the take")
     p.add_argument("--config", required=True, help="take config (.toml) with [tuning] corrections")
+    _overwrite_flag(p)
     p.set_defaults(func=_cmd_tune)
     p = sub.add_parser("config-docs", help="write the take-config reference (docs/config.md) from the option table",
                        add_help=False)
@@ -289,6 +299,20 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("facecap: interrupted; outputs not finished were not written", file=sys.stderr)
         return 130
+    except OSError as exc:  # the system refused something the checks could not foresee
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"facecap: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    except MemoryError:
+        print("facecap: error: out of memory (the take is too large for this machine's memory)", file=sys.stderr)
+        return 1
+    except Exception as exc:  # a bug: one line, the traceback on request
+        if os.environ.get("FACECAP_TRACEBACK"):
+            raise
+        text = " ".join(str(exc).split())[:300]
+        print(f"facecap: internal error (a bug in facecap; run with FACECAP_TRACEBACK=1 for where): "
+              f"{type(exc).__name__}: {text}", file=sys.stderr)
+        return 1
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)

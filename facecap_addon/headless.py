@@ -18,24 +18,30 @@ import numpy as np
 from ..solvers.capture.cleaning import clean
 from ..solvers.character.binding_map import BindingSettings
 from ..solvers.config.checks import check_against_take
-from ..solvers.config.paths import check_outputs, take_outputs
+from ..solvers.config.paths import check_outputs, output_list, take_outputs
 from ..solvers.config.strategies import load_strategy_inputs
 from ..solvers.engine.split import LONG_TAKE_FRAMES, release_freed_memory, run_beside
 from ..solvers.errors import ConfigError, InputFileError
 from ..solvers.io import import_markers
 from ..solvers.io.csv import write_weights_csv
-from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
+from ..solvers.io.files import remove_stale_temporaries, write_json_atomic
+from ..solvers.io.locks import output_lock
+from ..solvers.io.outputs import check_free_space
 from ..solvers.markers import UNIT_SCALE
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
 from ..solvers.video.cli import ProgressLine, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
+from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, stamp_target, start_blender,
+                          target_changed)
 from .review import read_review_truth, write_take_review
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
 PARALLEL_READ_BYTES = 4 << 20
+#: The take report's schema version (its first key, ``"facecap_report"``, also marks it as facecap's own)
+REPORT_SCHEMA = 1
 #: Weights (frames x shapes) above which the weights CSV is written in a forked child.
 PARALLEL_WRITE_VALUES = 200_000
 
@@ -44,14 +50,16 @@ def progress_line(message):
     print(f"facecap: {message}", file=sys.stderr, flush=True)
 
 
-def run_take(config, *, quiet=False, tune=False, replace=False, say=None, characters=None, review=None):
+def run_take(config, *, quiet=False, tune=False, replace=False, overwrite=False, say=None, characters=None,
+             review=None):
     """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
 
     ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
     are retuned from and the new library version stored (``[tuning] out``). An existing output
     .blend is added to (everything in it kept, the new solve the active layer) unless ``replace``:
-    then the run starts from ``[target] blend``. Nothing is read or solved before every output path
-    is checked (``preflight``). ``say``: where progress and warning lines go (default: stderr unless
+    then the run starts from ``[target] blend``; a run adding to it holds its lock from reading it to
+    writing it back (``solvers.io.locks``: a second run waits). Nothing is read or solved before every
+    output path is checked (``preflight``; ``overwrite`` lets outputs replace files facecap did not write). ``say``: where progress and warning lines go (default: stderr unless
     ``quiet``); ``characters``: a cache of sampled characters kept across takes (a batch worker's
     ``CharacterCache``). On takes of ``LONG_TAKE_FRAMES`` or more the returned result's stabilised
     markers are released before keying (its head poses stay), unless the review page is written.
@@ -60,14 +68,26 @@ def run_take(config, *, quiet=False, tune=False, replace=False, say=None, charac
     """
     say = say or ((lambda _m: None) if quiet else progress_line)
     t0 = time.perf_counter()
-    timings = {}
-    base = preflight(config, tune=tune, replace=replace)
+    preflight(config, tune=tune, replace=replace, overwrite=overwrite)  # before waiting for a lock
     truth = read_review_truth(config)  # a bad --truth file fails before the solve
+    lock = output_lock(config.output_blend, say=say) if config.output_blend is not None else contextlib.nullcontext()
+    with lock:
+        base = choose_base(config, replace=replace)  # under the lock: the file as the last writer left it
+        return _run_locked(config, base, say=say, t0=t0, truth=truth, quiet=quiet, tune=tune, characters=characters,
+                           review=review)
+
+
+def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review):
+    timings = {}
     take, obj, timings["read"], t_open = _read_and_open(config, say, base)
     check_against_take(config, take.markers, take.inputs)
+    changed = target_changed(config.target_blend) if base.mode == "added" else None
+    if changed:
+        take.notes = tuple(take.notes) + (changed,)
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
     timings["load_character"] = time.perf_counter() - t1 + t_open
+    check_free_space(expected_sizes(config, base, take, _shape_names(request.character)), config=config.path)
     say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
@@ -111,36 +131,52 @@ class Base:
         return {"mode": self.mode, "opened": None if self.path is None else str(self.path)}
 
 
-def preflight(config, *, tune=False, replace=False):
-    """Every check that needs no solve, before any work: something will be written, no output is an
-    input or another output, every output can be written; stale temporary files of earlier killed
-    runs are removed. Returns the ``Base`` to open."""
+def preflight(config, *, tune=False, replace=False, overwrite=False):
+    """Every check that needs no solve, before any work: something will be written, the output
+    policy allows every output (``solvers.io.outputs``: none is an input or another output, an existing
+    one is facecap's own of its kind unless ``overwrite``, each can be written); stale temporary files
+    of earlier killed runs are removed. Returns the ``Base`` to open."""
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     if not tune and not take_outputs(config):
         raise ConfigError("nothing would be written: give [output] blend, weights, report, html, gltf or fbx",
                           path=config.path, key="output")
-    check_outputs(config, library=versions_folder(config) if tune else None)
+    check_outputs(config, library=versions_folder(config) if tune else None, overwrite=overwrite)
     for path in take_outputs(config).values():
         remove_stale_temporaries(path.parent)
+    return choose_base(config, replace=replace)
+
+
+def choose_base(config, *, replace=False):
+    """The ``Base`` a run opens: the existing output .blend (added to), else ``[target] blend``."""
     out = config.output_blend
     if out is not None and out.is_file():
         if replace:
             return Base(config.target_blend, "replaced")
-        check_blend_file(out, "[output.blend]", config.path)
         return Base(out, "added")
     return Base(config.target_blend, "new")
 
 
-def check_blend_file(path, key, config_path):
-    """Raise ConfigError unless ``path`` starts like a .blend (plain, gzip or zstd compressed)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(8)
-    except OSError as exc:
-        raise ConfigError(f"{key} {path}: cannot be read ({exc.strerror})", path=config_path) from None
-    if not head.startswith((b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")):
-        raise ConfigError(f"{key} {path}: not a .blend file", path=config_path)
+#: Low estimates of output sizes (bytes) for the free-space check: per weights-CSV value, per key in a
+#: compressed .blend, and the fixed part of a report or page.
+CSV_BYTES_PER_VALUE = 4
+BLEND_BYTES_PER_KEY = 4
+FIXED_BYTES = 16 << 10
+
+
+def expected_sizes(config, base, take, shape_names):
+    """[(Output, bytes)] the take's outputs will need at least (``check_free_space``)."""
+    frames = take.n_frames()
+    values = frames * max(1, len(shape_names))
+    base_size = 0
+    if base.path is not None:
+        try:
+            base_size = base.path.stat().st_size
+        except OSError:
+            pass
+    sizes = {"blend": base_size + values * BLEND_BYTES_PER_KEY, "weights_csv": values * CSV_BYTES_PER_VALUE,
+             "report": FIXED_BYTES + frames * 8, "html": FIXED_BYTES}
+    return [(out, sizes.get(out.kind, FIXED_BYTES)) for out in output_list(config)]
 
 
 @dataclasses.dataclass
@@ -161,6 +197,13 @@ class _Take:
             return self.footage.info.fps
         return self.inputs.weights.fps
 
+    def n_frames(self):
+        if self.markers is not None:
+            return self.markers.n_frames
+        if self.footage is not None:
+            return self.footage.info.n_frames
+        return len(self.inputs.weights.frames)
+
     def describe(self):
         if self.markers is not None:
             return f"{self.markers.n_frames} frames from {self.markers.n_markers} markers"
@@ -179,16 +222,16 @@ def _read_and_open(config, say, base):
         t = time.perf_counter()
         return read_take(config, say), time.perf_counter() - t
 
-    def open_blend():  # Blender's start-up (the first ``import bpy``) is in here
+    def open_character():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
         return open_target(config, say, base), time.perf_counter() - t
 
     path = config.markers_path
     if path is not None and path.is_file() and path.stat().st_size > PARALLEL_READ_BYTES:
-        (obj, t_open), (take, t_read) = run_beside(open_blend, read)
+        (obj, t_open), (take, t_read) = run_beside(open_character, read)
     else:
         take, t_read = read()
-        obj, t_open = open_blend()
+        obj, t_open = open_character()
     return take, obj, t_read, t_open
 
 
@@ -223,15 +266,14 @@ def read_take(config, say):
 
 def open_target(config, say, base=None):
     """Open the run's ``Base`` .blend (default ``[target] blend``, if given); returns ``[target] object``."""
-    import bpy  # bpy: Blender starts on first import
+    bpy = start_blender()
 
     base = base or Base(config.target_blend, "new")
     if base.path is not None:
         if not base.path.is_file():
             raise InputFileError(base.path, "file not found (config [target] blend)")
-        check_blend_file(base.path, "[output.blend]" if base.mode == "added" else "[target.blend]", config.path)
         say(f"[2/5] opening {base.path}" + (" (adding to it)" if base.mode == "added" else ""))
-        bpy.ops.wm.open_mainfile(filepath=str(base.path), load_ui=False)
+        open_blend(base.path, "the existing [output] blend" if base.mode == "added" else "[target] blend")
     obj = bpy.data.objects.get(config.target_object)
     if obj is None:
         where = "the existing [output] blend (--replace starts from [target] blend)" if base.mode == "added" \
@@ -385,15 +427,19 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     from .import_scene import fit_scene_to_take  # loads bpy
     from .take import key_weights  # loads bpy
 
+    replaced = []
+
     def key_and_save():
         t3 = time.perf_counter()
         say("[4/5] keying")
+        replaced.extend(remove_earlier_solve(config.action_name))
         action = key_weights(obj, result, anim.unique_action_name(config.action_name))
         fit_scene_to_take(bpy.context.scene, result.frames, fps)
         timings["key"] = time.perf_counter() - t3
         say("[5/5] writing outputs")
         if config.output_blend is not None:
-            _save_blend_atomic(config.output_blend)
+            stamp_target(config.target_blend)
+            save_blend_atomic(config.output_blend)
         _export(config, obj, fps)
         return action
 
@@ -410,6 +456,8 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         if config.output_weights is not None:
             write_weights()
     outputs = {"action": action.name, **outputs}
+    if replaced:
+        outputs["replaced_action"] = replaced[0]
     if config.output_weights is not None:
         outputs["weights"] = str(config.output_weights)
     if config.output_blend is not None:
@@ -419,7 +467,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
             outputs[key] = str(getattr(config, f"output_{key}"))
     timings["total"] = time.perf_counter() - t0
     if config.output_report is not None:
-        report = result.report()
+        report = {"facecap_report": REPORT_SCHEMA, **result.report()}
         report["config"] = str(config.path)
         report.update(report_fields)
         report["outputs"] = outputs
@@ -439,36 +487,3 @@ def _export(config, obj, fps):
     for path in (config.output_gltf, config.output_fbx):
         if path is not None:
             export_take(obj, path, head_target=config.settings.head_target, fps=fps, take_name=config.action_name)
-
-
-def _save_blend_atomic(path):
-    import bpy  # bpy: Blender starts on first import
-
-    with atomic_path(path, suffix=".blend") as tmp:
-        tmp.unlink()  # a name only: over an existing file Blender would keep a .blend1 backup of it
-        with _unevaluated_save_context(bpy):
-            bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, compress=True)
-
-
-@contextlib.contextmanager
-def _unevaluated_save_context(bpy):
-    """The save's context: a scene of its own with no users when the file has one scene.
-
-    An operator call first evaluates its context's view layer, and that copies every keyed action
-    for evaluation: on a 100-minute take about 1.2 GiB beside the 1.15 GiB of keys (measured at
-    120,000 frames: +0.41 GiB at the save, +0.003 GiB with this context). A scene without users is
-    not written, so the file is the same. Only with one scene: the file then opens on it as before
-    (with several it would open on the first one, not necessarily the active one).
-    """
-    scenes = bpy.data.scenes
-    if len(scenes) != 1:
-        yield
-        return
-    context = scenes.new("facecap save context")
-    context.user_clear()  # not written into the file
-    try:
-        with bpy.context.temp_override(scene=context, view_layer=context.view_layers[0]):
-            yield
-    finally:
-        context.use_fake_user = True  # a user for the removal to take (Blender 4.2-4.5 report a bad count otherwise)
-        scenes.remove(context)
