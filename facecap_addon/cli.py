@@ -294,7 +294,8 @@ def main(argv=None):
         if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written
             print(f"facecap: {exc}; nothing written", file=sys.stderr)
             return 130
-        print(f"facecap: error: {exc}", file=sys.stderr)
+        for line in str(exc).splitlines():  # a config's problems: one line each
+            print(f"facecap: error: {line}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("facecap: interrupted; outputs not finished were not written", file=sys.stderr)

@@ -54,6 +54,58 @@ class ConfigError(FacecapError):
         super().__init__(where + one_line(message))
 
 
+class ConfigProblems(ConfigError):
+    """Every problem found in one config, reported at once: one ``ConfigError`` line each (``errors``)."""
+
+    def __init__(self, errors):
+        self.errors = list(errors)
+        first = self.errors[0]
+        self.path, self.key = first.path, first.key
+        FacecapError.__init__(self, "\n".join(str(e) for e in self.errors))
+
+
+class Problems:
+    """Collects the ConfigErrors of one config so that all are reported together.
+
+    ``part(fn, *args, default=...)`` runs one parser and keeps its error; keys already reported (and
+    everything below them) are ``reported`` and a later error about them is a consequence, not news.
+    """
+
+    def __init__(self):
+        self.errors = []
+        self.reported = set()
+
+    def add(self, error, covers=None):
+        """Keep ``error`` unless it is about a key already reported; ``covers``: the key whose later
+        errors it explains (default: its own key)."""
+        errors = error.errors if isinstance(error, ConfigProblems) else [error]
+        for e in errors:
+            if e.key is not None and self.covered(e.key):
+                continue
+            self.errors.append(e)
+            for key in (e.key, covers):
+                if key is not None:
+                    self.reported.add(key)
+
+    def covered(self, key):
+        """Whether ``key`` (``section.key``) is, or is below, a key already reported."""
+        return any(key == k or key.startswith(k + ".") for k in self.reported)
+
+    def part(self, fn, *args, default=None, **kwargs):
+        """``fn(*args, **kwargs)``, or ``default`` when it raises a ConfigError (kept)."""
+        try:
+            return fn(*args, **kwargs)
+        except ConfigError as exc:
+            self.add(exc)
+            return default
+
+    def raise_any(self):
+        if len(self.errors) == 1:
+            raise self.errors[0]
+        if self.errors:
+            raise ConfigProblems(self.errors)
+
+
 #: Top-level module -> the PyPI package that provides it (bundled in the extension zips: wheels.lock.toml).
 PACKAGES = {"scipy": "scipy", "cv2": "opencv-contrib-python-headless"}
 _MANIFEST = Path(__file__).resolve().parents[1] / "blender_manifest.toml"

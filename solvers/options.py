@@ -16,11 +16,16 @@ that may take several forms. ``ui`` names the controls, comma-separated: ``facec
 (an operator's option); an empty ``ui`` needs a ``headless`` reason.
 """
 
+import difflib
 import math
 from dataclasses import dataclass
 
 #: Frame rates above this are refused as typos (a 10 kHz optical system is already unusual).
 MAX_FPS = 10_000.0
+#: Frame numbers above this are refused (Blender's own limit is 1,048,574).
+MAX_FRAME = 1_048_574
+#: Blender keeps at most this many bytes of an ID's name (objects, actions, cameras) and cuts the rest.
+MAX_NAME_BYTES = 63
 
 
 @dataclass(frozen=True)
@@ -39,6 +44,7 @@ class Option:
     ui: str = ""  # the sidebar control (see the module docstring)
     headless: str = ""  # why there is no control, when ``ui`` is empty
     hint: str = ""  # said before what was expected when a value is refused
+    max_bytes: int = None  # ``str``: longest value in UTF-8 bytes (Blender's name limit)
 
     @property
     def name(self):
@@ -93,9 +99,15 @@ def _problem(option, kind, v):
     if kind in ("str", "path"):
         if not isinstance(v, str) or not v.strip():
             return f"expected a {'file name' if kind == 'path' else 'text'}; got {v!r}"
-        return "must not contain NUL characters" if "\0" in v else None
+        if "\0" in v:
+            return "must not contain NUL characters"
+        if option.max_bytes is not None and len(v.encode("utf-8")) > option.max_bytes:
+            return f"at most {option.max_bytes} bytes (Blender's limit for a name); got {len(v.encode('utf-8'))}"
+        return None
     if kind == "choice":
-        return None if v in option.choices else f"expected one of {', '.join(map(str, option.choices))}; got {v!r}"
+        if v in option.choices:
+            return None
+        return f"expected one of {', '.join(map(str, option.choices))}; got {v!r}" + suggest(v, option.choices)
     if kind == "frames":
         ok = isinstance(v, list) and len(v) == 2 and all(_is_int(x) for x in v) and v[0] <= v[1]
         return None if ok else f"expected [first, last] frame numbers with first <= last; got {v!r}"
@@ -124,7 +136,8 @@ OPTIONS = (
     # -- [target] ----------------------------------------------------------------------------------
     O("target", "blend", "path", doc="The character's .blend (default: the open file)",
       headless="the sidebar works on the open .blend"),
-    O("target", "object", "str", required=True, doc="The mesh object with the shape keys", ui="facecap.target"),
+    O("target", "object", "str", required=True, max_bytes=MAX_NAME_BYTES, doc="The mesh object with the shape keys",
+      ui="facecap.target"),
     # -- [source] ----------------------------------------------------------------------------------
     O("source", "markers", "path", doc="Marker take: C3D, TRC, CSV (wide or long) or JSON",
       ui="facecap.markers_path"),
@@ -137,7 +150,7 @@ OPTIONS = (
     O("source", "units", "choice", choices=UNITS,
       doc="Units of the coordinates (default: the file's, else guessed from the face size with a note)",
       ui="facecap.units, op:facecap.import_markers.units"),
-    O("source", "unit_scale", "float", above=0.0, doc="Metres per unit for `units = \"bu\"` (Blender units)",
+    O("source", "unit_scale", "float", above=0.0, high=1e3, doc="Metres per unit for `units = \"bu\"` (Blender units)",
       ui="op:facecap.import_markers.unit_scale"),
     O("source", "fps", "float", above=0.0, high=MAX_FPS, doc="Frame rate (default: the file's)",
       ui="facecap.fps"),
@@ -147,14 +160,16 @@ OPTIONS = (
       headless="detected on import"),
     O("source", "decimal", "choice", choices=(".", ","), doc="CSV decimal mark (default: detected)",
       headless="detected on import"),
-    O("source", "first", "int", doc="Video takes: first footage frame read",
+    O("source", "first", "int", high=MAX_FRAME, doc="Video takes: first footage frame read",
       headless="the Movie Clip's frame range"),
-    O("source", "last", "int", doc="Video takes: last footage frame read", headless="the Movie Clip's frame range"),
+    O("source", "last", "int", high=MAX_FRAME, doc="Video takes: last footage frame read",
+      headless="the Movie Clip's frame range"),
     O("source", "step", "int", default=1, low=1, high=1000, doc="Video takes: read every n-th frame",
       headless="the Movie Clip's frame range"),
     O("source", "scale", "float", default=1.0, above=0.0, high=1.0, doc="Video takes: downscale before the flow",
       headless="the Movie Clip's proxy settings"),
-    O("source", "frame_offset", "int", default=0, doc="Video takes: added to footage frame numbers",
+    O("source", "frame_offset", "int", default=0, low=-MAX_FRAME, high=MAX_FRAME,
+      doc="Video takes: added to footage frame numbers",
       headless="the Movie Clip's start frame"),
     # -- [clean] -----------------------------------------------------------------------------------
     O("clean", "fix_swaps", "bool", default=False, doc="Detect and undo label swaps between neighbouring markers",
@@ -162,9 +177,9 @@ OPTIONS = (
     O("clean", "swap_ratio", "float", default=0.5, above=0.0, high=1.0,
       doc="A swap is taken when the swapped labels cost less than this times the kept ones",
       headless="an expert setting of the swap test"),
-    O("clean", "spike_speed", "float", above=0.0, doc="Remove samples moving faster than this (units per second)",
+    O("clean", "spike_speed", "float", above=0.0, high=1e9, doc="Remove samples moving faster than this (units per second)",
       headless="the sidebar uses the robust spike test (spike_mad)"),
-    O("clean", "spike_mad", "float", above=0.0, doc="Remove spikes beyond this many robust sigmas of acceleration",
+    O("clean", "spike_mad", "float", above=0.0, high=1e3, doc="Remove spikes beyond this many robust sigmas of acceleration",
       ui="op:facecap.clean_markers.spike_mad"),
     O("clean", "fill_spline", "int", default=0, low=0, high=100_000, doc="Longest gap (frames) filled by a spline",
       ui="op:facecap.clean_markers.fill_spline"),
@@ -173,11 +188,11 @@ OPTIONS = (
       ui="op:facecap.clean_markers.fill_model"),
     O("clean", "model_rank", "int", low=1, high=200, doc="Components of the gap model (default: 99.5 % of variance)",
       headless="an expert setting of the gap model"),
-    O("clean", "lowpass_hz", "float", above=0.0, doc="Zero-phase Butterworth low-pass cutoff (Hz, below fps / 2)",
+    O("clean", "lowpass_hz", "float", above=0.0, high=MAX_FPS / 2, doc="Zero-phase Butterworth low-pass cutoff (Hz, below fps / 2)",
       ui="op:facecap.clean_markers.lowpass_hz"),
     O("clean", "lowpass_order", "int", default=4, low=1, high=12, doc="Butterworth filter order",
       headless="an expert setting of the low-pass filter"),
-    O("clean", "one_euro", "floats", length=3, above=0.0,
+    O("clean", "one_euro", "floats", length=3, above=0.0, high=1e4,
       doc="One-Euro filter [min_cutoff_hz, beta, d_cutoff_hz] instead of the low-pass",
       headless="an alternative filter for live-style captures"),
     # -- [binding] ---------------------------------------------------------------------------------
@@ -250,7 +265,7 @@ OPTIONS = (
     O("solve", "projection", "choice", default="front", choices=("front", "camera"),
       doc="2D takes: the character seen from the front (orthographic) or through a camera",
       ui="facecap.video.projection"),
-    O("solve", "camera", "str", doc="2D takes: camera object for projection = \"camera\" (default: scene camera)",
+    O("solve", "camera", "str", max_bytes=MAX_NAME_BYTES, doc="2D takes: camera object for projection = \"camera\" (default: scene camera)",
       ui="facecap.video.camera"),
     # -- [output] ----------------------------------------------------------------------------------
     O("output", "blend", "path", doc="The .blend written with the solve layer", headless=OUTPUT_FILE),
@@ -265,7 +280,8 @@ OPTIONS = (
       ui="op:facecap.export_take.filepath"),
     O("output", "fbx", "path", doc="FBX (.fbx) of the same: the character, its shape keys and the baked take",
       ui="op:facecap.export_take.filepath"),
-    O("output", "action", "str", doc="Name of the new action (default: the take file's name)", ui="facecap.take_name"),
+    O("output", "action", "str", max_bytes=MAX_NAME_BYTES - 5, ui="facecap.take_name",
+      doc="Name of the new action (default: the take file's name; room is kept for Blender's \" Head\")"),
     O("output", "head", "str", doc="Key the removed head motion on \"Object\" or \"Armature:bone\"",
       ui="facecap.head_target, facecap.head_bone"),
     # -- [calibration] (calibrated, refine) --------------------------------------------------------
@@ -295,11 +311,11 @@ OPTIONS = (
       headless="the sidebar's table has both columns"),
     O("mapping", "table", "table", doc="{source = {shape = gain}} (or keyed by target): many-to-many mapping",
       ui="facecap.mapping"),
-    O("mapping", "gain", ("float", "table"), default=1.0, doc="parallel: gain, or {shape = gain}",
+    O("mapping", "gain", ("float", "table"), default=1.0, low=-1e3, high=1e3, doc="parallel: gain, or {shape = gain}",
       ui="facecap.parallel_gain"),
-    O("mapping", "offset", ("float", "table"), default=0.0, doc="parallel: offset, or {shape = offset}",
+    O("mapping", "offset", ("float", "table"), default=0.0, low=-10.0, high=10.0, doc="parallel: offset, or {shape = offset}",
       ui="facecap.parallel_offset"),
-    O("mapping", "clamp", ("floats", "table"), length=2, doc="parallel: [lo, hi], or {shape = [lo, hi]}",
+    O("mapping", "clamp", ("floats", "table"), length=2, low=-10.0, high=10.0, doc="parallel: [lo, hi], or {shape = [lo, hi]}",
       headless="the Shapes panel's per-shape clamp does this in the sidebar"),
     O("mapping", "curve", ("str", "table"), default="linear",
       doc="parallel: \"linear\", \"smoothstep\", \"gamma:<g>\", or {shape = curve}",
@@ -348,9 +364,9 @@ OPTIONS = (
     # -- [tracking] and [flow] (video takes) -------------------------------------------------------
     O("tracking", "method", "choice", default="dis", choices=("dis", "farneback", "tvl1"),
       doc="Dense optical flow method", ui="facecap.video.flow_method", hint="a video take follows dense flow"),
-    O("tracking", "region", "floats", length=4, low=0.0, doc="Face region [x, y, w, h] in pixels (default: the frame)",
+    O("tracking", "region", "floats", length=4, low=0.0, high=1e6, doc="Face region [x, y, w, h] in pixels (default: the frame)",
       ui="facecap.video.region"),
-    O("tracking", "reference", "int", doc="The neutral reference frame (default: the first frame read)",
+    O("tracking", "reference", "int", high=MAX_FRAME, doc="The neutral reference frame (default: the first frame read)",
       headless="the sidebar uses the current frame"),
     O("tracking", "stable_region", "list", doc="[x, y, w, h] or [[x, y, w, h], ...] that move with the head only",
       ui="facecap.video.stable_region"),
@@ -367,7 +383,7 @@ OPTIONS = (
     # -- [tuning] and [controls] ------------------------------------------------------------------
     O("tuning", "corrections", "path", doc="frame,<shape>,... corrected weights (the `tune` command)",
       ui="facecap.tuning_frames"),
-    O("tuning", "mu", "float", above=0.0, doc="Prior of the correction (absent: chosen automatically; inf = gains only)",
+    O("tuning", "mu", "float", above=0.0, high=1e12, doc="Prior of the correction (absent: chosen automatically; inf = gains only)",
       ui="facecap.tune_auto_mu, facecap.tune_mu"),
     O("tuning", "library", "path", doc="A stored library version to solve with",
       ui="facecap.library_active, facecap.library_versions"),
@@ -382,6 +398,86 @@ OPTIONS = (
 
 BY_NAME = {o.name: o for o in OPTIONS}
 SECTIONS = tuple(dict.fromkeys(o.section for o in OPTIONS))
+
+#: ``python -m facecap track --config``: the tracking config (solvers.video.cli)
+TRACK_OPTIONS = (
+    O("source", "video", "path", required=True, doc="Video file, image folder, glob or printf pattern"),
+    O("source", "first", "int", high=MAX_FRAME, doc="First footage frame read (frame 1 is the first)"),
+    O("source", "last", "int", high=MAX_FRAME, doc="Last footage frame read"),
+    O("source", "step", "int", default=1, low=1, high=1000, doc="Read every n-th frame"),
+    O("source", "scale", "float", default=1.0, above=0.0, high=1.0, doc="Downscale before tracking"),
+    O("source", "fps", "float", above=0.0, high=MAX_FPS, doc="Frame rate (image sequences default to 24)"),
+    O("source", "frame_offset", "int", doc="Removed: frame numbers are the footage's own"),
+    O("tracking", "points", "path", doc="name,x,y seed points at the reference frame (source pixels)"),
+    O("tracking", "region", "floats", length=4, low=0.0, high=1e6, doc="Or automatic features in [x, y, w, h]"),
+    O("tracking", "method", "choice", default="lk", choices=("lk", "dis", "farneback", "tvl1"),
+      doc="Lucas-Kanade points, or dense flow sampled at them"),
+    O("tracking", "reference", "int", high=MAX_FRAME, doc="Neutral reference frame (default: the first read)"),
+    O("tracking", "max_points", "int", default=100, low=1, high=10_000, doc="Automatic features at most"),
+    O("tracking", "reregister", "bool", default=True, doc="lk: drift control by re-registration to the reference"),
+    O("tracking", "reseed", "bool", default=True, doc="lk: re-acquire lost points"),
+    O("tracking", "win_size", "int", default=21, low=3, high=255, doc="lk: window size in pixels"),
+    O("tracking", "fb_threshold", "float", default=1.0, above=0.0, high=1e3,
+      doc="lk: forward-backward error threshold (working pixels)"),
+    O("tracking", "levels", "int", default=3, low=0, high=10, doc="lk: pyramid levels"),
+    O("tracking", "drift", "choice", default="fuse", choices=("fuse", "direct", "none"), doc="dense: drift control"),
+    O("tracking", "preset", "choice", default="balanced", choices=("ultrafast", "fast", "balanced", "medium"),
+      doc="dis: quality preset"),
+    O("output", "markers", "path", required=True, doc="The 2D tracks: frame,<name>_x,<name>_y (pixels)"),
+    O("output", "confidence", "path", doc="frame,<name> per-sample confidence in [0, 1]"),
+    O("output", "report", "path", doc="JSON summary: losses, re-acquisitions, footage"),
+)
+
+
+def suggest(word, candidates):
+    """`` (did you mean 'x'?)`` for the candidate closest to ``word``, or ''."""
+    if not isinstance(word, str):
+        return ""
+    candidates = [str(c) for c in candidates]
+    folded = {c.casefold(): c for c in candidates}
+    match = folded.get(word.casefold()) or next(iter(difflib.get_close_matches(word, candidates, n=1, cutoff=0.6)), None)
+    return f" (did you mean '{match}'?)" if match else ""
+
+
+def table_problems(data, options, *, prefix="", open_sections=("controls",)):
+    """Every problem of TOML tables ``data`` against the option table ``options``, all at once.
+
+    Returns [(key, message, covers)]: unknown sections and keys (with a "did you mean"), values of the
+    wrong kind or out of range, missing required keys. ``key`` is ``section.key`` (``prefix`` before it,
+    e.g. ``defaults.``), or None for a section's own problems (the message names it); ``covers`` is the
+    key whose later problems are consequences of this one (an unknown section close to a known one
+    covers the known one: its missing keys are not news). In ``open_sections`` any key is a table
+    (``[controls]``: a key per shape).
+    """
+    by_name = {o.name: o for o in options}
+    sections = tuple(dict.fromkeys(o.section for o in options))
+    problems = []
+    for section, body in data.items():
+        if section not in sections:
+            hint = suggest(section, sections)
+            problems.append((None, f"unknown section [{prefix}{section}]{hint}; known: {', '.join(sections)}",
+                             prefix + (hint.split("'")[1] if hint else section)))
+            continue
+        if not isinstance(body, dict):
+            problems.append((None, f"[{prefix}{section}] must be a table; got {body!r}", prefix + section))
+            continue
+        keys = [o.key for o in options if o.section == section]
+        for key, value in body.items():
+            opt = by_name.get(f"{section}.{key}")
+            if opt is None and section in open_sections:
+                opt = by_name.get(f"{section}.<shape>")
+            if opt is None:
+                name = f"{prefix}{section}.{key}"
+                problems.append((name, f"unknown key{suggest(key, keys)}; known keys: {', '.join(keys)}", name))
+                continue
+            problem = opt.check(value)
+            if problem is not None:
+                problems.append((f"{prefix}{section}.{key}", problem, f"{prefix}{section}.{key}"))
+    for opt in options:
+        body = data.get(opt.section)
+        if opt.required and not (isinstance(body, dict) and opt.key in body):
+            problems.append((prefix + opt.name, "missing required key", prefix + opt.name))
+    return problems
 
 
 def option(name):

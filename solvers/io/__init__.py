@@ -34,6 +34,7 @@ from .csv import read_wide_csv, sniff, time_column
 from .csv_long import is_long_header, read_long_csv
 from .csv_write import write_markers_csv
 from .json import read_json, write_json
+from .limits import check_input_file
 from .timing import FPS_ASSUMED, UNITS_GUESSED
 from .trc import read_trc, write_trc
 from .weights import WeightTrack, read_weights
@@ -68,6 +69,7 @@ class ImportResult:
 def detect_format(path):
     """Format name of ``path`` (see FORMATS), from its extension and, for text, its header."""
     path = Path(path)
+    check_input_file(path)
     fmt = EXTENSIONS.get(path.suffix.lower())
     if fmt is None:
         try:
@@ -101,6 +103,7 @@ def import_markers(path, *, format=None, units=None, fps=None, **options):
     **options
         ``unit_scale``, ``up_axis`` and, for CSV, ``delimiter`` and ``decimal``.
     """
+    check_input_file(path)
     fmt = detect_format(path) if format is None else format
     if fmt not in FORMATS:
         raise FacecapError(f"`format` must be one of {', '.join(FORMATS)}; got {format!r}")

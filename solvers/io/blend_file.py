@@ -19,6 +19,10 @@ import os
 import struct
 
 from ..errors import InputFileError
+from .limits import check_input_file
+
+#: Largest .blend opened (bytes): far beyond any character with its takes; a file this size is not one
+MAX_BLEND_BYTES = 1 << 40
 
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 GZIP_MAGIC = b"\x1f\x8b"
@@ -29,8 +33,8 @@ _SKIPPABLE_SEEK_TABLE = 0x184D2A5E
 def check_blend_structure(path, what=""):
     """Raise InputFileError naming ``path`` (and ``what`` it is for, e.g. "[target] blend") unless it
     looks like a whole .blend file."""
+    size = check_input_file(path, limit=MAX_BLEND_BYTES)
     try:
-        size = os.path.getsize(path)
         with open(path, "rb") as fh:
             head = fh.read(32)
             if head.startswith(ZSTD_MAGIC):

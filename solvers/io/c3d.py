@@ -21,6 +21,7 @@ import struct
 import numpy as np
 
 from ..errors import InputFileError
+from .limits import check_input_file
 from .timing import UNIT_ALIASES, check_markerset, finish_arrays, unique_names
 
 BLOCK = 512
@@ -184,6 +185,7 @@ def read_c3d(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
     """
     notes = [] if notes is None else notes
     path = str(path)
+    check_input_file(path)
     try:
         fh = open(path, "rb")
     except FileNotFoundError:

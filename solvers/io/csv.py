@@ -35,6 +35,7 @@ from .csv_vector import vector_numeric as _vector_numeric
 
 # The writers live in csv_write; imported here so `from .csv import write_markers_csv` keeps working.
 from .csv_write import AXES, segment_labels, write_markers_csv, write_weights_csv  # noqa: F401
+from .limits import check_input_file
 from .timing import check_markerset, finish_arrays, segments_from_labels
 
 GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
@@ -62,6 +63,7 @@ class Sniffed:
 
 
 def _open_text(path):
+    check_input_file(path)
     try:
         return open(path, encoding="utf-8-sig", newline="")
     except FileNotFoundError:

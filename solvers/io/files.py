@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError
+from .limits import MAX_TEXT_BYTES, check_input_file
 from .outputs import WRITE_ERRNOS, write_error
 
 TMP_MARK = ".facecap-tmp."
@@ -167,6 +168,7 @@ def _json_default(value):
 def read_text_input(path, missing="file not found"):
     """The text of a small input file (UTF-8, a byte-order mark allowed). Raises InputFileError naming
     the file: ``missing`` when it does not exist, the reason when it cannot be read or decoded."""
+    check_input_file(path, limit=MAX_TEXT_BYTES, missing=missing)
     try:
         return Path(path).read_text(encoding="utf-8-sig")
     except FileNotFoundError:

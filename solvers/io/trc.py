@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from .csv import GAP_TOKENS
 from .files import atomic_path
+from .limits import check_input_file
 from .timing import UNIT_ALIASES, check_markerset, finish_arrays, unique_names
 
 
@@ -26,6 +27,7 @@ def _cells(line):
 
 
 def _read_lines(path):
+    check_input_file(path)
     try:
         with open(path, encoding="utf-8-sig", newline="") as fh:
             text = fh.read()

@@ -34,6 +34,7 @@ the removed ``frame_offset`` key are errors that say so.
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 import threading
@@ -41,89 +42,89 @@ import time
 import tomllib
 from pathlib import Path
 
-from ..errors import ConfigError, FacecapError
+from ..errors import ConfigError, FacecapError, InputFileError, Problems
 from ..io.csv import write_markers_csv, write_weights_csv
-from ..io.files import write_json_atomic
+from ..io.files import read_text_input, remove_stale_temporaries, write_json_atomic
+from ..io.outputs import Output, check_outputs
+from ..options import TRACK_OPTIONS, table_problems
 from .flow import track_with_flow_job
 from .reading import Cancelled, Footage
 from .tracking import track_points_job
 from .flow_config import frame_number_error
 
-SCHEMA = {
-    "source": {"video", "first", "last", "step", "scale", "fps", "frame_offset"},
-    "tracking": {"points", "region", "method", "reference", "max_points", "reregister", "reseed", "drift",
-                 "win_size", "fb_threshold", "levels", "preset"},
-    "output": {"markers", "confidence", "report"},
-}
-METHODS = ("lk", "dis", "farneback", "tvl1")
+#: The track report's schema version (its first key, ``"facecap_track"``, also marks it as facecap's own)
+REPORT_SCHEMA = 1
+#: Options of one tracking method only
+LK_ONLY, DENSE_ONLY = ("reregister", "reseed", "win_size", "fb_threshold", "levels"), ("drift", "preset")
 
 
-def load_track_config(path):
-    """Parse and check a track config; returns a dict of resolved settings."""
-    path = Path(path)
+def read_track_toml(path):
+    """(absolute path, TOML tables) of a track config; ConfigError naming the file when unreadable."""
+    path = Path(os.path.expanduser(str(path))).resolve()
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError("config file not found", path=path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read: {exc}", path=path) from None
+        text = read_text_input(path, "config file not found")
+        return path, tomllib.loads(text)
+    except InputFileError as exc:
+        raise ConfigError(str(exc).removeprefix(f"{path}: "), path=path) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"not valid TOML: {exc}", path=path) from None
-    base = path.resolve().parent
-    for section, keys in SCHEMA.items():
-        table = data.get(section, {})
-        if not isinstance(table, dict):
-            raise ConfigError("must be a table", path=path, key=section)
-        unknown = sorted(set(table) - keys)
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown}; expected some of {sorted(keys)}", path=path, key=section)
-    src, trk, out = (data.get(s, {}) for s in ("source", "tracking", "output"))
-    if "video" not in src:
-        raise ConfigError("missing `video` (a video file or image sequence)", path=path, key="source")
-    if "markers" not in out:
-        raise ConfigError("missing `markers` (the output CSV)", path=path, key="output")
-    if ("points" in trk) == ("region" in trk):
-        raise ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
-                          path=path, key="tracking")
-    method = str(trk.get("method", "lk")).lower()
-    if method not in METHODS:
-        raise ConfigError(f"`method` must be one of {', '.join(METHODS)}; got {trk.get('method')!r}",
-                          path=path, key="tracking")
+    except (RecursionError, ValueError) as exc:  # nested too deeply; an integer beyond Python's digit limit
+        raise ConfigError(f"not valid TOML: {exc or 'values nested too deeply'}", path=path) from None
+
+
+def load_track_config(path, *, overwrite=False):
+    """Parse and check a track config (``solvers.options.TRACK_OPTIONS``: every problem of the file at
+    once, with a "did you mean"), then its outputs against the output policy (``solvers.io.outputs``);
+    returns a dict of resolved settings."""
+    path, data = read_track_toml(path)
+    problems = Problems()
+    for key, message, covers in table_problems(data, TRACK_OPTIONS, open_sections=()):
+        problems.add(ConfigError(message, path=path, key=key), covers=covers)
+    src, trk, out = ({k: v for k, v in (data.get(s) or {}).items() if not problems.covered(f"{s}.{k}")}
+                     if isinstance(data.get(s), dict) else {} for s in ("source", "tracking", "output"))
+    given = data.get("tracking") if isinstance(data.get("tracking"), dict) else {}
+    if ("points" in given) == ("region" in given) and not problems.covered("tracking"):
+        problems.add(ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
+                                 path=path, key="tracking"))
     region = trk.get("region")
-    if region is not None and (not isinstance(region, list) or len(region) != 4
-                               or not all(isinstance(v, (int, float)) for v in region)):
-        raise ConfigError(f"`region` must be [x, y, w, h] in pixels; got {region!r}", path=path, key="tracking")
-
-    def resolve(value, key):
-        if not isinstance(value, str) or not value:
-            raise ConfigError(f"`{key}` must be a path string; got {value!r}", path=path, key=key.split(".")[0])
-        p = Path(value)
-        return str(p if p.is_absolute() else base / p)
-
-
+    if region is not None and not (region[2] > 0 and region[3] > 0):
+        problems.add(ConfigError(f"expected [x, y, w, h] with w, h > 0; got {region!r}", path=path,
+                                 key="tracking.region"))
     for section, key in (("source", "first"), ("source", "last"), ("source", "frame_offset"),
                          ("tracking", "reference")):
         table = src if section == "source" else trk
         if key in table and (problem := frame_number_error(f"{section}.{key}", table[key])):
-            raise ConfigError(problem, path=path, key=f"{section}.{key}")
-    footage = {k: src[k] for k in ("first", "last", "step", "scale", "fps") if k in src}
+            problems.add(ConfigError(problem, path=path, key=f"{section}.{key}"))
+    method = trk.get("method", "lk")
     options = {k: trk[k] for k in trk if k not in ("points", "region", "method", "reference")}
-    lk_only, dense_only = {"reregister", "reseed", "win_size", "fb_threshold", "levels"}, {"drift", "preset"}
-    wrong = sorted(set(options) & (dense_only if method == "lk" else lk_only))
+    wrong = sorted(set(options) & set(DENSE_ONLY if method == "lk" else LK_ONLY))
     if wrong:
-        raise ConfigError(f"{wrong} do not apply to method {method!r}", path=path, key="tracking")
-    return {
-        "video": resolve(src["video"], "source.video"),
-        "footage": footage,
-        "points": resolve(trk["points"], "tracking.points") if "points" in trk else None,
+        problems.add(ConfigError(f"{wrong} do not apply to method {method!r}", path=path, key="tracking"))
+    problems.raise_any()
+    base = path.parent
+
+    def resolve(value):
+        return base / os.path.expanduser(value)
+
+    settings = {
+        "config": path,
+        "video": str(resolve(src["video"])),
+        "footage": {k: src[k] for k in ("first", "last", "step", "scale", "fps") if k in src},
+        "points": str(resolve(trk["points"])) if "points" in trk else None,
         "region": region,
         "method": method,
         "reference": trk.get("reference"),
         "options": options,
-        "markers": resolve(out["markers"], "output.markers"),
-        "confidence": resolve(out["confidence"], "output.confidence") if "confidence" in out else None,
-        "report": resolve(out["report"], "output.report") if "report" in out else None,
+        **{key: str(resolve(out[key])) if key in out else None for key in ("markers", "confidence", "report")},
     }
+    check_outputs([Output(f"[output.{key}]", settings[key], kind) for key, kind in TRACK_OUTPUTS],
+                  {"the config itself": path, "[source.video]": settings["video"],
+                   "[tracking.points]": settings["points"]}, overwrite=overwrite, config=path)
+    return settings
+
+
+#: [output] key -> the kind of file it is (``solvers.io.outputs.KINDS``)
+TRACK_OUTPUTS = (("markers", "markers_csv"), ("confidence", "weights_csv"), ("report", "track_report"))
 
 
 class ProgressLine:
@@ -170,7 +171,7 @@ def write_outputs(settings, result, info):
         write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, result.confidence)
     if settings["report"]:
         write_json_atomic(settings["report"], {
-            "summary": result.summary(), "method": result.method, "reference": result.reference,
+            "facecap_track": REPORT_SCHEMA, "summary": result.summary(), "method": result.method, "reference": result.reference,
             "frame_numbering": "frame 1 is the first frame of the footage",
             "footage": {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
                         "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames},
@@ -225,6 +226,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(prog="facecap track", description="Track 2D markers in footage.")
     parser.add_argument("--config", required=True, help="take config (.toml) with [source], [tracking], [output]")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="let outputs replace existing files facecap did not write (default: refused)")
     args = parser.parse_args(argv)
     with sigint_cancels() as stop:
         return _main(args, stop)
@@ -233,7 +236,10 @@ def main(argv=None):
 def _main(args, stop):
     shown = None
     try:
-        settings = load_track_config(args.config)
+        settings = load_track_config(args.config, overwrite=args.overwrite)
+        for key in ("markers", "confidence", "report"):
+            if settings[key] is not None:
+                remove_stale_temporaries(Path(settings[key]).parent)
         shown = None if args.quiet else ProgressLine(sys.stderr, f"track ({settings['method']})")
 
         def progress(done, total):
@@ -250,7 +256,8 @@ def _main(args, stop):
     except FacecapError as exc:
         if shown is not None:
             shown.close_line()
-        print(f"facecap: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        for line in str(exc).splitlines():
+            print(f"facecap: error: {' '.join(line.split())}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         if shown is not None:
