@@ -439,7 +439,7 @@ def suggest(word, candidates):
     return f" (did you mean '{match}'?)" if match else ""
 
 
-def table_problems(data, options, *, prefix="", open_sections=("controls",)):
+def table_problems(data, options, *, prefix="", open_sections=("controls",), required=True):
     """Every problem of TOML tables ``data`` against the option table ``options``, all at once.
 
     Returns [(key, message, covers)]: unknown sections and keys (with a "did you mean"), values of the
@@ -447,7 +447,7 @@ def table_problems(data, options, *, prefix="", open_sections=("controls",)):
     e.g. ``defaults.``), or None for a section's own problems (the message names it); ``covers`` is the
     key whose later problems are consequences of this one (an unknown section close to a known one
     covers the known one: its missing keys are not news). In ``open_sections`` any key is a table
-    (``[controls]``: a key per shape).
+    (``[controls]``: a key per shape). ``required``: whether missing required keys are problems.
     """
     by_name = {o.name: o for o in options}
     sections = tuple(dict.fromkeys(o.section for o in options))
@@ -475,7 +475,7 @@ def table_problems(data, options, *, prefix="", open_sections=("controls",)):
                 problems.append((f"{prefix}{section}.{key}", problem, f"{prefix}{section}.{key}"))
     for opt in options:
         body = data.get(opt.section)
-        if opt.required and not (isinstance(body, dict) and opt.key in body):
+        if required and opt.required and not (isinstance(body, dict) and opt.key in body):
             problems.append((prefix + opt.name, "missing required key", prefix + opt.name))
     return problems
 

@@ -110,7 +110,15 @@ def take_names(paths):
 
 
 def _tomls(folder):
-    return sorted(p for p in folder.glob("*.toml") if p.is_file())
+    """The .toml files of ``folder``; a symbolic link to another one of them is that one, not a second take."""
+    files = [p for p in folder.glob("*.toml") if p.is_file()]
+    kept, seen = [], set()
+    for p in sorted(files, key=lambda p: (p.is_symlink(), p.name)):  # real files first: they keep their name
+        real = p.resolve()
+        if real not in seen:
+            seen.add(real)
+            kept.append(p)
+    return sorted(kept)
 
 
 def _is_batch_file(path):
@@ -178,8 +186,7 @@ def read_defaults(path, data):
     if not isinstance(defaults, dict):
         problems.add(ConfigError("[defaults] must be a table of take-config sections", path=path))
         defaults = {}
-    for key, message, covers in table_problems(defaults, [o for o in OPTIONS if not o.required],
-                                               prefix="defaults."):
+    for key, message, covers in table_problems(defaults, OPTIONS, prefix="defaults.", required=False):
         problems.add(ConfigError(message, path=path, key=key), covers=covers)
     out = {}
     for section, body in defaults.items():

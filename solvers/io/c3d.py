@@ -29,6 +29,14 @@ INTEL, DEC, MIPS = 84, 85, 86
 _TYPES = {-1: 1, 1: 1, 2: 2, 4: 4}
 
 
+
+def _text(data):
+    """A label's bytes as text: UTF-8 (facecap's writer, ezc3d), else Latin-1 (older writers' bytes)."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
+
 class _Param:
     __slots__ = ("etype", "dims", "data")
 
@@ -75,13 +83,12 @@ class _C3D:
         if p is None or p.etype != -1:
             return None
         if len(p.dims) == 0:
-            return [p.data.decode("latin-1").strip()]
+            return [_text(p.data).strip()]
         width = p.dims[0]
         if width == 0:
             return []
         count = len(p.data) // width
-        return [p.data[i * width:(i + 1) * width].decode("latin-1").strip().strip("\x00").strip()
-                for i in range(count)]
+        return [_text(p.data[i * width:(i + 1) * width]).strip().strip("\x00").strip() for i in range(count)]
 
     def floats(self, group, name):
         p = self.get(group, name)

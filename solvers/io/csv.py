@@ -22,6 +22,7 @@ All three give bit-identical arrays. Header lines are read whole, however long.
 import collections
 import csv
 import io
+import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,7 +94,8 @@ def sniff(path, *, delimiter=None, decimal=None):
     if header_text is None:
         raise InputFileError(path, "empty file; expected a header line", line=1)
     if delimiter is None:
-        counts = [header_text.count(d) for d in DELIMITERS]
+        unquoted = re.sub(r'"(?:[^"]|"")*"', "", header_text)  # a quoted name's commas do not count
+        counts = [unquoted.count(d) for d in DELIMITERS]
         delimiter = DELIMITERS[int(np.argmax(counts))] if max(counts) else ","
     elif delimiter not in DELIMITERS:
         raise FacecapError(f"`delimiter` must be one of {DELIMITERS!r}; got {delimiter!r}")
@@ -109,9 +111,33 @@ def sniff(path, *, delimiter=None, decimal=None):
         raise FacecapError(f"`decimal` must be '.' or ','; got {decimal!r}")
     if decimal == "," and delimiter == ",":
         raise FacecapError("`decimal` ',' needs a delimiter other than ','")
-    header = next(csv.reader([header_text], delimiter=delimiter), [])
-    header = tuple(h.strip() for h in header)
-    return Sniffed(path, delimiter, decimal, header, header_line)
+    return Sniffed(path, delimiter, decimal, header_cells(header_text, delimiter), header_line)
+
+
+def header_cells(line, delimiter):
+    """The cells of a header line (RFC 4180 quoting): unquoted cells stripped of spaces, quoted ones kept
+    exactly as written (a name may begin or end with a space)."""
+    cells, cell, quoted, inside, i = [], [], False, False, 0
+    while i < len(line):
+        c = line[i]
+        if inside:
+            if c == '"' and line[i + 1:i + 2] == '"':
+                cell.append('"')
+                i += 1
+            elif c == '"':
+                inside = False
+            else:
+                cell.append(c)
+        elif c == '"' and not "".join(cell).strip():
+            cell, quoted, inside = [], True, True
+        elif c == delimiter:
+            cells.append("".join(cell) if quoted else "".join(cell).strip())
+            cell, quoted = [], False
+        else:
+            cell.append(c)
+        i += 1
+    cells.append("".join(cell) if quoted else "".join(cell).strip())
+    return tuple(cells)
 
 
 def _head_lines(fh):
