@@ -26,8 +26,10 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import FacecapError, InputFileError
-from ..markers import MarkerSet
+from ..markers import UNIT_SCALE, MarkerSet
 from .c3d import read_c3d
 from .c3d_write import write_c3d
 from .csv import read_wide_csv, sniff, time_column
@@ -115,7 +117,29 @@ def import_markers(path, *, format=None, units=None, fps=None, **options):
     reader = {"c3d": read_c3d, "trc": read_trc, "json": read_json, "csv": read_wide_csv,
               "csv-long": read_long_csv}[fmt]
     markers = reader(path, units=units, fps=fps, notes=notes, **options)
+    check_magnitude(path, markers)
     return ImportResult(markers=markers, format=fmt, notes=tuple(notes), decided=_decided(notes, units, fps))
+
+
+#: Largest coordinate a take may hold: 10 km (3D, in metres) or 10 million pixels (2D). Beyond it the
+#: file is damaged (a C3D's data block shifted) or its units are wrong, and the fits would overflow.
+MAX_COORDINATE_M = 1e4
+MAX_COORDINATE_PX = 1e7
+
+
+def check_magnitude(path, markers):
+    """InputFileError naming the file when a coordinate lies beyond ``MAX_COORDINATE_M`` / ``_PX``."""
+    pos = markers.positions
+    if pos.size == 0:
+        return
+    with np.errstate(invalid="ignore"):
+        largest = float(np.nanmax(np.abs(pos))) if np.isfinite(pos).any() else 0.0
+    scale = UNIT_SCALE.get(markers.units)
+    limit = MAX_COORDINATE_PX if markers.dim == 2 or scale is None else MAX_COORDINATE_M / scale
+    if largest > limit:
+        unit = markers.units or "units"
+        raise InputFileError(path, f"coordinates reach {largest:.3g} {unit}, beyond the {limit:.3g} {unit} any capture "
+                                   "holds: a damaged file, or the wrong units")
 
 
 def _decided(notes, units, fps):
