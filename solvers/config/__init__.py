@@ -30,6 +30,7 @@ from ..character.binding_map import BindingSettings
 from ..character.shape_options import Region
 from ..errors import ConfigError, FacecapError, InputFileError, Problems
 from ..io.limits import MAX_TEXT_BYTES, check_input_file
+from ..io.outputs import user_path
 from ..options import OPTIONS, SECTIONS, default, table_problems
 from ..pipeline import RetargetSettings
 from ..video.flow_config import split_video_sections, video_take
@@ -149,7 +150,7 @@ def load_take_config(path, data=None):
         return data.get(section, {}).get(key, default)
 
     def resolve(value):
-        return None if value is None else (base / os.path.expanduser(value)).resolve()
+        return None if value is None else user_path(value, base)
 
     units = get("source", "units")
     fps = get("source", "fps")

@@ -1,7 +1,7 @@
 """The output policy: what any facecap command may write, decided in one place before any work.
 
-Every command that writes files (``retarget``, ``tune``, ``track``, ``batch``, ``convert``,
-``config-docs``, ``docs-images``, the review page and the exports) describes its outputs as
+Every command that writes files a user names (``retarget``, ``tune``, ``track``, ``batch``, ``convert``,
+``demo``, the review page and the exports; ``bench`` writes only in its own temporary folders) describes its outputs as
 ``Output(key, path, kind)`` and calls ``check_outputs`` before it reads or solves anything. An output
 
 * is never one of the command's inputs (after ``~``, ``..``, symbolic and hard links and, on a
@@ -112,8 +112,6 @@ KINDS = {
     "npz": ("stored library (.npz)", lambda h: h.startswith(b"PK\x03\x04") and b"shape_names" in h[:4096]),
     "glb": ("binary glTF (.glb)", lambda h: h.startswith(b"glTF")),
     "fbx": ("FBX file", lambda h: h.startswith(b"Kaydara FBX Binary") or h.lstrip().startswith(b"; FBX")),
-    "png": ("PNG image", lambda h: h.startswith(b"\x89PNG\r\n\x1a\n")),
-    "markdown": ("facecap reference page", lambda h: b"python -m facecap config-docs" in h),
 }
 
 
@@ -137,6 +135,25 @@ def resolved(path):
         return Path(os.path.realpath(os.path.expanduser(str(path)), strict=False))
     except (OSError, RuntimeError, ValueError) as exc:  # a loop (3.11 raises RuntimeError), NUL bytes
         raise OutputError(f"{path}: cannot be resolved ({exc})") from None
+
+
+def user_path(value, base=None):
+    """An absolute Path of a path a user gave (``~`` expanded, relative to ``base``), links resolved,
+    except where resolving would hide what the checks must see: a special file (``/dev/stdout`` links
+    to a pipe's name in /proc, which does not exist as a file) and a symbolic-link loop keep their
+    spelling (the output policy and the readers then say what they are)."""
+    p = Path(os.path.expanduser(str(value)))
+    if base is not None:
+        p = Path(base) / p
+    try:
+        if not stat.S_ISREG(os.stat(p).st_mode) and not stat.S_ISDIR(os.stat(p).st_mode):
+            return Path(os.path.abspath(p))
+    except (OSError, ValueError):
+        pass  # missing (an output to be), or a loop: resolved below as far as it goes
+    try:
+        return p.resolve()
+    except (OSError, RuntimeError):  # a symbolic-link loop (3.11 raises RuntimeError)
+        return Path(os.path.abspath(p))
 
 
 def _case_insensitive(folder):
