@@ -71,6 +71,7 @@ from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
+from ..solvers.tools.clean_bench import bench_clean  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
@@ -164,6 +165,10 @@ def _cmd_bench(args):
         for row in bench_memory((3600, 36000) if args.quick else MEMORY_FRAMES):
             print(row["line"], flush=True)
         return 0
+    if args.clean:  # the cleaning case on its own
+        for row in bench_clean((360, 3600) if args.quick else (3600, 36000)):
+            print(_bench_line(row), flush=True)
+        return 0
     if args.batch:  # minutes of its own: only when asked
         print(_bench_line(bench_batch(takes=args.batch_takes, jobs=args.batch_jobs, repeat=args.repeat)), flush=True)
         return 0
@@ -256,6 +261,9 @@ def build_parser():
     p.add_argument("--batch-takes", type=int, default=20, help="takes of 720 frames in the batch case (default 20)")
     p.add_argument("--batch-jobs", type=int, default=2, help="--jobs of the batch case (default 2)")
     p.add_argument("--repeat", type=int, default=3, help="runs of the batch case, median (default 3)")
+    p.add_argument("--clean", action="store_true",
+                   help="only the cleaning case: spike removal and spline gap fill on 3,600 and 36,000 frames with "
+                        "5%% spikes, against one spline per gap")
     p.add_argument("--memory", action="store_true",
                    help="only the memory case: peak memory of `retarget`'s process tree on 36,000- and 360,000-frame "
                         "takes (with --quick 3,600 and 36,000); about 20 minutes")

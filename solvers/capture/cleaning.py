@@ -247,12 +247,11 @@ def remove_spikes(markers, *, max_speed=None, mad=None):
 def fill_gaps_spline(markers, *, max_gap):
     """Fill interior gaps of at most ``max_gap`` frames with a cubic smoothing spline.
 
-    The spline runs through up to ``max(3 * gap, 12)`` visible frames on each side of a gap (the
-    discrete cubic smoothing spline on the take's frames, ``smoothing.penalised_fit``: one banded
-    solve); its smoothing weight is chosen once per marker by hiding 5-frame blocks of the marker's
-    visible samples and keeping the weight that predicts them best. Gaps whose context windows overlap
-    (many short gaps: the spike removal's) share one fit through the union of their windows, so the
-    work grows with the take's length, not with the number of gaps.
+    One discrete cubic smoothing spline per marker through all its visible samples, on the take's
+    frames (``smoothing.penalised_fit``: one banded solve, so the work grows with the take's length
+    however many gaps the spike removal cut), gives the values of its gaps; its smoothing weight is
+    chosen once per marker by hiding 5-frame blocks of the marker's visible samples and keeping the
+    weight that predicts them best. Visible samples and longer gaps are left as they are.
     """
     with needs("scipy", "Spline gap filling (Clean Markers)"):
         import scipy.linalg  # noqa: F401 - scipy: checked here, used by penalised_fit
@@ -263,36 +262,17 @@ def fill_gaps_spline(markers, *, max_gap):
     for m in range(markers.n_markers):
         vis = ~np.isnan(pos[:, m, 0])
         runs = [(a, b) for a, b, interior in gap_runs(vis) if interior and b - a <= max_gap]
-        if not runs:
+        if not runs or vis.sum() < 5:
             continue
         lam = _choose_smoothing(t, pos[:, m], vis)
         visible = np.flatnonzero(vis)
-        for group, lo, hi in _context_groups(runs, visible):
-            if hi - lo < 5:
-                continue
-            first, last = visible[lo], visible[hi - 1] + 1
-            fit = penalised_fit(t[first:last], pos[first:last, m], vis[first:last], lam)
-            rows = np.concatenate([np.arange(a, b) for a, b in group])
-            pos[rows, m] = fit[rows - first]
-            filled[m] += rows.size
+        first, last = visible[0], visible[-1] + 1
+        fit = penalised_fit(t[first:last], pos[first:last, m], vis[first:last], lam)
+        rows = np.concatenate([np.arange(a, b) for a, b in runs])
+        pos[rows, m] = fit[rows - first]
+        filled[m] += rows.size
     return markers.with_positions(pos), StepReport("fill_spline", _counts(markers, filled),
                                                    f"gaps of up to {max_gap} frames filled by spline")
-
-
-def _context_groups(runs, visible):
-    """Gaps whose context windows overlap, merged: [(gaps, lo, hi)] with ``visible[lo:hi]`` the frames
-    one fit runs through. ``runs``: (start, stop) gaps in order; ``visible``: the visible rows."""
-    groups = []
-    for a, b in runs:
-        context = max(3 * (b - a), 12)
-        lo = max(0, int(np.searchsorted(visible, a)) - context)
-        hi = min(visible.size, int(np.searchsorted(visible, b)) + context)
-        if groups and lo < groups[-1][2]:
-            gaps, first, last = groups[-1]
-            groups[-1] = (gaps + [(a, b)], first, max(last, hi))
-        else:
-            groups.append(([(a, b)], lo, hi))
-    return groups
 
 
 _LAMBDAS = 10.0 ** np.arange(-1.0, 3.01, 0.5)
