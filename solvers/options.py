@@ -446,7 +446,7 @@ def table_problems(data, options, *, prefix="", open_sections=("controls",), req
     wrong kind or out of range, missing required keys. ``key`` is ``section.key`` (``prefix`` before it,
     e.g. ``defaults.``), or None for a section's own problems (the message names it); ``covers`` is the
     key whose later problems are consequences of this one (an unknown section close to a known one
-    covers the known one: its missing keys are not news). In ``open_sections`` any key is a table
+    that is absent covers the known one: its missing keys are not news). In ``open_sections`` any key is a table
     (``[controls]``: a key per shape). ``required``: whether missing required keys are problems.
     """
     by_name = {o.name: o for o in options}
@@ -455,8 +455,9 @@ def table_problems(data, options, *, prefix="", open_sections=("controls",), req
     for section, body in data.items():
         if section not in sections:
             hint = suggest(section, sections)
+            meant = hint.split("'")[1] if hint else section
             problems.append((None, f"unknown section [{prefix}{section}]{hint}; known: {', '.join(sections)}",
-                             prefix + (hint.split("'")[1] if hint else section)))
+                             prefix + (meant if meant not in data else section)))
             continue
         if not isinstance(body, dict):
             problems.append((None, f"[{prefix}{section}] must be a table; got {body!r}", prefix + section))

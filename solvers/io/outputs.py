@@ -228,8 +228,11 @@ def check_outputs(outputs, inputs=None, *, overwrite=False, config=None, folders
     """
     outputs = [o for o in outputs if o.path is not None]
     inputs = {k: v for k, v in (inputs or {}).items() if v is not None}
-    for out in outputs:
-        check_output(out, overwrite=overwrite, config=config)
+    for out in outputs:  # what it clashes with first: no flag allows writing over an input
+        try:
+            resolved(out.path)
+        except OutputError as exc:
+            _fail(f"{out.key} {exc}", config)
         for in_key, inp in inputs.items():
             how = _in_input(out.path, inp)
             if how is not None:
@@ -243,6 +246,8 @@ def check_outputs(outputs, inputs=None, *, overwrite=False, config=None, folders
                 if Path(path_key(inner.path)).is_relative_to(path_key(outer.path)):
                     _fail(f"{outer.key} ({resolved(outer.path)}) is a folder of {inner.key}: give the file a "
                           "name of its own", config)
+    for out in outputs:
+        check_output(out, overwrite=overwrite, config=config)
     for key, folder in folders:
         for in_key, inp in inputs.items():
             if same_file(folder, inp):
