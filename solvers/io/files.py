@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import InputFileError
 from .limits import MAX_TEXT_BYTES, check_input_file
-from .outputs import WRITE_ERRNOS, write_error
+from .outputs import WRITE_ERRNOS, mark_output, write_error
 
 TMP_MARK = ".facecap-tmp."
 #: ``.<name>.facecap-tmp.<machine tag>.<pid>.<random>...`` (and Blender's ``...@`` beside it while it saves)
@@ -74,6 +74,7 @@ def atomic_path(path, *, suffix=None):
     tmp = new_temporary(path, suffix=suffix)
     try:
         yield tmp
+        mark_output(tmp)  # facecap's own: a later run may replace it (solvers.io.outputs)
         os.replace(tmp, path)
     except OSError as exc:
         if exc.errno in WRITE_ERRNOS:

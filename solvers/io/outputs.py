@@ -8,9 +8,10 @@ Every command that writes files a user names (``retarget``, ``tune``, ``track``,
   case-insensitive file system, case), nor a file of an input's image sequence or folder;
 * is never another output, nor the folder of another output;
 * is never a folder, a device, a FIFO or a socket, nor below a symbolic-link loop;
-* replaces an existing file only when that file is facecap's own earlier output of the same kind
-  (``KINDS``: recognised from its first bytes); anything else is refused, naming ``--overwrite``.
-  An existing output .blend is not replaced but added to (``headless``).
+* replaces an existing file only when that file is facecap's own earlier output of the same kind: it
+  carries the mark facecap puts on what it writes (an extended attribute, ``MARK``, where the file system
+  keeps them) and its first bytes are of that kind (``KINDS``); anything else is refused, naming
+  ``--overwrite``. An existing output .blend is not replaced but added to (``headless``).
 
 Free space is checked once the sizes are known (``check_free_space``: before the solve). Files are
 written atomically (``files.atomic_path``) and a write that fails all the same (a full disk, a
@@ -115,8 +116,39 @@ KINDS = {
 }
 
 
+#: The extended attribute every file facecap writes carries (``files.atomic_path``), where the file system
+#: keeps them: what tells facecap's own output from someone's file of the same format (a weights CSV
+#: exported elsewhere, a copy the user made).
+MARK = "user.facecap.output"
+#: Kinds an existing file of which is added to, not replaced: any such file qualifies, marked or not
+ADDED_TO = ("blend",)
+
+
+def mark_output(path):
+    """Mark ``path`` as written by facecap (nothing happens where extended attributes are not kept)."""
+    try:
+        os.setxattr(path, MARK, b"1")
+    except (OSError, AttributeError):  # a file system without user attributes; not Linux
+        pass
+
+
+def output_mark(path):
+    """True when ``path`` carries facecap's mark, False when it could but does not, None when the file
+    system (or platform) keeps no extended attributes (then its content alone is judged)."""
+    try:
+        os.getxattr(path, MARK)
+        return True
+    except AttributeError:
+        return None
+    except OSError as exc:
+        return False if exc.errno in (errno.ENODATA, getattr(errno, "ENOATTR", errno.ENODATA)) else None
+
+
 def is_kind(path, kind):
-    """Whether the existing file ``path`` is facecap's own output of ``kind`` (from its first bytes)."""
+    """Whether the existing file ``path`` is facecap's own output of ``kind``: its first bytes are of
+    that kind and, where the file system keeps extended attributes, it carries facecap's mark."""
+    if kind not in ADDED_TO and output_mark(path) is False:
+        return False
     return KINDS[kind][1](_head(path))
 
 
