@@ -292,8 +292,12 @@ def check_output(out, *, overwrite=False, config=None):
     path = Path(os.path.expanduser(str(out.path)))
     where = f"{out.key} {path}"
     try:
-        resolved(path)
-        st = os.stat(path)
+        real = resolved(path)
+        try:
+            st = os.stat(path)
+        except FileNotFoundError:  # also "sub/../x" with no sub yet: the folders made, it is the file there
+            st = os.stat(real)
+            path = real
     except FileNotFoundError:
         st = None
     except OutputError as exc:
