@@ -25,8 +25,10 @@ docs-images [--out DIR]       render the documentation's pictures (docs/images) 
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
 
-Every expected failure (bad config, missing or malformed file) exits with status 1 and one line on
-stderr naming the file and field; there is no traceback for those.
+Every expected failure (bad config, missing or malformed file, a full disk) exits with status 1 and one
+line on stderr per problem naming the file and field; Ctrl-C and SIGTERM exit with 130 at any moment; a bug
+is one line too ("internal error", its traceback with FACECAP_TRACEBACK=1). Outputs go through one output
+policy (``solvers/io/outputs.py``; ``--overwrite`` lets them replace files facecap did not write).
 """
 
 import importlib
