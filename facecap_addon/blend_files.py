@@ -14,7 +14,6 @@ changed since (the run adds to the output's own copy of it; ``--replace`` starts
 """
 
 import contextlib
-import hashlib
 import os
 import signal
 import sys
@@ -24,7 +23,7 @@ from pathlib import Path
 
 from ..solvers.errors import InputFileError
 from ..solvers.io.blend_file import check_blend_structure
-from ..solvers.io.files import atomic_path
+from ..solvers.io.files import atomic_path, file_sha256
 from ..solvers.io.outputs import write_error
 
 #: Seconds the forked child may take to open a file before the run gives up on it.
@@ -228,11 +227,7 @@ def remove_earlier_solve(name):
 
 def file_stamp(path):
     """{"path", "size", "sha256"} of ``path``."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return {"path": str(path), "size": os.path.getsize(path), "sha256": digest.hexdigest()}
+    return {"path": str(path), "size": os.path.getsize(path), "sha256": file_sha256(path)}
 
 
 def stamp_target(target):

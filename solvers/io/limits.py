@@ -19,7 +19,8 @@ MAX_CAPTURE_BYTES = 16 << 30
 MAX_TEXT_BYTES = 256 << 20
 
 
-def _kind(mode):
+def file_kind(mode):
+    """What a file of ``st_mode`` is, in words, when it is not a regular file."""
     for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
                        (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
                        (stat.S_ISSOCK, "a socket")):
@@ -37,7 +38,7 @@ def check_input_file(path, *, limit=MAX_CAPTURE_BYTES, missing="file not found")
     except (OSError, ValueError) as exc:
         raise InputFileError(path, f"cannot read: {getattr(exc, 'strerror', None) or exc}") from None
     if not stat.S_ISREG(st.st_mode):
-        raise InputFileError(path, f"is {_kind(st.st_mode)}; facecap reads only regular files")
+        raise InputFileError(path, f"is {file_kind(st.st_mode)}; facecap reads only regular files")
     if st.st_size > limit:
         raise InputFileError(path, f"is {st.st_size / 2**30:.1f} GiB; facecap reads files of at most "
                                    f"{limit / 2**30:g} GiB of this kind (the wrong file?)")

@@ -29,6 +29,7 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 
 from ..errors import ConfigError, FacecapError
+from .limits import file_kind
 
 #: Room a temporary file's name needs beside its output (``files.new_temporary``).
 TEMP_NAME_ROOM = 64
@@ -178,7 +179,8 @@ def user_path(value, base=None):
     if base is not None:
         p = Path(base) / p
     try:
-        if not stat.S_ISREG(os.stat(p).st_mode) and not stat.S_ISDIR(os.stat(p).st_mode):
+        mode = os.stat(p).st_mode
+        if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
             return Path(os.path.abspath(p))
     except (OSError, ValueError):
         pass  # missing (an output to be), or a loop: resolved below as far as it goes
@@ -235,14 +237,6 @@ def _in_input(out, inp):
     if os.path.isdir(text) and os.path.dirname(out_key) == path_key(text):
         return "is inside the folder read as"
     return None
-
-
-def _special(mode):
-    for test, name in ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return name
-    return "not a regular file"
 
 
 def check_outputs(outputs, inputs=None, *, overwrite=False, config=None, folders=()):
@@ -310,7 +304,7 @@ def check_output(out, *, overwrite=False, config=None):
         if stat.S_ISDIR(st.st_mode):
             _fail(f"{where}: is a folder; a file name is needed", config)
         if not stat.S_ISREG(st.st_mode):
-            _fail(f"{where}: is {_special(st.st_mode)}; facecap writes only regular files", config)
+            _fail(f"{where}: is {file_kind(st.st_mode)}; facecap writes only regular files", config)
         if not overwrite and not is_kind(path, out.kind):
             _fail(f"{where}: exists and is not a {KINDS[out.kind][0]} facecap wrote; give another path, or "
                   "--overwrite to replace it", config)
