@@ -177,9 +177,11 @@ OPTIONS = (
     O("clean", "swap_ratio", "float", default=0.5, above=0.0, high=1.0,
       doc="A swap is taken when the swapped labels cost less than this times the kept ones",
       headless="an expert setting of the swap test"),
-    O("clean", "spike_speed", "float", above=0.0, high=1e9, doc="Remove samples moving faster than this (units per second)",
+    O("clean", "spike_speed", "float", above=0.0, high=1e9,
+      doc="Remove samples moving faster than this (units per second)",
       headless="the sidebar uses the robust spike test (spike_mad)"),
-    O("clean", "spike_mad", "float", above=0.0, high=1e3, doc="Remove spikes beyond this many robust sigmas of acceleration",
+    O("clean", "spike_mad", "float", above=0.0, high=1e3,
+      doc="Remove spikes beyond this many robust sigmas of acceleration",
       ui="op:facecap.clean_markers.spike_mad"),
     O("clean", "fill_spline", "int", default=0, low=0, high=100_000, doc="Longest gap (frames) filled by a spline",
       ui="op:facecap.clean_markers.fill_spline"),
@@ -188,7 +190,8 @@ OPTIONS = (
       ui="op:facecap.clean_markers.fill_model"),
     O("clean", "model_rank", "int", low=1, high=200, doc="Components of the gap model (default: 99.5 % of variance)",
       headless="an expert setting of the gap model"),
-    O("clean", "lowpass_hz", "float", above=0.0, high=MAX_FPS / 2, doc="Zero-phase Butterworth low-pass cutoff (Hz, below fps / 2)",
+    O("clean", "lowpass_hz", "float", above=0.0, high=MAX_FPS / 2,
+      doc="Zero-phase Butterworth low-pass cutoff (Hz, below fps / 2)",
       ui="op:facecap.clean_markers.lowpass_hz"),
     O("clean", "lowpass_order", "int", default=4, low=1, high=12, doc="Butterworth filter order",
       headless="an expert setting of the low-pass filter"),
@@ -265,7 +268,8 @@ OPTIONS = (
     O("solve", "projection", "choice", default="front", choices=("front", "camera"),
       doc="2D takes: the character seen from the front (orthographic) or through a camera",
       ui="facecap.video.projection"),
-    O("solve", "camera", "str", max_bytes=MAX_NAME_BYTES, doc="2D takes: camera object for projection = \"camera\" (default: scene camera)",
+    O("solve", "camera", "str", max_bytes=MAX_NAME_BYTES,
+      doc="2D takes: camera object for projection = \"camera\" (default: scene camera)",
       ui="facecap.video.camera"),
     # -- [output] ----------------------------------------------------------------------------------
     O("output", "blend", "path", doc="The .blend written with the solve layer", headless=OUTPUT_FILE),
@@ -313,9 +317,11 @@ OPTIONS = (
       ui="facecap.mapping"),
     O("mapping", "gain", ("float", "table"), default=1.0, low=-1e3, high=1e3, doc="parallel: gain, or {shape = gain}",
       ui="facecap.parallel_gain"),
-    O("mapping", "offset", ("float", "table"), default=0.0, low=-10.0, high=10.0, doc="parallel: offset, or {shape = offset}",
+    O("mapping", "offset", ("float", "table"), default=0.0, low=-10.0, high=10.0,
+      doc="parallel: offset, or {shape = offset}",
       ui="facecap.parallel_offset"),
-    O("mapping", "clamp", ("floats", "table"), length=2, low=-10.0, high=10.0, doc="parallel: [lo, hi], or {shape = [lo, hi]}",
+    O("mapping", "clamp", ("floats", "table"), length=2, low=-10.0, high=10.0,
+      doc="parallel: [lo, hi], or {shape = [lo, hi]}",
       headless="the Shapes panel's per-shape clamp does this in the sidebar"),
     O("mapping", "curve", ("str", "table"), default="linear",
       doc="parallel: \"linear\", \"smoothstep\", \"gamma:<g>\", or {shape = curve}",
@@ -339,7 +345,8 @@ OPTIONS = (
       doc="rbf: smoothing; 0 reproduces the examples exactly", ui="facecap.rbf_smoothing"),
     O("examples", "degree", "int", default=1, low=-1, high=2, doc="rbf: polynomial tail degree (-1 = none)",
       ui="facecap.rbf_degree"),
-    O("examples", "n_components", "int", low=1, high=1000, doc="rbf / pca: principal components (default: the strategy's)",
+    O("examples", "n_components", "int", low=1, high=1000,
+      doc="rbf / pca: principal components (default: the strategy's)",
       ui="facecap.n_components"),
     O("examples", "far", "float", default=2.0, above=0.0, high=1e6,
       doc="rbf: frames farther than this x the example spacing are reported as extrapolated", ui="facecap.rbf_far"),
@@ -348,7 +355,8 @@ OPTIONS = (
       doc="Related-basis regression or posed basis frames (Chuang & Bregler)", ui="facecap.pca_mode"),
     O("pca", "ica", "bool", default=False, doc="Rotate the components to independent ones (FastICA)",
       ui="facecap.pca_ica"),
-    O("pca", "n_basis", "int", default=8, low=1, high=1000, doc="Leading components whose extreme frames are basis frames",
+    O("pca", "n_basis", "int", default=8, low=1, high=1000,
+      doc="Leading components whose extreme frames are basis frames",
       ui="facecap.pca_n_basis"),
     O("pca", "variance", "float", default=0.99, above=0.0, high=1.0, doc="Share of the variance kept",
       ui="facecap.pca_variance"),
@@ -364,7 +372,8 @@ OPTIONS = (
     # -- [tracking] and [flow] (video takes) -------------------------------------------------------
     O("tracking", "method", "choice", default="dis", choices=("dis", "farneback", "tvl1"),
       doc="Dense optical flow method", ui="facecap.video.flow_method", hint="a video take follows dense flow"),
-    O("tracking", "region", "floats", length=4, low=0.0, high=1e6, doc="Face region [x, y, w, h] in pixels (default: the frame)",
+    O("tracking", "region", "floats", length=4, low=0.0, high=1e6,
+      doc="Face region [x, y, w, h] in pixels (default: the frame)",
       ui="facecap.video.region"),
     O("tracking", "reference", "int", high=MAX_FRAME, doc="The neutral reference frame (default: the first frame read)",
       headless="the sidebar uses the current frame"),
@@ -383,7 +392,8 @@ OPTIONS = (
     # -- [tuning] and [controls] ------------------------------------------------------------------
     O("tuning", "corrections", "path", doc="frame,<shape>,... corrected weights (the `tune` command)",
       ui="facecap.tuning_frames"),
-    O("tuning", "mu", "float", above=0.0, high=1e12, doc="Prior of the correction (absent: chosen automatically; inf = gains only)",
+    O("tuning", "mu", "float", above=0.0, high=1e12,
+      doc="Prior of the correction (absent: chosen automatically; inf = gains only)",
       ui="facecap.tune_auto_mu, facecap.tune_mu"),
     O("tuning", "library", "path", doc="A stored library version to solve with",
       ui="facecap.library_active, facecap.library_versions"),
@@ -435,7 +445,8 @@ def suggest(word, candidates):
         return ""
     candidates = [str(c) for c in candidates]
     folded = {c.casefold(): c for c in candidates}
-    match = folded.get(word.casefold()) or next(iter(difflib.get_close_matches(word, candidates, n=1, cutoff=0.6)), None)
+    close = difflib.get_close_matches(word, candidates, n=1, cutoff=0.6)
+    match = folded.get(word.casefold()) or (close[0] if close else None)
     return f" (did you mean '{match}'?)" if match else ""
 
 

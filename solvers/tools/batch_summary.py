@@ -144,7 +144,8 @@ def read_previous(path, done=None):
                 from None
         if not isinstance(data, dict) or data.get("facecap_batch") != SCHEMA or not isinstance(data.get("takes"), list):
             raise FacecapError(f"{path}: --resume needs the batch's summary; this is not one (no \"facecap_batch\": "
-                               f"{SCHEMA} with a list of \"takes\"); give the summary the batch wrote, or drop --resume")
+                               f"{SCHEMA} with a list of \"takes\"); give the summary the batch wrote, or drop "
+                               "--resume")
         for r in data["takes"]:
             record = valid_record(r)
             if record is not None:

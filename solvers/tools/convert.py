@@ -10,7 +10,8 @@
 
 The output is written atomically and goes through the output policy (``solvers.io.outputs``): never
 over ``IN`` (compared after resolving links, ``..`` and case), a folder or a special file, and over an
-existing file only when it is facecap's own output of that kind, or with ``--overwrite``. Ends with one line: what was written, or ``facecap convert: <why>`` and exit status 1.
+existing file only when it is facecap's own output of that kind, or with ``--overwrite``. Ends with one
+line: what was written, or ``facecap convert: <why>`` and exit status 1.
 Warnings about the input (repeated labels renamed, a truncated file) go to stderr first.
 """
 

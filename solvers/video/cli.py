@@ -171,7 +171,8 @@ def write_outputs(settings, result, info):
         write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, result.confidence)
     if settings["report"]:
         write_json_atomic(settings["report"], {
-            "facecap_track": REPORT_SCHEMA, "summary": result.summary(), "method": result.method, "reference": result.reference,
+            "facecap_track": REPORT_SCHEMA, "summary": result.summary(), "method": result.method,
+            "reference": result.reference,
             "frame_numbering": "frame 1 is the first frame of the footage",
             "footage": {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
                         "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames},

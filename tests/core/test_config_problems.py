@@ -93,3 +93,16 @@ def test_mistakes_in_a_batch_file_come_at_once(tmp_path):
 ])
 def test_suggestions(word, candidates, hint):
     assert suggest(word, candidates) == hint
+
+
+def test_every_number_of_every_config_has_an_upper_bound():
+    """A typo of a few zeros (or 1e300) is refused by the checks, not met later by an allocation or an
+    overflow: every numeric option, of take and track configs, has an upper bound, shown in the docs."""
+    from facecap.solvers.options import OPTIONS, TRACK_OPTIONS
+
+    numeric = [o for o in OPTIONS + TRACK_OPTIONS
+               if {"int", "float", "floats"} & set(o.kind if isinstance(o.kind, tuple) else (o.kind,))]
+    assert len(numeric) > 40
+    unbounded = [o.name for o in numeric if o.high is None and o.name != "source.frame_offset"]
+    assert not unbounded, unbounded
+    assert all("<=" in o.range_text() for o in numeric if o.high is not None)

@@ -13,7 +13,8 @@ import pytest
 from facecap.facecap_addon.headless import preflight
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import ConfigError
-from facecap.solvers.io.files import STALE_AGE, TMP_MARK, machine_tag, remove_stale_temporaries, umask, write_text_atomic
+from facecap.solvers.io.files import (STALE_AGE, TMP_MARK, machine_tag, remove_stale_temporaries, umask,
+                                     write_text_atomic)
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 
