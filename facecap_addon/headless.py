@@ -61,8 +61,9 @@ def run_take(config, *, quiet=False, tune=False, replace=False, overwrite=False,
     writing it back (``solvers.io.locks``: a second run waits). Nothing is read or solved before every
     output path is checked (``preflight``; ``overwrite`` lets outputs replace files facecap did not
     write). ``say``: where progress and warning lines go (default: stderr unless ``quiet``);
-    ``characters``: a cache of sampled characters kept across takes (a batch worker's ``CharacterCache``). On takes of ``LONG_TAKE_FRAMES`` or more the returned result's stabilised
-    markers are released before keying (its head poses stay), unless the review page is written.
+    ``characters``: a cache of sampled characters kept across takes (a batch worker's ``CharacterCache``).
+    On takes of ``LONG_TAKE_FRAMES`` or more the returned result's stabilised markers are released
+    before keying (its head poses stay), unless the review page is written.
     ``[output] html`` writes the review page last (``review``: its ``facecap_addon.review.ReviewOptions``;
     ``config.truth_path`` the known weights it overlays).
     """

@@ -451,14 +451,12 @@ def suggest(word, candidates):
 
 
 def table_problems(data, options, *, prefix="", open_sections=("controls",), required=True):
-    """Every problem of TOML tables ``data`` against the option table ``options``, all at once.
-
-    Returns [(key, message, covers)]: unknown sections and keys (with a "did you mean"), values of the
-    wrong kind or out of range, missing required keys. ``key`` is ``section.key`` (``prefix`` before it,
-    e.g. ``defaults.``), or None for a section's own problems (the message names it); ``covers`` is the
-    key whose later problems are consequences of this one (an unknown section close to a known one
-    that is absent covers the known one: its missing keys are not news). In ``open_sections`` any key is a table
-    (``[controls]``: a key per shape). ``required``: whether missing required keys are problems.
+    """Every problem of TOML tables ``data`` against the option table ``options``, all at once:
+    [(key, message, covers)] for unknown sections and keys (with a "did you mean"), values of the wrong
+    kind or out of range, missing required keys (if ``required``). ``key``: ``section.key`` after
+    ``prefix`` (``defaults.``), None for a section's own problems; ``covers``: the key whose later
+    problems are consequences (a misspelt section covers the absent one it means). In ``open_sections``
+    any key is a table (``[controls]``: a key per shape).
     """
     by_name = {o.name: o for o in options}
     sections = tuple(dict.fromkeys(o.section for o in options))
