@@ -63,11 +63,12 @@ def run_batch(args, *, out=None, err=None):
     summary_path = Path(os.path.expanduser(args.summary or DEFAULT_SUMMARY))
     overwrite = bool(getattr(args, "overwrite", False))
     records, planned = plan(takes, open_blend=_open_blend(), overwrite=overwrite)
+    logs = summary_path.parent / f"{summary_path.stem}-logs"
+    previous = read_previous(summary_path, done=logs / "done") if args.resume else {}  # says when it is not one
     check_summary_path(summary_path, planned, takes, overwrite=overwrite)
     summary_path = summary_path.resolve()
     logs = summary_path.parent / f"{summary_path.stem}-logs"
     check_logs_folder(logs)
-    previous = read_previous(summary_path, done=logs / "done") if args.resume else {}
     specs = to_run(planned, records, previous, replace=args.replace, overwrite=overwrite, done=logs / "done")
     jobs = args.jobs or default_jobs()
     header = {"command": ["facecap", "batch", *map(str, getattr(args, "argv", []))], "cwd": os.getcwd(),
