@@ -5,6 +5,7 @@ load (before the command line's own handling starts) and after the command has f
 nothing is left to stop) as well.
 """
 
+import os
 import signal
 import sys
 
@@ -27,4 +28,17 @@ def _run():
     return status
 
 
-sys.exit(_run())
+def _exit(status):
+    """Exit with ``status``. After an interrupt, at once: an interrupt that landed in code a module ran at
+    its import (Python notes it for good) would otherwise turn the exit into death by SIGINT."""
+    if status == 130:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(130)
+    sys.exit(status)
+
+
+_exit(_run())

@@ -177,7 +177,9 @@ def load_take_config(path, data=None):
     binding = part(parse_binding, path, data.get("binding"), default=BindingSettings())
     markers_path = resolve(get("source", "markers"))
     weights_path = resolve(get("source", "weights"))
-    strategy_options = part(strategy_settings, path, data, strategy, default={})
+    strategy_options = {}
+    if not (video_raw and video is None):  # a broken video take: which strategy inputs it needs is no news
+        strategy_options = part(strategy_settings, path, data, strategy, default={})
     outputs = {key: part(_export_path, path, key, resolve(get("output", key))) for key in EXPORT_SUFFIXES}
     tuning = part(parse_tuning, path, free.get("tuning"), base)
     controls = part(parse_controls, path, free.get("controls"), base)

@@ -53,11 +53,15 @@ def output_lock(path, *, say=None, timeout=None):
     TimeoutError when ``timeout`` passes first.
     """
     target = lock_path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    made = []
     start = time.monotonic()
     reminded = None
     while True:
-        fd = os.open(target, os.O_RDWR | os.O_CREAT, 0o666 & ~umask())
+        made += _make_folders(target.parent)  # (again if a holder that wrote nothing removed them)
+        try:
+            fd = os.open(target, os.O_RDWR | os.O_CREAT, 0o666 & ~umask())
+        except FileNotFoundError:
+            continue
         if _try_lock(fd):
             if _same_file(fd, target):
                 break
@@ -82,6 +86,21 @@ def output_lock(path, *, say=None, timeout=None):
             target.unlink()  # while still held: a waiter then sees it gone and locks a new file
         _unlock(fd)
         os.close(fd)
+        for folder in made:  # the folders made for the lock, if the run wrote nothing into them
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+
+
+def _make_folders(folder):
+    """Make ``folder`` and its missing parents; returns those made, deepest first."""
+    made = []
+    while not folder.exists() and folder != folder.parent:
+        made.append(folder)
+        folder = folder.parent
+    for f in reversed(made):
+        with contextlib.suppress(FileExistsError):
+            f.mkdir()
+    return made
 
 
 def _try_lock(fd):
