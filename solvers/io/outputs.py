@@ -114,6 +114,7 @@ KINDS = {
     "npz": ("stored library (.npz)", lambda h: h.startswith(b"PK\x03\x04") and b"shape_names" in h[:4096]),
     "glb": ("binary glTF (.glb)", lambda h: h.startswith(b"glTF")),
     "fbx": ("FBX file", lambda h: h.startswith(b"Kaydara FBX Binary") or h.lstrip().startswith(b"; FBX")),
+    "plotly_js": ("plotly.js script", lambda h: b"plotly.js v" in h[:400]),
 }
 
 
