@@ -28,7 +28,7 @@ import numpy as np
 
 from ..capture.smoothing import local_polynomial
 from ..errors import FacecapError, InputFileError
-from ..io.files import write_json_atomic
+from ..io.files import read_text_input, write_json_atomic
 from .aliases import canonical_names, name_key
 
 CURVES = ("linear", "smoothstep", "gamma:<g>")
@@ -255,9 +255,7 @@ def load_preset(path):
     """``{key: ShapeControl}`` from a JSON preset; errors name the file and the field."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputFileError(path, "preset file not found") from None
+        data = json.loads(read_text_input(path, "preset file not found"))  # a regular file, within its size
     except json.JSONDecodeError as exc:
         raise InputFileError(path, f"not valid JSON: {exc.msg}", line=exc.lineno) from None
     except (OSError, UnicodeDecodeError) as exc:
