@@ -24,6 +24,7 @@ from ..solvers.io.outputs import Output
 from ..solvers.io.outputs import check_outputs as check_output_policy
 from ..solvers.tools.batch_summary import Summary, iso_time, new_record, one_line, read_previous, table
 from ..solvers.tools.report.index import TakeSummary, write_batch_index
+from . import console
 from .batch_farm import FarmPool
 from .batch_pool import LocalPool
 from .batch_progress import Progress
@@ -59,7 +60,8 @@ def run_batch(args, *, out=None, err=None):
         raise FacecapError(f"--jobs must be at least 1; got {args.jobs}")
     takes = collect_takes(args.takes)
     if not takes:
-        raise ConfigError("no take configs found in " + ", ".join(map(str, args.takes)))
+        raise ConfigError("no take configs (.toml) in " + ", ".join(map(str, args.takes)) + " nor in the folders "
+                          "one level down; name take configs, folders of them, or a batch file")
     summary_path = Path(os.path.expanduser(args.summary or DEFAULT_SUMMARY))
     overwrite = bool(getattr(args, "overwrite", False))
     records, planned = plan(takes, open_blend=_open_blend(), overwrite=overwrite)
@@ -75,8 +77,8 @@ def run_batch(args, *, out=None, err=None):
               "jobs": None if args.scheduler else jobs, "scheduler": args.scheduler, "resume": bool(args.resume)}
     summary = Summary(summary_path, header, records)
     summary.write()
-    _say_plan(err, records, specs)
-    progress = Progress(len(specs), err)
+    _say_plan(records, specs)
+    progress = Progress(len(specs), err, quiet=console.quiet())
     finished = True
     if specs:
         shutil.rmtree(logs, ignore_errors=True)  # facecap's own (check_logs_folder)
@@ -146,7 +148,7 @@ def _finish(summary, finished, out, err):
     if index is not None:
         print(f"review pages: {index}", file=out, flush=True)
     if not finished:
-        print("facecap: batch cancelled; finished takes are kept, running ones wrote nothing unfinished", file=err)
+        console.log.warning("batch cancelled; finished takes are kept, running ones wrote nothing unfinished")
         return 130
     return 1 if any(r["status"] in ("failed", "cancelled") for r in records.values()) else 0
 
@@ -266,16 +268,16 @@ def _length(config):
     return total
 
 
-def _say_plan(err, records, specs):
+def _say_plan(records, specs):
     n = len(records)
     failed = sum(r["status"] == "failed" for r in records.values())
     up = sum(r["status"] == "skipped" for r in records.values())
     parts = [f"{len(specs)} to run"] + ([f"{up} up to date"] if up else []) \
         + ([f"{failed} failed to read"] if failed else [])
-    print(f"facecap: batch of {n} take{'s' if n != 1 else ''}: {', '.join(parts)}", file=err, flush=True)
+    console.log.info(f"batch of {n} take{'s' if n != 1 else ''}: {', '.join(parts)}")
     for r in records.values():
         if r["status"] == "failed":
-            print(f"facecap: FAILED {r['take']}: {r['error']}", file=err, flush=True)
+            console.log.error(f"FAILED {r['take']}: {r['error']}")
 
 
 class Events:

@@ -17,12 +17,12 @@ except ImportError:  # a Blender without the pip dependencies: plain lines
 class Progress:
     """``finished(record)`` per take; ``close()`` at the end. ``stream``: where to draw (stderr)."""
 
-    def __init__(self, total, stream, *, bar=None):
-        self.total, self.stream = total, stream
+    def __init__(self, total, stream, *, bar=None, quiet=False):
+        self.total, self.stream, self.quiet = total, stream, quiet
         self.done = self.failed = 0
         self.t0 = time.monotonic()
         terminal = getattr(stream, "isatty", lambda: False)()
-        use_bar = (terminal and tqdm is not None) if bar is None else bar
+        use_bar = (terminal and tqdm is not None and not quiet) if bar is None else bar
         self.bar = tqdm(total=total, file=stream, unit="take", dynamic_ncols=True, smoothing=0.05,
                         desc="facecap batch") if use_bar and total else None
 
@@ -37,8 +37,9 @@ class Progress:
                 self.bar.write(f"facecap: {record['status'].upper()} {record['take']}: {record['error']}",
                                file=self.stream)
             return
-        print(f"facecap: [{self.done}/{self.total}] {self.describe(record)}; {self.eta()}", file=self.stream,
-              flush=True)
+        if failed or not self.quiet:  # --quiet: only the takes that failed
+            print(f"facecap: [{self.done}/{self.total}] {self.describe(record)}; {self.eta()}", file=self.stream,
+                  flush=True)
 
     @staticmethod
     def describe(record):

@@ -9,26 +9,30 @@ retarget --config take.toml   solve a take onto its character with its [solve] s
 compare [options]             measure every strategy on the same synthetic takes (Markdown table)
 demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
 inspect FILE [options]        describe a capture file (--json: as JSON); non-zero exit with a one-line reason if it is bad
-convert IN OUT [options]      a capture file in another format (.csv .c3d .trc .json; weights to a weights CSV)
+convert IN OUT [options]      convert a capture file to another format (.csv .c3d .trc .json; weights to a
+                              weights CSV)
 track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
 tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
                               library version ([tuning] out) and write the re-solved take
 batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
   [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
   [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
-bench [--quick] [--accuracy] [--batch] [--memory]
+bench [--quick] [--accuracy] [--batch] [--memory] [--clean]
                               time the solve, the keying and the whole CLI, with ratios to naive baselines;
                               --accuracy: accuracy over random scenarios; --batch: batch --jobs 2 against
                               sequential retarget runs; --memory: peak memory of the CLI's process tree on
-                              long takes
+                              long takes; --clean: spike removal and gap filling on long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
 
-Every expected failure (bad config, missing or malformed file, a full disk) exits with status 1 and one
-line on stderr per problem naming the file and field; Ctrl-C and SIGTERM exit with 130 at any moment; a bug
-is one line too ("internal error", its traceback with FACECAP_TRACEBACK=1). Outputs go through one output
-policy (``solvers/io/outputs.py``; ``--overwrite`` lets them replace files facecap did not write).
+Every command takes -q/--quiet (only warnings and errors on stderr) and -v/--verbose (debug lines too,
+Blender's own output among them); ``facecap --version``. Progress and warnings go to stderr through
+logging (``console.py``), a command's product to stdout. Every expected failure (bad config, missing or
+malformed file, a full disk) exits with status 1 and one line on stderr per problem naming the file and
+field; Ctrl-C and SIGTERM exit with 130 at any moment; a bug is one line too ("internal error", its
+traceback with FACECAP_TRACEBACK=1). Outputs go through one output policy (``solvers/io/outputs.py``;
+``--overwrite`` lets them replace files facecap did not write).
 """
 
 import importlib
@@ -60,10 +64,13 @@ if __name__ == "__main__" and not __package__:
 
 # Imported here, after the script guard: as a script this file has no package for them.
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import ctypes  # noqa: E402
+import io  # noqa: E402
 import os  # noqa: E402
 import signal  # noqa: E402
 import threading  # noqa: E402
+import tomllib  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -78,6 +85,7 @@ from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
+from . import console  # noqa: E402
 from .batch import run_batch  # noqa: E402
 from .batch_worker import serve  # noqa: E402
 from .bench import MEMORY_FRAMES, bench_batch, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
@@ -93,9 +101,10 @@ def _cmd_retarget(args):
     ok = np.isfinite(result.residual_rms)
     residual = (f"mean residual {np.mean(result.residual_rms[ok]) * 1e3:.3f} mm ({result.residual_space} space)"
                 if ok.any() else "no marker residual for this strategy")
-    print(f"retargeted {result.frames.size} frames, {len(result.shape_names)} shapes (strategy: {result.strategy}); {residual}")
+    print(f"retargeted {result.frames.size} frames, {len(result.shape_names)} shapes (strategy: {result.strategy}); "
+          f"{residual}", file=console.stdout())
     for key, value in outputs.items():
-        print(f"  {key}: {value}")
+        print(f"  {key}: {value}", file=console.stdout())
     return 0
 
 
@@ -103,7 +112,13 @@ def _cmd_batch(args):
     return run_batch(args)
 
 
-def _cmd_batch_worker(args):
+def _batch_worker(argv):
+    """``batch-worker --fds IN,OUT``: started by ``batch`` (``batch_pool``), never by hand, so not in any help."""
+    parser = argparse.ArgumentParser(prog="facecap batch-worker", description="A batch's worker process (internal).")
+    parser.add_argument("--fds", required=True)
+    args = parser.parse_args(argv)
+    keep_freed_memory()
+    console.configure(0)
     fd_in, fd_out = (int(v) for v in args.fds.split(","))
     return serve(fd_in, fd_out)
 
@@ -113,21 +128,41 @@ def _cmd_demo(args):
 
 
 def _cmd_inspect(args):
-    return inspect_main(args.rest)
+    return inspect_main(args.rest, parents=[OUTPUT_OPTIONS])
 
 
 def _cmd_compare(args):
     from ..solvers.tools.compare import main as compare_main  # loads scipy
 
-    return compare_main(args.rest)
+    return compare_main(args.rest, parents=[OUTPUT_OPTIONS])
 
 
 def _cmd_config_docs(args):
-    return config_docs.main(args.rest)
+    return config_docs.main(args.rest, parents=[OUTPUT_OPTIONS], commands=command_helps)
+
+
+def command_helps(width=100):
+    """[(command, its --help text)]: the top level ("") then every command, as a terminal ``width`` wide
+    shows them (the command reference, docs/commands.md)."""
+    previous = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = str(width)  # argparse wraps to the terminal's width
+    try:
+        out = []
+        for command in ["", *COMMANDS]:
+            text = io.StringIO()
+            with contextlib.redirect_stdout(text), contextlib.suppress(SystemExit):
+                main([command, "--help"] if command else ["--help"])
+            out.append((command, text.getvalue()))
+        return out
+    finally:
+        if previous is None:
+            os.environ.pop("COLUMNS", None)
+        else:
+            os.environ["COLUMNS"] = previous
 
 
 def _cmd_track(args):
-    return track_main(args.rest)
+    return track_main(args.rest, parents=[OUTPUT_OPTIONS])
 
 
 def _cmd_tune(args):
@@ -137,13 +172,13 @@ def _cmd_tune(args):
     v = tuned.version
     print(f"retuned '{result.strategy}' from {len(tuned.frames)} corrected frame(s): corrected RMSE "
           f"{tuned.corrected_rmse_before:.4f} -> {tuned.corrected_rmse_after:.4f}; other frames moved "
-          f"{tuned.others_moved:.1%}")
+          f"{tuned.others_moved:.1%}", file=console.stdout())
     print(f"  new version: {v.name} (parent {v.parent})" if tuned.changed else
-          f"  library unchanged ({v.name}); no new version written")
+          f"  library unchanged ({v.name}); no new version written", file=console.stdout())
     for note in tuned.notes:
-        print(f"  note: {note}")
+        print(f"  note: {note}", file=console.stdout())
     for key, value in outputs.items():
-        print(f"  {key}: {value}")
+        print(f"  {key}: {value}", file=console.stdout())
     return 0
 
 
@@ -152,12 +187,12 @@ def _cmd_docs_images(args):
 
     written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, say=progress_line)
     for name, path in written.items():
-        print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)")
+        print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)", file=console.stdout())
     return 0
 
 
 def _cmd_convert(args):
-    return convert_main(args.rest)
+    return convert_main(args.rest, parents=[OUTPUT_OPTIONS])
 
 
 def _cmd_bench(args):
@@ -183,7 +218,7 @@ def _cmd_bench(args):
 
 
 def _cmd_build_extension(args):
-    return build_extension_main(args.rest)
+    return build_extension_main(args.rest, parents=[OUTPUT_OPTIONS])
 
 
 def _bench_line(row):
@@ -197,20 +232,85 @@ def _overwrite_flag(parser):
                              "facecap's own earlier outputs are always replaced)")
 
 
+def version():
+    """The extension's version, from ``blender_manifest.toml`` (in the zip as in the checkout)."""
+    try:
+        return tomllib.loads((ROOT / "blender_manifest.toml").read_text(encoding="utf-8")).get("version", "unknown")
+    except (OSError, tomllib.TOMLDecodeError):
+        return "unknown"
+
+
+def _output_options():
+    """-q/--quiet and -v/--verbose, accepted before or after the command (``facecap -q retarget`` and
+    ``facecap retarget -q``): no default here, so a command's own parser does not overwrite the other's."""
+    options = argparse.ArgumentParser(add_help=False)
+    group = options.add_argument_group("output")
+    group.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                       help="only warnings and errors on stderr (no progress lines)")
+    group.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                       help="also debug lines on stderr, Blender's own output among them")
+    return options
+
+
+OUTPUT_OPTIONS = _output_options()
+
+#: command: (one line for the command list, the description its --help starts with)
+COMMANDS = {
+    "retarget": ("retarget a take described by a TOML config",
+                 "Retarget a take described by a TOML config onto its character and write the .blend, the weights "
+                 "CSV, the JSON report and the review page its [output] names."),
+    "batch": ("run many takes, each isolated, here (--jobs) or on a Dask farm (--scheduler)",
+              "Run many takes, each in its own worker process, here or on a Dask farm, and write a summary "
+              "(JSON, CSV and an index of the review pages)."),
+    "demo": ("retarget the bundled sample take and print its accuracy",
+             "Retarget the bundled sample take onto the bundled sample character and print the accuracy against "
+             "the ground truth and the files written."),
+    "inspect": ("describe a marker or weights file (markers, frames, rate, units, gaps, segments)", None),
+    "convert": ("convert a capture to CSV, C3D, TRC or JSON (weights: to a weights CSV)", None),
+    "track": ("track markers or dense flow in video footage and write 2D tracks", None),
+    "tune": ("retune the strategy from an animator's corrected frames and re-solve the take",
+             "Retune what the strategy learned from an animator's corrected frames ([tuning] corrections), store "
+             "the new library version and write the re-solved take."),
+    "compare": ("accuracy and time of every strategy on the same synthetic takes (Markdown)", None),
+    "config-docs": ("write the config reference (docs/config.md) from the option tables", None),
+    "bench": ("time the solver, keying and the whole CLI against naive baselines",
+              "Time the solver, the keying and the whole command line against naive baselines, and print each "
+              "with its ratio and goal."),
+    "docs-images": ("render the documentation's pictures from the sample character",
+                    "Render the documentation's pictures (docs/images) from the sample character, headless."),
+    "build-extension": ("build the Blender extension zips (one per platform, wheels bundled)", None),
+}
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(prog="facecap", description="Performance-driven facial retargeting.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("retarget", help="retarget a take described by a TOML config")
+    parser = argparse.ArgumentParser(
+        prog="facecap", parents=[OUTPUT_OPTIONS],
+        description="Performance-driven facial retargeting: markers, phone weights or video onto a character's "
+                    "shape keys, headless. 'facecap COMMAND --help' describes a command.")
+    parser.add_argument("--version", action="version", version=f"facecap {version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def command(name, func, **kwargs):
+        help_line, description = COMMANDS[name]
+        forwarded = description is None  # the tool's own parser answers --help
+        p = sub.add_parser(name, help=help_line, description=description, parents=[] if forwarded else [OUTPUT_OPTIONS],
+                           add_help=not forwarded, **kwargs)
+        if forwarded:
+            p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.set_defaults(func=func)
+        return p
+
+    p = command("retarget", _cmd_retarget)
     p.add_argument("--config", required=True, help="take config (.toml)")
     p.add_argument("--replace", action="store_true",
                    help="start from [target] blend even when the output .blend exists (default: add the solve to it)")
     p.add_argument("--html", default=None, help="write the review page here (overrides [output] html)")
     p.add_argument("--truth", default=None, help="known weights CSV (frame,<shape>,...) the review page overlays")
     _overwrite_flag(p)
-    p.set_defaults(func=_cmd_retarget)
-    p = sub.add_parser("batch", help="run many takes, each isolated, here (--jobs) or on a Dask farm (--scheduler)")
+    p = command("batch", _cmd_batch)
     p.add_argument("takes", nargs="+", metavar="TAKES",
-                   help="take configs, folders of them, or batch files (a [batch] table and shared [defaults])")
+                   help="take configs, folders of them (and of take folders), or batch files (a [batch] table and "
+                        "shared [defaults])")
     p.add_argument("--jobs", type=int, default=None, help="takes at once on this machine (default: its cores)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://farm:8786 (pip install 'facecap[farm]')")
@@ -220,37 +320,17 @@ def build_parser():
                    help="skip takes the summary records as done with the same inputs and config, outputs present")
     p.add_argument("--replace", action="store_true", help="as retarget --replace, for every take")
     _overwrite_flag(p)
-    p.set_defaults(func=_cmd_batch)
-    p = sub.add_parser("batch-worker")  # started by batch, not by hand: no help line
-    p.add_argument("--fds", required=True)
-    p.set_defaults(func=_cmd_batch_worker)
-    p = sub.add_parser("demo", help="retarget the bundled sample take and print its accuracy")
+    p = command("demo", _cmd_demo)
     p.add_argument("--out", default="facecap-demo", help="output folder (default: ./facecap-demo)")
-    p.set_defaults(func=_cmd_demo)
-    p = sub.add_parser("inspect", help="describe a marker or weights file (markers, frames, rate, units, gaps, segments)",
-                       add_help=False)
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=_cmd_inspect)
-    p = sub.add_parser("convert", help="convert a capture to CSV, C3D, TRC or JSON (weights: to a weights CSV)",
-                       add_help=False)
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=_cmd_convert)
-    p = sub.add_parser("compare", help="accuracy and time of every strategy on the same synthetic takes (Markdown)",
-                       add_help=False)
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=_cmd_compare)
-    p = sub.add_parser("track", help="track markers or dense flow in video footage and write 2D tracks", add_help=False)
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=_cmd_track)
-    p = sub.add_parser("tune", help="retune the strategy from an animator's corrected frames and re-solve the take")
+    command("inspect", _cmd_inspect)
+    command("convert", _cmd_convert)
+    command("track", _cmd_track)
+    p = command("tune", _cmd_tune)
     p.add_argument("--config", required=True, help="take config (.toml) with [tuning] corrections")
     _overwrite_flag(p)
-    p.set_defaults(func=_cmd_tune)
-    p = sub.add_parser("config-docs", help="write the take-config reference (docs/config.md) from the option table",
-                       add_help=False)
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=_cmd_config_docs)
-    p = sub.add_parser("bench", help="time the solver, keying and the whole CLI against naive baselines")
+    command("compare", _cmd_compare)
+    command("config-docs", _cmd_config_docs)
+    p = command("bench", _cmd_bench)
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.add_argument("--accuracy", action="store_true", help="accuracy over random scenarios instead (stabilisation, "
                    "solve, tracking, flow) side by side with plain references")
@@ -269,64 +349,75 @@ def build_parser():
     p.add_argument("--memory", action="store_true",
                    help="only the memory case: peak memory of `retarget`'s process tree on 36,000- and 360,000-frame "
                         "takes (with --quick 3,600 and 36,000); about 20 minutes")
-    p.set_defaults(func=_cmd_bench)
-    p = sub.add_parser("docs-images", help="render the documentation's pictures from the sample character")
+    p = command("docs-images", _cmd_docs_images)
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
     p.add_argument("--size", type=int, default=280, help="tile height in pixels (default: 280)")
     p.add_argument("--engine", choices=("workbench", "cycles"), default="workbench",
                    help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
     p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
-    p.set_defaults(func=_cmd_docs_images)
-    p = sub.add_parser("build-extension", help="build the Blender extension zips (one per platform, wheels bundled)",
-                       add_help=False)
-    p.add_argument("rest", nargs=argparse.REMAINDER)
-    p.set_defaults(func=_cmd_build_extension)
+    command("build-extension", _cmd_build_extension)
     return parser
 
 
 def main(argv=None):
     """Entry point; returns the process exit status."""
 
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["batch-worker"]:
+        return _batch_worker(argv[1:])
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
-    args.argv = list(sys.argv[1:] if argv is None else argv)[1:]
+    args.argv = argv[1:]
     if extra:
         if args.command not in FORWARDING:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         args.rest = extra + list(args.rest)
+    if args.command in FORWARDING:  # -q / -v given before the command reach the tool too
+        args.rest = [flag for flag, on in (("--quiet", getattr(args, "quiet", False)),
+                                           ("--verbose", getattr(args, "verbose", False))) if on] + list(args.rest)
+    console.configure(console.verbosity(args) if args.command not in FORWARDING else _forwarded_verbosity(args.rest))
     if args.command in BATCH_COMMANDS:
         keep_freed_memory()
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _interrupt) if main_thread else None  # cleans up as Ctrl-C does
     try:
-        return args.func(args)
+        with console.closed_pipe_ends_quietly():
+            if args.command in BLENDER_COMMANDS:
+                with console.blender_output_captured():
+                    return args.func(args)
+            return args.func(args)
     except FacecapError as exc:
-        if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written
+        if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written (not an error)
             print(f"facecap: {exc}; nothing written", file=sys.stderr)
             return 130
         for line in str(exc).splitlines():  # a config's problems: one line each
-            print(f"facecap: error: {line}", file=sys.stderr)
+            console.log.error(line)
         return 1
     except KeyboardInterrupt:
         print("facecap: interrupted; outputs not finished were not written", file=sys.stderr)
         return 130
     except OSError as exc:  # the system refused something the checks could not foresee
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        print(f"facecap: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        console.log.error(f"{where}{exc.strerror or exc}")
         return 1
     except MemoryError:
-        print("facecap: error: out of memory (the take is too large for this machine's memory)", file=sys.stderr)
+        console.log.error("out of memory (the take is too large for this machine's memory)")
         return 1
     except Exception as exc:  # a bug: one line, the traceback on request
         if os.environ.get("FACECAP_TRACEBACK"):
             raise
         text = " ".join(str(exc).split())[:300]
-        print(f"facecap: internal error (a bug in facecap; run with FACECAP_TRACEBACK=1 for where): "
-              f"{type(exc).__name__}: {text}", file=sys.stderr)
+        console.log.error(f"internal error (a bug in facecap; run with FACECAP_TRACEBACK=1 for where): "
+                          f"{type(exc).__name__}: {text}")
         return 1
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _forwarded_verbosity(rest):
+    quiet = any(a in ("-q", "--quiet") for a in rest)
+    return -1 if quiet else 1 if any(a in ("-v", "--verbose") for a in rest) else 0
 
 
 def _interrupt(signum, frame):
@@ -337,7 +428,9 @@ def _interrupt(signum, frame):
 FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
-BATCH_COMMANDS = ("retarget", "tune", "demo", "batch-worker")
+BATCH_COMMANDS = ("retarget", "tune", "demo")
+#: Commands that start Blender: its own output lines are captured (``console.blender_output_captured``).
+BLENDER_COMMANDS = ("retarget", "tune", "demo", "docs-images")
 
 
 def keep_freed_memory():

@@ -8,7 +8,6 @@ exit status 1.
 
 import contextlib
 import dataclasses
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -18,7 +17,7 @@ import numpy as np
 from ..solvers.capture.cleaning import clean
 from ..solvers.character.binding_map import BindingSettings
 from ..solvers.config.checks import check_against_take
-from ..solvers.config.paths import check_outputs, output_list, take_outputs
+from ..solvers.config.paths import check_outputs, expected_sizes, take_outputs
 from ..solvers.config.strategies import load_strategy_inputs
 from ..solvers.engine.split import LONG_TAKE_FRAMES, release_freed_memory, run_beside
 from ..solvers.errors import ConfigError, InputFileError
@@ -30,9 +29,10 @@ from ..solvers.io.outputs import check_free_space
 from ..solvers.markers import UNIT_SCALE
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
-from ..solvers.video.cli import ProgressLine, sigint_cancels
+from ..solvers.video.cli import FrameProgress, sigint_cancels
 from ..solvers.video.flow_config import check_against_footage
 from ..solvers.video.reading import Footage
+from . import console
 from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, stamp_target, start_blender,
                           target_changed)
 from .review import read_review_truth, write_take_review
@@ -47,7 +47,11 @@ PARALLEL_WRITE_VALUES = 200_000
 
 
 def progress_line(message):
-    print(f"facecap: {message}", file=sys.stderr, flush=True)
+    """The command line's ``say``: a progress line, or (``warning: ...``) a warning, through logging."""
+    if message.startswith("warning: "):
+        console.log.warning(message.removeprefix("warning: "))
+    else:
+        console.log.info(message)
 
 
 def run_take(config, *, quiet=False, tune=False, replace=False, overwrite=False, say=None, characters=None,
@@ -88,10 +92,14 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
     timings["load_character"] = time.perf_counter() - t1 + t_open
-    check_free_space(expected_sizes(config, base, take, _shape_names(request.character)), config=config.path)
+    base_size = base.path.stat().st_size if base.path is not None and base.path.is_file() else 0
+    check_free_space(expected_sizes(config, take.n_frames(), len(_shape_names(request.character)), base_size),
+                     config=config.path)
     say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
+    if take.repeats:
+        result = dataclasses.replace(result, warnings=tuple(_once(result.warnings, take.repeats)))
     outputs, extra = {}, {}
     if request.version is not None:
         extra["library"] = {"file": str(config.tuning.library), "version": request.version.name,
@@ -117,7 +125,9 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
                             report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=fps)
     if config.output_html is not None:
         outputs["html"] = str(write_take_review(config, obj, settings, result, notes=take.notes,
-                                                timings=timings, truth=truth, options=review, say=say))
+                                                timings=timings, truth=truth, options=review, say=say,
+                                                weights_track=getattr(take.inputs, "weights", None),
+                                                footage=take.footage))
     return result, outputs
 
 
@@ -158,26 +168,16 @@ def choose_base(config, *, replace=False):
     return Base(config.target_blend, "new")
 
 
-#: Low estimates of output sizes (bytes) for the free-space check: per weights-CSV value, per key in a
-#: compressed .blend, and the fixed part of a report or page.
-CSV_BYTES_PER_VALUE = 4
-BLEND_BYTES_PER_KEY = 4
-FIXED_BYTES = 16 << 10
+#: Binding notes the solve says again in its own words (``stages.usable_markers``: no sample over the
+#: neutral frames): one line per fact, so the binding's is left out.
+SAID_BY_THE_SOLVE = ("have no neutral position and stay unbound",)
+#: Solve notes that repeat a binding by position's own (which gives each unbound marker's distance).
+REPEATS_OF_THE_BINDING = ("have no binding on the character and are not solved from",)
 
 
-def expected_sizes(config, base, take, shape_names):
-    """[(Output, bytes)] the take's outputs will need at least (``check_free_space``)."""
-    frames = take.n_frames()
-    values = frames * max(1, len(shape_names))
-    base_size = 0
-    if base.path is not None:
-        try:
-            base_size = base.path.stat().st_size
-        except OSError:
-            pass
-    sizes = {"blend": base_size + values * BLEND_BYTES_PER_KEY, "weights_csv": values * CSV_BYTES_PER_VALUE,
-             "report": FIXED_BYTES + frames * 8, "html": FIXED_BYTES}
-    return [(out, sizes.get(out.kind, FIXED_BYTES)) for out in output_list(config)]
+def _once(notes, repeats):
+    """``notes`` without those that contain one of ``repeats`` (said already, with more detail)."""
+    return [n for n in notes if not any(r in n for r in repeats)]
 
 
 @dataclasses.dataclass
@@ -190,6 +190,7 @@ class _Take:
     source: dict = None  # format, units... for the report
     notes: tuple = ()
     cleaning: tuple = ()
+    repeats: tuple = ()  # solve notes that only repeat the notes above
 
     def fps(self):
         if self.markers is not None:
@@ -327,8 +328,10 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     fields = _source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()
-        take.notes = tuple(take.notes) + tuple(n.removeprefix("warning: ") for n in bound.notes
-                                               if n.startswith("warning"))
+        said = _once([n for n in bound.notes if n.startswith("warning")], SAID_BY_THE_SOLVE)
+        take.notes = tuple(take.notes) + tuple(n.removeprefix("warning: ") for n in said)
+        if binding.by_position:  # the binding named its unbound markers, each with why (distance, map)
+            take.repeats = REPEATS_OF_THE_BINDING
     return request, fields
 
 
@@ -368,7 +371,7 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.footage is None:
         return job.run()
-    shown = None if quiet else ProgressLine(sys.stderr, f"flow ({request.flow.method})")
+    shown = None if quiet or console.quiet() else FrameProgress(f"flow ({request.flow.method})")
     with sigint_cancels() as stop:
         def progress(done, total):
             if shown is not None:
@@ -379,7 +382,7 @@ def _run(request, *, quiet):
             result = job.run(progress)
         finally:
             if shown is not None:
-                shown.close_line()
+                shown.close()
     return result
 
 
@@ -477,7 +480,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         write_json_atomic(config.output_report, report)
         outputs["report"] = str(config.output_report)
     for note in list(notes) + list(result.warnings):
-        say(f"warning: {note}")
+        say(f"warning: {note.removeprefix('warning: ')}")
     return outputs
 
 

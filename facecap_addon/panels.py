@@ -1,4 +1,5 @@
-"""The "FaceCap" tab in the 3D viewport sidebar: Take, Stabilise, Solve."""
+"""The "FaceCap" tab in the 3D viewport sidebar: Take, Stabilise (sub-panels: Neutral, Master T-Pose, Head Fit
+and Alignment), Solve (sub-panels: Strategy Inputs, Priors and Smoothing, Shapes; each only where it applies)."""
 
 import bpy
 
@@ -135,7 +136,7 @@ def _draw_binding(layout, s):
 
 
 class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
-    """Stable markers, neutral range and head-motion removal."""
+    """Stable markers and head-motion removal; the neutral, the master T-pose and the head in sub-panels."""
 
     bl_label = "Stabilise"
     bl_idname = "FACECAP_PT_stabilise"
@@ -153,6 +154,25 @@ class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
             layout.label(text=f"Suggested set: score gap x{s.stable_gap:.1f}",
                          icon="CHECKMARK" if s.stable_gap >= 2.0 else "ERROR")
         layout.prop(s, "stabilise_mode")
+        layout.operator("facecap.stabilise", icon="ORIENTATION_GIMBAL")
+        if s.head_object is not None:
+            layout.prop(s, "head_object")
+        if s.flagged_frames:
+            layout.label(text=f"{s.flagged_frames} frame(s) could not be stabilised", icon="ERROR")
+        if s.unreliable_frames:
+            layout.label(text=f"{s.unreliable_frames} frame(s) with an unreliable head fit", icon="ERROR")
+
+
+class FACECAP_PT_stabilise_neutral(FacecapPanel, bpy.types.Panel):
+    """The actor's neutral: frame ranges, detected, or a file."""
+
+    bl_label = "Neutral"
+    bl_idname = "FACECAP_PT_stabilise_neutral"
+    bl_parent_id = "FACECAP_PT_stabilise"
+
+    def draw(self, context):
+        s = context.scene.facecap
+        layout = self.layout
         layout.prop(s, "neutral_mode")
         if s.neutral_mode in ("RANGE", "RANGES"):
             row = layout.row(align=True)
@@ -167,13 +187,38 @@ class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
             layout.operator("facecap.detect_neutral", icon="VIEWZOOM")
         elif s.neutral_mode == "FILE":
             layout.prop(s, "neutral_file")
-        box = layout.box()
-        box.prop(s, "use_master")
-        box.label(text=f"Master: {s.master_source}" if s.master_data else "No master T-pose stored")
-        row = box.row(align=True)
+
+
+class FACECAP_PT_stabilise_master(FacecapPanel, bpy.types.Panel):
+    """The performer's master T-pose (marker placement offsets between sessions)."""
+
+    bl_label = "Master T-Pose"
+    bl_idname = "FACECAP_PT_stabilise_master"
+    bl_parent_id = "FACECAP_PT_stabilise"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        s = context.scene.facecap
+        layout = self.layout
+        layout.prop(s, "use_master")
+        layout.label(text=f"Master: {s.master_source}" if s.master_data else "No master T-pose stored")
+        row = layout.row(align=True)
         row.operator("facecap.load_master", icon="FILE_FOLDER")
         row.operator("facecap.master_from_take", icon="IMPORT")
-        box.prop(s, "landmarks")
+        layout.prop(s, "landmarks")
+
+
+class FACECAP_PT_stabilise_head(FacecapPanel, bpy.types.Panel):
+    """The head fit's refinement, the actor-to-character alignment and where the head motion is keyed."""
+
+    bl_label = "Head Fit and Alignment"
+    bl_idname = "FACECAP_PT_stabilise_head"
+    bl_parent_id = "FACECAP_PT_stabilise"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        s = context.scene.facecap
+        layout = self.layout
         layout.prop(s, "align_regions")
         col = layout.column(align=True)
         col.prop(s, "fine_iterations")
@@ -182,21 +227,15 @@ class FACECAP_PT_stabilise(FacecapPanel, bpy.types.Panel):
         col.prop(s, "head_target")
         if s.head_target is not None and s.head_target.type == "ARMATURE":
             col.prop(s, "head_bone")
-        layout.operator("facecap.stabilise", icon="ORIENTATION_GIMBAL")
-        if s.head_object is not None:
-            layout.prop(s, "head_object")
-        if s.flagged_frames:
-            layout.label(text=f"{s.flagged_frames} frame(s) could not be stabilised", icon="ERROR")
-        if s.unreliable_frames:
-            layout.label(text=f"{s.unreliable_frames} frame(s) with an unreliable head fit", icon="ERROR")
 
 
 MARKER_FIT = ("geometric", "calibrated", "refine")  # strategies with a bounded solve (priors apply)
 EXAMPLES = ("linear", "rbf", "pca")
+WITH_OPTIONS = ("calibrated", "refine", "parallel") + EXAMPLES  # strategies with inputs of their own
 
 
 class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
-    """Strategy, its options (only those that apply) and the solve."""
+    """The strategy and the solve; its inputs, priors and shapes in sub-panels (only those that apply)."""
 
     bl_label = "Solve"
     bl_idname = "FACECAP_PT_solve"
@@ -205,6 +244,30 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
         s = context.scene.facecap
         layout = self.layout
         layout.prop(s, "strategy")
+        layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
+        row = layout.row(align=True)
+        row.operator("facecap.export_take", icon="EXPORT")
+        row.operator("facecap.export_review", icon="DOCUMENTS")
+        if s.last_report:
+            box = layout.box()
+            for line in s.last_report.split(", "):
+                box.label(text=line)
+
+
+class FACECAP_PT_solve_inputs(FacecapPanel, bpy.types.Panel):
+    """What the strategy learns from: the calibration, the solved weights, the posed examples, the mapping."""
+
+    bl_label = "Strategy Inputs"
+    bl_idname = "FACECAP_PT_solve_inputs"
+    bl_parent_id = "FACECAP_PT_solve"
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene.facecap.strategy in WITH_OPTIONS
+
+    def draw(self, context):
+        s = context.scene.facecap
+        layout = self.layout
         if s.strategy in ("calibrated", "refine"):
             _draw_calibration(layout, s)
         if s.strategy == "parallel":
@@ -219,28 +282,50 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
             col.prop(s, "refine_max_iterations")
             col.prop(s, "refine_tol")
             col.prop(s, "refine_stiffness")
+
+
+class FACECAP_PT_solve_priors(FacecapPanel, bpy.types.Panel):
+    """How the weights are held back: regularisation, sparsity, symmetry, smoothing over time."""
+
+    bl_label = "Priors and Smoothing"
+    bl_idname = "FACECAP_PT_solve_priors"
+    bl_parent_id = "FACECAP_PT_solve"
+
+    @classmethod
+    def poll(cls, context):
+        s = context.scene.facecap
+        return s.strategy in MARKER_FIT or (s.strategy == "pca" and s.pca_mode == "posed")
+
+    def draw(self, context):
+        s = context.scene.facecap
+        layout = self.layout
         if s.strategy in MARKER_FIT:
             col = layout.column(align=True)
             col.prop(s, "regularisation")
             col.prop(s, "sparsity")
             col.prop(s, "symmetry")
-        if s.strategy in MARKER_FIT or (s.strategy == "pca" and s.pca_mode == "posed"):
-            col = layout.column(align=True)
-            col.prop(s, "smoothing_first")
-            col.prop(s, "smoothing_second")
-        layout.label(text="Shapes (lock, min, max" + (", region)" if s.strategy == "geometric" else ")"))
+        col = layout.column(align=True)
+        col.prop(s, "smoothing_first")
+        col.prop(s, "smoothing_second")
+
+
+class FACECAP_PT_solve_shapes(FacecapPanel, bpy.types.Panel):
+    """The character's shapes: locks and bounds, and (geometric) face regions."""
+
+    bl_label = "Shapes"
+    bl_idname = "FACECAP_PT_solve_shapes"
+    bl_parent_id = "FACECAP_PT_solve"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        s = context.scene.facecap
+        layout = self.layout
+        layout.label(text="Lock, min, max" + (", region" if s.strategy == "geometric" else ""))
         layout.template_list("FACECAP_UL_shapes", "", s, "shapes", s, "active_shape", rows=4)
         layout.operator("facecap.refresh_shapes", icon="FILE_REFRESH")
         if s.strategy == "geometric":
             _editable_list(layout, "FACECAP_UL_regions", s, "regions", "active_region",
                            "facecap.region_add", "facecap.region_remove", rows=2)
-        layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
-        layout.operator("facecap.export_take", icon="EXPORT")
-        layout.operator("facecap.export_review", icon="DOCUMENTS")
-        if s.last_report:
-            box = layout.box()
-            for line in s.last_report.split(", "):
-                box.label(text=line)
 
 
 def _draw_calibration(layout, s):
@@ -316,5 +401,7 @@ def _draw_examples(layout, s):
         col.prop(s, "n_components")
 
 
-CLASSES = (FACECAP_UL_markers, FACECAP_UL_landmarks, FACECAP_UL_shapes, FACECAP_UL_regions, FACECAP_UL_calib_poses, FACECAP_UL_mapping,
-           FACECAP_PT_take, FACECAP_PT_stabilise, FACECAP_PT_solve)
+CLASSES = (FACECAP_UL_markers, FACECAP_UL_landmarks, FACECAP_UL_shapes, FACECAP_UL_regions, FACECAP_UL_calib_poses,
+           FACECAP_UL_mapping, FACECAP_PT_take, FACECAP_PT_stabilise, FACECAP_PT_stabilise_neutral,
+           FACECAP_PT_stabilise_master, FACECAP_PT_stabilise_head, FACECAP_PT_solve, FACECAP_PT_solve_inputs,
+           FACECAP_PT_solve_priors, FACECAP_PT_solve_shapes)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..solvers.errors import ConfigError, FacecapError
+from ..solvers.io.images import encode_png
 from ..solvers.io.outputs import Output, check_outputs, user_path
 from ..solvers.solve import solve
 from ..solvers.tools.report import (
@@ -283,9 +284,11 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
 
 
 def build_review(obj, result, settings, *, take, character, source="", fps=None, notes=(), timings=None,
-                 truth=None, render=True):
+                 truth=None, render=True, weights_track=None, footage=None):
     """The Review of a solved take on ``obj``: the markers carried onto it (when it binds them) and, with
-    ``render``, the contact sheet (``render_guarded``: a failed render leaves a note, not an error)."""
+    ``render``, the contact sheet (``render_guarded``: a failed render leaves a note, not an error).
+    ``weights_track``: the take's solved weights (a WeightTrack: its head angles are shown);
+    ``footage``: a video take's Footage (its frames beside the renders)."""
     basis, note = None, ""
     stab = result.stabilise
     if stab is not None and stab.markers.dim == 3:
@@ -305,17 +308,47 @@ def build_review(obj, result, settings, *, take, character, source="", fps=None,
     review_timings = dict(timings or {})
     if sheet is not None:
         review_timings["render"] = sheet.seconds
+        if footage is not None:
+            sheet = dataclasses.replace(sheet, tiles=tuple(with_footage(t, footage) for t in sheet.tiles))
     return Review(result=result, take=take, character=character, settings=settings, source=source, fps=fps,
                   notes=tuple(notes), timings=review_timings, truth=truth, sheet=sheet, sheet_note=note,
-                  geometry=geometry)
+                  geometry=geometry, head_angles=head_angles_on(weights_track, result.frames))
+
+
+def head_angles_on(track, frames):
+    """(F, 3) the track's head yaw, pitch, roll (radians) on ``frames`` (NaN where it has no such frame),
+    or None when there is no track or it has no head angles."""
+    if track is None or getattr(track, "head", None) is None:
+        return None
+    frames = np.asarray(frames, dtype=np.float64)
+    out = np.full((frames.size, 3), np.nan)
+    pos = np.clip(np.searchsorted(track.frames, frames), 0, len(track.frames) - 1)
+    found = track.frames[pos] == frames
+    out[found] = np.asarray(track.head, dtype=np.float64)[pos[found]]
+    return out if np.isfinite(out).any() else None
+
+
+def with_footage(tile, footage):
+    """``tile`` with its footage frame (grey, scaled to the render's height) as the source beside it."""
+    import cv2  # OpenCV: only for video takes
+
+    try:
+        image = footage.frame(int(round(tile.frame)))
+    except FacecapError:  # a frame the footage does not hold: the tile shows the render alone
+        return tile
+    width = max(1, int(round(image.shape[1] * tile.height / image.shape[0])))
+    small = cv2.resize(image, (width, tile.height), interpolation=cv2.INTER_AREA)
+    rgb = np.repeat(small[:, :, None], 3, axis=2) if small.ndim == 2 else small[:, :, :3]
+    return dataclasses.replace(tile, source_png=encode_png(np.ascontiguousarray(rgb, dtype=np.uint8)))
 
 
 def write_take_review(config, obj, settings, result, *, notes=(), timings=None, truth=None, options=None,
-                      say=lambda _m: None):
+                      say=lambda _m: None, weights_track=None, footage=None):
     """Write a headless take's review page to ``config.output_html``; returns its path.
 
     ``settings``: the RetargetSettings the solve ran with; ``truth``: a Truth (read before the solve, so
-    a bad file fails early); ``options``: ReviewOptions (plotly.js embedded or shared; renders).
+    a bad file fails early); ``options``: ReviewOptions (plotly.js embedded or shared; renders);
+    ``weights_track`` / ``footage``: the take's solved weights or footage (see ``build_review``).
     """
     options = options or ReviewOptions()
     say("writing the review page" + (" (rendering the contact sheet)" if options.render else ""))
@@ -323,7 +356,7 @@ def write_take_review(config, obj, settings, result, *, notes=(), timings=None, 
     blend = config.target_blend.name if config.target_blend is not None else "the open .blend"
     review = build_review(obj, result, settings, take=config.action_name, character=f"{blend}: {config.target_object}",
                           source=str(source), fps=_fps(result, config), notes=notes, timings=timings, truth=truth,
-                          render=options.render)
+                          render=options.render, weights_track=weights_track, footage=footage)
     if review.sheet is None and review.sheet_note and options.render:
         say(f"warning: review page without a contact sheet: {review.sheet_note}")
     written = write_review_page(config.output_html, review, plotly_js=options.plotly_js)
@@ -378,6 +411,7 @@ def export_scene_review(settings, scene, path, *, truth=None, render=True):
     blend = Path(bpy.data.filepath).name or "unsaved .blend"
     review = build_review(settings.target, result, request.settings, take=settings.take_name or "take",
                           character=f"{blend}: {settings.target.name}", source=bpy.path.abspath(settings.markers_path),
-                          fps=settings.fps, truth=truth_data, render=render)
+                          fps=settings.fps, truth=truth_data, render=render,
+                          weights_track=getattr(request.inputs, "weights", None))
     written = write_review_page(path, review)
     return {**written, "note": "" if review.sheet is not None else review.sheet_note}

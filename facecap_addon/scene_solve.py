@@ -3,10 +3,13 @@ and the solve layer it keys.
 
 *Solve and Key*, *Retune*, *Fit Gain and Offset* and *Solve from Clip Flow* all build their request
 here (``request_from_scene``): the take and the character read from the scene, the active library
-version, the animator's locks and the per-shape controls.
+version, the animator's locks and the per-shape controls. *Solve and Key* solves on a worker thread
+(``SolveInBackground``) so the sidebar shows its progress and Esc cancels it.
 """
 
 import glob
+import threading
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -92,3 +95,59 @@ def key_solve(settings, result):
     action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
     settings.last_action = action.name
     return action
+
+
+class SolveInBackground:
+    """*Solve and Key* in the sidebar: the request is built here (it reads the scene), the solve runs on a
+    worker thread (numpy and scipy only: no Blender data is touched there) so the interface stays live
+    and Esc answers at once; nothing in the scene changes until the operator keys the finished result.
+    A cancelled solve cannot be stopped inside numpy: it finishes on its thread and is dropped."""
+
+    what = "Solve and Key"
+
+    def __init__(self, settings, scene):
+        self.settings = settings
+        self.request = request_from_scene(settings, scene)
+        self.size = _describe(self.request)
+        self.result = self.error = None
+        self.cancelled = False
+        self.started = time.monotonic()
+        self.thread = threading.Thread(target=self._run, name="facecap solve", daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        try:
+            self.result = solve(self.request)
+        except Exception as exc:  # handed to the main thread: FacecapError reported, anything else raised
+            self.error = exc
+        finally:
+            self.request = None  # the take's arrays are not kept once solved
+
+    @property
+    def finished(self):
+        return not self.thread.is_alive()
+
+    def seconds(self):
+        return time.monotonic() - self.started
+
+    def status(self):
+        return f"{self.what}: solving {self.size} ({self.settings.strategy}), {self.seconds():.0f} s; Esc cancels"
+
+    def wait(self):
+        """The result (scripts and tests: as the modal operator would get it); FacecapError as raised."""
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
+        return self.result
+
+    def cancel(self):
+        self.cancelled = True
+
+
+def _describe(request):
+    shapes = getattr(request.character, "shape_names", None) or getattr(request.character, "names", ())
+    if request.markers is not None:
+        return f"{request.markers.n_frames} frames from {request.markers.n_markers} markers x {len(shapes)} shapes"
+    weights = getattr(request.inputs, "weights", None)
+    frames = len(weights.frames) if weights is not None else 0
+    return f"{frames} frames of solved weights x {len(shapes)} shapes"

@@ -5,10 +5,14 @@ import numpy as np
 
 from ..facecap_addon import scene_solve
 from ..solvers.errors import FacecapError
+from .video import ClipJobOperator  # its cancel and _stop: Blender ending the operator, the timer and status bar
 
 
-class FACECAP_OT_solve(bpy.types.Operator):
-    """Solve shape-key weights for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept)"""
+TICK_SECONDS = 0.1  # how often the sidebar looks at a running solve
+
+
+class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
+    """Solve shape-key weights for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept). The status bar shows what is solving and for how long; Esc cancels with the scene untouched"""
 
     bl_idname = "facecap.solve"
     bl_label = "Solve and Key"
@@ -20,20 +24,59 @@ class FACECAP_OT_solve(bpy.types.Operator):
         return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
 
     def execute(self, context):
-        settings = context.scene.facecap
+        """Solve and key at once (bpy.ops from scripts and background mode)."""
         try:
-            result = scene_solve.solve_take(settings, context.scene)
-            action = scene_solve.key_solve(settings, result)
+            session = scene_solve.SolveInBackground(context.scene.facecap, context.scene)
+            session.wait()
+            return self._write(context, session)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+
+    def invoke(self, context, event):
+        if bpy.app.background or context.window is None:
+            return self.execute(context)
+        try:
+            self._session = scene_solve.SolveInBackground(context.scene.facecap, context.scene)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(TICK_SECONDS, window=context.window)
+        wm.modal_handler_add(self)
+        context.workspace.status_text_set(self._session.status())
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        session = self._session
+        if event.type in {"ESC", "RIGHTMOUSE"} and event.value == "PRESS":
+            self._stop(context)
+            self.report({"WARNING"}, f"{session.what} cancelled after {session.seconds():.1f} s; nothing was keyed")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        if not session.finished:  # the status bar says what is solving and for how long
+            context.workspace.status_text_set(session.status())
+            return {"RUNNING_MODAL"}
+        self._stop(context)
+        try:
+            return self._write(context, session)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+
+    def _write(self, context, session):
+        """Key the finished solve and report it (a FacecapError of the solve is raised here)."""
+        settings = context.scene.facecap
+        result = session.wait()
+        action = scene_solve.key_solve(settings, result)
         ok = np.isfinite(result.residual_rms)
         source = f"{len(result.marker_names)} markers" if result.stabilise is not None else f"{len(result.source_names)} channels"
         residual = f", RMS residual {float(np.mean(result.residual_rms[ok]) * 1e3):.2f} mm" if ok.any() else ""
         library = f", library '{settings.library_active}'" if settings.library_active else ""
         summary = (
             f"Solved {len(result.shape_names)} shapes over {result.frames.size} frames from "
-            f"{source} ({settings.strategy}{library}){residual}, action '{action.name}'"
+            f"{source} ({settings.strategy}{library}){residual} in {session.seconds():.1f} s, action '{action.name}'"
         )
         settings.last_report = summary
         for note in result.warnings:

@@ -60,14 +60,15 @@ class Option:
 
     def range_text(self):
         """The allowed range in words (for messages and docs), or ''."""
-        parts = []
-        if self.above is not None:
-            parts.append(f"> {self.above:g}")
-        if self.low is not None:
-            parts.append(f">= {self.low:g}")
-        if self.high is not None:
-            parts.append(f"<= {self.high:g}")
-        return " and ".join(parts)
+        parts = [f"{sign} {_number_text(v)}" for sign, v in (("> ", self.above), (">=", self.low), ("<=", self.high))
+                 if v is not None]
+        return " and ".join(p.replace(">  ", "> ") for p in parts)
+
+
+def _number_text(v):
+    """A bound in words: ``%g`` (1e+06, 0.5), or every digit of a whole number ``%g`` would round (1048574)."""
+    short = f"{v:g}"
+    return str(int(v)) if float(v).is_integer() and float(short) != float(v) else short
 
 
 def _is_int(v):
@@ -160,6 +161,9 @@ OPTIONS = (
       headless="detected on import"),
     O("source", "decimal", "choice", choices=(".", ","), doc="CSV decimal mark (default: detected)",
       headless="detected on import"),
+    O("source", "columns", "names", doc="A marker CSV without a header row: its columns, `frame` or `time` then "
+      "marker names (a name stands for its x, y, z columns; `name_x`, `name_y` for 2D tracks)",
+      headless="File > Import reads CSVs with a header row"),
     O("source", "first", "int", high=MAX_FRAME, doc="Video takes: first footage frame read",
       headless="the Movie Clip's frame range"),
     O("source", "last", "int", high=MAX_FRAME, doc="Video takes: last footage frame read",
@@ -408,36 +412,6 @@ OPTIONS = (
 
 BY_NAME = {o.name: o for o in OPTIONS}
 SECTIONS = tuple(dict.fromkeys(o.section for o in OPTIONS))
-
-#: ``python -m facecap track --config``: the tracking config (solvers.video.cli)
-TRACK_OPTIONS = (
-    O("source", "video", "path", required=True, doc="Video file, image folder, glob or printf pattern"),
-    O("source", "first", "int", high=MAX_FRAME, doc="First footage frame read (frame 1 is the first)"),
-    O("source", "last", "int", high=MAX_FRAME, doc="Last footage frame read"),
-    O("source", "step", "int", default=1, low=1, high=1000, doc="Read every n-th frame"),
-    O("source", "scale", "float", default=1.0, above=0.0, high=1.0, doc="Downscale before tracking"),
-    O("source", "fps", "float", above=0.0, high=MAX_FPS, doc="Frame rate (image sequences default to 24)"),
-    O("source", "frame_offset", "int", doc="Removed: frame numbers are the footage's own"),
-    O("tracking", "points", "path", doc="name,x,y seed points at the reference frame (source pixels)"),
-    O("tracking", "region", "floats", length=4, low=0.0, high=1e6, doc="Or automatic features in [x, y, w, h]"),
-    O("tracking", "method", "choice", default="lk", choices=("lk", "dis", "farneback", "tvl1"),
-      doc="Lucas-Kanade points, or dense flow sampled at them"),
-    O("tracking", "reference", "int", high=MAX_FRAME, doc="Neutral reference frame (default: the first read)"),
-    O("tracking", "max_points", "int", default=100, low=1, high=10_000, doc="Automatic features at most"),
-    O("tracking", "reregister", "bool", default=True, doc="lk: drift control by re-registration to the reference"),
-    O("tracking", "reseed", "bool", default=True, doc="lk: re-acquire lost points"),
-    O("tracking", "win_size", "int", default=21, low=3, high=255, doc="lk: window size in pixels"),
-    O("tracking", "fb_threshold", "float", default=1.0, above=0.0, high=1e3,
-      doc="lk: forward-backward error threshold (working pixels)"),
-    O("tracking", "levels", "int", default=3, low=0, high=10, doc="lk: pyramid levels"),
-    O("tracking", "drift", "choice", default="fuse", choices=("fuse", "direct", "none"), doc="dense: drift control"),
-    O("tracking", "preset", "choice", default="balanced", choices=("ultrafast", "fast", "balanced", "medium"),
-      doc="dis: quality preset"),
-    O("output", "markers", "path", required=True, doc="The 2D tracks: frame,<name>_x,<name>_y (pixels)"),
-    O("output", "confidence", "path", doc="frame,<name> per-sample confidence in [0, 1]"),
-    O("output", "report", "path", doc="JSON summary: losses, re-acquisitions, footage"),
-)
-
 
 def suggest(word, candidates):
     """`` (did you mean 'x'?)`` for the candidate closest to ``word``, or ''."""

@@ -140,7 +140,14 @@ def _with_complete_frame(vis, idx, rows=None):
 
 
 def _scores(m, core, half, components):
-    """(M,) rigidity scores, the noise sigma (m) and the stabilised positions with outliers removed."""
+    """(M,) rigidity scores, the noise sigma (m) and the stabilised positions with outliers removed.
+    A marker with no sample at all (or none left after the outliers) scores NaN -> infinite, quietly."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: "Mean of empty slice"
+        return _scores_of(m, core, half, components)
+
+
+def _scores_of(m, core, half, components):
     F = m.n_frames
     w = 2 * half + 1
     core = [m.names[i] for i in _with_complete_frame(m.visible, m.index(core))]
@@ -148,9 +155,7 @@ def _scores(m, core, half, components):
     D = X - np.nanmedian(X, axis=0)
     S = moving_mean(D, half)
     hf = D - S
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        fast = 1.4826 * np.nanmedian(np.abs(hf).reshape(F, -1, 1).reshape(F, hf.shape[1], 3), axis=(0, 2))
+    fast = 1.4826 * np.nanmedian(np.abs(hf).reshape(F, -1, 1).reshape(F, hf.shape[1], 3), axis=(0, 2))
     fast = fast * np.sqrt(w / (w - 1))  # (M,) each marker's frame-to-frame scatter
     sigma = np.nanmedian(fast[m.index(core)])  # noise: the (rigid) core's scatter
     sigma = max(float(sigma) if np.isfinite(sigma) else 0.0, 1e-6)  # 1 micron: noise-free takes

@@ -213,7 +213,9 @@ def _few(names, limit=8):
 
 def _far_note(names, dist, far, limit, what):
     shown = [f"{n} {d:.1f} mm" for n, d, f in zip(names, dist, far) if f]
-    return f"warning: {int(far.sum())} {what}(s) farther than {limit:g} mm from the surface stay unbound: {_few(shown)}"
+    hint = ("markers off the face, such as a head band, still stabilise; to bind them raise [binding] max_distance_mm"
+            if what == "marker" else "check those rows of the [binding] map")
+    return f"warning: {int(far.sum())} {what}(s) farther than {limit:g} mm from the surface stay unbound: {_few(shown)} ({hint})"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """Solve diagnostics, pure numpy: residual statistics and basis conditioning.
 
-``basis_warnings`` names shapes that the available markers cannot tell apart, e.g.
-"mouthLeft and jawLeft cannot be told apart from these markers (column cosine 0.997)".
+``basis_warnings`` names shapes that the available markers cannot tell apart, one line each, ending in
+what to do: "mouthLeft and jawLeft move these markers the same way, so their weights trade off; lock
+the one you do not need: [solve] locks = { jawLeft = 0 }".
 """
 
 from dataclasses import dataclass
@@ -111,34 +112,48 @@ def basis_conditioning(A, shape_names, mask=None, *, threshold=0.98, rel_singula
     An = A[:, seen] / norms[seen]
     cos = np.zeros((K, K))
     cos[np.ix_(seen, seen)] = np.abs(An.T @ An)
-    notes = [f"{names[k]} is not seen by these markers and will stay at its smallest allowed value" for k in unseen]
+    notes = [f"{names[k]} moves none of these markers, so it stays at its lowest value; to animate it, add a "
+             "marker where it moves or key it by hand" for k in unseen]
     pairs = []
     iu = np.triu_indices(K, 1)
     for a, b in zip(*iu):
         if cos[a, b] >= threshold:
             pairs.append((int(a), int(b), float(cos[a, b])))
-    for a, b, cv in sorted(pairs, key=lambda p: -p[2]):
-        notes.append(f"{names[a]} and {names[b]} cannot be told apart from these markers (column cosine {cv:.3f})")
+    for a, b, _ in sorted(pairs, key=lambda p: -p[2]):
+        notes.append(f"{names[a]} and {names[b]} move these markers the same way, so their weights trade off; "
+                     f"lock the one you do not need: {lock_line([names[b]])}")
     groups = []
     sv = np.zeros(0)
     if seen.size:
         _, sv, Vt = np.linalg.svd(An, full_matrices=False)
-        reported = {frozenset(p[:2]) for p in pairs}
+        in_pairs = {k for p in pairs for k in p[:2]}
         for s, v in zip(sv, Vt):
             if s >= rel_singular * sv[0]:
                 continue
             order = np.argsort(-(v**2))
             n_keep = int(np.searchsorted(np.cumsum(v[order] ** 2), share, side="left")) + 1
             members = tuple(sorted(int(seen[j]) for j in order[:n_keep]))
-            if len(members) < 2 or frozenset(members) in reported:
+            if len(members) < 2:
                 continue
             groups.append((members, float(s / sv[0])))
+            if set(members) <= in_pairs:  # already said, pair by pair
+                continue
+            main = int(seen[order[0]])  # the shape most of that direction is made of
             notes.append(
-                f"{', '.join(names[k] for k in members)} are nearly dependent from these markers "
-                f"(one combination of them moves the markers {s / sv[0]:.1e} as much as the strongest); "
-                "their weights will trade off against each other"
+                f"{', '.join(names[k] for k in members)} together move these markers almost like fewer shapes "
+                f"would, so their weights trade off; lock those you do not need, starting with {names[main]}: "
+                f"{lock_line([names[main]])}"
             )
     return Conditioning(cos, sv, tuple(pairs), tuple(groups), unseen, tuple(notes))
+
+
+def lock_line(shapes, value=0):
+    """The take-config line that holds ``shapes`` at ``value``: ``[solve] locks = { jawLeft = 0 }``."""
+    return "[solve] locks = { " + ", ".join(f"{_toml_key(s)} = {value:g}" for s in shapes) + " }"
+
+
+def _toml_key(name):
+    return name if name.replace("_", "").replace("-", "").isalnum() and name.isascii() else f'"{name}"'
 
 
 def basis_warnings(A, shape_names, mask=None, threshold=0.98, **kwargs):

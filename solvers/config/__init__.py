@@ -154,7 +154,7 @@ def load_take_config(path, data=None):
 
     units = get("source", "units")
     fps = get("source", "fps")
-    read_options = {k: get("source", k) for k in ("format", "unit_scale", "up_axis", "delimiter", "decimal")}
+    read_options = {k: get("source", k) for k in ("format", "unit_scale", "up_axis", "delimiter", "decimal", "columns")}
     read_options = {k: v for k, v in read_options.items() if v is not None}
     if units == "bu" and "unit_scale" not in read_options:
         problems.add(ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale"))

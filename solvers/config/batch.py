@@ -69,6 +69,9 @@ def is_batch_data(data):
 def collect_takes(arguments):
     """The takes named by the command line's ``arguments`` (configs, folders, batch files), in order.
 
+    A folder means its batch file, else every TOML in it, else (a folder of take folders) every TOML
+    one level down.
+
     Raises
     ------
     ConfigError for a missing argument, a bad batch file, nested batch files or a take reached twice.
@@ -81,7 +84,9 @@ def collect_takes(arguments):
             for file in batch_files or []:
                 entries += _batch_entries(file)
             if not batch_files:
-                entries += [(p, None, None) for p in _tomls(path)]
+                # a shoot laid out as one folder per take (shoot/take51/take51.toml): its take folders' configs
+                found = _tomls(path) or [p for sub in sorted(path.iterdir()) if sub.is_dir() for p in _tomls(sub)]
+                entries += [(p, None, None) for p in found]
         elif path.suffix.lower() == ".toml" and path.is_file() and _is_batch_file(path):
             entries += _batch_entries(path)
         elif path.exists() or path.suffix.lower() == ".toml":

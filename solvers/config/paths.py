@@ -73,6 +73,22 @@ def output_list(config):
             if getattr(config, attr, None) is not None]
 
 
+#: Low estimates of output sizes (bytes) for the free-space check: per weights-CSV value, per key in a
+#: compressed .blend, and the fixed part of a report or page.
+CSV_BYTES_PER_VALUE = 4
+BLEND_BYTES_PER_KEY = 4
+FIXED_BYTES = 16 << 10
+
+
+def expected_sizes(config, frames, shapes, base_size=0):
+    """[(Output, bytes)] the take's outputs will need at least (``solvers.io.outputs.check_free_space``):
+    ``frames`` x ``shapes`` weights, the .blend the run opens being ``base_size`` bytes."""
+    values = frames * max(1, shapes)
+    sizes = {"blend": base_size + values * BLEND_BYTES_PER_KEY, "weights_csv": values * CSV_BYTES_PER_VALUE,
+             "report": FIXED_BYTES + frames * 8, "html": FIXED_BYTES}
+    return [(out, sizes.get(out.kind, FIXED_BYTES)) for out in output_list(config)]
+
+
 def check_outputs(config, *, library=None, overwrite=False):
     """Raise ConfigError (one line naming the keys) unless the output policy allows every output of the
     take (``solvers.io.outputs.check_outputs``): none is an input or another output, an existing one is

@@ -47,7 +47,7 @@ _OPTIONS = {
     "c3d": ("units", "fps", "unit_scale", "up_axis"),
     "trc": ("units", "fps", "unit_scale", "up_axis"),
     "json": ("units", "fps", "unit_scale", "up_axis"),
-    "csv": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
+    "csv": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal", "columns"),
     "csv-long": ("units", "fps", "unit_scale", "up_axis", "delimiter", "decimal"),
 }
 #: Notes that mean the data were changed or are suspect, not just described: also raised as warnings.

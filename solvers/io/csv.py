@@ -36,18 +36,12 @@ from .csv_vector import vector_numeric as _vector_numeric
 
 # The writers live in csv_write; imported here so `from .csv import write_markers_csv` keeps working.
 from .csv_write import AXES, segment_labels, write_markers_csv, write_weights_csv  # noqa: F401
+from .csv_columns import FRAME_HEADERS, TIME_HEADERS, header_cells, header_columns
 from .limits import check_input_file
 from .timing import check_markerset, finish_arrays, segments_from_labels
 
 GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
 _GAP_SPELLINGS = ("", "NA", "na", "N/A", "n/a", "null", "NULL", "None", "none")  # nan: parsed by numpy
-FRAME_HEADERS = ("frame", "frames", "frame_number", "frame#", "frame_no", "frameno")
-TIME_HEADERS = {
-    "time": 1.0, "times": 1.0, "t": 1.0, "time_s": 1.0, "time (s)": 1.0, "time[s]": 1.0, "seconds": 1.0,
-    "timestamp": 1.0, "timestamps": 1.0, "time_sec": 1.0,
-    "time_ms": 1e-3, "time (ms)": 1e-3, "timestamp_ms": 1e-3, "ms": 1e-3,
-    "time_us": 1e-6, "timestamp_us": 1e-6,
-}
 DELIMITERS = (",", ";", "\t", "|")
 SNIFF_BYTES = 1 << 16
 
@@ -79,11 +73,13 @@ def _decode_error(path, exc):
     return InputFileError(path, f"not a text file ({exc.reason} at byte {exc.start})")
 
 
-def sniff(path, *, delimiter=None, decimal=None):
+def sniff(path, *, delimiter=None, decimal=None, columns=None):
     """Find the header line, delimiter and decimal separator of a delimited text file.
 
     The header line is read whole, however long (a 1,000-marker header is ~190 KB); the decimal
     separator is detected from the next 49 lines (their first SNIFF_BYTES characters each).
+    ``columns``: the names of a file without a header row (``header_columns``); its first
+    non-blank line is then data.
     """
     path = Path(path)
     with _open_text(path) as fh:
@@ -93,6 +89,8 @@ def sniff(path, *, delimiter=None, decimal=None):
             raise _decode_error(path, exc) from None
     if header_text is None:
         raise InputFileError(path, "empty file; expected a header line", line=1)
+    if columns is not None:  # no header row: the first line is data, part of the sample
+        sample = [header_text] + sample
     if delimiter is None:
         unquoted = re.sub(r'"(?:[^"]|"")*"', "", header_text)  # a quoted name's commas do not count
         counts = [unquoted.count(d) for d in DELIMITERS]
@@ -111,33 +109,11 @@ def sniff(path, *, delimiter=None, decimal=None):
         raise FacecapError(f"`decimal` must be '.' or ','; got {decimal!r}")
     if decimal == "," and delimiter == ",":
         raise FacecapError("`decimal` ',' needs a delimiter other than ','")
+    if columns is not None:
+        first = header_cells(header_text, delimiter)
+        header = header_columns(path, columns, len(first))
+        return Sniffed(path, delimiter, decimal, header, header_line - 1)
     return Sniffed(path, delimiter, decimal, header_cells(header_text, delimiter), header_line)
-
-
-def header_cells(line, delimiter):
-    """The cells of a header line (RFC 4180 quoting): unquoted cells stripped of spaces, quoted ones kept
-    exactly as written (a name may begin or end with a space)."""
-    cells, cell, quoted, inside, i = [], [], False, False, 0
-    while i < len(line):
-        c = line[i]
-        if inside:
-            if c == '"' and line[i + 1:i + 2] == '"':
-                cell.append('"')
-                i += 1
-            elif c == '"':
-                inside = False
-            else:
-                cell.append(c)
-        elif c == '"' and not "".join(cell).strip():
-            cell, quoted, inside = [], True, True
-        elif c == delimiter:
-            cells.append("".join(cell) if quoted else "".join(cell).strip())
-            cell, quoted = [], False
-        else:
-            cell.append(c)
-        i += 1
-    cells.append("".join(cell) if quoted else "".join(cell).strip())
-    return tuple(cells)
 
 
 def _head_lines(fh):
@@ -345,6 +321,10 @@ def wide_layout(sn):
     """Column roles of a wide marker CSV; InputFileError for a header that cannot be one."""
     header = list(sn.header)
     path = sn.path
+    if header and all(_is_float(h) or h.lower() in GAP_TOKENS for h in header):
+        raise InputFileError(path, "no header row: line 1 holds numbers; name the columns in the take config, "
+                             "e.g. [source] columns = [\"frame\", \"nose\", \"chin\"] (a marker name stands for its "
+                             "x, y, z columns)", line=sn.header_line)
     dup = duplicate_names(header)
     if dup:
         raise InputFileError(path, f"duplicate columns {_shorten(dup)}", line=sn.header_line)
@@ -377,8 +357,8 @@ def wide_layout(sn):
     return WideLayout(key_col, time_scale, names, dim, columns, tuple(extra))
 
 
-def _parse_wide(path, *, delimiter=None, decimal=None):
-    sn = sniff(path, delimiter=delimiter, decimal=decimal)
+def _parse_wide(path, *, delimiter=None, decimal=None, columns=None):
+    sn = sniff(path, delimiter=delimiter, decimal=decimal, columns=columns)
     lay = wide_layout(sn)
     lines, values = read_numeric_columns(sn, (lay.key_col,) + lay.columns)
     if values.shape[0] == 0:
@@ -420,7 +400,7 @@ def _data_line_numbers(sn):
 
 
 def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, delimiter=None,
-                  decimal=None, notes=None):
+                  decimal=None, columns=None, notes=None):
     """Read a wide marker CSV (see the module docstring) with units, axis and timing applied.
 
     Parameters
@@ -435,6 +415,8 @@ def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, 
     up_axis : {"Z", "Y", None}
     delimiter, decimal : str or None
         Override detection.
+    columns : list of str or None
+        The column names of a file without a header row (see :func:`header_columns`).
     notes : list or None
         Receives a line per thing detected or done.
 
@@ -444,7 +426,9 @@ def read_wide_csv(path, *, units=None, fps=None, unit_scale=None, up_axis=None, 
     """
     notes = [] if notes is None else notes
     sn, lay, key, positions, labels, numeric_extra, text_extra = _parse_wide(
-        path, delimiter=delimiter, decimal=decimal)
+        path, delimiter=delimiter, decimal=decimal, columns=columns)
+    if columns is not None:
+        notes.append(f"no header row: columns from `columns` ({len(sn.header)} columns)")
     if sn.delimiter != "," or sn.decimal != ".":
         notes.append(f"delimiter {sn.delimiter!r}, decimal {sn.decimal!r}")
     if numeric_extra:

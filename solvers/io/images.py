@@ -61,11 +61,20 @@ def write_png(path, image):
     image = np.asarray(image)
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] not in _COLOUR_TYPE or 0 in image.shape:
         raise ValueError(f"write_png needs an (H, W, 3|4) uint8 image, got {image.dtype} {image.shape}")
+    data = encode_png(image)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def encode_png(image, level=9):
+    """The PNG file bytes of an 8-bit (H, W, 3|4) RGB(A) image, top row first."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] not in _COLOUR_TYPE or 0 in image.shape:
+        raise ValueError(f"encode_png needs an (H, W, 3|4) uint8 image, got {image.dtype} {image.shape}")
     h, w, c = image.shape
     header = struct.pack(">IIBBBBB", w, h, 8, _COLOUR_TYPE[c], 0, 0, 0)
-    data = zlib.compress(paeth_filter(image).tobytes(), 9)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(_SIGNATURE + _chunk(b"IHDR", header) + _chunk(b"IDAT", data) + _chunk(b"IEND", b""))
+    data = zlib.compress(paeth_filter(image).tobytes(), level)
+    return _SIGNATURE + _chunk(b"IHDR", header) + _chunk(b"IDAT", data) + _chunk(b"IEND", b"")
 
 
 def read_tga(path):

@@ -88,6 +88,11 @@ SNAP_TOLERANCE = 1e-3
 FRAME_TOLERANCE = 1e-6
 #: A resampled frame between two samples farther apart than this (frames) is a gap, not interpolated.
 MAX_BRIDGE = 2.5
+#: Samples are taken as on the frame grid (their times rounded to frames) while every one is within this
+#: (frames) of its whole frame, counted from the first sample. Timestamps rounded to the millisecond at
+#: 60 fps are within 0.03; a clock drifting against the rate (Live Link Face at 59.94 fps with 60 fps
+#: timecodes: 0.13 frame) is beyond it, and the rows are interpolated onto the grid instead.
+GRID_TOLERANCE = 0.05
 
 
 def estimate_rate(times):
@@ -105,7 +110,8 @@ def frames_from_times(times, *, fps=None, where="timestamps"):
     """Frame numbers for ``times`` (seconds) at ``fps`` (estimated when None).
 
     Returns (frames, fps, regular): ``regular`` is False when the steps vary by more than
-    RATE_TOLERANCE or rounding would skip or repeat a frame, in which case ``frames`` are
+    RATE_TOLERANCE, a sample lies more than GRID_TOLERANCE off the frame grid (counted from the first
+    sample: a drifting clock) or rounding would skip or repeat a frame, in which case ``frames`` are
     fractional and the caller should resample.
     """
     times = np.asarray(times, dtype=np.float64)
@@ -120,11 +126,20 @@ def frames_from_times(times, *, fps=None, where="timestamps"):
         raise FacecapError(f"{where}: frame rate must be positive; got {fps}")
     raw = times * fps
     regular = steps.size == 0 or bool(np.all(np.abs(steps * fps - 1.0) <= RATE_TOLERANCE))
+    if regular and raw.size > 1:
+        regular = grid_offset(raw) <= GRID_TOLERANCE
     if regular:
         frames = np.round(raw) + 0.0  # no -0.0
         if np.all(np.diff(frames) == 1.0):  # drift can make rounding skip or repeat a frame
             return frames, float(fps), True
     return raw, float(fps), False
+
+
+def grid_offset(raw):
+    """The largest distance (frames) of the samples at ``raw`` (times in frames) from the whole-frame grid
+    through the first sample."""
+    rel = np.asarray(raw, dtype=np.float64) - raw[0]
+    return float(np.max(np.abs(rel - np.round(rel)))) if rel.size else 0.0
 
 
 def resample(times, positions, fps):
@@ -225,6 +240,12 @@ def finish_arrays(names, frames, positions, *, source="", file_fps=None, segment
     dim = positions.shape[-1] if positions.ndim == 3 else 0
     segments = dict(segments or {})
     chosen = normalise_units(units) or normalise_units(file_units, what="file units")
+    said = UNIT_ALIASES.get(str(file_units).strip().lower()) if file_units is not None else None
+    if units is not None and said is not None and chosen != said:  # the user's word wins, but not silently
+        factor = UNIT_SCALE.get(chosen, 1.0) / UNIT_SCALE.get(said, 1.0) if chosen in UNIT_SCALE else None
+        notes.append(f"warning: the file says its units are {said}, read as {chosen} as asked ([source] units, "
+                     f"--units)" + (f": {factor:g} times the size the file gives" if factor else "")
+                     + "; drop the units option to use the file's")
     if chosen is None:
         if dim == 2:
             chosen = "px"
@@ -366,5 +387,5 @@ def check_markerset(build, path):
 
 
 __all__ = ["BLENDER_MAX_FRAME", "DEFAULT_FPS", "FPS_ASSUMED", "MAX_FRAME", "MarkerSet", "UNITS_GUESSED", "UNIT_CHOICES", "bridged_gaps", "check_frame_range",
-           "estimate_rate", "finish", "finish_arrays", "frames_from_times", "guess_units", "normalise_units",
+           "estimate_rate", "finish", "finish_arrays", "frames_from_times", "grid_offset", "guess_units", "normalise_units",
            "resample", "segments_from_labels", "unique_names", "y_up_evidence", "y_up_to_z_up"]

@@ -9,7 +9,10 @@
                   X1 Y1 Z1  X2 Y2 Z2  X3 Y3 Z3
     1  0.000  ...
 
-Empty cells (and ``NaN``) are gaps; a row may stop early when its last markers are missing.
+Empty cells (and ``NaN``) are gaps; a row may stop early when its last markers are missing. A sample
+written as exactly ``0, 0, 0`` is a gap too: OpenSim and Motion Analysis write missing markers so (no
+real marker sits exactly at the origin of the capture volume). Comma-separated TRC files (pyomeca)
+are read as well.
 """
 
 import numpy as np
@@ -74,6 +77,9 @@ def read_trc(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
     if len(lines) < 5 or not lines[3].strip():
         held = sum(1 for line in lines[:4] if line.strip())
         raise InputFileError(path, f"truncated TRC header: {held} of 5 header lines", line=held + 1)
+    if "\t" not in lines[0] and "," in lines[0]:  # comma-separated (pyomeca): no cell can hold a comma then
+        lines = [line.replace(",", "\t") for line in lines]
+        notes.append("comma-separated TRC")
     meta = _header_values(lines[1], lines[2])
     rate = _header_rate(path, meta)
     names_row = _cells(lines[3])
@@ -96,6 +102,11 @@ def read_trc(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
     for i, row in enumerate(rows):
         positions[i, :len(row)] = row
     positions = positions.reshape(len(rows), width, 3)
+    zero = (positions == 0.0).all(axis=2)
+    if zero.any():  # OpenSim and Motion Analysis write a missing marker as 0, 0, 0
+        positions[zero] = np.nan
+        notes.append(f"{int(zero.sum())} sample(s) written as 0, 0, 0 read as gaps (how OpenSim and Motion "
+                     "Analysis write a missing marker)")
     file_units = UNIT_ALIASES.get(meta.get("Units", "").strip().lower())
     if meta.get("Units") and file_units is None:
         notes.append(f"Units {meta.get('Units')!r} not understood")

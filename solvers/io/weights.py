@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from .arkit import ARKIT_52
 from .csv import TIME_HEADERS, data_rows, duplicate_names, read_numeric_columns, read_text_columns, sniff, time_column
-from .timing import MAX_BRIDGE, bridged_gaps, check_frame_range, frames_from_times, resample
+from .timing import MAX_BRIDGE, bridged_gaps, check_frame_range, frames_from_times, grid_offset, resample
 
 HEAD_CHANNELS = ("HeadYaw", "HeadPitch", "HeadRoll")
 EYE_CHANNELS = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
@@ -41,9 +41,11 @@ class WeightTrack:
     values : ndarray (F, K)
         Weights, usually in [0, 1]; NaN for a missing cell.
     head : ndarray (F, 3) or None
-        Head yaw, pitch, roll (radians, as Live Link Face writes them).
+        Head yaw, pitch, roll in radians, as Live Link Face writes them (``HEAD_CHANNELS``), on ``frames``
+        (resampled with the weights); None when the file has no head columns.
     eyes : ndarray (F, 6) or None
-        Left eye yaw/pitch/roll then right eye yaw/pitch/roll.
+        Left eye yaw, pitch, roll then right eye yaw, pitch, roll in radians (``EYE_CHANNELS``): what
+        the gaze shapes follow; None when the file has no eye columns.
     source : str
     format : str
         "livelinkface", "mediapipe" or "weights".
@@ -62,6 +64,18 @@ class WeightTrack:
     format: str = "weights"
     timecode: str = ""
     notes: tuple = field(default_factory=tuple)
+
+    #: The columns of ``head`` and ``eyes``, in order (not fields: the same for every track)
+    HEAD_CHANNELS = HEAD_CHANNELS
+    EYE_CHANNELS = EYE_CHANNELS
+
+    def angles(self):
+        """{column name: (F,) radians} of the head and eye angles the file has (empty without any)."""
+        out = {}
+        for names, values in ((HEAD_CHANNELS, self.head), (EYE_CHANNELS, self.eyes)):
+            if values is not None:
+                out.update({n: np.asarray(values)[:, j] for j, n in enumerate(names)})
+        return out
 
 
 def parse_timecode(text, rate):
@@ -194,7 +208,9 @@ def _on_frames(path, times, values, fps, notes):
     except FacecapError as exc:
         raise InputFileError(path, str(exc)) from None
     dropped = bridged_gaps(times, rate)
-    notes.append(f"irregular timestamps resampled (linear) to {rate:.6g} fps: {len(times)} rows -> "
+    drift = grid_offset(times * rate)
+    notes.append(f"irregular timestamps (rows up to {drift:.2g} frame off the frame grid) resampled (linear) to "
+                 f"{rate:.6g} fps: {len(times)} rows -> "
                  f"{len(frames)} frames" + (f"; {dropped} frame(s) in dropouts longer than {MAX_BRIDGE:g} "
                                             "frames left as gaps" if dropped else ""))
     return frames, resampled[:, 0, :], rate

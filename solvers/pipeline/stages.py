@@ -158,10 +158,11 @@ def usable_markers(markers, settings, notes, *, bound=None):
     unbound = [] if bound is None or settings.auto_stable else \
         [n for n in markers.names if n not in set(bound) and n not in stable and n not in never]
     if never:
-        notes.append(f"{len(never)} marker(s) have no sample over the neutral frames and are left out: {never}")
+        notes.append(f"{len(never)} marker(s) have no sample over the neutral frames and are left out: "
+                     f"{', '.join(never)} (to use them, give [neutral] frames where they are seen)")
     if unbound:
         notes.append(f"{len(unbound)} marker(s) are neither bound on the character nor stable and are left out: "
-                     f"{unbound}")
+                     f"{', '.join(unbound)} (to use them, bind them: docs/binding.md)")
     drop = set(never) | set(unbound)
     return markers if not drop else markers.subset([n for n in markers.names if n not in drop])
 

@@ -174,7 +174,7 @@ class GeometricStrategy:
         flagged = getattr(alignment, "flagged", ())
         if flagged:
             used = self.basis.marker_names
-            warnings.append(f"binding(s) {list(flagged)} are far from their marker after the actor->character "
+            warnings.append(f"binding(s) {', '.join(flagged)} are far from their marker after the actor->character "
                             f"alignment ({', '.join(f'{residual[used.index(n)] * 1e3:.1f} mm' for n in flagged)}); "
                             "check the binding (vertex groups, [binding] map or landmarks)")
         return StrategyResult(
@@ -211,7 +211,8 @@ def bound_markers(character, names, *, source="take"):
     unbound = [n for n in names if n not in bound]
     absent = [n for n in character.marker_names if n not in taken]
     if unbound:
-        notes.append(f"{len(unbound)} marker(s) have no binding on the character and are not solved from: {unbound}")
+        notes.append(f"{len(unbound)} marker(s) have no binding on the character and are not solved from: "
+                     f"{', '.join(unbound)}")
     if absent:
         notes.append(f"{len(absent)} bound point(s) have no marker in the take: {absent}")
     if len(used) < 3:

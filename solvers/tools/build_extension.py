@@ -351,10 +351,10 @@ def build(out_dir, *, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_
     return built
 
 
-def main(argv=None):
+def main(argv=None, *, parents=()):
     """Entry point for ``facecap build-extension``; returns the exit code."""
     parser = argparse.ArgumentParser(
-        prog="facecap build-extension",
+        prog="facecap build-extension", parents=list(parents),
         description="Build and validate the Blender extension zips (one per platform, scipy and OpenCV bundled).")
     parser.add_argument("--out", default="dist", help="output folder (default: ./dist)")
     parser.add_argument("--platform", action="append", choices=PLATFORMS,

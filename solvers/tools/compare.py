@@ -1,6 +1,6 @@
 """Side-by-side comparison of the cross-mapping strategies on the same synthetic takes.
 
-``python -m facecap.solvers.tools.compare`` prints a Markdown table (weights RMSE and max error against
+``python -m facecap compare`` prints a Markdown table (weights RMSE and max error against
 the ground truth, fit and solve time) of every strategy. The scenario is a *cross* retarget: an
 ACTOR with its own proportions and its own shape deltas (``make_actor``) performs; the CHARACTER
 is the sample character (``sample_blends/character_basis.npz``). Every marker strategy receives
@@ -195,12 +195,16 @@ def markdown_table(rows):
     return "\n".join(lines)
 
 
-def main(argv=None):
+DESCRIPTION = ("Measure every strategy on the same synthetic cross-retarget takes (an actor with its own "
+               "proportions onto the sample character) and print weights error and times as a Markdown table.")
+
+
+def main(argv=None, *, parents=()):
     """Print the comparison table (Markdown) to stdout."""
-    parser = argparse.ArgumentParser(prog="python -m facecap.solvers.tools.compare", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="facecap compare", description=DESCRIPTION, parents=list(parents))
     parser.add_argument("--frames", type=int, default=720, help="frames per synthetic take (default 720)")
     parser.add_argument("--examples", type=int, default=60, help="posed example frames for linear/rbf/pca (default 60)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the actor, the takes and the noise (default 0)")
     parser.add_argument("--strategy", action="append", help="only these strategies (repeatable)")
     args = parser.parse_args(argv)
     sc = build_scenario(frames=args.frames, n_examples=args.examples, seed=args.seed)

@@ -1,4 +1,4 @@
-"""``python -m facecap convert IN OUT [--units U] [--fps N] ...``: a capture file in another format.
+"""``python -m facecap convert IN OUT [--units U] [--fps N] ...``: convert a capture file to another format.
 
 * Markers (C3D, TRC, CSV wide or long, JSON) -> ``OUT``'s format by its extension: ``.csv`` (wide),
   ``.c3d``, ``.trc`` or ``.json``. ``--units``/``--unit-scale``/``--up-axis``/``--fps`` say how to
@@ -62,9 +62,13 @@ def convert(src, out, *, kind, got, out_units=None, overwrite=False):
             f"fps {got.decided.get('fps')})")
 
 
-def main(argv=None):
+DESCRIPTION = ("Convert a capture file to another format: markers to CSV, C3D, TRC or JSON (by OUT's extension), "
+               "solved weights to a weights CSV.")
+
+
+def main(argv=None, *, parents=()):
     """Entry point for ``facecap convert``; returns the exit code (0 ok, 1 bad input, 2 usage)."""
-    p = reading_parser(prog="facecap convert", description=__doc__.splitlines()[0].split(": ", 1)[-1])
+    p = reading_parser(prog="facecap convert", description=DESCRIPTION, parents=parents)
     p.add_argument("file", metavar="IN")
     p.add_argument("out", metavar="OUT", help="output file: .csv, .c3d, .trc or .json (weights: .csv)")
     p.add_argument("--out-units", choices=("m", "cm", "mm"), default=None, help="convert positions before writing")

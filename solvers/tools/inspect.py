@@ -121,14 +121,21 @@ def describe_weights(track):
     return "\n".join(lines)
 
 
-def parser(prog="facecap inspect", description="Describe a capture file."):
-    """The reading options shared by ``inspect`` and ``convert``."""
-    p = argparse.ArgumentParser(prog=prog, description=description)
+DESCRIPTION = ("Describe a capture file (markers or solved weights): markers, frames, rate, units, gaps per "
+               "marker and segments, or one line saying why it cannot be read.")
+
+
+def parser(prog="facecap inspect", description=DESCRIPTION, parents=()):
+    """The reading options shared by ``inspect`` and ``convert`` (``parents``: the command line's -q / -v)."""
+    p = argparse.ArgumentParser(prog=prog, description=description, parents=list(parents))
     p.add_argument("--units", default=None, help="what the file's numbers are: m, cm, mm, bu (with --unit-scale) or px")
     p.add_argument("--unit-scale", type=float, default=None, help="metres per unit for --units bu")
     p.add_argument("--fps", type=float, default=None, help="frame rate (weights: resample to it)")
     p.add_argument("--up-axis", choices=("Y", "Z"), default=None, help="Y converts a Y-up file to Blender's Z-up")
     p.add_argument("--weights", action="store_true", help="read a solved-weights CSV (detected from the header otherwise)")
+    p.add_argument("--columns", default=None, metavar="NAMES",
+                   help="a marker CSV without a header row: its columns, comma-separated (frame,nose,chin: a marker "
+                        "name stands for its x, y, z columns), as [source] columns")
     return p
 
 
@@ -139,13 +146,15 @@ def read_capture(args):
         if args.units is not None or args.unit_scale is not None or args.up_axis is not None:
             raise FacecapError(f"{args.file}: a weights file has no units or axes; drop --units/--unit-scale/--up-axis")
         return "weights", read_weights(args.file, fps=args.fps)
-    options = {k: v for k, v in (("unit_scale", args.unit_scale), ("up_axis", args.up_axis)) if v is not None}
+    columns = None if getattr(args, "columns", None) is None else [c.strip() for c in args.columns.split(",")]
+    options = {k: v for k, v in (("unit_scale", args.unit_scale), ("up_axis", args.up_axis), ("columns", columns))
+               if v is not None}
     return "markers", import_markers(args.file, units=args.units, fps=args.fps, **options)
 
 
-def main(argv=None):
+def main(argv=None, *, parents=()):
     """Entry point for ``facecap inspect``; returns the exit code (0 ok, 1 bad file, 2 usage)."""
-    p = parser()
+    p = parser(parents=parents)
     p.add_argument("file")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     args = p.parse_args(argv)

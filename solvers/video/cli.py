@@ -34,6 +34,7 @@ the removed ``frame_offset`` key are errors that say so.
 
 import argparse
 import contextlib
+import logging
 import os
 import signal
 import sys
@@ -46,12 +47,59 @@ from ..errors import ConfigError, FacecapError, InputFileError, Problems
 from ..io.csv import write_markers_csv, write_weights_csv
 from ..io.files import read_text_input, remove_stale_temporaries, write_json_atomic
 from ..io.outputs import Output, check_outputs
-from ..options import TRACK_OPTIONS, table_problems
+from ..options import MAX_FPS, MAX_FRAME, Option, table_problems
 from .flow import track_with_flow_job
 from .reading import Cancelled, Footage
 from .tracking import track_points_job
 from .flow_config import frame_number_error
 
+try:
+    from tqdm import tqdm
+except ImportError:  # a Blender without the pip dependencies: plain progress lines
+    tqdm = None
+
+log = logging.getLogger(__name__)
+
+#: Every key of a track config, checked as a take config's are (``solvers.options``: kinds, ranges with upper
+#: bounds, a "did you mean" for unknown sections and keys); ``facecap config-docs`` writes it into docs/config.md.
+TRACK_OPTIONS = tuple(Option(*row[:3], **row[3]) for row in (
+    ("source", "video", "path", {"required": True, "doc": "Video file, image folder, glob or printf pattern"}),
+    ("source", "first", "int", {"high": MAX_FRAME, "doc": "First footage frame read (frame 1 is the first of the "
+                                "footage; default: the first)"}),
+    ("source", "last", "int", {"high": MAX_FRAME, "doc": "Last footage frame read (default: the last)"}),
+    ("source", "step", "int", {"default": 1, "low": 1, "high": 1000, "doc": "Read every n-th frame"}),
+    ("source", "scale", "float", {"default": 1.0, "above": 0.0, "high": 1.0, "doc": "Downscale before tracking"}),
+    ("source", "fps", "float", {"above": 0.0, "high": MAX_FPS, "doc": "Frame rate (default: the video's; image "
+                                "sequences 24)"}),
+    ("source", "frame_offset", "int", {"doc": "Removed: frames count from 1 (an error that says so)"}),
+    ("tracking", "points", "path", {"doc": "`name,x,y` file of the points at the reference frame (source "
+                                    "pixels); or `region`"}),
+    ("tracking", "region", "floats", {"length": 4, "low": 0.0, "high": 1e6, "doc": "[x, y, w, h] in source "
+                                      "pixels: automatic features in this box; or `points`"}),
+    ("tracking", "method", "choice", {"default": "lk", "choices": ("lk", "dis", "farneback", "tvl1"),
+                                      "doc": "`lk` (Lucas-Kanade points), or dense flow: `dis`, `farneback`, `tvl1`"}),
+    ("tracking", "reference", "int", {"high": MAX_FRAME, "doc": "The neutral frame the points are given at "
+                                      "(default: the first frame read)"}),
+    ("tracking", "max_points", "int", {"default": 100, "low": 1, "high": 10_000, "doc": "`region`: the most "
+                                       "features found"}),
+    ("tracking", "reregister", "bool", {"default": True, "doc": "`lk`: drift control by re-registration to the "
+                                        "reference"}),
+    ("tracking", "reseed", "bool", {"default": True, "doc": "`lk`: re-acquire lost points from the reference "
+                                    "patch"}),
+    ("tracking", "win_size", "int", {"default": 21, "low": 3, "high": 255, "doc": "`lk`: window size (working "
+                                     "pixels)"}),
+    ("tracking", "levels", "int", {"default": 3, "low": 0, "high": 10, "doc": "`lk`: pyramid levels"}),
+    ("tracking", "fb_threshold", "float", {"default": 1.0, "above": 0.0, "high": 1e3, "doc": "`lk`: "
+                                           "forward-backward error (working pixels) above which a point is lost"}),
+    ("tracking", "drift", "choice", {"default": "fuse", "choices": ("fuse", "direct", "none"), "doc": "Dense flow: "
+                                     "`fuse` (chained and direct), `direct` (to the reference) or `none`"}),
+    ("tracking", "preset", "choice", {"default": "balanced", "choices": ("ultrafast", "fast", "balanced", "medium"),
+                                      "doc": "`dis`: speed against quality"}),
+    ("output", "markers", "path", {"required": True, "doc": "The 2D tracks: `frame,<name>_x,<name>_y` in pixels "
+                                   "(origin top left)"}),
+    ("output", "confidence", "path", {"doc": "Per-sample confidence in [0, 1]: `frame,<name>,...`"}),
+    ("output", "report", "path", {"doc": "JSON: summary, losses, re-acquisitions, footage"}),
+))
 #: The track report's schema version (its first key, ``"facecap_track"``, also marks it as facecap's own)
 REPORT_SCHEMA = 1
 #: Options of one tracking method only
@@ -73,7 +121,7 @@ def read_track_toml(path):
 
 
 def load_track_config(path, *, overwrite=False):
-    """Parse and check a track config (``solvers.options.TRACK_OPTIONS``: every problem of the file at
+    """Parse and check a track config (``TRACK_OPTIONS``: every problem of the file at
     once, with a "did you mean"), then its outputs against the output policy (``solvers.io.outputs``);
     returns a dict of resolved settings."""
     path, data = read_track_toml(path)
@@ -127,28 +175,39 @@ def load_track_config(path, *, overwrite=False):
 TRACK_OUTPUTS = (("markers", "markers_csv"), ("confidence", "weights_csv"), ("report", "track_report"))
 
 
-class ProgressLine:
-    """``label: done/total frames (rate)`` on one self-overwriting stderr line, at most twice a second."""
+class FrameProgress:
+    """Frames done of a long job: a tqdm bar (rate, ETA) on a terminal; elsewhere (a log file, CI) a plain
+    ``label: done/total frames`` line after the first frame, at most every ``every`` seconds and at the
+    end, through :mod:`logging` (``--quiet`` hides them).
 
-    def __init__(self, stream, label):
-        self.stream, self.label = stream, label
-        self.last, self.start = 0.0, time.monotonic()
-        self.open_line = False  # a "\r"-ended line is showing
+    tqdm is a dependency of the pip package; a Blender without it (the extension zip) gets the plain lines.
+    """
+
+    def __init__(self, label, *, stream=None, every=10.0):
+        self.label, self.every = label, every
+        self.stream = stream if stream is not None else sys.stderr
+        self.last, self.start = time.monotonic(), time.monotonic()
+        self.bar = None
+        self.use_bar = tqdm is not None and getattr(self.stream, "isatty", lambda: False)()
 
     def __call__(self, done, total):
+        if self.use_bar:
+            if self.bar is None:
+                self.bar = tqdm(total=total, desc=self.label, unit="frame", file=self.stream, dynamic_ncols=True,
+                                leave=True)
+            self.bar.update(done - self.bar.n)
+            return True
         now = time.monotonic()
-        if done == total or now - self.last >= 0.5:
+        if done in (1, total) or now - self.last >= self.every:
             self.last = now
             rate = done / max(now - self.start, 1e-9)
-            end = "\n" if done == total else "\r"
-            print(f"{self.label}: {done}/{total} frames ({rate:.0f} frames/s)", end=end, file=self.stream, flush=True)
-            self.open_line = done != total
+            log.info(f"{self.label}: {done}/{total} frames ({rate:.0f} frames/s)")
         return True
 
-    def close_line(self):
-        if self.open_line:
-            print(file=self.stream, flush=True)
-            self.open_line = False
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 def tracking_job(settings):
@@ -215,7 +274,11 @@ def sigint_cancels():
             signal.signal(signal.SIGINT, restore)
 
 
-def main(argv=None):
+DESCRIPTION = ("Track 2D markers in video footage (Lucas-Kanade points, or dense optical flow over the face) and "
+               "write them as a CSV of pixel positions, with their confidence and a report if asked.")
+
+
+def main(argv=None, *, parents=()):
     """``[track] --config take.toml``; returns the exit status (0 ok, 1 error, 130 cancelled).
 
     Ctrl-C (SIGINT) stops tracking between two frames: one line ``cancelled at frame N``, exit
@@ -224,11 +287,12 @@ def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["track"]:
         argv = argv[1:]
-    parser = argparse.ArgumentParser(prog="facecap track", description="Track 2D markers in footage.")
-    parser.add_argument("--config", required=True, help="take config (.toml) with [source], [tracking], [output]")
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    parser = argparse.ArgumentParser(prog="facecap track", description=DESCRIPTION, parents=list(parents))
+    parser.add_argument("--config", required=True, help="track config (.toml) with [source], [tracking], [output]")
     parser.add_argument("--overwrite", action="store_true",
                         help="let outputs replace existing files facecap did not write (default: refused)")
+    if not parents:  # run on its own (python -m facecap.solvers.video.cli); the command line gives -q / -v
+        parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
     with sigint_cancels() as stop:
         return _main(args, stop)
@@ -241,31 +305,29 @@ def _main(args, stop):
         for key in ("markers", "confidence", "report"):
             if settings[key] is not None:
                 remove_stale_temporaries(Path(settings[key]).parent)
-        shown = None if args.quiet else ProgressLine(sys.stderr, f"track ({settings['method']})")
+        shown = None if getattr(args, "quiet", False) else FrameProgress(f"track ({settings['method']})")
 
         def progress(done, total):
             if shown is not None:
                 shown(done, total)
             return not stop.is_set()
 
-        result = run_track(settings, progress=progress)
+        try:
+            result = run_track(settings, progress=progress)
+        finally:
+            if shown is not None:
+                shown.close()
     except Cancelled as exc:
-        if shown is not None:
-            shown.close_line()
         print(f"facecap: {exc}; nothing written", file=sys.stderr)
         return 130
     except FacecapError as exc:
-        if shown is not None:
-            shown.close_line()
-        for line in str(exc).splitlines():
+        for line in str(exc).splitlines():  # a config's problems: one line each
             print(f"facecap: error: {' '.join(line.split())}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        if shown is not None:
-            shown.close_line()
         print("facecap: interrupted", file=sys.stderr)
         return 130
-    print(f"{result.summary()}; wrote {settings['markers']}", file=sys.stderr)
+    print(f"{result.summary()}; wrote {settings['markers']}")
     return 0
 
 

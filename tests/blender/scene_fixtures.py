@@ -63,6 +63,24 @@ class LayoutStub:
     column = box = row
 
 
+def sub_panels(name):
+    """The sub-panels of sidebar panel ``name`` in the order they are drawn."""
+    return [cls for cls in bpy.types.Panel.__subclasses__() if getattr(cls, "bl_parent_id", "") == name
+            and hasattr(bpy.types, cls.__name__)]
+
+
+def draw_panel(name, layout=None):
+    """Draw panel ``name`` and every sub-panel that applies (its ``poll``), as Blender shows them opened;
+    returns the LayoutStub with every call."""
+    layout = LayoutStub() if layout is None else layout
+    stub = SimpleNamespace(layout=layout)
+    getattr(bpy.types, name).draw(stub, bpy.context)
+    for cls in sub_panels(name):
+        if not hasattr(cls, "poll") or cls.poll(bpy.context):
+            cls.draw(stub, bpy.context)
+    return layout
+
+
 def modal_driver(operator):
     """A class running ``operator``'s own modal methods on a plain object (Blender builds operator
     instances itself): ``Driver(session)``, then ``modal``/``cancel`` as Blender would call them."""

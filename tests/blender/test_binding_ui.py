@@ -3,7 +3,6 @@
 picked from the marker list and the character's vertex groups; the real Facial-Sing capture."""
 
 import json
-import os
 import re
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import numpy as np
 import pytest
 
 from scene_fixtures import LayoutStub
+from shared_data import REALDATA
 
 from facecap.facecap_addon import anim, layers, scene_binding
 from facecap.facecap_addon.scene_data import basis_from_object, mesh_from_object
@@ -20,7 +20,6 @@ from facecap.solvers.io import import_markers
 from facecap.solvers.io.csv import read_weights_csv, write_markers_csv
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
-REALDATA = Path(os.environ.get("FACECAP_REALDATA", "/work/shared/data/realdata"))
 FACIAL_SING = REALDATA / "c3d" / "c3dorg_29_Facial-Sing.c3d"
 LANDMARKS = ("nose_tip_C", "chin_C", "brow_inner_L", "brow_inner_R")
 

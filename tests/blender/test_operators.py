@@ -7,7 +7,7 @@ import bpy
 import numpy as np
 import pytest
 
-from scene_fixtures import LayoutStub, build_character
+from scene_fixtures import LayoutStub, build_character, draw_panel, modal_driver, sub_panels
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from synthetic_face import make_basis  # noqa: E402
@@ -151,7 +151,7 @@ def test_every_editable_list_is_drawn_with_its_buttons(take, setting, value, lis
     setattr(s, setting, value)
     layout = LayoutStub()
     for panel in ("FACECAP_PT_take", "FACECAP_PT_solve"):
-        getattr(bpy.types, panel).draw(type("PanelStub", (), {"layout": layout})(), bpy.context)
+        draw_panel(panel, layout)
     assert ("template_list", listed) in layout.calls
     i = layout.calls.index(("template_list", listed))
     assert [kind for kind, _ in layout.calls[i + 1 : i + 3]] == ["operator", "operator"]  # add, remove
@@ -223,3 +223,62 @@ def test_lists_draw_their_items(take, ui_list, collection):
     layout = LayoutStub()
     getattr(bpy.types, ui_list).draw_item(None, bpy.context, layout, s, item, 0, s, "", 0)
     assert ("label", item.name) in layout.calls or ("prop", "name") in layout.calls
+
+
+def _solve_driver():
+    from facecap.operators.solve import FACECAP_OT_solve
+
+    return modal_driver(FACECAP_OT_solve)
+
+
+def test_solve_and_key_runs_modal_then_keys_or_esc_leaves_the_scene_as_it_was(take, monkeypatch):
+    """*Solve and Key* in the sidebar: the solve runs beside the interface (timer ticks and other events pass
+    while it works, the status bar says what), Esc drops it with nothing keyed; left to finish, it keys the
+    solve layer as bpy.ops does."""
+    import threading
+    from types import SimpleNamespace
+
+    from facecap.facecap_addon import scene_solve
+
+    _import(take)
+    context, scene = bpy.context, bpy.context.scene
+    s = scene.facecap
+    s.target = take["obj"]
+    bpy.ops.facecap.set_neutral(first=1, last=50)
+    go = threading.Event()
+    real_solve = scene_solve.solve
+    monkeypatch.setattr(scene_solve, "solve", lambda request: go.wait(60) and real_solve(request))
+    actions = set(bpy.data.actions.keys())
+    tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+    driver = _solve_driver()(scene_solve.SolveInBackground(s, scene))
+    assert driver.modal(context, SimpleNamespace(type="MOUSEMOVE", value="NOTHING")) == {"PASS_THROUGH"}
+    assert driver.modal(context, tick) == {"RUNNING_MODAL"}
+    assert driver._session.status().startswith("Solve and Key: solving 240 frames from 60 markers x ")
+    assert driver.modal(context, esc) == {"CANCELLED"}
+    go.set()
+    driver._session.thread.join()
+    assert driver._session.cancelled and driver._session.result is not None  # solved on its thread, dropped
+    assert driver.reports == [("WARNING", driver.reports[0][1])] and "nothing was keyed" in driver.reports[0][1]
+    assert set(bpy.data.actions.keys()) == actions and layers.solved_action(take["obj"].data.shape_keys) is None
+
+    driver = _solve_driver()(scene_solve.SolveInBackground(s, scene))
+    driver._session.thread.join()
+    assert driver.modal(context, tick) == {"FINISHED"}
+    assert driver.reports[-1][0] == "INFO" and f"over {N_FRAMES} frames" in driver.reports[-1][1]
+    assert layers.solved_action(take["obj"].data.shape_keys).name == "take01"
+
+
+def test_stabilise_and_solve_show_their_options_in_sub_panels_that_apply(take):
+    _import(take)
+    s = bpy.context.scene.facecap
+    assert [c.bl_label for c in sub_panels("FACECAP_PT_stabilise")] == ["Neutral", "Master T-Pose",
+                                                                        "Head Fit and Alignment"]
+    shown = {}
+    for strategy in ("geometric", "parallel", "linear"):
+        s.strategy = strategy
+        shown[strategy] = [c.bl_label for c in sub_panels("FACECAP_PT_solve") if not hasattr(c, "poll")
+                           or c.poll(bpy.context)]
+    assert shown == {"geometric": ["Priors and Smoothing", "Shapes"],
+                     "parallel": ["Strategy Inputs", "Shapes"], "linear": ["Strategy Inputs", "Shapes"]}
+    for name in ("FACECAP_PT_stabilise", "FACECAP_PT_solve"):  # every branch of every sub-panel draws
+        assert draw_panel(name).calls

@@ -5,7 +5,7 @@ import bpy
 import numpy as np
 import pytest
 
-from scene_fixtures import LayoutStub
+from scene_fixtures import draw_panel
 from test_operators import _import, _solved_values, take  # noqa: F401  (fixture)
 
 from facecap.facecap_addon import anim, take as take_mod
@@ -119,10 +119,9 @@ def test_stabilise_panel_draws_every_neutral_mode(take, mode):
     s.neutral_mode = mode
     s.unreliable_frames = 3
     s.stable_gap = 1.5
-    layout = LayoutStub()
-    stub = type("PanelStub", (), {"layout": layout})()
-    bpy.types.FACECAP_PT_stabilise.draw(stub, bpy.context)
+    layout = draw_panel("FACECAP_PT_stabilise")
     assert ("operator", "facecap.suggest_stable") in layout.calls
+    assert ("prop", "neutral_mode") in layout.calls and ("prop", "use_master") in layout.calls
     assert any(c[0] == "label" and c[1] and "unreliable" in c[1] for c in layout.calls)
 
 

@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 import pytest
 
-from scene_fixtures import LayoutStub, build_character
+from scene_fixtures import LayoutStub, build_character, draw_panel
 
 from facecap.facecap_addon import anim, import_scene, layers
 from facecap.solvers.character.basis import Basis
@@ -180,8 +180,7 @@ def _draw(strategy, **extra):
     s.strategy = strategy
     for k, v in extra.items():
         setattr(s, k, v)
-    layout = LayoutStub()
-    bpy.types.FACECAP_PT_solve.draw(SimpleNamespace(layout=layout), bpy.context)
+    layout = draw_panel("FACECAP_PT_solve")  # with the sub-panels that apply to the strategy
     return {name for _, name in layout.calls}
 
 

@@ -1,7 +1,7 @@
 """A seeded fuzz campaign over every reader, for counts (not a test: ``python tests/core/fuzz_campaign.py``).
 
 Seeds: the small files of ``test_fuzz_io`` (one per format), the reader reproducers of
-``/work/shared/bugs/reliability`` and a few small real captures; each seed is mutated ``--cases``
+``shared/bugs/reliability`` (beside the checkout, ``tests/shared_data.py``) and a few small real captures; each seed is mutated ``--cases``
 times with ``test_fuzz_io.mutate`` and read with ``import_markers`` (``read_weights`` for Live Link
 Face). Prints, per seed, how many cases loaded, were refused with a FacecapError, raised anything
 else (by exception type), loaded frame numbers beyond 2^31 or ran longer than ``--slow`` seconds.
@@ -21,9 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: shared_data
+import shared_data  # noqa: E402
+
 HERE = Path(os.environ.get("FUZZ_HELPERS", Path(__file__).resolve().parent))
-BUGS = Path("/work/shared/bugs/reliability")
-REAL = Path("/work/shared/data/realdata")
+BUGS = shared_data.BUGS / "reliability"
+REAL = shared_data.REALDATA
 SEEDS = [
     ("c3d", BUGS / "c3d_negative_analog_rate.c3d"),
     ("c3d", BUGS / "c3d_zero_frame_words.c3d"),

@@ -1,6 +1,6 @@
 """facecap's readers on the real capture corpus, compared file by file with reference readers.
 
-The corpus is ``/work/shared/data/realdata`` (C3D, TRC and Live Link Face files from 15+ vendors,
+The corpus is ``shared/data/realdata`` beside the checkout (``tests/shared_data.py``) (C3D, TRC and Live Link Face files from 15+ vendors,
 ``SOURCES.md`` there). References: ezc3d and py-c3d (``c3d`` on PyPI, both in the ``test`` extra)
 for C3D, a plain ``csv``-module parse of the rows for TRC, ``np.interp`` of the raw rows for Live
 Link Face. ``test_realdata.py`` asserts every outcome; this module also writes the table of
@@ -15,7 +15,6 @@ malformed file, which must not take the test run with it.
 import argparse
 import csv
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -26,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-CORPUS = Path(os.environ.get("FACECAP_REALDATA", "/work/shared/data/realdata"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: shared_data, also when run as a script
+from shared_data import REALDATA as CORPUS  # noqa: E402
 #: Seconds a reference reader may take on one file before it counts as failing (ezc3d needs ~20 s to
 #: give up on two files it cannot read; the others take under 1 s on a quiet machine).
 REFERENCE_SECONDS = 15.0
@@ -223,7 +223,9 @@ def _read(path):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             result = import_markers(path, units="mm")  # numbers as the file holds them
-        return result.markers, tuple(result.notes), ""
+        # "mm" is given only to keep the numbers: the note that it overrides the file's units is not the file's
+        notes = tuple(n for n in result.notes if not n.startswith("warning: the file says its units are"))
+        return result.markers, notes, ""
     except FacecapError as exc:
         return None, (), str(exc).replace(str(path), path.name)
 
@@ -257,10 +259,13 @@ def c3d_outcomes(files=None):
 
 
 def trc_rows(path):
-    """A TRC file's coordinates by a plain tab split: (F, M, 3), NaN for empty cells; M = the named
-    markers of line 4 or, when the rows hold more, as many as they hold."""
+    """A TRC file's coordinates by a plain tab (or, for a comma-separated file, comma) split: (F, M, 3),
+    NaN for empty cells and for samples written as 0, 0, 0 (a missing marker, as OpenSim writes it); M =
+    the named markers of line 4 or, when the rows hold more, as many as they hold."""
     with open(path, newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh, delimiter="\t"))
+        first = fh.readline()
+        fh.seek(0)
+        rows = list(csv.reader(fh, delimiter="," if "\t" not in first and "," in first else "\t"))
     named = sum(1 for c in rows[3][2:] if c.strip())
     rows = [r for r in rows[5:] if any(c.strip() for c in r)]
     cells = [[c.strip() for c in r[2:]] for r in rows]
@@ -270,7 +275,9 @@ def trc_rows(path):
     for i, c in enumerate(cells):
         c = c[:width]
         out[i, :len(c)] = [float(x) if x else np.nan for x in c]
-    return out.reshape(len(rows), -1, 3)
+    out = out.reshape(len(rows), -1, 3)
+    out[(out == 0.0).all(axis=2)] = np.nan
+    return out
 
 
 def trc_outcomes(files=None):

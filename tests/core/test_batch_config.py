@@ -93,6 +93,17 @@ def test_a_folder_without_one_is_every_toml_in_it(shoot):
     assert all(t.listed_by is None and "target" not in t.data for t in takes)
 
 
+def test_a_folder_of_take_folders_is_every_toml_one_level_down(tmp_path):
+    """``batch shoot/`` with shoot/take51/take51.toml: the take folders are looked into (it said only
+    "no take configs found" before)."""
+    for name in ("take51", "take52"):
+        write(tmp_path / "shoot" / name / f"{name}.toml", '[source]\nmarkers = "take.csv"\n')
+    (tmp_path / "shoot" / "notes").mkdir()
+    takes = collect_takes([tmp_path / "shoot"])
+    assert [t.name for t in takes] == ["take51", "take52"]
+    assert collect_takes([tmp_path / "shoot" / "notes"]) == []
+
+
 def test_a_missing_or_unreadable_take_is_that_takes_error_not_the_batch(shoot):
     write(shoot / "takes" / "take03.toml", "[source\nmarkers = 1\n")
     takes = collect_takes([shoot / "takes" / "take01.toml", shoot / "missing.toml", shoot / "takes" / "take03.toml"])

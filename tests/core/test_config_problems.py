@@ -98,7 +98,8 @@ def test_suggestions(word, candidates, hint):
 def test_every_number_of_every_config_has_an_upper_bound():
     """A typo of a few zeros (or 1e300) is refused by the checks, not met later by an allocation or an
     overflow: every numeric option, of take and track configs, has an upper bound, shown in the docs."""
-    from facecap.solvers.options import OPTIONS, TRACK_OPTIONS
+    from facecap.solvers.options import OPTIONS
+    from facecap.solvers.video.cli import TRACK_OPTIONS
 
     numeric = [o for o in OPTIONS + TRACK_OPTIONS
                if {"int", "float", "floats"} & set(o.kind if isinstance(o.kind, tuple) else (o.kind,))]

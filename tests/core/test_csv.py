@@ -117,3 +117,4 @@ def test_row_of_empty_cells_is_skipped_by_every_reader(tmp_path):
         m = read_markers_csv(path)
     np.testing.assert_array_equal(m.frames, [1, 2])
     assert m.positions[1, 0, 1] == 1.0
+

@@ -90,7 +90,9 @@ def test_conditioning_names_a_near_duplicate_pair():
     A = A.copy()
     A[:, 6] = 0.8 * A[:, 3] + 1e-5 * np.random.default_rng(4).normal(size=A.shape[0])
     notes = basis_warnings(A, names)
-    assert any("mouthLeft and jawLeft cannot be told apart from these markers" in n for n in notes)
+    # one line that says what to do, with the config line to do it
+    assert any(n.startswith("mouthLeft and jawLeft move these markers the same way") and
+               n.endswith("lock the one you do not need: [solve] locks = { jawLeft = 0 }") for n in notes), notes
     assert not any("browUp and" in n for n in notes)
 
 
@@ -101,12 +103,13 @@ def test_conditioning_reports_a_dependent_group_and_masked_markers():
     A[:, 5] = 0.5 * A[:, 0] + 0.5 * A[:, 1]  # f = mix of a and b: no pair is a duplicate, the triple is
     cond = basis_conditioning(A, names)
     assert any(set(g) == {0, 1, 5} for g, _ in cond.groups)
-    assert any("a, b, f are nearly dependent" in n for n in cond.warnings)
+    line = next(n for n in cond.warnings if n.startswith("a, b, f together move these markers"))
+    assert line.endswith(("locks = { a = 0 }", "locks = { b = 0 }", "locks = { f = 0 }")), line
     # shape e seen only by markers that are all occluded
     mask = np.ones(A.shape[0])
     mask[np.abs(A[:, 4]) > 0] = 0
     notes = basis_warnings(A, names, mask=mask)
-    assert any(n.startswith("e is not seen") for n in notes)
+    assert any(n.startswith("e moves none of these markers") for n in notes)
 
 
 def test_diagnostics_validate_input():

@@ -6,15 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_data import BLENDERFACE
 
 from facecap.solvers import InputFileError, MarkerSet
 from facecap.solvers.io.c3d import read_c3d
 from facecap.solvers.io.c3d_write import write_c3d
 from facecap.solvers.io import detect_format, import_markers, read_markers, read_weights, write_markers
 
-BLENDERFACE = Path(__file__).resolve().parents[3] / "shared" / "data" / "blenderface"
-if not BLENDERFACE.is_dir():
-    BLENDERFACE = Path("/work/shared/data/blenderface")
 
 
 def take(frames=40, markers=5, seed=0, units="mm"):

@@ -50,6 +50,20 @@ def test_auto_stable_markers_pick_only_head_markers_and_solve_accurately(sample)
     assert r.report()["stabilise"]["suggested"]["markers"] == list(s.names)
 
 
+def test_a_marker_never_seen_does_not_leak_numpy_warnings_from_the_stable_search(sample):
+    """A take with a marker missing in every frame (a label nothing wore) printed numpy's
+    'Mean of empty slice' RuntimeWarning on the user's console."""
+    import warnings
+
+    _, _, _, markers = sample
+    pos = markers.positions.copy()
+    pos[:, markers.index(["lip_upper_C"])[0]] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = suggest_stable_markers(markers.with_positions(pos))
+    assert all(n.startswith("head_") for n in s.names) and "lip_upper_C" not in s.names
+
+
 def test_neutral_from_several_ranges_and_detected(sample):
     config, basis, truth, markers = sample
     last = int(markers.frames[-1])

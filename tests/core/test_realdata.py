@@ -1,6 +1,6 @@
 """Every real capture file of the corpus, read and compared file by file (see realdata_corpus.py).
 
-Skips when the corpus (``/work/shared/data/realdata``, or ``FACECAP_REALDATA``) is absent or the
+Skips when the corpus (``shared/data/realdata`` beside the checkout, ``tests/shared_data.py``) is absent or the
 ``test`` extra's reference readers (ezc3d, py-c3d) are not installed.
 """
 

@@ -262,3 +262,74 @@ def test_a_2d_tracks_page_plots_the_in_plane_head_motion():
     assert counts["head_rotation"] == 1 and counts["head_translation"] == 2
     for figure in figures:
         _validate(figure)
+
+
+def test_the_settings_table_reads_as_words_not_python(solved):
+    """``mapping.table []``, ``(0.0, 0.3)``, ``None``, ``True`` once leaked into the table."""
+    from dataclasses import replace
+
+    from facecap.solvers.strategies.options import CalibrationSettings, MappingSettings
+    from facecap.solvers.tools.report.sections import settings_rows
+
+    settings = solved[2]
+    for strategy in ("geometric", "calibrated", "parallel", "linear", "pca", "refine"):
+        rows = settings_rows(replace(settings, strategy=strategy, mapping=MappingSettings(),
+                                     calibration=CalibrationSettings(), locks=(("tongueOut", 0.0),)))
+        for name, value in rows:
+            assert not re.search(r"[\[\]{}']|\bNone\b|\bTrue\b|\bFalse\b|\(\)|^\(", value), (strategy, name, value)
+    rows = dict(settings_rows(replace(settings, strategy="parallel", mapping=MappingSettings(table=(("a", "b", 1.0),)),
+                                      locks=(("tongueOut", 0.0),))))
+    assert rows["mapping.table"] == "a b 1" and rows["mapping.mirror"] == "off" and rows["locks"] == "tongueOut = 0"
+    assert dict(settings_rows(replace(settings, strategy="parallel")))["mapping.table"] == "none"
+
+
+def test_heat_map_rows_are_grouped_by_face_region(solved):
+    result, _, settings, basis, _ = solved
+    geometry, _ = marker_geometry(result, basis, settings)
+    _, figures = build_page(Review(result=result, take="sample", settings=settings, geometry=geometry))
+    heat = next(f for f in figures if f["id"] == "heat")
+    regions = [a["text"] for a in heat["layout"]["annotations"]]
+    assert regions == ["head (stable)", "forehead and brows", "eyes", "nose", "cheeks", "mouth", "jaw and chin"]
+    rows = heat["traces"][0]["trace"]["y"]
+    assert sorted(rows) == sorted(result.marker_names) and rows[0].startswith("head_")
+    assert len(heat["layout"]["shapes"]) == len(regions) - 1  # a line between two regions
+
+
+def test_rings_use_one_absolute_scale_with_a_legend(solved):
+    """A 0.45 mm frame once showed red: each tile coloured its rings by its own worst marker."""
+    from facecap.solvers.tools.report.review import ContactSheet, Tile
+    from facecap.solvers.tools.report.sections import RING_SCALE_MM, _heat_colour, contact_html
+
+    result = solved[0]
+    pts = np.array([[10.0, 10.0], [20.0, 20.0]])
+    tiles = tuple(Tile(float(result.frames[i]), "t", "peak", b"\x89PNG", 224, 280, pts, pts + 1, np.array(d))
+                  for i, d in ((0, [0.2, 0.45]), (1, [0.2, 4.9])))
+    html = contact_html(Review(result=result, take="t", sheet=ContactSheet(tiles, ("a", "b"))))
+    first, second = html.split('<figure')[1:3]
+    assert _heat_colour(0.45 / RING_SCALE_MM) in first and _heat_colour(1.0) not in first  # not red
+    assert _heat_colour(4.9 / RING_SCALE_MM) in second
+    assert 'class="ring-legend"' in html and f"{RING_SCALE_MM:g} and more: red" in html
+
+
+def test_a_phone_take_shows_the_head_the_phone_measured(solved):
+    """A Live Link Face page said "No head motion" although the file has head angles."""
+    from dataclasses import replace
+
+    result = replace(solved[0], stabilise=None, frame_marker_residual=None, strategy="parallel", marker_names=(),
+                     residual_rms=np.full(solved[0].frames.size, np.nan))
+    angles = np.radians(np.stack([np.linspace(-10, 10, result.frames.size)] * 3, axis=1))
+    html, figures = build_page(Review(result=result, take="phone", head_angles=angles))
+    head = next(f for f in figures if f["id"] == "head_rotation")
+    assert [t["trace"]["name"] for t in head["traces"]] == ["yaw (turn)", "pitch (nod)", "roll (tilt)"]
+    assert "No head motion" not in html and "as the phone tracked it" in html
+    _, arrays = _meta_and_blob(html)
+    assert np.abs(arrays["head_rotation"][0] - np.linspace(-10, 10, result.frames.size)).max() <= 0.5e-3
+
+
+def test_every_shape_has_a_small_plot_worst_first_against_the_truth(solved):
+    result, truth = solved[0], solved[1]
+    html, _ = build_page(Review(result=result, take="s", truth=Truth(result.frames, result.shape_names, truth)))
+    order = [int(k) for k in re.findall(r'<button class="small" data-shape="(\d+)"', html)]
+    assert sorted(order) == list(range(len(result.shape_names)))
+    rmse = np.sqrt(np.nanmean((result.weights - truth) ** 2, axis=0))
+    assert np.all(np.diff(rmse[order]) <= 1e-12), "worst first"

@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("cv2")
 
 from facecap.solvers import read_markers_csv, read_weights_csv  # noqa: E402
-from facecap.solvers.video.cli import main  # noqa: E402
+from facecap.facecap_addon.cli import main  # noqa: E402  (facecap track, as a user runs it)
 from facecap.solvers.video.synthetic import write_synthetic_clip  # noqa: E402
 
 
@@ -35,8 +35,8 @@ def test_track_writes_wide_csv_in_pixels(take, method, capsys):
     d, clip = take
     cfg = write_config(d, f'points = "points2d.csv"\nmethod = "{method}"\nreference = 1')
     assert main(["track", "--config", str(cfg)]) == 0
-    err = capsys.readouterr().err
-    assert f"track ({method}): 24/24 frames" in err and "tracked 3 points over 24 frames" in err
+    out, err = capsys.readouterr()
+    assert f"track ({method}): 24/24 frames" in err and "tracked 3 points over 24 frames" in out
     header = (d / "out/tracks.csv").read_text().splitlines()[0]
     assert header == "frame,brow_L_x,brow_L_y,brow_R_x,brow_R_y,mouth_x,mouth_y"
     mk = read_markers_csv(d / "out/tracks.csv", units="px", fps=30.0)
@@ -91,7 +91,7 @@ def test_track_region_from_a_subprocess(take):
 def test_config_errors_are_one_line_and_exit_non_zero(take, capsys, tracking, extra, message):
     d, _ = take
     cfg = write_config(d, tracking, extra)
-    assert main(["--config", str(cfg)]) == 1
+    assert main(["track", "--config", str(cfg)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("facecap: error: ")
     assert pytest.importorskip("re").search(message, err[0]), err[0]
@@ -101,9 +101,9 @@ def test_unreadable_video_and_missing_config(tmp_path, capsys):
     (tmp_path / "clip.avi").write_bytes(b"\x00" * 100)
     (tmp_path / "p.csv").write_text("a,1,1\n")
     cfg = write_config(tmp_path, 'points = "p.csv"')
-    assert main(["--config", str(cfg)]) == 1
+    assert main(["track", "--config", str(cfg)]) == 1
     assert "cannot decode as video" in capsys.readouterr().err
-    assert main(["--config", str(tmp_path / "nope.toml")]) == 1
+    assert main(["track", "--config", str(tmp_path / "nope.toml")]) == 1
     assert "config file not found" in capsys.readouterr().err
 
 

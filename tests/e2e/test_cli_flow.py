@@ -68,6 +68,29 @@ def run(path):
                           text=True, timeout=120, cwd=path.parent)
 
 
+def test_the_review_page_of_a_video_take_shows_the_footage_beside_the_character(footage):
+    """The contact sheet's source panel is the footage frame (grey, at the render's height) of each tile."""
+    import base64
+
+    from png_pixels import png_pixels
+
+    d, _ = footage
+    path = config(d, "review")
+    done = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(path), "--html",
+                           "review/page.html"], capture_output=True, text=True, timeout=300, cwd=d)
+    assert done.returncode == 0, done.stderr
+    html = (d / "review" / "page.html").read_text()
+    tiles = re.findall(r'<figure class="tile[^"]*"><div class="pair"><img class="source" src="data:image/png;base64,'
+                       r'([^"]+)" height="(\d+)"', html)
+    assert len(tiles) >= 3, "every tile of a video take shows its footage frame"
+    assert "the footage frame beside" in html
+    png = d / "review" / "first.png"
+    png.write_bytes(base64.b64decode(tiles[0][0]))
+    pixels = png_pixels(png)
+    assert pixels.shape[0] == int(tiles[0][1]) and abs(pixels.shape[1] / pixels.shape[0] - W / H) < 0.02
+    assert np.ptp(pixels) > 50, "an image of the footage, not a blank"
+
+
 def test_retarget_a_video_take_from_posed_frames(footage):
     d, truth = footage
     t0 = time.perf_counter()

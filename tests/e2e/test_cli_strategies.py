@@ -129,6 +129,32 @@ def test_parallel_from_a_live_link_face_csv(tmp_path, pair):
     assert report["source"]["format"] == "livelinkface" and report["stabilise"] is None
 
 
+def test_a_live_link_face_review_page_shows_the_phones_head(tmp_path, pair):
+    """The page of a phone take said "No head motion" although the file has head angles: they are kept
+    (WeightTrack.head, radians) and drawn, in degrees, on the result's frames."""
+    import re
+
+    from facecap.solvers.tools.report.blob import unpack
+
+    lines = (pair["dir"] / "llf.csv").read_text().splitlines()
+    n = len(lines) - 1
+    yaw = 0.3 * np.sin(np.arange(n) / 40.0)  # radians, as the app writes them
+    head = ["HeadYaw,HeadPitch,HeadRoll"] + [f"{y:.6f},{0.5 * y:.6f},{-0.25 * y:.6f}" for y in yaw]
+    (tmp_path / "llf.csv").write_text("\n".join(f"{a},{b}" for a, b in zip(lines, head)) + "\n")
+    config = write_config(tmp_path, pair, "parallel", "[mapping]\nneutral = [1, 50]\n")
+    config.write_text(config.read_text().replace(str(pair["dir"] / "llf.csv"), str(tmp_path / "llf.csv")))
+    proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config), "--html",
+                           str(tmp_path / "out" / "review.html")], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    html = (tmp_path / "out" / "review.html").read_text()
+    assert "No head motion" not in html and "as the phone tracked it" in html
+    meta = json.loads(re.search(r'id="facecap-meta">(.*?)</script>', html, re.S).group(1).replace("<\\/", "</"))
+    arrays = unpack(re.search(r'id="facecap-blob">(.*?)</script>', html, re.S).group(1), meta["arrays"])
+    assert "head_rotation" in [f["id"] for f in meta["figures"]]
+    np.testing.assert_allclose(arrays["head_rotation"][0], np.degrees(yaw), atol=1e-3)
+    np.testing.assert_allclose(arrays["head_rotation"][2], np.degrees(-0.25 * yaw), atol=1e-3)
+
+
 @pytest.mark.parametrize("strategy, bound", [("linear", 0.15), ("rbf", 0.15), ("pca", 0.15)])
 def test_example_strategies_through_the_cli(tmp_path, pair, strategy, bound):
     config = write_config(tmp_path, pair, strategy, f'[examples]\nweights = "{pair["dir"] / "examples.csv"}"\n')

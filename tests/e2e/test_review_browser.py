@@ -116,6 +116,53 @@ def test_cli_page_opens_offline_and_draws_everything(chromium, cli_page, tmp_pat
         assert len(np.unique(shot.reshape(-1, 3)[::97], axis=0)) > 200, "plots and renders, not flat colour"
 
 
+#: Pairs of things on the page that must not overlap, as (name, a selector, b selector, within each plot?).
+OVERLAPS_JS = """(() => {
+  const rects = (root, sel) => Array.from(root.querySelectorAll(sel)).map(e => [e, e.getBoundingClientRect()])
+    .filter(([, r]) => r.width > 0 && r.height > 0);
+  const hit = (a, b) => Math.min(a.right, b.right) - Math.max(a.left, b.left) > 1 &&
+                        Math.min(a.bottom, b.bottom) - Math.max(a.top, b.top) > 1;
+  const label = e => (e.textContent || e.getAttribute('data-title') || e.getAttribute('class') || e.tagName).trim().slice(0, 40);
+  const out = [], checked = {};
+  function pairs(name, root, selA, selB) {
+    const a = rects(root, selA), b = selB === selA ? a : rects(root, selB);
+    checked[name] = (checked[name] || 0) + a.length * b.length;
+    a.forEach(([ea, ra], i) => b.forEach(([eb, rb], j) => {
+      if ((selA !== selB || j > i) && ea !== eb && !ea.contains(eb) && !eb.contains(ea) && hit(ra, rb))
+        out.push([name, label(ea), label(eb)]);
+    }));
+  }
+  for (const plot of document.querySelectorAll('.plot')) {
+    const legend = plot.querySelector('.legend .scrollbox') ? '.legend .traces' : '.legend .traces';
+    pairs('mode bar / legend', plot, '.modebar-btn', legend);
+    pairs('mode bar / labels', plot, '.modebar-btn', '.annotation, .gtitle, .colorbar');
+    pairs('labels', plot, '.annotation', '.annotation');
+    pairs('labels / colour bar', plot, '.annotation', '.colorbar');
+    pairs('plot text', plot, '.textpoint', '.textpoint');
+  }
+  pairs('worst frames', document, 'p.worst a.chip', 'p.worst a.chip');
+  pairs('ring scale', document, '.ring-legend .ticks span, .ring-legend .what, .ring-legend .more',
+        '.ring-legend .ticks span, .ring-legend .what, .ring-legend .more');
+  pairs('contact sheet', document, 'figure.tile', 'figure.tile');
+  pairs('tile panels', document, 'figure.tile .pair > *', 'figure.tile .pair > *');
+  pairs('small plots', document, 'button.small', 'button.small');
+  return {overlaps: out, checked: checked};
+})()"""
+
+
+def test_nothing_on_the_page_overlaps(chromium, cli_page):
+    """Plotly's toolbar once covered legend entries and the worst-frame labels collided: every legend
+    entry, label, colour bar, link and tile is checked by its bounding box in the browser."""
+    with Browser(chromium, width=1280, height=900) as browser:
+        browser.open(cli_page.as_uri())
+        found = browser.evaluate(OVERLAPS_JS)
+        checked = found["checked"]
+        assert checked["mode bar / legend"] > 50 and checked["labels"] >= 42 and checked["worst frames"] >= 90
+        assert checked["contact sheet"] >= 64 and checked["small plots"] > 2500, checked
+        assert found["overlaps"] == [], found["overlaps"][:10]
+        assert browser.evaluate("document.querySelectorAll('#plot-residual .textpoint').length") == 0
+
+
 def test_hover_toggle_and_zoom_work(chromium, cli_page):
     with Browser(chromium) as browser:
         browser.open(cli_page.as_uri())

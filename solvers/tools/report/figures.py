@@ -8,6 +8,7 @@ or carries its points inline. ``time`` figures share the frame axis: zooming one
 
 import numpy as np
 
+from .regions import face_regions
 from .review import head_motion
 
 #: Weight curves shown at first (the others one click away in the legend).
@@ -19,7 +20,10 @@ FLAG_MARKS = 2000
 #: Worst frames marked on the residual plot.
 WORST_MARKED = 10
 AXIS = {"title": {"text": "frame"}, "zeroline": False}
-BASE_LAYOUT = {"margin": {"l": 60, "r": 20, "t": 10, "b": 40}, "showlegend": True, "hovermode": "x unified",
+#: The top margin holds plotly's mode bar (its buttons are about 30 px high): the legend, which starts at the
+#: top of the plot area, is never under it.
+TOP = 38
+BASE_LAYOUT = {"margin": {"l": 60, "r": 20, "t": TOP, "b": 40}, "showlegend": True, "hovermode": "x unified",
                "uirevision": "keep", "plot_bgcolor": "#fbfbfb", "paper_bgcolor": "#ffffff",
                "font": {"family": "system-ui, sans-serif", "size": 12}}
 AXES_COLOURS = ("#d62728", "#2ca02c", "#1f77b4")  # X, Y, Z as Blender draws them
@@ -64,10 +68,12 @@ def build_figures(review, blob):
     if np.isfinite(result.residual_rms).any():
         figures.append(_residual(result, blob))
     if result.frame_marker_residual is not None and np.isfinite(result.frame_marker_residual).any():
-        figures.append(_heat(result))
+        figures.append(_heat(result, review))
     head = head_motion(result.stabilise)
     if head is not None:
         figures += _head(head, blob, np.asarray(result.frames, dtype=np.float64))
+    elif review.head_angles is not None:  # a phone's own head angles (Live Link Face): nothing was removed
+        figures.append(_phone_head(review.head_angles, blob))
     return figures
 
 
@@ -95,7 +101,6 @@ def _weights(review, blob):
     layout = _layout(460, {"title": {"text": "weight"}, "zeroline": False},
                      legend={"font": {"size": 11}, "itemclick": "toggle", "itemdoubleclick": "toggleothers"})
     layout["xaxis"]["rangeslider"] = {"visible": True, "thickness": 0.07}
-    layout["margin"] = {**layout["margin"], "t": 34}  # the mode bar above the legend, not over it
     return {"id": "weights", "title": "", "time": True, "layout": layout, "traces": traces}
 
 
@@ -116,16 +121,16 @@ def _residual(result, blob):
     blob.add("residual", residual_mm, 1e-4)
     rows = worst_rows(residual_mm, spacing=max(1, result.frames.size // 200))
     frames = result.frames[rows]
-    worst = {"trace": {"type": "scatter", "mode": "markers+text", "name": "worst frames",
+    # no text labels on the plot (close worst frames made them collide): the page lists them under it
+    worst = {"trace": {"type": "scatter", "mode": "markers", "name": "worst frames",
                        "x": [float(f) for f in frames], "y": [round(float(residual_mm[i]), 4) for i in rows],
-                       "text": [f"#{n}" for n in range(1, len(rows) + 1)], "textposition": "top center",
                        "marker": {"color": "#d62728", "size": 8, "symbol": "circle-open", "line": {"width": 2}},
                        "hovertemplate": "worst frame %{x}: %{y:.3f} mm<extra></extra>"}}
     where = {"character": "on the character", "actor": "on the actor's markers"}.get(result.residual_space, "")
     line = _line(f"RMS residual ({where})" if where else "RMS residual", "residual", colour_="#444", hover=".3f")
     layout = _layout(260, {"title": {"text": "mm"}, "rangemode": "tozero"}, hovermode="closest")
     return {"id": "residual", "title": "Residual per frame", "time": True, "layout": layout,
-            "traces": [line, worst]}
+            "traces": [line, worst], "worst": [[float(f), round(float(residual_mm[i]), 3)] for f, i in zip(frames, rows)]}
 
 
 def heat_columns(frames, values, columns=HEAT_COLUMNS):
@@ -141,22 +146,59 @@ def heat_columns(frames, values, columns=HEAT_COLUMNS):
     return centres, top
 
 
-def _heat(result):
+def _heat(result, review=None):
     per = np.asarray(result.frame_marker_residual, dtype=np.float64) * 1e3
     centres, top = heat_columns(np.asarray(result.frames, dtype=np.float64), per)
     zmax = float(np.nanpercentile(per, 99.5)) if np.isfinite(per).any() else 1.0
     names = list(result.marker_names)
+    groups = marker_groups(names, review)
+    order = [names.index(n) for _, members in groups for n in members]
+    top = top[order]
     z = np.round(top, 3).astype(object)
     z[~np.isfinite(top)] = None
+    rows = [names[i] for i in order]
     span = "" if centres.size == result.frames.size else f" (each column the worst of {result.frames.size / centres.size:.0f} frames)"
-    trace = {"type": "heatmap", "name": "marker error", "x": [round(float(c), 3) for c in centres], "y": names,
+    trace = {"type": "heatmap", "name": "marker error", "x": [round(float(c), 3) for c in centres], "y": rows,
              "z": z.tolist(), "zmin": 0.0, "zmax": round(zmax, 4), "colorscale": HEAT_SCALE,
-             "colorbar": {"title": {"text": "mm"}, "thickness": 12},
+             "colorbar": {"title": {"text": "mm"}, "thickness": 12, "xref": "container", "x": 1.0, "xanchor": "right"},
              "hovertemplate": "%{y}<br>frame %{x:.0f}<br>%{z:.3f} mm<extra></extra>"}
-    layout = _layout(140 + 11 * len(names), {"automargin": True, "tickfont": {"size": 9}, "autorange": "reversed"},
-                     hovermode="closest", showlegend=False, margin={"l": 130, "r": 20, "t": 10, "b": 40})
-    return {"id": "heat", "title": f"Error per marker over time{span}", "time": True, "layout": layout,
-            "traces": [{"trace": trace}]}
+    # a line between face regions and the region's name beside its rows
+    shapes, notes, first = [], [], 0
+    for region, members in groups:
+        last = first + len(members) - 1
+        if first:
+            shapes.append({"type": "line", "xref": "paper", "x0": 0, "x1": 1, "yref": "y", "y0": first - 0.5,
+                           "y1": first - 0.5, "line": {"color": "#333", "width": 1.5}})
+        notes.append({"xref": "paper", "x": 1.005, "xanchor": "left", "yref": "y", "y": 0.5 * (first + last),
+                      "text": region, "showarrow": False, "font": {"size": 11, "color": "#333"}})
+        first = last + 1
+    layout = _layout(140 + 11 * len(rows), {"automargin": True, "tickfont": {"size": 9}, "autorange": "reversed"},
+                     hovermode="closest", showlegend=False, margin={"l": 130, "r": 190, "t": TOP, "b": 40},
+                     shapes=shapes, annotations=notes)
+    return {"id": "heat", "title": f"Error per marker over time, by face region{span}", "time": True,
+            "layout": layout, "traces": [{"trace": trace}]}
+
+
+def marker_groups(names, review=None):
+    """The heat map's rows by face region (``regions.face_regions``): names, stable markers and, for names
+    that say nothing, each marker's height on the character (the review's binding)."""
+    settings = getattr(review, "settings", None)
+    stable = () if settings is None else tuple(getattr(settings, "stable_markers", ()) or ())
+    geometry = getattr(review, "geometry", None)
+    points = None
+    if geometry is not None:
+        where = {n: p for n, p in zip(geometry.names, np.asarray(geometry.bound, dtype=np.float64))}
+        points = np.array([where.get(n, (np.nan,) * 3) for n in names], dtype=np.float64)
+    return face_regions(names, stable=stable, points=points)
+
+
+def _phone_head(angles, blob):
+    """The head's rotation as the phone measured it (Live Link Face yaw, pitch, roll), in degrees."""
+    blob.add("head_rotation", np.degrees(np.asarray(angles, dtype=np.float64)).T, 1e-3)
+    names = ("yaw (turn)", "pitch (nod)", "roll (tilt)")
+    return {"id": "head_rotation", "title": "Head rotation as the phone measured it", "time": True,
+            "layout": _layout(240, {"title": {"text": "degrees"}}),
+            "traces": [_line(n, ["head_rotation", i], colour_=AXES_COLOURS[i], hover=".2f") for i, n in enumerate(names)]}
 
 
 def _head(head, blob, frames):

@@ -24,6 +24,14 @@ from .sections import esc
 #: Sparkline size (pixels) and the most buckets its envelope keeps.
 SPARK_W, SPARK_H, SPARK_BUCKETS = 180, 30, 90
 OK = ("ok", "done", "solved")
+#: Statuses of a take whose outputs from an earlier run are still right (``batch --resume``): done, not redone.
+CURRENT = ("skipped", "up to date")
+
+
+def kind(status):
+    """"ok" (solved in this run), "current" (up to date from an earlier run) or "bad" (failed, cancelled...)."""
+    status = status.lower()
+    return "ok" if status in OK else "current" if status in CURRENT else "bad"
 
 
 @dataclass(frozen=True)
@@ -31,7 +39,8 @@ class TakeSummary:
     """One take of a batch, as its row of the index.
 
     take : the take's name (shown, and the link text)
-    status : "ok" for a solved take, else what happened ("failed", "skipped", ...)
+    status : "ok" for a solved take, "skipped" for one up to date from an earlier run (``--resume``), else
+        what happened ("failed", "cancelled", ...)
     frames : number of frames solved (None: unknown)
     residual_mm : per-frame RMS residual in millimetres (None / NaN for unsolved frames; None: no marker
         residual, e.g. ``parallel``)
@@ -118,7 +127,8 @@ def _number(value, fmt):
 
 def _row(summary, folder):
     res = summary.residual()
-    ok = summary.status.lower() in OK
+    row_kind = kind(summary.status)
+    status = "up to date" if row_kind == "current" else summary.status
     name = esc(summary.take)
     if summary.report is not None:
         link = os.path.relpath(Path(summary.report).resolve(), folder).replace(os.sep, "/")
@@ -127,19 +137,20 @@ def _row(summary, folder):
     worst = float(np.nanmax(res)) if res is not None and np.isfinite(res).any() else None
     spark = sparkline(res) if res is not None else ""
     note = summary.message or (f"{summary.warnings} warning(s)" if summary.warnings else "")
+    note_html = f'<span class="{"bad" if row_kind == "bad" else "info"}">{esc(note)}</span>' if note else ""
     cells = [
         (summary.take.lower(), name),
-        (summary.status, f'<span class="{"ok" if ok else "bad"}">{esc(summary.status)}</span>'),
+        (status, f'<span class="{row_kind}">{esc(status)}</span>'),
         (summary.frames if summary.frames is not None else -1, _number(summary.frames, "d")),
         (summary.strategy, esc(summary.strategy)),
         (mean if mean is not None else -1, _number(mean, ".3f")),
         (worst if worst is not None else -1, _number(worst, ".3f")),
         ("", spark),
         (summary.seconds if summary.seconds is not None else -1, _number(summary.seconds, ".1f")),
-        (note, esc(note)),
+        (note, note_html),
     ]
     tds = "".join(f'<td data-key="{esc(key)}">{html}</td>' for key, html in cells)
-    return f'<tr class="{"ok" if ok else "bad"}">{tds}</tr>'
+    return f'<tr class="{row_kind}">{tds}</tr>'
 
 
 HEADERS = ("take", "status", "frames", "strategy", "mean residual (mm)", "worst (mm)", "residual over the take",
@@ -148,7 +159,8 @@ CSS = """body{font:14px/1.4 system-ui,sans-serif;margin:24px;color:#222;backgrou
 table{border-collapse:collapse;background:#fff;border:1px solid #ddd}th,td{padding:4px 10px;text-align:left;
 border-bottom:1px solid #eee;vertical-align:middle}th{cursor:pointer;background:#fafafa;user-select:none}
 td:nth-child(3),td:nth-child(5),td:nth-child(6),td:nth-child(8){text-align:right;font-variant-numeric:tabular-nums}
-.ok{color:#2a7a2a}.bad{color:#b3261e}tr.bad td:first-child{font-weight:600}a{color:#1f5fa8}
+.ok{color:#2a7a2a}.current{color:#2a6a8a}.bad{color:#b3261e}.info{color:#666}tr.bad td:first-child{font-weight:600}
+a{color:#1f5fa8}
 p.note{color:#666}footer{color:#666;font-size:12px;margin-top:12px}"""
 SORT_JS = """document.querySelectorAll("th").forEach((th, col) => th.addEventListener("click", () => {
   const body = th.closest("table").tBodies[0], up = th.dataset.dir !== "up";
@@ -169,15 +181,18 @@ def write_batch_index(path, records, *, title="facecap batch"):
     path = Path(path)
     folder = path.resolve().parent
     rows = [r if isinstance(r, TakeSummary) else TakeSummary.from_mapping(r) for r in records]
-    done = sum(r.status.lower() in OK for r in rows)
-    frames = sum(r.frames or 0 for r in rows if r.status.lower() in OK)
+    counts = {k: sum(kind(r.status) == k for r in rows) for k in ("ok", "current", "bad")}
+    frames = sum(r.frames or 0 for r in rows if kind(r.status) != "bad")
+    parts = [f"{counts['ok']} solved"] + ([f"{counts['current']} up to date (solved before, unchanged)"]
+                                          if counts["current"] else []) + ([f"{counts['bad']} not solved"]
+                                                                          if counts["bad"] else [])
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     head = "".join(f"<th>{esc(h)}</th>" for h in HEADERS)
     body = "".join(_row(r, folder) for r in rows)
     text = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title><style>{CSS}</style></head><body>
 <h1>{esc(title)}</h1>
-<p class="summary">{len(rows)} take(s): {done} solved, {len(rows) - done} not; {frames} frames solved.</p>
+<p class="summary">{len(rows)} take(s): {", ".join(parts)}; {frames:,} frames with weights.</p>
 <p class="note">Click a take for its review page; click a column heading to sort. The residual is the RMS
 distance of the markers from the solve's fit per frame; its line keeps every frame's peak, the red dot is
 the worst frame.</p>

@@ -19,12 +19,24 @@ from ...io.files import atomic_path
 from ...io.outputs import Output, check_outputs
 from .blob import Blob
 from .figures import binding_figure, build_figures
-from .sections import binding_html, contact_html, esc, settings_rows, summary_rows, table, timing_rows, warnings_html
+from .review import source_view
+from .sections import (
+    binding_html,
+    contact_html,
+    esc,
+    settings_rows,
+    summary_rows,
+    table,
+    timing_rows,
+    warnings_html,
+    worst_html,
+)
+from .shapes import shapes_html
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 PLOTLY_JS = "plotly.min.js"
-SECTIONS = (("summary", "Summary"), ("weights", "Weights"), ("residual", "Residual"), ("head", "Head motion"),
-            ("contact", "Contact sheet"), ("binding", "Binding"))
+SECTIONS = (("summary", "Summary"), ("weights", "Weights"), ("shapes", "Shapes"), ("residual", "Residual"),
+            ("head", "Head motion"), ("contact", "Contact sheet"), ("binding", "Binding"))
 
 
 class MissingPlotlyError(FacecapError):
@@ -115,8 +127,16 @@ def build_page(review, *, path="review.html", plotly_js="embed"):
     js = (ASSETS / "review.js").read_text(encoding="utf-8")
     generated = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     nav = " ".join(f'<a href="#{k}">{v}</a>' for k, v in SECTIONS)
-    head_missing = "" if "head_rotation" in by_id else \
-        '<p class="note">No head motion: this take was not stabilised (no 3D markers).</p>'
+    if "head_rotation" not in by_id:
+        head_note = '<p class="note">No head motion: this take was not stabilised (no 3D markers).</p>'
+    elif review.result.stabilise is None:
+        head_note = ('<p class="note">The head as the phone tracked it (its yaw, pitch and roll). Solved weights '
+                     'need no stabilisation: nothing was removed from them.</p>')
+    else:
+        head_note = ""
+    sheet = review.sheet
+    tile = sheet.tiles[0] if sheet is not None and sheet.tiles else None
+    source = None if tile is None else source_view(r, review.geometry, tile.width, tile.height)
     residual_missing = "" if "residual" in by_id else \
         f'<p class="note">No marker residual: the {esc(r.strategy)} strategy does not fit markers.</p>'
     body = f"""<!DOCTYPE html>
@@ -142,9 +162,10 @@ pixel's lowest and highest frame, so a one-frame spike is always drawn.</p>
 <button data-shapes="none">None</button></div>
 {plots("weights")}
 </section>
-<section id="residual"><h2>Residual</h2>{residual_missing}{plots("residual", "heat")}</section>
-<section id="head"><h2>Head motion</h2>{head_missing}{plots("head_rotation", "head_translation", "stabilise")}</section>
-<section id="contact"><h2>Contact sheet</h2>{contact_html(review)}</section>
+<section id="shapes"><h2>Shapes</h2>{shapes_html(review)}</section>
+<section id="residual"><h2>Residual</h2>{residual_missing}{plots("residual")}{worst_html(by_id.get("residual"))}{plots("heat")}</section>
+<section id="head"><h2>Head motion</h2>{head_note}{plots("head_rotation", "head_translation", "stabilise")}</section>
+<section id="contact"><h2>Contact sheet</h2>{contact_html(review, source)}</section>
 <section id="binding"><h2>Binding</h2>{binding_html(review, "binding" in by_id)}</section>
 </main>
 <footer>facecap review page, {esc(generated)}; plots by {esc(plotly_where)}.</footer>

@@ -6,6 +6,7 @@ chooses and projects ``MarkerGeometry``'s points into the same camera; ``page.wr
 turns a ``Review`` into the HTML page.
 """
 
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -68,6 +69,7 @@ class Tile:
     captured: np.ndarray = None
     model: np.ndarray = None
     distance_mm: np.ndarray = None
+    source_png: bytes = None  # the footage frame (a video take): shown as the source beside the character
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +88,9 @@ class Review:
     RetargetSettings (the strategy and its options); source : the markers / weights file; notes :
     warnings from reading the take (before the solve's own); timings : seconds per stage (over
     ``result.timings``); truth : Truth or None; sheet : ContactSheet or None, with ``sheet_note``
-    saying why there is none; geometry : MarkerGeometry or None (the binding distances).
+    saying why there is none; geometry : MarkerGeometry or None (the binding distances); head_angles :
+    (F, 3) the head's yaw, pitch, roll in radians on the result's frames as a phone measured them (Live
+    Link Face; a take of solved weights has no stabilisation to show instead), or None.
     """
 
     result: object
@@ -101,6 +105,7 @@ class Review:
     sheet: ContactSheet = None
     sheet_note: str = ""
     geometry: object = None  # MarkerGeometry: the binding plot (None: no binding to show)
+    head_angles: np.ndarray = None  # (F, 3) radians: the phone's head yaw, pitch, roll (Live Link Face)
 
     @cached_property
     def truth_values(self):
@@ -257,3 +262,65 @@ def marker_geometry(result, basis, settings):
     binding = np.where(np.isfinite(actor).all(axis=1), np.linalg.norm(aligned - bound, axis=1), np.nan)
     return MarkerGeometry(names, bound, aligned, binding * 1e3, alignment, deltas, shape_deltas,
                           np.asarray(result.weights, dtype=np.float64)), ""
+
+
+@dataclass(frozen=True, eq=False)
+class SourceView:
+    """The take's markers as the actor made them, for the contact sheet's source panel: a front view in
+    the panel's pixels (from the top left), oriented like the character (the actor-to-character
+    alignment's rotation; without one, the face's own principal axes), at the actor's own scale.
+
+    ``names`` (M,); ``neutral`` (M, 2): each marker's median position; ``at(rows)`` (R, M, 2) the
+    markers at those rows (NaN where missing).
+    """
+
+    names: tuple
+    neutral: np.ndarray
+    positions: np.ndarray  # (F, M, 2) pixels
+    width: int
+    height: int
+
+    def at(self, rows):
+        return self.positions[np.atleast_1d(rows)]
+
+
+def source_view(result, geometry, width, height, *, margin=1.25):
+    """The ``SourceView`` of a 3D marker take (its stabilised markers), or None without one."""
+    stab = result.stabilise
+    if stab is None or getattr(stab, "markers", None) is None or stab.markers.dim != 3:
+        return None
+    P = np.asarray(stab.markers.positions, dtype=np.float64)
+    if not np.isfinite(P).any():
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a marker never seen: an all-NaN column
+        neutral = np.nanmedian(P, axis=0)
+    seen = np.isfinite(neutral).all(axis=1)
+    centre = neutral[seen].mean(axis=0)
+    rotation = getattr(getattr(geometry, "alignment", None), "rotation", None)
+    if rotation is None:
+        rotation = _face_axes(neutral[seen] - centre)
+    # the character's front view: x to the right, z up (Blender's front view looks along +Y)
+    flat = (P - centre) @ np.asarray(rotation).T
+    base = (neutral - centre) @ np.asarray(rotation).T
+    u, v = flat[..., 0], flat[..., 2]
+    nu, nv = base[seen, 0], base[seen, 2]
+    extent = max(np.ptp(nv), np.ptp(nu) * height / width) * margin or 1.0
+    mid_u, mid_v = 0.5 * (nu.max() + nu.min()), 0.5 * (nv.max() + nv.min())
+    per_px = extent / height
+
+    def px(a, b):
+        return np.stack([width / 2 + (a - mid_u) / per_px, height / 2 - (b - mid_v) / per_px], axis=-1)
+
+    return SourceView(tuple(stab.markers.names), px(base[:, 0], base[:, 2]), px(u, v), int(width), int(height))
+
+
+def _face_axes(points):
+    """A rotation taking a face's markers (N, 3) to the character's frame: depth (least spread) to -Y,
+    up as close to +Z as that allows."""
+    _, _, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    depth = vt[2]
+    up = np.array([0.0, 0.0, 1.0]) - depth * depth[2]
+    up = up / np.linalg.norm(up) if np.linalg.norm(up) > 1e-6 else vt[0]
+    right = np.cross(up, -depth)
+    return np.stack([right, -depth, up])

@@ -14,6 +14,9 @@ STRATEGY_SECTIONS = {"calibrated": ("calibration", "mapping"), "refine": ("calib
                      "parallel": ("mapping",), "linear": ("examples",), "rbf": ("examples",),
                      "pca": ("examples", "pca")}
 MARKER_FIT = ("geometric", "calibrated", "refine")
+#: The rings' colour scale: from 0 mm (blue) to this distance and beyond (red), the same on every tile
+#: and every page, so a colour means the same distance everywhere.
+RING_SCALE_MM = 5.0
 #: Shown for every strategy that solves markers.
 TAKE_FIELDS = ("stabilise_mode", "head_smoothing")
 FIT_FIELDS = ("regularisation", "sparsity", "symmetry", "smoothing", "fine_iterations", "fine_weight")
@@ -31,21 +34,37 @@ def esc(value):
 
 
 def short(value, limit=12):
-    """A settings value in a few words: long lists shortened, arrays and tables described."""
+    """A settings value as an animator reads it: words and numbers, never a Python repr. Lists are
+    shortened ("a, b, c, ... (20 in all)"), pairs read "name = value", nothing set reads "none"."""
     if isinstance(value, np.ndarray):
         return f"per-frame values ({value.size})"
-    if dataclasses.is_dataclass(value):
-        return type(value).__name__
-    if isinstance(value, (list, tuple)):
-        items = [short(v, 4) for v in value]
-        text = ", ".join(items[:limit])
-        return f"[{text}{', ...' if len(items) > limit else ''}] ({len(items)})" if len(items) > 3 else f"[{text}]"
-    if isinstance(value, float):
-        return f"{value:g}"
-    if value is None:
+    if value is None or (isinstance(value, (list, tuple, dict, str)) and not value):
         return "none"
+    if isinstance(value, bool) or isinstance(value, np.bool_):
+        return "on" if value else "off"
+    if isinstance(value, (float, np.floating)):
+        return f"{float(value):g}"
+    if isinstance(value, dict):
+        value = tuple(value.items())
+    if isinstance(value, (list, tuple)):
+        items = [_item(v) for v in value]
+        text = ", ".join(items[:limit])
+        return f"{text}, ... ({len(items)} in all)" if len(items) > limit else text
     source = getattr(value, "source", None)
-    return str(source) if source is not None and hasattr(value, "positions") else str(value)
+    if source is not None and hasattr(value, "positions"):  # a MarkerSet: its file
+        return Path(str(source)).name or "markers in the scene"
+    if dataclasses.is_dataclass(value):
+        return "set"
+    return str(value)
+
+
+def _item(value):
+    """One element of a list setting: a pair reads "name = value", a table row its cells."""
+    if isinstance(value, (list, tuple)) and len(value) == 2 and isinstance(value[0], str):
+        return f"{value[0]} = {short(value[1], 4)}"
+    if isinstance(value, (list, tuple)):
+        return " ".join(short(v, 4) for v in value)
+    return short(value, 4)
 
 
 def neutral_text(settings):
@@ -137,6 +156,16 @@ def timing_rows(review):
             if isinstance(v, (int, float))]
 
 
+def worst_html(figure):
+    """The residual plot's worst frames as links under it (numbered on the page, not on the plot)."""
+    worst = (figure or {}).get("worst") or []
+    if not worst:
+        return ""
+    links = "".join(f'<a class="chip" href="#weights" data-frame="{f:g}">#{n} frame {f:g}: {mm:.3f} mm</a>'
+                    for n, (f, mm) in enumerate(worst, 1))
+    return f'<p class="worst"><span class="what">Worst frames (circled):</span> {links}</p>'
+
+
 def warnings_html(review):
     notes = list(dict.fromkeys([*review.notes, *review.result.warnings]))
     if not notes:
@@ -155,11 +184,10 @@ def _points_svg(tile, names, ghost_id):
     parts = [f'<svg class="markers" viewBox="0 0 {w} {h}" width="{w}" height="{h}" role="img" '
              f'aria-label="markers on the character">',
              f'<image data-from="{ghost_id}" x="0" y="0" width="{w}" height="{h}" opacity="0.28"/>']
-    top = max(1.0, float(np.nanmax(tile.distance_mm))) if np.isfinite(tile.distance_mm).any() else 1.0
     for name, c, m, d in zip(names, tile.captured, tile.model, tile.distance_mm):
         if not (np.isfinite(m).all()):
             continue
-        col = _heat_colour(d / top if np.isfinite(d) else 0.0)
+        col = _heat_colour(d / RING_SCALE_MM if np.isfinite(d) else 0.0)
         title = f"<title>{esc(name)}: {d:.2f} mm</title>" if np.isfinite(d) else f"<title>{esc(name)}: missing</title>"
         if np.isfinite(c).all():
             parts.append(f'<line x1="{m[0]:.1f}" y1="{m[1]:.1f}" x2="{c[0]:.1f}" y2="{c[1]:.1f}" stroke="{col}" '
@@ -178,7 +206,38 @@ def _heat_colour(t):
     return f"rgb({r},{g},{b})"
 
 
-def tile_html(tile, names, index):
+def ring_legend():
+    """The rings' colour scale as a bar: 0 mm blue to RING_SCALE_MM and beyond red."""
+    stops = ", ".join(f"{_heat_colour(i / 10)} {i * 10}%" for i in range(11))
+    marks = "".join(f'<span style="left:{100 * v / RING_SCALE_MM:.0f}%">{v:g}</span>'
+                    for v in np.linspace(0, RING_SCALE_MM, 6))
+    return (f'<div class="ring-legend" role="img" aria-label="colour of a marker ring by its distance, 0 to '
+            f'{RING_SCALE_MM:g} mm and more"><span class="what">marker to solve distance (mm)</span>'
+            f'<span class="scale"><span class="bar" style="background:linear-gradient(to right, {stops})"></span>'
+            f'<span class="ticks">{marks}</span></span><span class="more">{RING_SCALE_MM:g} and more: red</span></div>')
+
+
+def _source_svg(view, row, ghost_id=None):
+    """The take's markers at ``row`` as the actor made them (``SourceView``): the neutral faint, each
+    marker dark, a line from its neutral to where it is."""
+    w, h = view.width, view.height
+    here = view.at(row)[0]
+    parts = [f'<svg class="source" viewBox="0 0 {w} {h}" width="{w}" height="{h}" role="img" '
+             f'aria-label="the actor\'s markers at this frame">']
+    for name, a, b in zip(view.names, view.neutral, here):
+        if not np.isfinite(a).all():
+            continue
+        parts.append(f'<circle cx="{a[0]:.1f}" cy="{a[1]:.1f}" r="1.6" fill="#c8c8c8"/>')
+        if np.isfinite(b).all():
+            parts.append(f'<line x1="{a[0]:.1f}" y1="{a[1]:.1f}" x2="{b[0]:.1f}" y2="{b[1]:.1f}" stroke="#888" '
+                         'stroke-width="1"/>')
+            parts.append(f'<circle cx="{b[0]:.1f}" cy="{b[1]:.1f}" r="2.4" fill="#333"><title>{esc(name)}</title>'
+                         "</circle>")
+    parts.append("</svg>")
+    return "".join(parts)
+
+
+def tile_html(tile, names, index, source=None, row=None):
     img_id = f"tile-{index}"
     if np.isfinite(tile.frame):
         caption = f'<a href="#weights" data-frame="{tile.frame:g}">frame {tile.frame:g}</a> &middot; {esc(tile.label)}'
@@ -190,24 +249,43 @@ def tile_html(tile, names, index):
     img = (f'<img id="{img_id}" src="{png_uri(tile.png)}" width="{tile.width}" height="{tile.height}" '
            f'alt="the character {what}">')
     panel = _points_svg(tile, names, img_id) if tile.captured is not None else ""
-    return f'<figure class="tile {esc(tile.kind)}"><div class="pair">{img}{panel}</div><figcaption>{caption}</figcaption></figure>'
+    side = ""
+    if tile.source_png is not None:
+        side = f'<img class="source" src="{png_uri(tile.source_png)}" height="{tile.height}" alt="the footage {what}">'
+    elif source is not None and row is not None:
+        side = _source_svg(source, row)
+    return (f'<figure class="tile {esc(tile.kind)}"><div class="pair">{side}{img}{panel}</div>'
+            f'<figcaption>{caption}</figcaption></figure>')
 
 
-def contact_html(review):
+def contact_html(review, source=None):
+    """The contact sheet: per picked frame the source (the footage, or the actor's markers: ``source``, a
+    SourceView), the character rendered with the solved weights, and the markers carried onto it."""
     sheet = review.sheet
     if sheet is None or not sheet.tiles:
         why = review.sheet_note or "no renders were made"
         return f'<p class="note">No contact sheet: {esc(why)}.</p>'
+    has_video = any(t.source_png is not None for t in sheet.tiles)
+    first = ("the footage frame" if has_video else "the actor's markers as captured (dark; grey: their neutral), "
+             "seen from the front" if source is not None else "")
+    lead = f"Each frame: {first} beside " if first else "Each frame: "
     if sheet.marker_names:
-        note = ("Each frame rendered with the solved weights (left) and, in the same view, the character's bound "
-                "points (dots) with the take's markers carried onto the character (rings); the colour is their "
-                "distance. Click a frame number to zoom the plots there.")
+        note = (lead + "the character rendered with the solved weights and, in the same view, its bound points "
+                "(dots) with the take's markers carried onto it (rings); the colour is their distance, on the "
+                "scale below. Click a frame number to zoom the plots there.")
     else:
-        note = "Each frame rendered with the solved weights. Click a frame number to zoom the plots there."
+        note = lead + "the character rendered with the solved weights. Click a frame number to zoom the plots there."
     if review.sheet_note:
         note += f" {review.sheet_note}"
-    tiles = "".join(tile_html(t, sheet.marker_names, i) for i, t in enumerate(sheet.tiles))
-    return f'<p class="note">{esc(note)}</p><div class="sheet">{tiles}</div>'
+    frames = np.asarray(review.result.frames, dtype=np.float64)
+
+    def row(tile):
+        hit = np.flatnonzero(frames == tile.frame)
+        return int(hit[0]) if hit.size else None
+
+    tiles = "".join(tile_html(t, sheet.marker_names, i, source, row(t)) for i, t in enumerate(sheet.tiles))
+    legend = ring_legend() if sheet.marker_names else ""
+    return f'<p class="note">{esc(note)}</p>{legend}<div class="sheet">{tiles}</div>'
 
 
 def binding_html(review, has_plot):

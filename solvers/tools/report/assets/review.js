@@ -148,6 +148,14 @@
         Plotly.restyle(weights, { visible: visible });
       });
     });
+    document.querySelectorAll("button[data-shape]").forEach(button => {
+      button.addEventListener("click", () => { // that shape (and its truth) alone in the weights plot
+        const name = weights.facecap.fig.traces[Number(button.dataset.shape)].trace.name;
+        Plotly.restyle(weights, { visible: weights.facecap.fig.traces.map(t =>
+          t.trace.legendgroup === name ? true : "legendonly") });
+        document.getElementById("weights").scrollIntoView({ behavior: "smooth" });
+      });
+    });
     const half = Math.max(30, Math.round(2 * (meta.fps || 30)));
     document.querySelectorAll("[data-frame]").forEach(link => {
       link.addEventListener("click", ev => {
