@@ -17,14 +17,19 @@ tune --config take.toml       retune what the strategy learned from [tuning] cor
 batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
   [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
   [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
-bench [--quick] [--accuracy] [--batch] [--memory] [--clean]
+bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
                               time the solve, the keying and the whole CLI, with ratios to naive baselines;
                               --accuracy: accuracy over random scenarios; --batch: batch --jobs 2 against
                               sequential retarget runs; --memory: peak memory of the CLI's process tree on
-                              long takes; --clean: spike removal and gap filling on long takes
+                              long takes; --landmarks: face landmarks on rendered footage of a real face;
+                              --clean: spike removal and gap filling on long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
+template convert PATH         install the optional human template from a copy of ICT-FaceKit (hash-checked);
+                              `template info` says where it is ([actor] template, docs/strategies.md)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
+landmark-models               put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
+                              facecap cache, for [tracking] method = "landmarks" outside Blender
 
 Every command takes -q/--quiet (only warnings and errors on stderr) and -v/--verbose (debug lines too,
 Blender's own output among them); ``facecap --version``. Progress and warnings go to stderr through
@@ -81,8 +86,10 @@ from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.clean_bench import bench_clean  # noqa: E402
+from ..solvers.tools.landmark_models import main as landmark_models_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
+from ..solvers.tools.template import main as template_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
 from . import console  # noqa: E402
@@ -91,6 +98,7 @@ from .batch_worker import serve  # noqa: E402
 from .bench import MEMORY_FRAMES, bench_batch, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
 from .demo import run_demo  # noqa: E402
 from .headless import progress_line, run_take  # noqa: E402
+from .landmark_bench import main as landmark_bench_main  # noqa: E402
 from .review import review_flags  # noqa: E402
 
 
@@ -196,6 +204,12 @@ def _cmd_convert(args):
 
 
 def _cmd_bench(args):
+    if args.realism is not None:  # the cross-character benchmark (solvers/tools/realism/bench.py): its own options
+        from ..solvers.tools.realism.bench import main as realism_main  # scipy: loaded when the benchmark runs
+
+        return realism_main(args.realism)
+    if args.landmarks:  # renders a real face performing a recording, then retargets the footage (minutes)
+        return landmark_bench_main(["--frames", args.frames if args.frames != "60" else "300"])
     if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
         return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
     if args.memory:  # the memory case on its own (it takes minutes per take)
@@ -217,8 +231,16 @@ def _cmd_bench(args):
     return 0
 
 
+def _cmd_template(args):
+    return template_main(args.rest, parents=[OUTPUT_OPTIONS])
+
+
 def _cmd_build_extension(args):
     return build_extension_main(args.rest, parents=[OUTPUT_OPTIONS])
+
+
+def _cmd_landmark_models(args):
+    return landmark_models_main([])
 
 
 def _bench_line(row):
@@ -278,7 +300,12 @@ COMMANDS = {
               "with its ratio and goal."),
     "docs-images": ("render the documentation's pictures from the sample character",
                     "Render the documentation's pictures (docs/images) from the sample character, headless."),
+    "template": ("install the optional human template from a copy of ICT-FaceKit, or say where it is", None),
     "build-extension": ("build the Blender extension zips (one per platform, wheels bundled)", None),
+    "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",
+                        "Take MediaPipe's face-mesh models out of the locked mediapipe 0.10.21 wheel (downloaded once "
+                        "with pip, hash checked) into the facecap cache, for [tracking] method = \"landmarks\" "
+                        "outside Blender."),
 }
 
 
@@ -334,6 +361,13 @@ def build_parser():
     p.add_argument("--quick", action="store_true", help="3,600 frames instead of 36,000")
     p.add_argument("--accuracy", action="store_true", help="accuracy over random scenarios instead (stabilisation, "
                    "solve, tracking, flow) side by side with plain references")
+    p.add_argument("--realism", nargs=argparse.REMAINDER, metavar="OPTION",
+                   help="the cross-character benchmark: a human face model performing real iPhone recordings, solved "
+                        "onto other characters by every strategy and knowledge tier (docs/accuracy.md); its own "
+                        "options follow it (--draws, --frames, --targets, --layouts, --methods, --real, --json; "
+                        "`bench --realism --help`)")
+    p.add_argument("--landmarks", action="store_true", help="face landmarks on rendered footage of the ICT face "
+                   "performing a Live Link Face recording, retargeted onto another identity and the sample character")
     p.add_argument("--draws", default="30", help="--accuracy: random marker takes (default 30)")
     p.add_argument("--clips", default="3", help="--accuracy: clips per footage kind (default 3)")
     p.add_argument("--size", default="640x480", help="--accuracy: footage resolution (default 640x480)")
@@ -355,7 +389,9 @@ def build_parser():
     p.add_argument("--engine", choices=("workbench", "cycles"), default="workbench",
                    help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
     p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
+    command("template", _cmd_template)
     command("build-extension", _cmd_build_extension)
+    command("landmark-models", _cmd_landmark_models)
     return parser
 
 
@@ -425,7 +461,7 @@ def _interrupt(signum, frame):
 
 
 #: Commands that pass their own options on to their tool
-FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension")
+FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension", "template")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
 BATCH_COMMANDS = ("retarget", "tune", "demo")

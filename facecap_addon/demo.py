@@ -45,11 +45,12 @@ def run_demo(out):
     rot_err = rotation_angle_deg(result.stabilise.head_rotations()[ok] @ true_rot[ok].transpose(0, 2, 1))
 
     out = console.stdout()
-    print("facecap demo: sample take -> sample character (strategy: geometric)", file=out)
+    print(f"facecap demo: sample take -> sample character (strategy: {result.strategy})", file=out)
     print(f"  frames {result.frames.size}, shapes {len(result.shape_names)}, markers {len(result.marker_names)}", file=out)
     print(f"  weights vs ground truth: RMSE {rmse:.4f}, max |error| {worst[k]:.4f} ({result.shape_names[k]})", file=out)
     print(f"  head rotation vs ground truth: median {np.median(rot_err):.3f} deg, max {rot_err.max():.3f} deg", file=out)
-    print(f"  actor-to-character scale {result.alignment.scale:.4f}", file=out)
+    if result.alignment is not None:
+        print(f"  actor-to-character scale {result.alignment.scale:.4f}", file=out)
     print(f"  mean residual {np.nanmean(result.residual_rms) * 1e3:.3f} mm, solve {result.timings['solve']:.3f} s", file=out)
     for key, value in outputs.items():
         print(f"  {key}: {value}", file=out)

@@ -27,14 +27,17 @@ from ..solvers.io.files import remove_stale_temporaries, write_json_atomic
 from ..solvers.io.locks import output_lock
 from ..solvers.io.outputs import check_free_space
 from ..solvers.markers import UNIT_SCALE
+from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
-from ..solvers.video.cli import FrameProgress, sigint_cancels
-from ..solvers.video.flow_config import check_against_footage
+from ..solvers.video.cli import run_showing_progress
+from ..solvers.video.flow_config import LandmarkTake, check_against_footage
 from ..solvers.video.reading import Footage
 from . import console
+from .actor_outputs import write_actor_basis, write_profile
 from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, stamp_target, start_blender,
                           target_changed)
+from .landmark_take import hold_gaze, read_landmarks
 from .review import read_review_truth, write_take_review
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -84,7 +87,7 @@ def run_take(config, *, quiet=False, tune=False, replace=False, overwrite=False,
 
 def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review):
     timings = {}
-    take, obj, timings["read"], t_open = _read_and_open(config, say, base)
+    take, obj, timings["read"], t_open = _read_and_open(config, say, base, quiet=quiet)
     check_against_take(config, take.markers, take.inputs)
     changed = target_changed(config.target_blend) if base.mode == "added" else None
     if changed:
@@ -109,7 +112,12 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
     if take.footage is not None:
         extra["flow"] = result.info["flow"]
     if config.output_actor_basis is not None:
-        _write_actor_basis(config, result, outputs)
+        write_actor_basis(config, result, outputs)
+    if config.output_profile is not None:
+        write_profile(config, result, outputs)
+    statement = result.info.get("actor_model", {}).get("statement")
+    if statement:
+        say(f"actor: {statement}")
     if config.output_blend is not None:
         extra["output_blend"] = base.report()
     # The take's (F, M, 3) arrays are not needed for keying, whose F-curves (and Blender's copy of
@@ -191,6 +199,7 @@ class _Take:
     notes: tuple = ()
     cleaning: tuple = ()
     repeats: tuple = ()  # solve notes that only repeat the notes above
+    landmarks: object = None  # LandmarkResult of a landmark take (pixels: the gaze)
 
     def fps(self):
         if self.markers is not None:
@@ -215,14 +224,14 @@ class _Take:
         return f"{len(self.inputs.weights.frames)} frames of {len(self.inputs.weights.names)} solved channels"
 
 
-def _read_and_open(config, say, base):
+def _read_and_open(config, say, base, *, quiet=False):
     """(take, target object, read seconds, open seconds). A big marker file is read in a forked
     child while Blender starts and opens the character (measured on a 36,000-frame CSV take: 1.0-1.5 s
     of reading beside 0.8-1.0 s of start-up); a bad file is read again here, so its error is raised here."""
 
     def read():
         t = time.perf_counter()
-        return read_take(config, say), time.perf_counter() - t
+        return read_take(config, say, quiet=quiet), time.perf_counter() - t
 
     def open_character():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
@@ -237,10 +246,14 @@ def _read_and_open(config, say, base):
     return take, obj, t_read, t_open
 
 
-def read_take(config, say):
-    """Read the take's source (markers cleaned as ``[clean]`` says, footage, or solved weights) and
-    the strategy's inputs."""
+def read_take(config, say, *, quiet=True):
+    """Read the take's source (markers cleaned as ``[clean]`` says, footage, face landmarks, or
+    solved weights) and the strategy's inputs. Landmarks show progress on stderr unless ``quiet``."""
     inputs = load_strategy_inputs(config)
+    if isinstance(config.video, LandmarkTake):
+        say(f"[1/5] face landmarks in {config.video.path}")
+        markers, source, notes, found = read_landmarks(config.video, inputs, say, quiet=quiet)
+        return _Take(markers=markers, inputs=inputs, source=source, notes=notes, landmarks=found)
     if config.video is not None:
         say(f"[1/5] reading footage {config.video.path}")
         footage = Footage(config.video.path, **config.video.footage)
@@ -295,7 +308,7 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     # Only geometric samples the character at bound points; the others need its shape names and ranges.
     # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
     # on the take (its neutral): bound every run, and stored on the character for the output .blend.
-    names = take.markers.names if settings.strategy == "geometric" else None
+    names = take.markers.names if settings.strategy in SAMPLES_CHARACTER else None
 
     def sample():
         if names is None:
@@ -307,8 +320,8 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     bound = None if names is None else made
     character = made if names is None else made.basis
     if names is None and binding.by_position:
-        take.notes = tuple(take.notes) + (f"[binding] mode \"{binding.mode}\" applies to the geometric strategy; "
-                                          f"'{settings.strategy}' does not sample the character",)
+        take.notes = tuple(take.notes) + (f"[binding] mode \"{binding.mode}\" applies to the geometric and semantic "
+                                          f"strategies; '{settings.strategy}' does not sample the character",)
     if take.markers is not None and take.markers.dim == 2 and config.projection == "camera":
         import bpy  # bpy: Blender starts on first import
 
@@ -325,6 +338,9 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
                            footage=take.footage, flow=getattr(config.video, "flow", None), version=version,
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
+    if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
+        request, note = hold_gaze(request, _shape_names(character), take.landmarks)
+        take.notes = tuple(take.notes) + ((note,) if note else ())
     fields = _source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()
@@ -349,6 +365,8 @@ def _corrections(config, names):
 
 def _source_fields(config, take):
     """Where the take came from, for the report."""
+    if take.markers is not None and isinstance(config.video, LandmarkTake):
+        return {"video_file": config.video.path, "source": {**take.source, "fps": take.markers.fps}}
     if take.markers is not None:
         m = take.markers
         return {"markers_file": str(config.markers_path),
@@ -371,19 +389,7 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.footage is None:
         return job.run()
-    shown = None if quiet or console.quiet() else FrameProgress(f"flow ({request.flow.method})")
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            result = job.run(progress)
-        finally:
-            if shown is not None:
-                shown.close()
-    return result
+    return run_showing_progress(job, f"flow ({request.flow.method})", quiet=quiet or console.quiet())
 
 
 def versions_folder(config):
@@ -406,16 +412,6 @@ def _store_retune(config, tuned):
     if tuned.changed:
         saved["version"] = str(save_version(tuned.version, folder))
     return {**tuned.report(), "files": saved, "corrections_file": str(config.tuning.corrections)}
-
-
-def _write_actor_basis(config, result, outputs):
-    actor_basis = getattr(result.fitted, "actor_basis", None)
-    if actor_basis is None:
-        raise ConfigError(f"strategy '{result.strategy}' has no actor basis to store (calibrated and refine do)",
-                          path=config.path, key="output.actor_basis")
-    config.output_actor_basis.parent.mkdir(parents=True, exist_ok=True)
-    actor_basis.save_npz(config.output_actor_basis)
-    outputs["actor_basis"] = str(config.output_actor_basis)
 
 
 def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields, fps=None):

@@ -229,9 +229,9 @@ class FACECAP_PT_stabilise_head(FacecapPanel, bpy.types.Panel):
             col.prop(s, "head_bone")
 
 
-MARKER_FIT = ("geometric", "calibrated", "refine")  # strategies with a bounded solve (priors apply)
+MARKER_FIT = ("semantic", "geometric", "calibrated", "refine")  # strategies with a bounded solve (priors apply)
 EXAMPLES = ("linear", "rbf", "pca")
-WITH_OPTIONS = ("calibrated", "refine", "parallel") + EXAMPLES  # strategies with inputs of their own
+WITH_OPTIONS = ("semantic", "calibrated", "refine", "parallel") + EXAMPLES  # strategies with inputs of their own
 
 
 class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
@@ -268,7 +268,9 @@ class FACECAP_PT_solve_inputs(FacecapPanel, bpy.types.Panel):
     def draw(self, context):
         s = context.scene.facecap
         layout = self.layout
-        if s.strategy in ("calibrated", "refine"):
+        if s.strategy == "semantic":
+            _draw_actor(layout, s)
+        if s.strategy in ("calibrated", "refine", "semantic"):
             _draw_calibration(layout, s)
         if s.strategy == "parallel":
             _draw_parallel(layout, s)
@@ -328,9 +330,35 @@ class FACECAP_PT_solve_shapes(FacecapPanel, bpy.types.Panel):
                            "facecap.region_add", "facecap.region_remove", rows=2)
 
 
+def _draw_actor(layout, s):
+    """What is known of the actor's face (the semantic solve's tier after a solve) and its options."""
+    box = layout.box()
+    box.label(text="The actor's face")
+    for i, line in enumerate(_wrapped(s.actor_tier, 60)):
+        box.label(text=line, icon="INFO" if i == 0 else "NONE")
+    box.prop(s, "actor_profile")
+    box.prop(s, "actor_template")
+    row = box.row(align=True)
+    row.prop(s, "unseen_shapes")
+    row.prop(s, "exclusive", text="Exclusive")
+
+
+def _wrapped(text, width):
+    """``text`` in lines of about ``width`` characters (a panel label does not wrap)."""
+    lines, line = [], ""
+    for word in text.split():
+        if line and len(line) + len(word) + 1 > width:
+            lines.append(line)
+            line = word
+        else:
+            line = f"{line} {word}".strip()
+    return lines + ([line] if line else [])
+
+
 def _draw_calibration(layout, s):
     box = layout.box()
-    box.label(text="Actor calibration")
+    box.label(text="Actor calibration" + (" (optional: poses measure the actor's shapes)"
+                                          if s.strategy == "semantic" else ""))
     box.prop(s, "calib_source")
     if s.calib_source == "COLLECTION":
         box.prop(s, "calib_collection", text="Markers")

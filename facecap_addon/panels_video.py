@@ -25,6 +25,10 @@ class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
         op = layout.operator("facecap.track_clip", icon="TRACKING")
         op.region, op.max_points, op.method = tuple(v.region), v.max_points, v.method
         box = layout.box()
+        box.label(text="Without markers: the face's landmarks")
+        box.prop(v, "landmark_smoothing")
+        box.operator("facecap.track_face_landmarks", icon="USER").smoothing = v.landmark_smoothing
+        box = layout.box()
         box.label(text="Without markers: flow over the Region")
         col = box.column(align=True)
         col.prop(v, "stable_region")

@@ -15,6 +15,9 @@ from . import properties_video
 from .option_props import from_option
 
 STRATEGY_ITEMS = [
+    ("semantic", "Semantic", "Solve what the actor does, shape by shape, against the actor's own face as well as it "
+     "is known (calibration poses, a performer profile, the human template, else the character's shapes, "
+     "normalised), and key it on the shapes of the same name"),
     ("geometric", "Geometric", "Solve marker deltas against the character's shape keys at the bound vertices"),
     ("calibrated", "Calibrated", "Solve the actor's calibration poses, then map them to the character's shapes "
      "(characters whose proportions differ from the actor's)"),
@@ -24,6 +27,10 @@ STRATEGY_ITEMS = [
     ("rbf", "RBF", "Radial-basis interpolation between frames you posed on the character (Pyun)"),
     ("pca", "PCA", "Basis learned from the performance itself, mapped by frames you posed on the character"),
     ("refine", "Refine", "Calibrated, with the actor's pose library refined on this take (Choe & Ko)"),
+]
+UNSEEN_ITEMS = [
+    ("rest", "Rest", "Shapes that move no marker (gaze on skin markers, the tongue) are held at 0"),
+    ("solve", "Solve", "Solve every shape, even those no marker sees"),
 ]
 CALIB_SOURCE_ITEMS = [
     ("COLLECTION", "Collection", "Calibration markers are empties in a collection (an imported calibration take)"),
@@ -193,7 +200,14 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     binding_summary: StringProperty(name="Binding", description="Summary of the last binding (a read-out)")
     neutral_first: IntProperty(name="First", default=1, description="First frame of the neutral / T-pose range")
     neutral_last: IntProperty(name="Last", default=30, description="Last frame of the neutral / T-pose range")
-    strategy: EnumProperty(name="Strategy", items=STRATEGY_ITEMS, default="geometric")
+    strategy: EnumProperty(items=STRATEGY_ITEMS, **from_option("solve.strategy", label="Strategy"))
+    # -- semantic -------------------------------------------------------------------------------
+    unseen_shapes: EnumProperty(items=UNSEEN_ITEMS, **from_option("solve.unseen_shapes", label="Unseen Shapes"))
+    exclusive: BoolProperty(**from_option("solve.exclusive", label="Opposing Shapes Exclusive"))
+    actor_profile: StringProperty(subtype="FILE_PATH", **from_option("actor.profile", label="Performer Profile"))
+    actor_template: StringProperty(**from_option("actor.template", label="Human Template"))
+    actor_tier: StringProperty(name="Actor", description="What the last semantic solve knew of the actor's face "
+                               "(a read-out)")
     regularisation: FloatProperty(precision=5, **from_option("solve.regularisation", label="Regularisation"))
     sparsity: FloatProperty(precision=5, **from_option("solve.sparsity", label="Sparsity"))
     symmetry: FloatProperty(precision=4, **from_option("solve.symmetry", label="Symmetry"))
@@ -317,6 +331,7 @@ SIDEBAR_ONLY = {
     "stable_gap": "a read-out of Suggest Stable Markers",
     "last_action": "a read-out: the action the last solve created",
     "last_report": "a read-out: the last solve's summary",
+    "actor_tier": "a read-out: what the last semantic solve knew of the actor's face",
     "video": "the group of video settings (its own settings are checked one by one)",
     "tuning_index": "list selection",
     "library_index": "list selection",

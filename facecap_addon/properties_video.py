@@ -2,7 +2,7 @@
 the options of Track Clip Footage, and of Solve from Clip Flow (flow-PCA features, no markers)."""
 
 import bpy
-from bpy.props import EnumProperty, IntProperty, IntVectorProperty, PointerProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, IntVectorProperty, PointerProperty
 
 from .option_props import from_option
 
@@ -47,6 +47,7 @@ class FACECAP_PG_video(bpy.types.PropertyGroup):
     max_points: IntProperty(name="Max Points", default=100, min=1, description="Automatic features to track")
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="lk", description="How the points are followed")
     flow_method: EnumProperty(items=FLOW_METHOD_ITEMS, **from_option("tracking.method", label="Flow"))
+    landmark_smoothing: BoolProperty(**from_option("tracking.smoothing", label="Smoothing"))
     stable_region: IntVectorProperty(name="Stable Region", size=4, default=(0, 0, 0, 0), min=0,
                                      description="x, y, width, height in pixels of an area that moves with the head "
                                                  "only (forehead, temples, a head-cam rig): its motion is removed "

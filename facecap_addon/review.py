@@ -32,7 +32,7 @@ from ..solvers.tools.report import (
     read_truth,
     write_review_page,
 )
-from .scene_data import basis_from_object, vertex_group_bindings
+from .scene_data import vertex_group_bindings
 
 #: Tile height in pixels and width / height (a face is taller than wide).
 TILE_HEIGHT, ASPECT = 280, 0.8
@@ -191,14 +191,16 @@ class _Stage:
 
 
 def _front(obj, names, world):
-    """The face's front direction in world space: the mean normal of the vertices its markers bind to
-    (without markers: Blender's front view, -Y)."""
+    """The face's front direction in world space: the mean normal of the vertices its markers' vertex groups
+    hold (without them: Blender's front view, -Y)."""
     if not names:
         return np.array([0.0, -1.0, 0.0])
     normals = np.empty(len(obj.data.vertices) * 3)
     obj.data.vertices.foreach_get("normal", normals)
     normals = normals.reshape(-1, 3)
     bindings = vertex_group_bindings(obj, names)
+    if not bindings:  # bound by position (no vertex groups): Blender's front view
+        return np.array([0.0, -1.0, 0.0])
     n = np.sum([w @ normals[idx] for idx, w in bindings.values()], axis=0)
     n = world[:3, :3] @ n
     return n / np.linalg.norm(n) if np.linalg.norm(n) > 1e-9 else np.array([0.0, -1.0, 0.0])
@@ -292,9 +294,11 @@ def build_review(obj, result, settings, *, take, character, source="", fps=None,
     basis, note = None, ""
     stab = result.stabilise
     if stab is not None and stab.markers.dim == 3:
-        try:
-            basis = basis_from_object(obj, stab.markers.names)
-        except FacecapError as exc:  # no marker vertex groups or no shape keys: no binding to show
+        from .scene_binding import bound_basis  # loads bpy
+
+        try:  # vertex groups, or the binding by position stored on the character
+            basis = bound_basis(obj, stab.markers, settings)
+        except FacecapError as exc:  # nothing binds the markers, or no shape keys: no binding to show
             note = str(exc)
     geometry, why = marker_geometry(result, basis, settings)
     note = note or why

@@ -81,6 +81,16 @@ def geometric_character(obj, markers, settings, binding, *, rebind=False, store=
     return bound
 
 
+def bound_basis(obj, markers, settings):
+    """The character's shapes where ``markers`` sit on ``obj``, however they were bound: the binding by
+    position stored on it (``map`` or ``nearest``) when there is one, else its vertex groups."""
+    record = stored_record(obj)
+    if record is not None:
+        binding = BindingSettings(mode=mode_family(record.get("mode")))
+        return bind_character(mesh_from_object(obj), markers, settings, binding, record=record).basis
+    return basis_from_object(obj, markers.names)
+
+
 def binding_from_sidebar(settings):
     """BindingSettings from the Take panel's binding settings."""
     mode = settings.binding_mode

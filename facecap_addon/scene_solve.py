@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve
 from . import anim, layers, take
 from .scene_camera import projection_from_sidebar
@@ -31,7 +32,7 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     strategy = settings.strategy if footage is None else settings.video.flow_strategy
     markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
     rsettings = replace(take.retarget_settings(settings), strategy=strategy)
-    if strategy == "geometric":  # a stored binding by position is used as it is; none yet: bound and stored
+    if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
         character = bound.basis
@@ -82,6 +83,8 @@ def key_solve(settings, result):
     A locked shape keeps its previous solve-layer curve: the solve held it at what the animator saw
     (solve layer + their keys), so re-keying that value under their keys would count them twice.
     """
+    actor = result.info.get("actor_model")  # what a semantic solve knew of the actor: shown in the Solve panel
+    settings.actor_tier = f"{actor['tier']}: {actor['statement']}" if actor else ""
     key = settings.target.data.shape_keys
     locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
     if locked and key is not None and layers.solved_action(key) is not None:

@@ -2,12 +2,15 @@
 
 import glob
 import json
+from pathlib import Path
 
 import bpy
 import numpy as np
 
 from ..solvers.capture.align import region_patterns
+from ..solvers.character.basis import Basis
 from ..solvers.character.shape_options import Region
+from ..solvers.character.template import HumanTemplate, template_path
 from ..solvers.errors import FacecapError
 from ..solvers.io import import_markers
 from ..solvers.io.weights import read_weights
@@ -15,6 +18,7 @@ from ..solvers.markers import MarkerSet
 from ..solvers.pipeline import RetargetSettings
 from ..solvers.strategies.base import Target
 from ..solvers.strategies.options import (
+    ActorSettings,
     CalibrationSettings,
     ExamplePairs,
     ExampleSettings,
@@ -57,6 +61,8 @@ def strategy_settings(settings):
         poses.setdefault(pose.name, []).append((pose.first, pose.last))
     curve = f"gamma:{s.parallel_gamma:g}" if s.parallel_curve == "gamma" else s.parallel_curve
     return {
+        "actor": ActorSettings(template=s.actor_template.strip() or "auto", unseen_shapes=s.unseen_shapes,
+                               exclusive=s.exclusive),
         "calibration": CalibrationSettings(
             poses=tuple((name, tuple(ranges)) for name, ranges in poses.items()),
             neutral_frames=(s.calib_neutral_first, s.calib_neutral_last),
@@ -222,7 +228,9 @@ def strategy_inputs(settings, strategy=None):
 
     strategy = strategy or settings.strategy
     inputs, notes = {}, []
-    if strategy in ("calibrated", "refine"):
+    if strategy == "semantic":
+        inputs.update(_actor_inputs(settings, notes))
+    if strategy in ("calibrated", "refine", "semantic"):
         if settings.calib_source == "COLLECTION":
             if settings.calib_collection is not None:
                 inputs["calibration"] = markers_from_empties(settings.calib_collection, [m.name for m in settings.markers],
@@ -241,6 +249,21 @@ def strategy_inputs(settings, strategy=None):
         inputs["weights"] = track
         notes.extend(track.notes)
     return StrategyInputs(**inputs, notes=tuple(notes))
+
+
+def _actor_inputs(settings, notes):
+    """The semantic solve's knowledge of the actor from the Solve panel: a performer profile, the human template
+    ("auto": the installed one, if any; "none"; or a path)."""
+    out = {}
+    if settings.actor_profile:
+        out["profile"] = Basis.load_npz(bpy.path.abspath(settings.actor_profile))
+    template = settings.actor_template.strip() or "auto"
+    if template != "none":
+        path = template_path() if template == "auto" else Path(bpy.path.abspath(template))
+        if template != "auto" or path.is_file():
+            out["template"] = HumanTemplate.load(path)
+            notes.append(f"the human template: {path}")
+    return out
 
 
 def source_channel_names(settings):

@@ -10,6 +10,7 @@ from ..solvers.errors import FacecapError
 from ..solvers.solve import solve_job
 from ..solvers.video.flow import track_with_flow_job
 from ..solvers.video.flow_solve import FlowSolveSettings
+from ..solvers.video.landmarks import RIGID, metric_take, track_landmarks_job
 from ..solvers.video.reading import Footage
 from ..solvers.video.tracking import track_points_job
 from .scene_solve import key_solve, request_from_scene
@@ -104,6 +105,34 @@ class ClipTracking(_ClipJob):
         else:  # dense flow (DIS, Farneback, TV-L1) sampled at the seeds
             self.job = track_with_flow_job(footage, reference=frame, method=method, **seeds)
 
+
+
+class ClipLandmarks(_ClipJob):
+    """Track Face Landmarks in steps: the movie clip's face landmarks (no markers, no seeds), as a 3D take in
+    metres once finished (:attr:`take`); nothing in the scene changes until the operator adds it."""
+
+    what = "Face landmarks"
+    label = "Face landmarks in"
+
+    def __init__(self, scene, clip, *, smoothing=True):
+        source, offset = clip_footage(clip)
+        fps = clip.fps or scene.render.fps / scene.render.fps_base
+        self.clip_name = clip.name
+        self.job = track_landmarks_job(Footage(source, frame_offset=offset, fps=fps, color=True), smoothing=smoothing)
+
+    @property
+    def take(self):
+        return metric_take(self.result, iris=False)  # the irises sit on the eyeballs, not on skin
+
+
+def use_landmark_defaults(settings):
+    """Set the sidebar up as a landmark take needs it: the head-rigid landmarks stable, the neutral
+    detected, the binding by position found automatically."""
+    rigid = set(RIGID)
+    for item in settings.markers:
+        item.stable = item.name in rigid
+    settings.neutral_mode = "DETECT"
+    settings.binding_mode = "nearest"
 
 
 class ClipFlowSolving(_ClipJob):

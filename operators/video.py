@@ -7,7 +7,7 @@ import bpy
 
 from ..facecap_addon import import_scene
 from ..facecap_addon.properties_video import METHOD_ITEMS
-from ..facecap_addon.video_scene import ClipFlowSolving, ClipTracking
+from ..facecap_addon.video_scene import ClipFlowSolving, ClipLandmarks, ClipTracking, use_landmark_defaults
 from ..solvers.errors import FacecapError
 
 TICK_SECONDS = 0.02  # timer interval
@@ -135,6 +135,33 @@ class FACECAP_OT_track_clip(ClipJobOperator, bpy.types.Operator):
                               + result.summary().splitlines()[0])
 
 
+class FACECAP_OT_track_face_landmarks(ClipJobOperator, bpy.types.Operator):
+    """Find the face in every frame of the scene's movie clip (no markers, no seeds) and add its 468 skin
+    landmarks as a 3D take, set up to solve: the head-rigid landmarks stable, the neutral detected, the
+    binding automatic; progress shows in the status bar, Esc cancels"""
+
+    bl_idname = "facecap.track_face_landmarks"
+    bl_label = "Track Face Landmarks"
+    bl_options = {"REGISTER", "UNDO"}
+
+    smoothing: bpy.props.BoolProperty(name="Smoothing", default=True,
+                                      description="Filter the detector's jitter (zero lag, fast lip motion kept)")
+
+    def _start(self, context):
+        scene = context.scene
+        return ClipLandmarks(scene, scene.active_clip, smoothing=self.smoothing)
+
+    def _write(self, context, session):
+        scene, take = context.scene, session.take
+        name = f"{session.clip_name} landmarks"
+        coll = import_scene.create_take(scene, take, name, set_scene_range=False)
+        import_scene.remember_take(scene, take, Path(name), coll)
+        scene.facecap.take_name = name
+        use_landmark_defaults(scene.facecap)
+        self.report({"INFO"}, f"{session.result.summary()}; added as '{coll.name}' (stable: the head-rigid landmarks, "
+                              "neutral: detected, binding: nearest)")
+
+
 class FACECAP_OT_solve_clip_flow(ClipJobOperator, bpy.types.Operator):
     """Solve the character from the scene's movie clip without markers: dense flow over the face region
     (Video panel) relative to the current frame (neutral), reduced to a few PCA features per frame and mapped
@@ -158,4 +185,4 @@ class FACECAP_OT_solve_clip_flow(ClipJobOperator, bpy.types.Operator):
                               f"keyed '{action.name}'")
 
 
-CLASSES = (FACECAP_OT_track_clip, FACECAP_OT_solve_clip_flow)
+CLASSES = (FACECAP_OT_track_clip, FACECAP_OT_track_face_landmarks, FACECAP_OT_solve_clip_flow)

@@ -128,7 +128,7 @@ def _problem(option, kind, v):
 
 O = Option
 UNITS = ("m", "cm", "mm", "bu", "px")
-STRATEGIES = ("geometric", "calibrated", "parallel", "linear", "rbf", "pca", "refine")
+STRATEGIES = ("semantic", "geometric", "calibrated", "parallel", "linear", "rbf", "pca", "refine")
 RBF_KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
                "inverse_multiquadric", "inverse_quadratic")
 OUTPUT_FILE = "an output of a headless run (the sidebar saves with File > Save)"
@@ -249,8 +249,10 @@ OPTIONS = (
     O("align", "flag_mm", "float", above=0.0, high=1e4, doc="Alignment residual (mm) that flags a binding",
       headless="the default robust threshold suits the sidebar"),
     # -- [solve] -----------------------------------------------------------------------------------
-    O("solve", "strategy", "choice", default="geometric", choices=STRATEGIES,
-      doc="Cross-mapping strategy (video takes: linear, rbf or pca)", ui="facecap.strategy, facecap.video.flow_strategy"),
+    O("solve", "strategy", "choice", default="semantic", choices=STRATEGIES,
+      doc="Cross-mapping strategy: semantic solves the actor's expressions from what is known of the actor's face "
+          "([actor], [calibration]); geometric uses the character's shapes as the actor's (video takes: linear, rbf "
+          "or pca)", ui="facecap.strategy, facecap.video.flow_strategy"),
     O("solve", "regularisation", "float", default=1e-3, low=0.0, high=100.0,
       doc="Ridge weight relative to the basis scale: larger keeps weights smaller and steadier",
       ui="facecap.regularisation"),
@@ -269,6 +271,12 @@ OPTIONS = (
       ui="facecap.shapes"),
     O("solve", "regions", "table", doc="{name = {shapes = [...], markers = [...]}}: shapes solved from their markers",
       ui="facecap.regions"),
+    O("solve", "unseen_shapes", "choice", default="rest", choices=("rest", "solve"),
+      doc="semantic: shapes that move no marker by 1.5 mm (gaze on skin markers, tongue) are held at rest, or solved "
+          "anyway", ui="facecap.unseen_shapes"),
+    O("solve", "exclusive", "bool", default=True,
+      doc="semantic: opposing shapes (jawLeft/jawRight, gaze in/out and up/down, blink/wide) are never both active",
+      ui="facecap.exclusive"),
     O("solve", "projection", "choice", default="front", choices=("front", "camera"),
       doc="2D takes: the character seen from the front (orthographic) or through a camera",
       ui="facecap.video.projection"),
@@ -282,6 +290,8 @@ OPTIONS = (
     O("output", "html", "path", doc="Review page: the solve's plots and renders, one HTML file (docs/review.md)",
       ui="op:facecap.export_review.filepath"),
     O("output", "actor_basis", "path", doc="The actor library used (refine: refined), as .npz", headless=OUTPUT_FILE),
+    O("output", "profile", "path", doc="semantic: the performer profile this take's calibration measured (.npz), for "
+      "[actor] profile of later takes", headless=OUTPUT_FILE),
     O("output", "gltf", "path",
       doc="Binary glTF (.glb) for game engines: the character with its shape keys as morph targets and the "
           "take's animation (solve and animator layers baked into one action, plus the head motion when keyed)",
@@ -292,6 +302,15 @@ OPTIONS = (
       doc="Name of the new action (default: the take file's name; room is kept for Blender's \" Head\")"),
     O("output", "head", "str", doc="Key the removed head motion on \"Object\" or \"Armature:bone\"",
       ui="facecap.head_target, facecap.head_bone"),
+    # -- [actor] (semantic) ------------------------------------------------------------------------
+    O("actor", "profile", "path", doc="semantic: this performer's stored profile (.npz, written by [output] profile "
+      "from a take with calibration poses)", ui="facecap.actor_profile"),
+    O("actor", "template", "str", default="auto",
+      doc="semantic: a human face template fitted to the actor's neutral: \"auto\" (the one `python -m facecap "
+          "template convert` installed, if any), \"none\", or a path", ui="facecap.actor_template"),
+    O("actor", "normalise", "bool", default=True,
+      doc="semantic, nothing known about the actor: scale the actor's motion per marker to the character's range",
+      headless="an expert setting of the semantic solve"),
     # -- [calibration] (calibrated, refine) --------------------------------------------------------
     O("calibration", "markers", "path", doc="The actor's calibration take",
       ui="facecap.calib_source, facecap.calib_path, facecap.calib_collection"),
@@ -374,8 +393,15 @@ OPTIONS = (
     O("refine", "stiffness", "float", default=1e-2, low=0.0, high=1e6,
       doc="Pull towards the original library (larger = smaller corrections)", ui="facecap.refine_stiffness"),
     # -- [tracking] and [flow] (video takes) -------------------------------------------------------
-    O("tracking", "method", "choice", default="dis", choices=("dis", "farneback", "tvl1"),
-      doc="Dense optical flow method", ui="facecap.video.flow_method", hint="a video take follows dense flow"),
+    O("tracking", "method", "choice", default="dis", choices=("dis", "farneback", "tvl1", "landmarks"),
+      doc="Dense optical flow method, or \"landmarks\": the face's landmarks solved like markers (no examples)",
+      ui="facecap.video.flow_method", hint="a video take follows dense flow or face landmarks"),
+    O("tracking", "smoothing", "bool", default=True, doc="Landmarks: filter the detector's jitter (zero lag)",
+      ui="facecap.video.landmark_smoothing"),
+    O("tracking", "iris", "bool", default=True, doc="Landmarks: eyelids and gaze from the iris model",
+      headless="the sidebar always refines the eyes"),
+    O("tracking", "models", "path", doc="Landmarks: folder of the face-mesh model files (default: found)",
+      headless="the extension bundles the models"),
     O("tracking", "region", "floats", length=4, low=0.0, high=1e6,
       doc="Face region [x, y, w, h] in pixels (default: the frame)",
       ui="facecap.video.region"),

@@ -20,3 +20,16 @@ REALDATA = Path(os.environ["FACECAP_REALDATA"]) if os.environ.get("FACECAP_REALD
 BLENDERFACE = SHARED / "data" / "blenderface"
 ICT_FACEKIT = SHARED / "data" / "ict-facekit"
 BUGS = SHARED / "bugs"
+
+
+def require(path):
+    """``path`` (shared data) when it exists; otherwise the test is skipped on a developer's machine and fails in
+    CI (``FACECAP_CI=1``), where the shared folder is expected beside the checkout."""
+    import pytest
+
+    if Path(path).exists():
+        return Path(path)
+    message = f"shared data not found: {path} (set FACECAP_SHARED to the folder holding data/)"
+    if os.environ.get("FACECAP_CI"):
+        pytest.fail(message)
+    pytest.skip(message)

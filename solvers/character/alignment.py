@@ -36,6 +36,9 @@ CANDIDATES = 16
 TRIM = 0.8
 #: Two poses are different when their rotations differ by more than this (degrees) ...
 DISTINCT_DEG = 10.0
+#: A best automatic pose farther than this (trimmed RMS, mm) from the surface is no fit at all (wrong units,
+#: not a face): refused. Real captures fit to 0.3-2.5 mm (Facial-Sing with its head markers: 2.1 mm).
+NO_FIT_MM = 6.0
 #: ... and ambiguous when their mean squared distances (plus FLOOR_MM^2, below which distances are
 #: noise) are in a ratio below 1 + 3 / sqrt(n) for n scored markers: within about 1.5 standard
 #: deviations of the ratio of two sums of n squared errors (2 / sqrt(n)).
@@ -265,6 +268,12 @@ def align_automatic(surface, markers, *, unit, scale, allow_scale=True, chunk=48
     second = next(((sc, other) for sc, other in results[1:]
                    if rotation_angle_deg(other.rotation @ sim.rotation.T) > DISTINCT_DEG), None)
     kept = max(3, int(np.ceil(TRIM * len(markers))))
+    if best > NO_FIT_MM:
+        raise FacecapError(
+            f"automatic binding found no pose that fits: the best leaves the markers {best:.1f} mm from the surface "
+            f"(trimmed RMS) at {sim.scale / scale:.2f}x the same-size scale; are the markers' units right, and is the "
+            "mesh a face? Give at least three landmarks in [binding.landmarks] (marker = a vertex group or vertex "
+            "index of the character), e.g. the markers on the nose tip, the chin and an outer eye corner")
     if second is not None and ambiguous(best, second[0], kept):
         angle = float(rotation_angle_deg(second[1].rotation @ sim.rotation.T))
         raise FacecapError(

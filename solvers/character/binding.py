@@ -23,8 +23,8 @@ import numpy as np
 from ..errors import FacecapError
 from ..options import default
 from ..transforms import Similarity, rotation_angle_deg
-from .alignment import align_automatic, align_landmarks, refine
-from .surface import closest_points, interpolate, make_surface
+from .alignment import CANDIDATES, SEARCH_SCALE_RANGE, SEARCH_SCALES, align_automatic, align_landmarks, refine
+from .surface import closest_points, interpolate, make_surface, skin_triangles, triangulate
 
 #: A bound marker farther than this from the surface (mm) stays unbound (the default).
 MAX_DISTANCE_MM = default("binding.max_distance_mm")
@@ -252,7 +252,8 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
         ``similarity`` maps actor marker units to mesh units.
     """
 
-    surface = make_surface(vertices, triangles)
+    tris = np.asarray(triangles) if isinstance(triangles, np.ndarray) else triangulate(triangles)
+    surface = make_surface(vertices, tris)  # the alignment sees the whole face, eyeballs in their sockets too
     names = tuple(names)
     markers = np.asarray(markers, dtype=np.float64)
     if markers.shape != (len(names), 3):
@@ -275,6 +276,8 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
         notes.append(search)
     sim, fit = refine(surface, markers[have], start, unit=unit, allow_scale=allow_scale)
     notes.append(fit)
+    if not landmarks:
+        check_automatic_pose(surface, sim, markers[have], prior_scale, allow_scale=allow_scale)
     if landmarks:
         before = np.linalg.norm(start.apply(pairs[1]) - pairs[2], axis=1) * mm_per_unit
         after = np.linalg.norm(sim.apply(pairs[1]) - pairs[2], axis=1) * mm_per_unit
@@ -282,7 +285,8 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
                      f"{after.mean():.1f} mm after ICP (worst {after.max():.1f} mm)")
     m = len(names)
     tri, bary, dist = np.full(m, -1), np.full((m, 3), np.nan), np.full(m, np.nan)
-    t, b, _, d = closest_points(surface, sim.apply(markers[have]))
+    skin = make_surface(vertices, skin_triangles(len(vertices), tris))  # a marker sits on skin: not an eyeball
+    t, b, _, d = closest_points(skin, sim.apply(markers[have]))
     tri[have], bary[have], dist[have] = t, b, d * mm_per_unit
     bound = have.copy()
     far = bound & (dist > max_distance_mm)
@@ -290,7 +294,33 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
         notes.append(_far_note(names, dist, far, max_distance_mm, "marker"))
         tri[far], bary[far] = -1, np.nan
         bound &= ~far
-    return Binding(names, tri, bary, dist, bound, sim, mode, surface.triangles, tuple(notes))
+    return Binding(names, tri, bary, dist, bound, sim, mode, skin.triangles, tuple(notes))
+
+
+#: The automatic alignment's scale may end this close (relative) to the ends of its search before the pose
+#: is refused as a fit that ran out of scale rather than a face that matched.
+SCALE_EDGE = 0.02
+#: Landmark advice when the automatic pose is refused.
+LANDMARK_ADVICE = ("give at least three landmarks in [binding.landmarks] (marker = a vertex group or vertex index "
+                   "of the character), e.g. the markers on the nose tip, the chin and an outer eye corner")
+
+
+def check_automatic_pose(surface, sim, markers, prior_scale, *, allow_scale=True):
+    """Refuse an automatic pose that is certainly wrong: its scale at the end of the search (the fit ran out
+    of scale, as a face turned the wrong way does), or the markers on the back of the head (the character
+    faces -Y, as in Blender's front view)."""
+    if allow_scale:
+        low = prior_scale * min(SEARCH_SCALES) / SEARCH_SCALE_RANGE
+        high = prior_scale * max(SEARCH_SCALES) * SEARCH_SCALE_RANGE
+        if sim.scale <= low * (1 + SCALE_EDGE) or sim.scale >= high * (1 - SCALE_EDGE):
+            raise FacecapError(f"automatic binding found no pose that fits: the best one needs the markers scaled "
+                               f"{sim.scale / prior_scale:.2f}x, at the end of the search ({low / prior_scale:.2f}-"
+                               f"{high / prior_scale:.2f}x; are the units right?); {LANDMARK_ADVICE}")
+    tri = closest_points(surface, sim.apply(markers), candidates=CANDIDATES)[0]
+    facing = float(np.mean(surface.normals[tri] @ np.array([0.0, -1.0, 0.0])))
+    if facing < 0.0:
+        raise FacecapError(f"automatic binding put the markers on the back of the head (their surface faces away "
+                           f"from the character's front, -Y; mean {facing:+.2f}); {LANDMARK_ADVICE}")
 
 
 def _landmark_pairs(surface, names, markers, landmarks):

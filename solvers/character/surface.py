@@ -55,6 +55,21 @@ def triangulate(faces):
     return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
 
 
+def skin_triangles(n_vertices, triangles):
+    """The triangles of the largest connected piece of a mesh (by triangle count): a face's skin, without the
+    eyeballs, teeth or tongue that characters model as separate pieces (a marker never sits on those)."""
+    from scipy.sparse import coo_matrix  # scipy: only binding by position needs it
+    from scipy.sparse.csgraph import connected_components  # scipy, as above
+
+    tris = np.asarray(triangles, dtype=np.int64)
+    rows = np.concatenate([tris[:, 0], tris[:, 1]])
+    cols = np.concatenate([tris[:, 1], tris[:, 2]])
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
+    _, labels = connected_components(graph, directed=False)
+    owner = labels[tris[:, 0]]
+    return tris[owner == np.bincount(owner).argmax()]
+
+
 def make_surface(vertices, triangles):
     """A :class:`Surface` from (V, 3) vertices and (T, 3) triangles (or polygons, fan-split)."""
     vertices = np.asarray(vertices, dtype=np.float64)

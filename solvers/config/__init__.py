@@ -33,7 +33,8 @@ from ..io.limits import MAX_TEXT_BYTES, check_input_file
 from ..io.outputs import user_path
 from ..options import OPTIONS, SECTIONS, default, table_problems
 from ..pipeline import RetargetSettings
-from ..video.flow_config import split_video_sections, video_take
+from ..video.flow_config import is_landmark_take, landmark_defaults, split_video_sections, video_take
+from ..video.landmarks import RIGID as LANDMARK_RIGID
 from .binding import parse_binding
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
@@ -66,6 +67,8 @@ class TakeConfig:
     examples_markers_path: Path | None = None  # [examples] markers (the take they belong to; default this one)
     training_path: Path | None = None  # [refine] training (default: the take itself)
     output_actor_basis: Path | None = None  # [output] actor_basis: the actor library used (refine: refined)
+    actor_profile_path: Path | None = None  # [actor] profile: this performer's stored profile (semantic)
+    output_profile: Path | None = None  # [output] profile: the profile this take's calibration measured
     projection: str = "front"  # [solve] projection for 2D takes: "front" or "camera"
     camera_name: str | None = None  # [solve] camera: camera object (None: the scene camera)
     tuning: object = None  # [tuning]: TuningConfig (solvers.config.tuning)
@@ -143,7 +146,10 @@ def load_take_config(path, data=None):
     free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by config.tuning
     part = problems.part
 
-    video_raw = part(split_video_sections, data, default=False)  # [source] video, [tracking], [flow]: a video take
+    video_raw = split_video_sections(data)  # [source] video, [tracking], [flow]: a markerless video take
+    landmarks = is_landmark_take(video_raw)  # ... whose face landmarks are solved like markers
+    if landmarks:
+        landmark_defaults(data, LANDMARK_RIGID)
     base = path.parent
 
     def get(section, key, default=None):
@@ -159,13 +165,16 @@ def load_take_config(path, data=None):
     if units == "bu" and "unit_scale" not in read_options:
         problems.add(ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale"))
     clean = part(_clean_settings, path, data.get("clean", {}), default=CleanSettings())
-    strategy = get("solve", "strategy", default("solve.strategy") if video_raw is None else "linear")
-    video = None if not video_raw else part(video_take, path, video_raw, data, strategy)
-    if video_raw is None:  # (False: the video sections were refused; what they needed is not news)
+    # a landmark take solves like markers, on geometric (measured there); a flow take on posed examples
+    strategy = get("solve", "strategy", default("solve.strategy") if video_raw is None else
+                   "geometric" if landmarks else "linear")
+    video = None if video_raw is None else part(video_take, path, video_raw, data, strategy)
+    if video_raw is None:
         part(_check_source, path, data, strategy)
     stable, frames = (), [1, 1]
     normalise = {}
-    if video_raw is None and (strategy != "parallel" or "markers" in data.get("stabilise", {}) or data.get("neutral")):
+    if (video_raw is None or landmarks) and (strategy != "parallel" or "markers" in data.get("stabilise", {})
+                                             or data.get("neutral")):
         stable, frames, normalise = part(_stabilise_neutral, path, data, resolve, default=((), [1, 1], {}))
     numbers = {key: get(section, key, default(f"{section}.{key}")) for section, key in (
         ("solve", "regularisation"), ("solve", "sparsity"), ("solve", "symmetry"),
@@ -178,8 +187,9 @@ def load_take_config(path, data=None):
     markers_path = resolve(get("source", "markers"))
     weights_path = resolve(get("source", "weights"))
     strategy_options = {}
-    if not (video_raw and video is None):  # a broken video take: which strategy inputs it needs is no news
+    if not (video_raw is not None and video is None):  # a broken video take: its strategy inputs are no news
         strategy_options = part(strategy_settings, path, data, strategy, default={})
+    part(_check_profile_output, path, data, strategy)
     outputs = {key: part(_export_path, path, key, resolve(get("output", key))) for key in EXPORT_SUFFIXES}
     tuning = part(parse_tuning, path, free.get("tuning"), base)
     controls = part(parse_controls, path, free.get("controls"), base)
@@ -224,6 +234,8 @@ def load_take_config(path, data=None):
         examples_markers_path=resolve(get("examples", "markers")),
         training_path=resolve(get("refine", "training")),
         output_actor_basis=resolve(get("output", "actor_basis")),
+        actor_profile_path=resolve(get("actor", "profile")),
+        output_profile=resolve(get("output", "profile")),
         output_gltf=outputs["gltf"],
         output_fbx=outputs["fbx"],
         output_html=resolve(get("output", "html")),
@@ -235,6 +247,17 @@ def load_take_config(path, data=None):
         video=video,
         binding=binding,
     )
+
+
+def _check_profile_output(path, data, strategy):
+    """``[output] profile`` stores measured shapes of the actor: the semantic strategy with calibration poses (or a
+    stored library or profile to pass on)."""
+    if "profile" not in data.get("output", {}):
+        return
+    cal, actor = data.get("calibration", {}), data.get("actor", {})
+    if strategy != "semantic" or not ("poses" in cal or "basis" in cal or "profile" in actor):
+        raise ConfigError("a performer profile holds the actor's measured shapes: give [calibration] poses (with "
+                          "markers, or frames of this take) and the semantic strategy", path=path, key="output.profile")
 
 
 def _projection(path, solve):

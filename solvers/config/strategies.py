@@ -1,4 +1,4 @@
-"""The strategy sections of a take config: [calibration] [mapping] [examples] [pca] [refine].
+"""The strategy sections of a take config: [actor] [calibration] [mapping] [examples] [pca] [refine].
 
 ``strategy_settings`` validates them (errors name ``[section.key]``) into the frozen settings of
 ``solvers.strategies.options``; ``load_strategy_inputs`` reads the files they name (calibration
@@ -12,11 +12,13 @@ import numpy as np
 
 from ..capture.cleaning import clean
 from ..character.basis import Basis
+from ..character.template import HumanTemplate, template_path
 from ..errors import ConfigError, FacecapError, InputFileError
 from ..io import import_markers
 from ..io.csv import read_weights_csv
 from ..io.weights import read_weights
 from ..strategies.options import (
+    ActorSettings,
     CalibrationSettings,
     ExamplePairs,
     ExampleSettings,
@@ -68,13 +70,32 @@ def strategy_settings(path, data, strategy):
                  f"strategy '{strategy}' needs {NEEDS[strategy]}")
     if strategy in ("linear", "rbf", "pca") and "weights" not in ex:
         fail("examples.weights", f"strategy '{strategy}' needs {NEEDS[strategy]}")
+    if strategy == "semantic" and "basis" in cal and ("markers" in cal or "poses" in cal):
+        fail("calibration.basis", "give either a stored basis or calibration markers + poses, not both")
     return {
+        "actor": _actor(data.get("actor", {}), data.get("solve", {}), fail),
         "calibration": _calibration(cal, fail),
         "mapping": _mapping(data.get("mapping", {}), fail),
         "examples": _examples(ex, fail),
         "pca": _pca(data.get("pca", {}), fail),
         "refine": _refine(data.get("refine", {}), fail),
     }
+
+
+def _actor(actor, solve, fail):
+    """[actor] template / normalise and the semantic solve's [solve] unseen_shapes / exclusive."""
+    d = ActorSettings()
+    template = actor.get("template", d.template)
+    if not isinstance(template, str) or not template.strip():
+        fail("actor.template", f'expected "auto", "none" or a path to a template; got {template!r}')
+    for section, table, key in (("actor", actor, "normalise"), ("solve", solve, "exclusive")):
+        if key in table and not isinstance(table[key], bool):
+            fail(f"{section}.{key}", f"expected true or false; got {table[key]!r}")
+    unseen = solve.get("unseen_shapes", d.unseen_shapes)
+    if unseen not in ("rest", "solve"):
+        fail("solve.unseen_shapes", f'expected "rest" or "solve"; got {unseen!r}')
+    return ActorSettings(template=template, normalise=actor.get("normalise", d.normalise), unseen_shapes=unseen,
+                         exclusive=solve.get("exclusive", d.exclusive))
 
 
 def _calibration(cal, fail):
@@ -252,6 +273,8 @@ def load_strategy_inputs(config, *, read_markers=None):
                                                  config.calibration_fps or config.fps)
         if strategy == "refine" and config.training_path is not None:
             inputs["training"] = read_markers(need(config.training_path, "[refine] training"), config.units, config.fps)
+    if strategy == "semantic":
+        inputs.update(_semantic_inputs(config, need, read_markers, notes))
     if strategy in ("linear", "rbf", "pca"):
         frames, names, values = read_weights_csv(need(config.examples_weights_path, "[examples] weights"))
         markers = None
@@ -263,3 +286,23 @@ def load_strategy_inputs(config, *, read_markers=None):
         notes.extend(f"{config.weights_path.name}: {n}" for n in track.notes)
         inputs["weights"] = track
     return StrategyInputs(**inputs, notes=tuple(notes))
+
+
+def _semantic_inputs(config, need, read_markers, notes):
+    """What the semantic solve knows of the actor: a calibration take ([calibration] markers; poses labelled in
+    the take itself need no file), a stored library or performer profile, the human template."""
+    out = {}
+    if config.calibration_path is not None:
+        out["calibration"] = read_markers(need(config.calibration_path, "[calibration] markers"),
+                                          config.calibration_units or config.units, config.calibration_fps or config.fps)
+    for path, key in ((config.actor_basis_path, "actor_basis"), (config.actor_profile_path, "profile")):
+        if path is not None:
+            out[key] = Basis.load_npz(need(path, f"[{'calibration] basis' if key == 'actor_basis' else 'actor] profile'}"))
+    template = config.settings.actor.template
+    if template != "none":
+        path = template_path() if template == "auto" else config.path.parent / template
+        if template == "auto" and not path.is_file():
+            return out
+        out["template"] = HumanTemplate.load(need(path, "[actor] template") if template != "auto" else path)
+        notes.append(f"the human template: {path}")
+    return out

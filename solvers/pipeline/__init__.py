@@ -23,14 +23,19 @@ from ..engine.frames import PatternSetup, reuse_pattern_setup
 from ..engine.split import release_freed_memory
 from ..errors import FacecapError
 from ..strategies.base import PredictsMarkers
+from ..strategies.gaze import GAZE, gaze_from_eye_angles
 from ..strategies.geometric import bound_markers
 from ..strategies.options import StrategyInputs
 from ..strategies.wiring import fit_parallel, fit_strategy, require_inputs, shape_target
-from . import markers_2d, stages
+from . import markers_2d, plausibility, stages
 from .result import RetargetResult, assemble, jsonable
 from .settings import STRATEGIES, RetargetSettings
 
-__all__ = ["RetargetResult", "RetargetSettings", "STRATEGIES", "hold_locks", "jsonable", "retarget", "shape_target"]
+#: Strategies that sample the character's shapes at the bound points (they need a binding).
+SAMPLES_CHARACTER = ("geometric", "semantic")
+
+__all__ = ["RetargetResult", "RetargetSettings", "SAMPLES_CHARACTER", "STRATEGIES", "hold_locks", "jsonable", "retarget",
+           "shape_target"]
 
 
 def retarget(markers, character, settings, *, inputs=None):
@@ -59,9 +64,13 @@ def retarget(markers, character, settings, *, inputs=None):
     if settings.strategy not in STRATEGIES:
         raise FacecapError(f"unknown strategy '{settings.strategy}'; available: {', '.join(STRATEGIES)}")
     inputs = StrategyInputs() if inputs is None else inputs
-    if settings.strategy == "geometric":
+    if settings.strategy == "semantic" and markers is not None and markers.dim == 2:
+        settings = replace(settings, strategy="geometric")  # image tracks: the projected character's shapes
+        inputs = replace(inputs, notes=tuple(inputs.notes) + (
+            "2D take: the semantic solve needs 3D markers; solved with the geometric strategy",))
+    if settings.strategy in SAMPLES_CHARACTER:
         if not isinstance(character, Basis):
-            raise FacecapError("strategy 'geometric' needs the character's shapes at the bound points (a Basis)")
+            raise FacecapError(f"strategy '{settings.strategy}' needs the character's shapes at the bound points (a Basis)")
     else:
         require_inputs(settings.strategy, inputs, settings)
     if settings.strategy == "parallel":
@@ -78,8 +87,9 @@ def hold_locks(names, weights, settings, notes):
     if held.any():
         rows = ~np.isnan(weights).all(axis=1)
         weights = np.where(held & rows[:, None], locks, weights)
-    if settings.regions and settings.strategy != "geometric":
-        notes.append(f"[solve] regions apply to the geometric strategy only; ignored by '{settings.strategy}'")
+    if settings.regions and settings.strategy not in SAMPLES_CHARACTER:
+        notes.append(f"[solve] regions apply to the semantic and geometric strategies; ignored by "
+                     f"'{settings.strategy}'")
     return weights
 
 
@@ -89,10 +99,10 @@ def _retarget_markers(markers, character, settings, inputs):
     t0 = time.perf_counter()
     if markers.dim == 2:
         markers_2d.check_2d(settings, inputs)
-    if settings.strategy == "geometric":  # a binding problem is named before any work
+    if settings.strategy in SAMPLES_CHARACTER:  # a binding problem is named before any work
         bound_markers(character, markers.names, source=markers.source or "take")
     markers = stages.usable_markers(markers, settings, notes,
-                                    bound=character.marker_names if settings.strategy == "geometric" else None)
+                                    bound=character.marker_names if _needs_binding(settings, inputs) else None)
     take, suggestion, norm_info = stages.prepare_take(markers, settings, notes)
     if take.dim == 3 and take.stabilise.flagged.any():
         bridged = any(settings.smoothing)
@@ -111,14 +121,41 @@ def _retarget_markers(markers, character, settings, inputs):
                                            prepare=stages.for_other_take(settings, take))
     notes.extend(fit_notes)
     timings["fit"] = time.perf_counter() - t1
+    noise = plausibility.marker_noise(take.deltas) if take.dim == 3 else float("nan")
     handed, take = [take], None  # _solve frees the first take's (F, M, D) deltas at its first head refit
     res, take, motion = _solve(strategy, handed, markers, settings, notes, timings)
     notes.extend(res.warnings)
     weights = hold_locks(res.shape_names, res.weights, settings, notes)
     _refuse_flat(weights, motion, take.dim, settings)
+    info = {}
+    if take.dim == 3:
+        info["plausibility"], warning = plausibility.check(
+            weights, res.shape_names, getattr(strategy, "upper", np.ones(len(res.shape_names))), res.residual_rms,
+            noise, held=_held(strategy, settings, res.shape_names, weights.shape[0]))
+        if warning:
+            notes.append(warning)
     timings["total"] = time.perf_counter() - t0
     return assemble(strategy, res, weights, frames=take.frames, settings=settings, notes=notes, timings=timings,
-                    take=take, normalise=norm_info, suggestion=suggestion)
+                    take=take, normalise=norm_info, suggestion=suggestion, info=info)
+
+
+def _held(strategy, settings, names, frames):
+    """Shapes the solve held (locks, and the semantic solve's unseen shapes): not judged for pinning."""
+    locks = np.atleast_2d(resolve_locks(names, settings.locks, n_frames=frames))
+    held = {n for n, column in zip(names, locks.T) if np.isfinite(column).all()}  # held over the whole take
+    model = getattr(strategy, "model", None)
+    return held | set(getattr(model, "unseen", ()))
+
+
+def _needs_binding(settings, inputs):
+    """Whether a marker must be bound on the character to be solved from: geometric, and semantic when
+    nothing else is known of the actor (calibration poses, a profile or library, the template know unbound
+    markers too)."""
+    if settings.strategy == "geometric":
+        return True
+    knows = (settings.calibration.poses or inputs.calibration is not None or inputs.profile is not None
+             or inputs.actor_basis is not None or inputs.template is not None)
+    return settings.strategy == "semantic" and not knows
 
 
 def _refuse_flat(weights, motion, dim, settings):
@@ -222,13 +259,24 @@ def _predicted(strategy, res, take, idx):
     return out
 
 
+def with_gaze(track):
+    """``track`` with the eight gaze channels derived from its eye angles when it has angles but no gaze
+    channels (``strategies.gaze``), and the note saying so (a list)."""
+    if track.eyes is None or any(n.startswith("eyeLook") for n in track.names) or \
+            not np.isfinite(track.eyes[:, [0, 1, 3, 4]]).any():
+        return track, []
+    values = np.concatenate([track.values, gaze_from_eye_angles(track.eyes)], axis=1)
+    return replace(track, names=tuple(track.names) + GAZE, values=values), [
+        "gaze (eyeLook*) from the take's eye angles: the take has no gaze channels"]
+
+
 def _retarget_weights(character, settings, inputs):
     """parallel: map the solved weights of ``inputs.weights`` (a WeightTrack) onto the shapes."""
     t0 = time.perf_counter()
-    track = inputs.weights
+    track, gaze_note = with_gaze(inputs.weights)
     strategy = fit_parallel(settings, shape_target(character, settings), track)
     res = strategy.solve(track.values, names=track.names)
-    notes = list(inputs.notes) + list(res.warnings)
+    notes = list(inputs.notes) + list(res.warnings) + gaze_note
     weights = hold_locks(res.shape_names, res.weights, settings, notes)
     elapsed = time.perf_counter() - t0
     return assemble(strategy, res, weights, frames=track.frames, settings=settings, notes=notes,

@@ -74,6 +74,10 @@ class RetargetResult:
             "timings_s": self.timings,
             "warnings": list(self.warnings),
         }
+        if "actor_model" in self.info:
+            out["actor"] = jsonable(self.info["actor_model"])
+        if "plausibility" in self.info:
+            out["plausibility"] = jsonable(self.info["plausibility"])
         if self.strategy != "geometric":
             out["source_channels"] = list(self.source_names)
             out["strategy_info"] = jsonable(self.info)

@@ -4,6 +4,7 @@ from dataclasses import dataclass
 
 from ..options import STRATEGIES, default
 from ..strategies.options import (
+    ActorSettings,
     CalibrationSettings,
     ExampleSettings,
     MappingSettings,
@@ -31,7 +32,8 @@ class RetargetSettings:
     bounds: tuple = ()  # ((shape pattern, lower, upper), ...) overriding the slider ranges
     locks: tuple = ()  # ((shape pattern, value or (F,) values per frame), ...) shapes held fixed (animator-owned)
     regions: tuple = ()  # (Region, ...) shapes solved from their own marker subsets (geometric only)
-    calibration: CalibrationSettings = CalibrationSettings()  # calibrated, refine
+    actor: ActorSettings = ActorSettings()  # semantic: what is known of the actor, unseen and opposing shapes
+    calibration: CalibrationSettings = CalibrationSettings()  # calibrated, refine, semantic
     mapping: MappingSettings = MappingSettings()  # calibrated, refine, parallel
     examples: ExampleSettings = ExampleSettings()  # linear, rbf, pca
     pca: PCASettings = PCASettings()

@@ -38,6 +38,8 @@ The strategies
 =============  ====================  ===============================================================
 name           class                 learns from (``fit`` keywords)
 =============  ====================  ===============================================================
+semantic       SemanticStrategy      what is known of the actor (``actor_model``): calibration poses, a
+                                     profile, a human template, else the character normalised
 geometric      GeometricStrategy     nothing (the character's shape keys at the bound points)
 calibrated     CalibratedStrategy    ``calibration`` MarkerSet + ``poses`` + ``neutral`` (or ``actor_basis``)
 parallel       ParallelStrategy      ``source_names`` (+ ``neutral`` segment of source values)
@@ -58,6 +60,7 @@ from ..errors import FacecapError
 
 #: strategy name -> (module, class), imported on first use (``get_strategy``)
 STRATEGY_CLASSES = {
+    "semantic": ("semantic", "SemanticStrategy"),
     "geometric": ("geometric", "GeometricStrategy"),
     "calibrated": ("calibrated", "CalibratedStrategy"),
     "parallel": ("parallel", "ParallelStrategy"),

@@ -37,6 +37,22 @@ class CalibrationSettings:
 
 
 @dataclass(frozen=True)
+class ActorSettings:
+    """``[actor]`` and the ``semantic`` solve's shape options.
+
+    template : "auto" (the installed human template, if any), "none", or a path
+    normalise : range-normalise the actor's motion per marker when nothing is known about the actor
+    unseen_shapes : "rest" (shapes that move no marker are held at 0) or "solve"
+    exclusive : opposing shapes are never both active
+    """
+
+    template: str = default("actor.template")
+    normalise: bool = default("actor.normalise")
+    unseen_shapes: str = default("solve.unseen_shapes")
+    exclusive: bool = default("solve.exclusive")
+
+
+@dataclass(frozen=True)
 class MappingSettings:
     """``[mapping]``: source channels (actor poses, capture channels) -> character shapes.
 
@@ -135,6 +151,8 @@ class StrategyInputs:
     examples : ExamplePairs (``linear``, ``rbf``, ``pca``)
     training : MarkerSet of a training take (``refine``; default: the take being solved)
     weights : WeightTrack of already-solved weights (``parallel``; the source itself)
+    profile : Basis, a stored performer profile (``semantic``, ``[actor] profile``)
+    template : HumanTemplate (``semantic``, ``[actor] template``)
     notes : what reading the inputs reported (carried into the result's warnings)
     """
 
@@ -143,4 +161,6 @@ class StrategyInputs:
     examples: object = None
     training: object = None
     weights: object = None
+    profile: object = None
+    template: object = None
     notes: tuple = field(default_factory=tuple)

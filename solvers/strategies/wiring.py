@@ -15,6 +15,7 @@ from . import make_strategy
 from .base import Target, as_target
 from .lowrank import fill_gaps, gap_subspace
 from .options import ExamplePairs
+from .semantic_wiring import fit_semantic
 from .sources import flat
 
 #: what each strategy needs besides the take, in the words of the take config
@@ -145,6 +146,8 @@ def fit_strategy(settings, character, inputs, take, *, prepare):
     """
     name = settings.strategy
     notes = []
+    if name == "semantic":
+        return fit_semantic(settings, character, inputs, take, priors=_priors(settings))
     if name == "geometric":
         s = make_strategy(name, **_priors(settings), align_regions=settings.align_regions,
                           align_flag_mm=settings.align_flag_mm)

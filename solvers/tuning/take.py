@@ -4,7 +4,8 @@ One headless layer for the Blender Retune operator and ``python -m facecap tune`
 same result. ``retune_take`` re-optimises what the take's strategy learned, from corrections given
 as ``{frame number: {character shape: value}}``:
 
-- ``calibrated`` / ``refine``: the actor library (``strategy.actor_basis``), by ``tuning.retune``
+- ``semantic``, ``calibrated`` / ``refine``: the actor library (``strategy.actor_basis``; semantic: its
+  actor model, whatever its tier, re-used as a performer profile), by ``tuning.retune``
   on the actor-space deltas exactly as the strategy solves them (reordered, aligned onto the
   calibration neutral) and the actor pose activations. Character corrections go back to pose space
   through the strategy's mapping where a shape has a single pose source (one-to-one by name by
@@ -39,7 +40,8 @@ from .retune import retune
 from .store import LibraryVersion, payload_digest  # noqa: F401 (LibraryVersion: part of this API)
 
 #: strategy -> what a version of it stores
-KINDS = {"calibrated": "actor_basis", "refine": "actor_basis", "geometric": "character_basis",
+KINDS = {"semantic": "actor_basis", "calibrated": "actor_basis", "refine": "actor_basis",
+         "geometric": "character_basis",
          "linear": "examples", "rbf": "examples", "pca": "examples"}
 def _now():
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -54,7 +56,7 @@ def _kind(strategy):
 
 def original_version(result, settings, inputs=None, *, character=None):
     """The version a solve used, before any retune (parent ""): the actor library of a fitted
-    calibrated/refine strategy, the character's shapes at the bound points (geometric; needs
+    semantic/calibrated/refine strategy, the character's shapes at the bound points (geometric; needs
     ``character``), or the examples (linear/rbf/pca)."""
     strategy = settings.strategy
     kind = _kind(strategy)
@@ -98,6 +100,8 @@ def apply_version(version, character, inputs, settings):
         inputs = replace(inputs, actor_basis=version.payload, calibration=None)
         if strategy == "refine":
             settings = replace(settings, refine=replace(settings.refine, max_iterations=0))
+        if strategy == "semantic":  # the version holds the measured poses too: they are not measured again
+            settings = replace(settings, calibration=replace(settings.calibration, poses=()))
         return character, inputs, settings
     if version.kind == "character_basis":
         return _merge_character(version, character), inputs, settings

@@ -13,7 +13,7 @@ Config (paths relative to the config file)::
     [tracking]
     points = "points2d.csv"     # name,x,y at the reference frame (source pixels) ...
     region = [x, y, w, h]       # ... or automatic features in this box
-    method = "lk"               # "lk" | "dis" | "farneback" | "tvl1"
+    method = "lk"               # "lk" | "dis" | "farneback" | "tvl1" | "landmarks" (no points or region)
     reference = 1               # neutral reference frame (default: first frame read)
     max_points = 100            # automatic features
     reregister = true           # lk: drift control by re-registration to the reference
@@ -21,9 +21,13 @@ Config (paths relative to the config file)::
     drift = "fuse"              # dense: "fuse" | "direct" | "none"
     win_size = 21               # lk window
     fb_threshold = 1.0          # lk forward-backward threshold (working pixels)
+    smoothing = true            # landmarks: temporal filtering of the detector's jitter
+    iris = true                 # landmarks: eyelids and irises from the iris model
+    models = "folder"           # landmarks: where the three model files are (default: found)
 
     [output]
-    markers = "tracks.csv"      # frame,<name>_x,<name>_y (pixels, origin top-left; frame 1 = first frame)
+    markers = "tracks.csv"      # frame,<name>_x,<name>_y (pixels, origin top-left; frame 1 = first frame);
+                                # landmarks also <name>_z (the model's relative depth, pixels)
     confidence = "conf.csv"     # optional: frame,<name> per-sample confidence in [0, 1]
     report = "track.json"       # optional: summary, losses, re-acquisitions, footage info
 
@@ -43,12 +47,15 @@ import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import ConfigError, FacecapError, InputFileError, Problems
 from ..io.csv import write_markers_csv, write_weights_csv
 from ..io.files import read_text_input, remove_stale_temporaries, write_json_atomic
 from ..io.outputs import Output, check_outputs
 from ..options import MAX_FPS, MAX_FRAME, Option, table_problems
 from .flow import track_with_flow_job
+from .landmarks import track_landmarks_job
 from .reading import Cancelled, Footage
 from .tracking import track_points_job
 from .flow_config import frame_number_error
@@ -76,8 +83,9 @@ TRACK_OPTIONS = tuple(Option(*row[:3], **row[3]) for row in (
                                     "pixels); or `region`"}),
     ("tracking", "region", "floats", {"length": 4, "low": 0.0, "high": 1e6, "doc": "[x, y, w, h] in source "
                                       "pixels: automatic features in this box; or `points`"}),
-    ("tracking", "method", "choice", {"default": "lk", "choices": ("lk", "dis", "farneback", "tvl1"),
-                                      "doc": "`lk` (Lucas-Kanade points), or dense flow: `dis`, `farneback`, `tvl1`"}),
+    ("tracking", "method", "choice", {"default": "lk", "choices": ("lk", "dis", "farneback", "tvl1", "landmarks"),
+                                      "doc": "`lk` (Lucas-Kanade points), dense flow: `dis`, `farneback`, `tvl1`, or "
+                                      "`landmarks` (the face's landmarks: no `points` or `region`)"}),
     ("tracking", "reference", "int", {"high": MAX_FRAME, "doc": "The neutral frame the points are given at "
                                       "(default: the first frame read)"}),
     ("tracking", "max_points", "int", {"default": 100, "low": 1, "high": 10_000, "doc": "`region`: the most "
@@ -95,8 +103,12 @@ TRACK_OPTIONS = tuple(Option(*row[:3], **row[3]) for row in (
                                      "`fuse` (chained and direct), `direct` (to the reference) or `none`"}),
     ("tracking", "preset", "choice", {"default": "balanced", "choices": ("ultrafast", "fast", "balanced", "medium"),
                                       "doc": "`dis`: speed against quality"}),
+    ("tracking", "smoothing", "bool", {"default": True, "doc": "`landmarks`: filter the detector's jitter (zero "
+                                       "lag, fast lip motion kept)"}),
+    ("tracking", "iris", "bool", {"default": True, "doc": "`landmarks`: eyelids and irises from the iris model"}),
+    ("tracking", "models", "path", {"doc": "`landmarks`: folder of the three model files (default: found)"}),
     ("output", "markers", "path", {"required": True, "doc": "The 2D tracks: `frame,<name>_x,<name>_y` in pixels "
-                                   "(origin top left)"}),
+                                   "(origin top left; `landmarks` adds `<name>_z`, the model's depth)"}),
     ("output", "confidence", "path", {"doc": "Per-sample confidence in [0, 1]: `frame,<name>,...`"}),
     ("output", "report", "path", {"doc": "JSON: summary, losses, re-acquisitions, footage"}),
 ))
@@ -104,6 +116,7 @@ TRACK_OPTIONS = tuple(Option(*row[:3], **row[3]) for row in (
 REPORT_SCHEMA = 1
 #: Options of one tracking method only
 LK_ONLY, DENSE_ONLY = ("reregister", "reseed", "win_size", "fb_threshold", "levels"), ("drift", "preset")
+LANDMARK_ONLY = ("smoothing", "iris", "models")
 
 
 def read_track_toml(path):
@@ -131,7 +144,15 @@ def load_track_config(path, *, overwrite=False):
     src, trk, out = ({k: v for k, v in (data.get(s) or {}).items() if not problems.covered(f"{s}.{k}")}
                      if isinstance(data.get(s), dict) else {} for s in ("source", "tracking", "output"))
     given = data.get("tracking") if isinstance(data.get("tracking"), dict) else {}
-    if ("points" in given) == ("region" in given) and not problems.covered("tracking"):
+    method = trk.get("method", "lk")
+    if method == "landmarks":
+        if "points" in given or "region" in given:
+            problems.add(ConfigError("method \"landmarks\" finds the face itself: no `points` or `region`",
+                                     path=path, key="tracking"))
+        if "reference" in given:
+            problems.add(ConfigError("method \"landmarks\" has no reference frame", path=path,
+                                     key="tracking.reference"))
+    elif ("points" in given) == ("region" in given) and not problems.covered("tracking"):
         problems.add(ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
                                  path=path, key="tracking"))
     region = trk.get("region")
@@ -143,9 +164,9 @@ def load_track_config(path, *, overwrite=False):
         table = src if section == "source" else trk
         if key in table and (problem := frame_number_error(f"{section}.{key}", table[key])):
             problems.add(ConfigError(problem, path=path, key=f"{section}.{key}"))
-    method = trk.get("method", "lk")
     options = {k: trk[k] for k in trk if k not in ("points", "region", "method", "reference")}
-    wrong = sorted(set(options) & set(DENSE_ONLY if method == "lk" else LK_ONLY))
+    others = {"lk": DENSE_ONLY + LANDMARK_ONLY, "landmarks": LK_ONLY + DENSE_ONLY + ("max_points",)}
+    wrong = sorted(set(options) & set(others.get(method, LK_ONLY + LANDMARK_ONLY)))
     if wrong:
         problems.add(ConfigError(f"{wrong} do not apply to method {method!r}", path=path, key="tracking"))
     problems.raise_any()
@@ -153,6 +174,9 @@ def load_track_config(path, *, overwrite=False):
 
     def resolve(value):
         return base / os.path.expanduser(value)
+
+    if "models" in options:
+        options["models"] = str(resolve(options["models"]))
 
     settings = {
         "config": path,
@@ -167,7 +191,8 @@ def load_track_config(path, *, overwrite=False):
     }
     check_outputs([Output(f"[output.{key}]", settings[key], kind) for key, kind in TRACK_OUTPUTS],
                   {"the config itself": path, "[source.video]": settings["video"],
-                   "[tracking.points]": settings["points"]}, overwrite=overwrite, config=path)
+                   "[tracking.points]": settings["points"], "[tracking.models]": options.get("models")},
+                  overwrite=overwrite, config=path)
     return settings
 
 
@@ -213,9 +238,11 @@ class FrameProgress:
 def tracking_job(settings):
     """The :class:`~.reading.Job` described by ``load_track_config`` output (seeds read and checked)."""
 
-    footage = Footage(settings["video"], **settings["footage"])
+    footage = Footage(settings["video"], **settings["footage"], color=settings["method"] == "landmarks")
     common = dict(points=settings["points"], region=settings["region"], reference=settings["reference"])
     try:
+        if settings["method"] == "landmarks":
+            return track_landmarks_job(footage, **settings["options"])
         if settings["method"] == "lk":
             return track_points_job(footage, **common, **settings["options"])
         return track_with_flow_job(footage, method=settings["method"], **common, **settings["options"])
@@ -226,16 +253,25 @@ def tracking_job(settings):
 def write_outputs(settings, result, info):
     """Write the markers CSV (and the confidence CSV and JSON report when asked), each atomically."""
     write_markers_csv(settings["markers"], result.markers)
+    confidence = result.confidence
+    if confidence.ndim == 1:  # landmarks: one confidence per frame, the face's
+        confidence = np.repeat(confidence[:, None], result.markers.n_markers, axis=1)
     if settings["confidence"]:
-        write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, result.confidence)
-    if settings["report"]:
+        write_weights_csv(settings["confidence"], result.markers.frames, result.markers.names, confidence)
+    footage = {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
+               "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames}
+    if settings["report"] and settings["method"] == "landmarks":
+        write_json_atomic(settings["report"], {"facecap_track": REPORT_SCHEMA, "summary": result.summary(),
+                                               **result.report(),
+                                               "frame_numbering": "frame 1 is the first frame of the footage",
+                                               "footage": footage, "markers": list(result.markers.names)})
+    elif settings["report"]:
         write_json_atomic(settings["report"], {
             "facecap_track": REPORT_SCHEMA, "summary": result.summary(), "method": result.method,
             "reference": result.reference,
             "frame_numbering": "frame 1 is the first frame of the footage",
-            "footage": {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
-                        "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames},
-            "markers": list(result.markers.names), "lost": result.lost, "reseeded": result.reseeded,
+            "footage": footage, "markers": list(result.markers.names), "lost": result.lost,
+            "reseeded": result.reseeded,
         })
 
 
@@ -272,6 +308,23 @@ def sigint_cancels():
     finally:
         if restore is not None:
             signal.signal(signal.SIGINT, restore)
+
+
+def run_showing_progress(job, label, *, quiet=False):
+    """Run a :class:`~.reading.Job` with its progress shown (:class:`FrameProgress`, unless ``quiet``);
+    Ctrl-C stops it between two frames with :class:`~.reading.Cancelled` (nothing written)."""
+    shown = None if quiet else FrameProgress(label)
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            return job.run(progress)
+        finally:
+            if shown is not None:
+                shown.close()
 
 
 DESCRIPTION = ("Track 2D markers in video footage (Lucas-Kanade points, or dense optical flow over the face) and "

@@ -11,7 +11,7 @@
     fps = 30.0
 
     [tracking]
-    method = "dis"                  # dense flow: "dis" (default) | "farneback" | "tvl1"
+    method = "dis"                  # dense flow: "dis" (default) | "farneback" | "tvl1"; or "landmarks"
     region = [x, y, w, h]           # the face, source pixels (default: the whole frame)
     reference = 1                   # the neutral frame (default: the first frame read)
     stable_region = [x, y, w, h]    # or [[x, y, w, h], ...]: moves with the head only (optional)
@@ -33,6 +33,10 @@ Frame numbers (``first``, ``last``, ``reference``, the ``[examples]`` weights) f
 one convention: frame 1 is the first frame of the footage, as in Blender and in marker files. Frame 0
 and the removed ``frame_offset`` key are errors that say so (see :data:`FRAME_CONVENTION`), never a
 silent one-frame shift.
+
+With ``method = "landmarks"`` (keys ``smoothing``, ``iris``, ``models``) the footage's face landmarks
+are the take: it is solved like markers (``[stabilise]``, ``[neutral]``, ``[binding]`` apply, with
+the defaults of :func:`landmark_defaults`), so ``[flow]`` and ``[examples]`` do not.
 
 ``split_video_sections`` takes these keys out of the parsed TOML before the marker-take schema
 check; ``video_take`` validates them (errors name ``[section.key]``); ``check_against_footage``
@@ -64,6 +68,7 @@ def frame_number_error(key, value):
         return f"frame {value} does not exist: {FRAME_CONVENTION}"
     return None
 TRACKING_KEYS = ("method", "region", "reference", "stable_region", "grid_step", "drift", "preset")
+LANDMARK_KEYS = ("method", "smoothing", "iris", "models")
 FLOW_KEYS = ("components", "variance")
 METHODS = ("dis", "farneback", "tvl1")
 NOT_FOR_VIDEO = ("clean", "stabilise", "neutral", "align", "calibration", "mapping", "refine", "binding")
@@ -76,6 +81,35 @@ class VideoTake:
     path: str
     footage: dict
     flow: FlowSolveSettings
+
+
+@dataclass(frozen=True)
+class LandmarkTake:
+    """``[source] video`` with ``[tracking] method = "landmarks"``: read (``footage``) and tracked by the
+    face-landmark detector, then solved like a marker take in metres (``landmarks.metric_take``)."""
+
+    path: str
+    footage: dict
+    smoothing: bool = True
+    iris: bool = True
+    models: str = None
+
+
+def is_landmark_take(raw):
+    """True when ``split_video_sections`` output asks for face landmarks."""
+    return raw is not None and isinstance(raw.get("tracking"), dict) and raw["tracking"].get("method") == "landmarks"
+
+
+def landmark_defaults(data, rigid):
+    """Fill in what a landmark take does not need to be told (in the parsed TOML ``data``, for the
+    marker-take parser): stabilise on the detector's head-rigid points ``rigid``, the neutral detected
+    from the take, the binding by position found automatically. A key the config gives is kept."""
+    stabilise = data.setdefault("stabilise", {})
+    stabilise.setdefault("markers", list(rigid))
+    neutral = data.setdefault("neutral", {})
+    if not any(k in neutral for k in ("frames", "file", "detect")):
+        neutral["detect"] = True
+    data.setdefault("binding", {}).setdefault("mode", "nearest")
 
 
 def split_video_sections(data):
@@ -110,7 +144,11 @@ def video_take(path, raw, data, strategy):
         raise ConfigError(message, path=path, key=key)
 
     src, trk, flw = raw["source"], raw["tracking"], raw["flow"]
-    for section, table, keys in (("tracking", trk, TRACKING_KEYS), ("flow", flw, FLOW_KEYS)):
+    landmarks = is_landmark_take(raw)
+    if landmarks and flw is not None:
+        raise ConfigError("[flow] does not apply to a landmark take (method = \"landmarks\")", path=path)
+    for section, table, keys in (("tracking", trk, LANDMARK_KEYS if landmarks else TRACKING_KEYS),
+                                 ("flow", flw, FLOW_KEYS)):
         if table is None:
             continue
         if not isinstance(table, dict):
@@ -128,6 +166,19 @@ def video_take(path, raw, data, strategy):
     for other in ("markers", "weights"):
         if other in data.get("source", {}):
             fail(f"source.{other}", "give [source] video or markers / weights, not both")
+    footage = _footage_options(src, fail)
+    base = Path(path).parent
+    video_path = Path(video)
+    video_path = str(video_path if video_path.is_absolute() else (base / video_path).resolve())
+    if landmarks:
+        if strategy not in ("geometric", "semantic"):
+            fail("solve.strategy", f"a landmark take solves with geometric (the default: the character's shapes at "
+                                   f"the bound landmarks) or semantic; got '{strategy}'")
+        models = trk.get("models")
+        if models is not None:
+            models = str(Path(models) if Path(models).is_absolute() else (base / models).resolve())
+        return LandmarkTake(video_path, footage, bool(trk.get("smoothing", True)), bool(trk.get("iris", True)),
+                            models)
     for section in NOT_FOR_VIDEO:
         if section in data:
             raise ConfigError(f"[{section}] does not apply to a [source] video take (flow features: [tracking], "
@@ -137,22 +188,6 @@ def video_take(path, raw, data, strategy):
     if strategy not in EXAMPLE_STRATEGIES:
         fail("solve.strategy", f"a [source] video take solves with {', '.join(EXAMPLE_STRATEGIES)} from flow features; "
                                f"got '{strategy}'")
-    footage = {}
-    for key in ("first", "last", "frame_offset"):
-        if key in src and (problem := frame_number_error(f"source.{key}", src[key])):
-            fail(f"source.{key}", problem)
-        if key in src:
-            footage[key] = src[key]
-    if "step" in src:
-        if not _int(src["step"]) or src["step"] < 1:
-            fail("source.step", f"expected a positive integer; got {src['step']!r}")
-        footage["step"] = src["step"]
-    if "scale" in src:
-        if not _number(src["scale"]) or not 0 < src["scale"] <= 1:
-            fail("source.scale", f"must be in (0, 1]; got {src['scale']!r}")
-        footage["scale"] = float(src["scale"])
-    if src.get("fps") is not None:
-        footage["fps"] = float(src["fps"])
     method = trk.get("method", "dis")
     if method not in METHODS:
         fail("tracking.method", f"a video take follows dense flow: one of {', '.join(METHODS)}; got {method!r}")
@@ -181,18 +216,39 @@ def video_take(path, raw, data, strategy):
     variance = flw.get("variance")
     if variance is not None and (not _number(variance) or not 0 < variance <= 1):
         fail("flow.variance", f"must be in (0, 1]; got {variance!r}")
-    base = Path(path).parent
-    video_path = Path(video)
     flow = FlowSolveSettings(method=method, reference=trk.get("reference"),
                              region=None if region is None else tuple(float(v) for v in region),
                              stable_region=tuple(tuple(float(v) for v in b) for b in boxes),
                              grid_step=trk.get("grid_step"), drift=drift, preset=preset, n_components=components,
                              variance=None if variance is None else float(variance))
-    return VideoTake(str(video_path if video_path.is_absolute() else (base / video_path).resolve()), footage, flow)
+    return VideoTake(video_path, footage, flow)
+
+
+def _footage_options(src, fail):
+    """Footage keyword options from ``[source]`` (frame range, step, scale, rate), checked."""
+    footage = {}
+    for key in ("first", "last", "frame_offset"):
+        if key in src and (problem := frame_number_error(f"source.{key}", src[key])):
+            fail(f"source.{key}", problem)
+        if key in src:
+            footage[key] = src[key]
+    if "step" in src:
+        if not _int(src["step"]) or src["step"] < 1:
+            fail("source.step", f"expected a positive integer; got {src['step']!r}")
+        footage["step"] = src["step"]
+    if "scale" in src:
+        if not _number(src["scale"]) or not 0 < src["scale"] <= 1:
+            fail("source.scale", f"must be in (0, 1]; got {src['scale']!r}")
+        footage["scale"] = float(src["scale"])
+    if src.get("fps") is not None:
+        footage["fps"] = float(src["fps"])
+    return footage
 
 
 def check_against_footage(path, take, info):
     """Region, stable boxes and reference frame against the footage (``FootageInfo``); ConfigError naming the key."""
+    if isinstance(take, LandmarkTake):
+        return
     size = (info.width, info.height)
     flow = take.flow
     for key, boxes in (("tracking.region", [] if flow.region is None else [flow.region]),

@@ -1,6 +1,7 @@
 """Reading footage through OpenCV: video files (mp4, mov, avi, mkv) and image sequences.
 
-Frames come out as 8-bit grayscale arrays (tracking and flow work on luminance). Frame numbers
+Frames come out as 8-bit grayscale arrays (tracking and flow work on luminance), or BGR with
+``color=True`` (face landmarks). Frame numbers
 follow the project's one convention: **frame 1 is the first frame of the footage**, as in Blender
 and in marker files (video: position in the file + 1; image sequence: number in the file name minus
 the first file's number + 1, so a missing file stays a missing frame), plus ``frame_offset``.
@@ -169,10 +170,13 @@ class Footage:
     frame_offset : int
         Added to every frame number (default 0: the first frame is frame 1). The add-on passes
         ``clip.frame_start - 1`` so frame numbers are scene frames.
+    color : bool
+        Hand out (H, W, 3) BGR frames instead of grey ones (face landmarks need colour).
     """
 
-    def __init__(self, source, *, first=None, last=None, step=1, scale=1.0, fps=None, frame_offset=0):
+    def __init__(self, source, *, first=None, last=None, step=1, scale=1.0, fps=None, frame_offset=0, color=False):
         self.cv2 = opencv()
+        self.color = bool(color)
         self.path = Path(source)
         if int(step) != step or step < 1:
             raise FacecapError(f"`step` must be a positive integer; got {step}")
@@ -276,7 +280,12 @@ class Footage:
     # -- frames --------------------------------------------------------------------------------
     def _prepare(self, img, where):
         cv2 = self.cv2
-        if img.ndim == 3:
+        if self.color:
+            if img.ndim == 2:
+                img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+            elif img.shape[2] == 4:
+                img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+        elif img.ndim == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
         if img.dtype != np.uint8:
             if img.dtype.kind == "f":
@@ -284,7 +293,7 @@ class Footage:
             else:
                 img = img / (np.iinfo(img.dtype).max / 255.0)
             img = img.astype(np.uint8)
-        if img.shape != (self._height, self._width):
+        if img.shape[:2] != (self._height, self._width):
             raise InputFileError(where, f"frame size {img.shape[1]}x{img.shape[0]} differs from "
                                         f"{self._width}x{self._height}")
         if self.scale != 1.0:

@@ -19,7 +19,7 @@ from facecap.solvers.tools.synth import performance_weights, synthesize_take
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-STRATEGIES = ("geometric", "calibrated", "parallel", "linear", "rbf", "pca", "refine")
+STRATEGIES = ("semantic", "geometric", "calibrated", "parallel", "linear", "rbf", "pca", "refine")
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +89,28 @@ def test_calibrated_solve_from_the_sidebar(scene, data):
     print(f"calibrated from the sidebar: RMSE {rmse:.4f}")
     assert rmse <= 0.04
     assert "(calibrated)" in s.last_report
+
+
+def test_semantic_from_the_sidebar_says_what_it_knew_of_the_actor(scene, data):
+    """The default strategy: with nothing known it solves and says so in the panel; with the calibration
+    session's poses it solves the actor's own shapes (tier "calibration")."""
+    s = scene.s
+    assert s.strategy == "semantic" and s.actor_tier == ""
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    assert s.actor_tier.startswith("character: ") and "(semantic)" in s.last_report
+    nothing = _solved(scene.obj, data.character.shape_names)
+    s.calib_collection = import_scene.create_take(scene.scene, data.calib, "calib", set_scene_range=False)
+    s.calib_neutral_first, s.calib_neutral_last = data.neutral
+    _add_poses(scene.scene, data.poses)
+    assert bpy.ops.facecap.solve() == {"FINISHED"}
+    assert s.actor_tier.startswith("calibration: solved against the actor's own calibration poses")
+    solved = _solved(scene.obj, data.character.shape_names)
+    rmse = float(np.sqrt(np.mean(np.nan_to_num(solved - data.truth, nan=1.0) ** 2)))
+    before = float(np.sqrt(np.mean(np.nan_to_num(nothing - data.truth, nan=1.0) ** 2)))
+    print(f"semantic from the sidebar: RMSE {before:.4f} nothing known, {rmse:.4f} calibrated")
+    assert rmse <= 0.04 and rmse < before
+    labels = [text for kind, text in draw_panel("FACECAP_PT_solve").calls if kind == "label"]
+    assert any(t and t.startswith("calibration: solved against") for t in labels)
 
 
 def test_calibration_from_file_with_mapping_table(scene, data):
@@ -196,6 +218,8 @@ def test_solve_panel_draws_only_what_applies(scene):
     assert {"examples_action", "rbf_kernel", "rbf_far"} <= drawn["rbf"]
     assert {"examples_action", "pca_mode", "pca_ica"} <= drawn["pca"]
     assert {"refine_max_iterations", "calib_poses", "mapping"} <= drawn["refine"]
+    assert {"actor_profile", "actor_template", "unseen_shapes", "exclusive", "calib_poses", "regularisation"} \
+        <= drawn["semantic"] and "mapping" not in drawn["semantic"]
     assert "calib_path" in _draw("calibrated", calib_source="FILE")
     assert "parallel_gamma" in _draw("parallel", parallel_curve="gamma")
     assert "smoothing_second" in _draw("pca", pca_mode="posed") and "smoothing_second" not in _draw("pca", pca_mode="related")

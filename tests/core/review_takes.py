@@ -33,7 +33,7 @@ def sample_solve(frames=720, seed=5):
     basis = sample_basis()
     truth = performance_weights(basis.shape_names, frames, seed=seed)
     take = synthesize_take(basis, truth, stable=list(stable_markers()), seed=seed + 1)
-    settings = RetargetSettings(stable_markers(), (1, 50))
+    settings = RetargetSettings(stable_markers(), (1, 50), strategy="geometric")
     return retarget(take.markers, basis, settings), truth, settings, basis, take
 
 

@@ -45,7 +45,7 @@ def test_solve_options_are_read(tmp_path):
 @pytest.mark.parametrize(
     "extra, message",
     [
-        ("[solve]\nstrategy = \"magic\"\n", r"\[solve.strategy\] expected one of geometric, calibrated, .*; got 'magic'"),
+        ("[solve]\nstrategy = \"magic\"\n", r"\[solve.strategy\] expected one of semantic, geometric, calibrated, .*; got 'magic'"),
         ("[solve]\nregularisation = -1\n", r"\[solve.regularisation\] expected a number >= 0 and <= 100; got -1"),
         ("[solve]\nsmoothing = [1]\n", r"\[solve.smoothing\] expected a list of 2 numbers"),
         ("[solve]\nregularistion = 1\n", r"\[solve.regularistion\] unknown key"),

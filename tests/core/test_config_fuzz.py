@@ -19,6 +19,7 @@ from facecap.solvers.config import load_take_config
 from facecap.solvers.config.checks import check_against_take
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.options import OPTIONS
+from facecap.solvers.pipeline import SAMPLES_CHARACTER
 from facecap.solvers.solve import SolveRequest, solve
 from facecap.solvers.strategies.base import Target
 
@@ -111,7 +112,7 @@ def run_variant(folder, text, basis):
         preflight(config)
         take = read_take(config, lambda m: None)
         check_against_take(config, take.markers, take.inputs)
-        character = basis if config.settings.strategy == "geometric" else Target(
+        character = basis if config.settings.strategy in SAMPLES_CHARACTER else Target(
             basis.shape_names, basis.lower, basis.upper)
         solve(SolveRequest(character=character, settings=config.settings, inputs=take.inputs, markers=take.markers,
                            controls=config.controls or None))

@@ -34,7 +34,7 @@ def test_five_mistakes_in_a_take_config_are_five_lines(tmp_path):
     assert len(lines) == 5, lines
     text = "\n".join(lines)
     assert "unknown section [stabilize] (did you mean 'stabilise'?)" in text
-    assert "[solve.strategy] expected one of geometric" in text and "(did you mean 'geometric'?)" in text
+    assert "[solve.strategy] expected one of " in text and "got 'geometrc' (did you mean 'geometric'?)" in text
     assert "[solve.regularisaton] unknown key (did you mean 'regularisation'?)" in text
     assert "[source.fps] expected a number > 0 and <= 10000; got -60" in text
     assert "[target.object] missing required key" in text
@@ -61,7 +61,7 @@ def test_five_mistakes_in_a_track_config_are_five_lines(tmp_path):
     text = "\n".join(lines)
     assert len(lines) == 5, lines
     assert "unknown section [outptu] (did you mean 'output'?)" in text
-    assert "[tracking.method] expected one of lk, dis, farneback, tvl1; got 'farnback' (did you mean " \
+    assert "[tracking.method] expected one of lk, dis, farneback, tvl1, landmarks; got 'farnback' (did you mean " \
            "'farneback'?)" in text
     assert "[tracking.win_sise] unknown key (did you mean 'win_size'?)" in text
     assert "[tracking.levels] expected an integer >= 0 and <= 10; got -5" in text

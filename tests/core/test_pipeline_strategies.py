@@ -51,6 +51,7 @@ def test_calibrated_gets_actor_space_deltas_and_matches_the_strategy(sc, setting
 
 
 def test_geometric_is_unchanged_and_needs_a_basis(sc, settings):
+    settings = replace(settings, strategy="geometric")
     g = retarget(sc.test.markers, sc.character, settings)
     assert g.strategy == "geometric" and g.alignment is not None
     with pytest.raises(FacecapError, match="geometric' needs the character's shapes at the bound points"):

@@ -130,7 +130,7 @@ def test_refine_never_increases_the_fit_error_and_keeps_the_original(pair):
 
 
 def test_every_strategy_is_registered():
-    assert set(STRATEGY_NAMES) == {"geometric", "calibrated", "parallel", "linear", "rbf", "pca", "refine"}
+    assert set(STRATEGY_NAMES) == {"semantic", "geometric", "calibrated", "parallel", "linear", "rbf", "pca", "refine"}
     for name in STRATEGY_NAMES:
         assert make_strategy(name).name == name
     with pytest.raises(FacecapError, match="unknown strategy 'magic'"):

@@ -3,6 +3,7 @@ shared data is found beside the checkout, ``tests/shared_data.py``), and the use
 as a development log."""
 
 import re
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -19,11 +20,22 @@ LOG_WORDS = re.compile(r"\bissue \d+|\bthis branch\b|\bbefore this change\b|\baf
 USER_DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "sample_blends" / "README.md"]
 
 
+def _ignored():
+    """Files git ignores (a demo's or a test's outputs, which name where they were written): not the tree's."""
+    try:
+        out = subprocess.run(["git", "ls-files", "--others", "--ignored", "--exclude-standard"], cwd=ROOT,
+                             capture_output=True, text=True, timeout=60)
+    except OSError:
+        return set()
+    return {ROOT / line for line in out.stdout.splitlines()} if out.returncode == 0 else set()
+
+
 def tree_files():
-    """Every text file of the checkout (what a clone holds, plus untracked work in progress)."""
+    """Every text file of the checkout (what a clone holds, plus untracked work in progress; not what git ignores)."""
+    ignored = _ignored()
     for path in sorted(ROOT.rglob("*")):
         rel = path.relative_to(ROOT)
-        if any(part in SKIP_DIRS for part in rel.parts) or not path.is_file():
+        if any(part in SKIP_DIRS for part in rel.parts) or not path.is_file() or path in ignored:
             continue
         if path.suffix.lower() in TEXT_SUFFIXES and path.stat().st_size < 5_000_000:
             yield path

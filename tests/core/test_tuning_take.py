@@ -150,7 +150,7 @@ def test_version_round_trip_through_arrays_and_npz(weak, tmp_path):
 
 def test_apply_version_checks_the_take(weak, character):
     markers, settings, inputs, W, base, idx, r, _ = weak
-    with pytest.raises(FacecapError, match=r"cannot be used by strategy 'geometric'; it fits calibrated, refine"):
+    with pytest.raises(FacecapError, match=r"cannot be used by strategy 'geometric'; it fits semantic, calibrated, refine"):
         apply_version(r.version, character, inputs, replace(settings, strategy="geometric"))
     with pytest.raises(FacecapError, match="made for other character shapes"):
         apply_version(r.version, character.shape_names[:-1], inputs, settings)
@@ -171,7 +171,7 @@ def test_geometric_retunes_the_character_shapes(character):
     weak_char = Basis(character.shape_names, character.marker_names, character.neutral, d)
     W = performance_weights(character.shape_names, 360, seed=0)
     take = synthesize_take(character, W, stable=STABLE, seed=2)
-    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), fine_iterations=1)
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), fine_iterations=1, strategy="geometric")
     base = retarget(take.markers, weak_char, settings)
     idx = _worst_frames(W, base.weights)
     other = np.setdiff1d(np.arange(len(W)), idx)
@@ -267,10 +267,31 @@ def test_geometric_with_locks_keeps_them(character):
     per_frame = np.full(240, np.nan)
     per_frame[100:140] = 0.2
     settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 60), fine_iterations=0,
-                                locks=(("tongueOut", 0.0), ("cheekPuff", per_frame)))
+                                locks=(("tongueOut", 0.0), ("cheekPuff", per_frame)), strategy="geometric")
     base = retarget(take.markers, character, settings)
     idx = _worst_frames(W, base.weights, n=4)
     r = retune_take(take.markers, character, settings, None, _corrections(base, W + 0.05, idx, names=("jawOpen",)),
                     base=base)
     assert_array_equal(r.result.weights[:, character.shape_names.index("tongueOut")], 0.0)
     assert_allclose(r.result.weights[100:140, character.shape_names.index("cheekPuff")], 0.2, atol=1e-12)
+
+
+def test_semantic_retunes_its_actor_model_through_the_pipeline(character):
+    """The default strategy learns from an animator's corrections too: a weak calibration (4 poses held at 40%)
+    is retuned from 8 corrected frames, the version re-applies as a performer profile, the held-out frames
+    improve."""
+    markers, settings, inputs, W = _calibrated_take(character, 0.4)
+    settings = replace(settings, strategy="semantic")
+    base = retarget(markers, character, settings, inputs=inputs)
+    assert base.report()["actor"]["tier"] == "calibration"
+    idx = _worst_frames(W, base.weights)
+    r = retune_take(markers, character, settings, inputs, _corrections(base, W, idx), base=base)
+    other = np.setdiff1d(np.arange(len(W)), idx)
+    c0, c1 = _rmse(base.weights[idx] - W[idx]), _rmse(r.result.weights[idx] - W[idx])
+    h0, h1 = _rmse(base.weights[other] - W[other]), _rmse(r.result.weights[other] - W[other])
+    print(f"\nsemantic (4 poses at 40%): corrected {c0:.4f} -> {c1:.4f}, held-out {h0:.4f} -> {h1:.4f}")
+    assert r.changed and r.version.kind == "actor_basis" and r.version.strategy == "semantic"
+    assert c1 <= 0.6 * c0 and h1 <= 0.9 * h0
+    assert r.result.report()["actor"]["tier"] == "profile"  # the retuned library, used as the performer's
+    c, i, s = apply_version(r.version, character, inputs, settings)
+    assert s.calibration.poses == () and i.actor_basis is r.version.payload and i.calibration is None

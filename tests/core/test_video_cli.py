@@ -81,7 +81,7 @@ def test_track_region_from_a_subprocess(take):
 
 @pytest.mark.parametrize("tracking,extra,message", [
     ('points = "points2d.csv"\nmethod = "sift"', "",
-     r"\[tracking.method\] expected one of lk, dis, farneback, tvl1; got 'sift'"),
+     r"\[tracking.method\] expected one of lk, dis, farneback, tvl1, landmarks; got 'sift'"),
     ('points = "points2d.csv"\nregion = [0, 0, 10, 10]', "", "exactly one of"),
     ('region = [0, 0, 10]', "", r"\[tracking.region\] expected a list of 4 numbers"),
     ('points = "missing.csv"', "", "missing.csv: file not found"),

@@ -107,7 +107,7 @@ def test_bad_input_fails_before_the_first_frame(clip, flow, examples, message):
     ex = posed(clip) if examples is None else examples
     with pytest.raises(FacecapError, match=message):
         retarget_flow_job(clip.path, SHAPES, ex, flow=FlowSolveSettings(**flow))
-    with pytest.raises(FacecapError, match="flow features drive linear, rbf, pca; got strategy 'geometric'"):
+    with pytest.raises(FacecapError, match="flow features drive linear, rbf, pca; got strategy 'semantic'"):
         retarget_flow_job(clip.path, SHAPES, posed(clip), settings=RetargetSettings((), (1, 1)))
 
 

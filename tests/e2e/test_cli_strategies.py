@@ -191,3 +191,41 @@ def test_compare_subcommand_prints_the_table():
                            "--strategy", "calibrated", "--strategy", "parallel"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert "| calibrated |" in proc.stdout and "| parallel |" in proc.stdout
+
+
+def test_semantic_calibration_writes_a_profile_that_later_takes_reuse(tmp_path, pair):
+    """The default strategy with a calibration session: the actor's own shapes; ``[output] profile`` stores them and
+    a later take of the same performer reads them with ``[actor] profile`` (no calibration session)."""
+    first = tmp_path / "first"
+    first.mkdir()
+    config = write_config(first, pair, "semantic", calibration_body(pair))
+    config.write_text(config.read_text().replace("[output]\n", '[output]\nprofile = "../performers/actor.npz"\n'))
+    proc = run(config)
+    assert proc.returncode == 0, proc.stderr
+    assert "actor: solved against the actor's own calibration poses" in proc.stderr
+    calibrated = rmse(first, pair)
+    assert calibrated <= 0.04, calibrated
+    report = json.loads((first / "out" / "report.json").read_text())
+    assert report["actor"]["tier"] == "calibration" and report["outputs"]["profile"].endswith("actor.npz")
+    later = tmp_path / "later"
+    later.mkdir()
+    config = write_config(later, pair, "semantic", f'[actor]\nprofile = "{tmp_path / "performers" / "actor.npz"}"\n')
+    proc = run(config)
+    assert proc.returncode == 0, proc.stderr
+    assert "actor: solved against the stored profile of this performer" in proc.stderr
+    assert json.loads((later / "out" / "report.json").read_text())["actor"]["tier"] == "profile"
+    assert abs(rmse(later, pair) - calibrated) < 0.005  # the same shapes, read back
+
+
+def test_semantic_without_calibration_says_what_it_knows_and_refuses_to_write_a_profile(tmp_path, pair):
+    config = write_config(tmp_path, pair, "semantic", "")
+    proc = run(config)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["actor"]["tier"] == "character" and "actor: nothing is known about the actor's face" in proc.stderr
+    assert rmse(tmp_path, pair) <= 0.07  # measured 0.05: this actor is close to the character (geometric 0.06)
+    config.write_text(config.read_text().replace("[output]\n", '[output]\nprofile = "actor.npz"\n'))
+    proc = run(config)
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1
+    assert "output.profile" in proc.stderr and "calibration] poses" in proc.stderr
+    assert not (tmp_path / "actor.npz").exists()

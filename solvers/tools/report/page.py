@@ -21,6 +21,7 @@ from .blob import Blob
 from .figures import binding_figure, build_figures
 from .review import source_view
 from .sections import (
+    actor_html,
     binding_html,
     contact_html,
     esc,
@@ -151,6 +152,7 @@ def build_page(review, *, path="review.html", plotly_js="embed"):
 <section id="summary"><h2>Summary</h2>
 <div class="cols"><div>{table(summary_rows(review))}</div>
 <div><h3>Strategy and settings</h3>{table(settings_rows(review.settings))}</div></div>
+<h3>The actor</h3>{actor_html(review)}
 <h3>Warnings</h3>{warnings_html(review)}
 <h3>Timings</h3>{table(timing_rows(review), cls="kv timings")}
 </section>

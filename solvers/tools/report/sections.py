@@ -156,6 +156,28 @@ def timing_rows(review):
             if isinstance(v, (int, float))]
 
 
+def actor_html(review):
+    """What the solve knew of the actor's face (the semantic strategy's tier) and whether the result is plausible
+    animation: the first thing an animator should read."""
+    info = review.result.info
+    parts = []
+    actor = info.get("actor_model")
+    if actor:
+        trusted = actor["tier"] != "character" or actor.get("character_mismatch", 1.0) == 0.0
+        parts.append(f'<p class="{"ok" if trusted else "warn"}"><b>{esc(actor["tier"])}</b>: '
+                     f'{esc(actor["statement"])}.</p>')
+        if actor.get("unseen"):
+            parts.append(f'<p class="note">Held at rest (no marker sees them): {esc(", ".join(actor["unseen"]))}.</p>')
+    check = info.get("plausibility")
+    if check is not None:
+        if check.get("plausible"):
+            parts.append('<p class="ok">Plausible: residual within the markers\' noise, no shape pinned at its '
+                         'limit, no opposing shapes together.</p>')
+        else:
+            parts.append('<p class="warn">Not plausible animation: see the first warning below.</p>')
+    return "".join(parts) or '<p class="note">This strategy does not solve against a model of the actor.</p>'
+
+
 def worst_html(figure):
     """The residual plot's worst frames as links under it (numbered on the page, not on the plot)."""
     worst = (figure or {}).get("worst") or []

@@ -1,0 +1,176 @@
+"""The optional human template: a face model whose identity modes are fitted to the actor's neutral
+markers, giving the actor's own expression shapes at the markers without a calibration session.
+
+The template is not shipped with facecap. A user who has a copy of the ICT-FaceKit model (MIT) converts it
+once (``python -m facecap template convert <folder>``, hash-checked: ``TEMPLATE_DIGEST``); facecap then finds
+it in its data folder (``template_path``) or at the path ``[actor] template`` names.
+
+Fitting (``HumanTemplate.fit``): the markers (in the character's frame: upright, looking down -Y, metres)
+are aligned to the template's surface by robust ICP from a centroid-and-size start (the character's
+alignment already put them upright and forward, so no orientation search is needed), then the identity
+coefficients (a ridge towards the mean face), the alignment and each marker's closest surface point are
+refitted in turn. The expression deltas at those points, carried back by the alignment, are the actor's
+shapes as the template knows them.
+"""
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FacecapError, InputFileError
+from ..io.files import atomic_path
+from ..transforms import Similarity, fit_similarity
+from .alignment import align_automatic, refine
+from .face_model import FaceModel, load_ict
+from .surface import closest_points, interpolate, make_surface
+
+TEMPLATE_NAME = "ict-facekit.npz"
+FORMAT = "facecap human template 1"
+#: SHA-256 of the face region's float32 neutral, expression and identity arrays (ICT-FaceKit
+#: @ da5f95a stores them, face region vertices 0-9408): a conversion of any other model is refused.
+TEMPLATE_DIGEST = "f48716ad59ed5db7f3eabea3c933da95d94637ffd2b2093f1f75770a243a3b2d"
+#: Identity modes fitted (of 100) and their ridge: enough for the face's proportions, few enough that
+#: 30-70 markers with 0.3 mm noise determine them.
+IDENTITY_MODES = 60
+IDENTITY_RIDGE = 0.3
+#: Triangles tested per marker for its closest point (the face mesh is even: its nearest centroids hold it).
+CANDIDATES = 32
+
+
+def data_folder():
+    """facecap's data folder (``FACECAP_DATA``, else the platform's user data folder)."""
+    env = os.environ.get("FACECAP_DATA")
+    if env:
+        return Path(env).expanduser()
+    if os.name == "nt":
+        return Path(os.environ.get("APPDATA", Path.home())) / "facecap"
+    if os.uname().sysname == "Darwin":
+        return Path.home() / "Library" / "Application Support" / "facecap"
+    return Path(os.environ.get("XDG_DATA_HOME", Path.home() / ".local" / "share")) / "facecap"
+
+
+def template_path():
+    """Where ``template convert`` writes the template and where ``[actor] template = "auto"`` looks."""
+    return data_folder() / "templates" / TEMPLATE_NAME
+
+
+def convert(source, out=None, *, check_digest=True):
+    """Convert a copy of ICT-FaceKit (the reduced face file ``ict_face.npz`` or a folder holding it) into
+    facecap's template at ``out`` (default ``template_path()``), written atomically. Returns the path."""
+    model = load_ict(source)
+    digest = model.digest
+    if check_digest and digest != TEMPLATE_DIGEST:
+        raise FacecapError(f"{source}: not the ICT-FaceKit release facecap knows (data digest {digest[:16]}..., "
+                           f"expected {TEMPLATE_DIGEST[:16]}...); the template's accuracy figures hold only for it")
+    out = Path(out) if out is not None else template_path()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out, suffix=".npz") as tmp:
+        np.savez_compressed(tmp, format=np.array(FORMAT), neutral=model.neutral, triangles=model.triangles,
+                            shape_names=np.array(model.shape_names), deltas=model.deltas.astype(np.float32),
+                            identity=model.identity.astype(np.float32), landmarks68=model.landmarks68,
+                            digest=np.array(digest))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class TemplateFit:
+    """The template fitted to an actor: ``deltas`` (K, M, 3) the template's shapes at the markers in the
+    markers' frame; ``residual_mm`` (M,) each marker's distance from the fitted surface; ``scale`` of the
+    markers onto the template; ``notes``."""
+
+    shape_names: tuple
+    marker_names: tuple
+    deltas: np.ndarray
+    residual_mm: np.ndarray
+    scale: float
+    notes: tuple
+
+
+class HumanTemplate:
+    """A human face model used as the actor's prior (see the module docstring)."""
+
+    def __init__(self, model, *, source=""):
+        if not isinstance(model, FaceModel):
+            raise FacecapError("HumanTemplate needs a FaceModel")
+        self.model = model
+        self.source = source or model.source
+        self._surface = make_surface(model.neutral, model.triangles)
+
+    @classmethod
+    def load(cls, path):
+        """A template written by ``convert`` (or, for tests, an ICT-FaceKit face file or its folder)."""
+        path = Path(path)
+        if path.is_dir() or path.name == "ict_face.npz":
+            return cls(load_ict(path), source=str(path))
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if "format" not in z.files or str(z["format"]) != FORMAT:
+                    raise InputFileError(path, "not a facecap human template (convert it with "
+                                               "`python -m facecap template convert`)")
+                model = FaceModel(z["neutral"].astype(np.float64), z["triangles"].astype(np.int64),
+                                  tuple(str(n) for n in z["shape_names"]), z["deltas"].astype(np.float64),
+                                  z["identity"].astype(np.float64), z["landmarks68"].astype(np.int64), str(path),
+                                  str(z["digest"]))
+        except FileNotFoundError:
+            raise InputFileError(path, "file not found") from None
+        except (OSError, ValueError, KeyError) as exc:
+            raise InputFileError(path, f"not a facecap human template: {exc}") from None
+        return cls(model, source=str(path))
+
+    def fit_automatic(self, names, markers, **options):
+        """``fit`` for markers in any orientation: started from the automatic multi-start alignment that
+        binding by position uses (which refuses when two poses fit equally well)."""
+        X = np.asarray(markers, dtype=np.float64)
+        ok = np.isfinite(X).all(axis=1)
+        start, note = align_automatic(self._surface, X[ok], unit=1e-3, scale=1.0)
+        fit = self.fit(names, X, start=start, **options)
+        return TemplateFit(fit.shape_names, fit.marker_names, fit.deltas, fit.residual_mm, fit.scale,
+                           (f"template: {note}",) + fit.notes)
+
+    def fit(self, names, markers, *, start=None, iterations=4, modes=IDENTITY_MODES, ridge=IDENTITY_RIDGE):
+        """Fit the template to the actor's neutral ``markers`` (M, 3; metres; upright and looking down -Y
+        unless a ``start`` Similarity onto the template is given).
+
+        Returns a TemplateFit (deltas in the markers' frame); markers farther than 8 mm from the fitted
+        surface get no shape (zero deltas) and are named in the notes."""
+        X = np.asarray(markers, dtype=np.float64)
+        ok = np.isfinite(X).all(axis=1)
+        if ok.sum() < 6:
+            raise FacecapError(f"template: only {int(ok.sum())} markers have a neutral position (need 6)")
+        m = self.model
+        unit = 1e-3
+        spread = lambda p: np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean())  # noqa: E731
+        face = m.neutral[np.unique(m.triangles)]
+        if start is None:
+            scale = 0.8 * spread(face) / spread(X[ok])  # markers cover most, not all, of the face
+            start = Similarity(scale, np.eye(3), face.mean(axis=0) - scale * X[ok].mean(axis=0))
+        sim, note = refine(self._surface, X[ok], start, unit=unit, scale_range=1.3)
+        notes = [f"template: {note}"]
+        verts = m.neutral
+        modes = min(modes, m.identity.shape[0])
+        surface = self._surface
+        for _ in range(iterations):
+            tri, bary, _, _ = closest_points(surface, sim.apply(X[ok]), candidates=CANDIDATES)
+            base = interpolate(m.neutral[None], m.triangles, tri, bary)[0]
+            basis = interpolate(m.identity[:modes], m.triangles, tri, bary).reshape(modes, -1).T
+            target = (sim.apply(X[ok]) - base).ravel()
+            coeffs = np.linalg.solve(basis.T @ basis + ridge * unit**2 * len(target) * np.eye(modes), basis.T @ target)
+            verts = m.person(coeffs)
+            surface = make_surface(verts, m.triangles)
+            tri, bary, _, _ = closest_points(surface, sim.apply(X[ok]), candidates=CANDIDATES)
+            sim = fit_similarity(X[ok], interpolate(verts[None], m.triangles, tri, bary)[0])
+        tri, bary, _, dist = closest_points(surface, sim.apply(X[ok]), candidates=CANDIDATES)
+        deltas = np.zeros((len(m.shape_names), len(X), 3))
+        deltas[:, ok] = sim.inverse_vectors(interpolate(m.deltas, m.triangles, tri, bary))
+        residual = np.full(len(X), np.nan)
+        residual[ok] = dist / unit
+        far = ok & (np.nan_to_num(residual) > 8.0)
+        if far.any():
+            deltas[:, far] = 0.0
+            notes.append(f"template: {int(far.sum())} marker(s) are farther than 8 mm from the fitted face and get "
+                         f"no template shapes: {[n for n, f in zip(names, far) if f][:8]}")
+        notes.append(f"template: fitted {modes} identity modes; markers {np.nanmedian(residual):.2f} mm from the "
+                     f"face (median), {np.nanmax(residual):.2f} mm worst; scale {sim.scale:.3f}")
+        return TemplateFit(m.shape_names, tuple(names), deltas, residual, float(sim.scale), tuple(notes))

@@ -1,0 +1,99 @@
+"""The ``semantic`` strategy built from the pipeline's settings and inputs: what is known of the actor
+(calibration take or poses labelled in the take, a performer profile, the human template) and the
+character's shapes carried into actor space."""
+
+import warnings
+
+import numpy as np
+
+from ..capture.align import align_actor
+from ..capture.noise import marker_noise
+from ..character.basis import Basis
+from ..errors import FacecapError
+from .actor_model import ActorKnowledge
+from .calibrated import actor_basis_from_poses
+from .semantic import SemanticStrategy
+
+#: A template fitted from the upright start with markers farther than this (median, mm) from the face is
+#: refitted from the automatic multi-start alignment instead.
+TEMPLATE_START_MM = 3.0
+
+
+def character_in_actor_space(character, names, neutral, settings):
+    """(the character's shapes at the take's markers in actor space (K, M, 3), NaN rows for markers not bound
+    on the character; the actor -> character Alignment; the bound markers it aligns), or (None, None, ()) when
+    ``character`` has no geometry."""
+    if not isinstance(character, Basis):
+        return None, None, ()
+    bound = [n for n in character.marker_names if n in set(names)]
+    if len(bound) < 3:
+        return None, None, ()
+    idx = [names.index(n) for n in bound]
+    align = align_actor(neutral[idx], character.subset_markers(bound).neutral, tuple(bound),
+                        regions=settings.align_regions, flag_mm=settings.align_flag_mm)
+    out = np.full((character.n_shapes, len(names), 3), np.nan)
+    cols = [character.marker_names.index(n) for n in bound]
+    out[:, idx] = align.inverse_vectors(character.deltas[:, cols])
+    return out, align, tuple(bound)
+
+
+def poses_in_take(take, poses):
+    """Poses labelled in the take itself: the median of the take's deltas over each pose's frames (a Basis
+    in the take's own actor space)."""
+    names, deltas = [], []
+    for pose, ranges in poses.items():
+        sel = np.zeros(take.frames.size, dtype=bool)
+        for first, last in ranges:
+            sel |= (take.frames >= first) & (take.frames <= last)
+        if not sel.any():
+            raise FacecapError(f"[calibration.poses] pose '{pose}' frames {ranges} are outside the take "
+                               f"({take.frames[0]:g}-{take.frames[-1]:g})")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a marker never seen in the pose: delta 0
+            d = np.nanmedian(take.deltas[sel], axis=0)
+        names.append(pose)
+        deltas.append(np.nan_to_num(d))
+    return Basis(tuple(names), take.names, take.neutral, np.stack(deltas))
+
+
+def fit_template(template, names, neutral, align):
+    """The human template fitted to the take's neutral: a TemplateFit whose deltas are in actor space."""
+    ok = np.isfinite(neutral).all(axis=1)
+    upright = align.apply(neutral) if align is not None else None
+    fit = template.fit(names, upright) if upright is not None else None
+    if fit is None or not np.nanmedian(fit.residual_mm[ok]) <= TEMPLATE_START_MM:
+        return template.fit_automatic(names, neutral)
+    deltas = align.inverse_vectors(fit.deltas)
+    return type(fit)(fit.shape_names, fit.marker_names, deltas, fit.residual_mm, fit.scale, fit.notes)
+
+
+def fit_semantic(settings, character, inputs, take, *, priors):
+    """A fitted SemanticStrategy for ``take`` (a PreparedTake) and ``character`` (a Basis, or shape names);
+    returns (strategy, notes)."""
+    notes = []
+    cal = settings.calibration
+    measured = None
+    if inputs.calibration is not None and cal.poses:
+        measured, pose_notes = actor_basis_from_poses(
+            inputs.calibration, poses=cal.pose_table(), neutral=tuple(cal.neutral_frames or settings.neutral_frames),
+            stable_markers=tuple(cal.stable_markers or settings.stable_markers), split=tuple(cal.split))
+        notes.extend(pose_notes)
+    elif cal.poses:
+        measured = poses_in_take(take, cal.pose_table())
+    profile = inputs.profile if inputs.profile is not None else inputs.actor_basis
+    char_deltas, align, bound = character_in_actor_space(character, take.names, take.neutral, settings)
+    template = None
+    if inputs.template is not None:
+        template = fit_template(inputs.template, take.names, take.neutral, align)
+    a = settings.actor
+    knowledge = ActorKnowledge(measured=measured, profile=profile, template=template, unseen=a.unseen_shapes,
+                               normalise=a.normalise)
+    if char_deltas is None and measured is None and profile is None and template is None:
+        raise FacecapError("strategy 'semantic' has nothing to solve against: the character has no markers bound "
+                           "(vertex groups or [binding]) and nothing is known of the actor ([calibration] poses, "
+                           "[actor] profile or [actor] template)")
+    s = SemanticStrategy(**priors, exclusive=a.exclusive)
+    s.fit(character, names=take.names, neutral=take.neutral, knowledge=knowledge, character_deltas=char_deltas,
+          deltas=take.deltas, noise=marker_noise(take.deltas), alignment=align, alignment_names=bound,
+          bounds=settings.bounds, locks=settings.locks, regions=settings.regions)
+    return s, notes

@@ -1,0 +1,72 @@
+"""Gaze from face landmarks: the ARKit eye-look weights from where each iris sits between its eye corners.
+
+A character's eye-look shapes turn its eyeballs (or barely move its lids), so the geometric solve, which
+compares how points on the skin move, cannot drive them from the irises. They are set directly instead,
+as ARKit itself sets them: an iris displaced by ``d`` (a fraction of the eye's corner-to-corner width,
+from where it sits in the neutral) turns the eye by ``asin(d / EYEBALL)`` (the eyeball's radius is about
+0.42 of that width in adults), and ARKit's weights are linear in the angle: look out minus look in = 1 at
+about 35 degrees of yaw, look up minus look down = 1 at about 30 degrees of pitch (measured on Live Link
+Face recordings, which write both: correlation 0.999).
+"""
+
+import numpy as np
+
+from ..character.aliases import match_names
+
+#: Eyeball radius / eye corner-to-corner width (about 12 mm / 29 mm).
+EYEBALL = 0.42
+#: Degrees of yaw and pitch at which ARKit's eye-look weights reach 1.
+YAW_FULL, PITCH_FULL = 35.0, 30.0
+#: (iris centre, outer corner, inner corner, upper lid, lower lid, ARKit side) per eye; image x runs to the
+#: subject's left.
+EYES = ((468, 33, 133, 159, 145, "Right"), (473, 263, 362, 386, 374, "Left"))
+#: An eye whose lids are closer than this fraction of their usual gap hides its iris: its gaze is held.
+CLOSED = 0.5
+SHAPES = tuple(f"eyeLook{d}{side}" for side in ("Left", "Right") for d in ("Up", "Down", "In", "Out"))
+
+
+def eye_angles(positions):
+    """{side: (yaw towards the subject's left, pitch downwards) in degrees, each (F,)} from landmark
+    pixels (F, 478, >=2), relative to the eye's median pose (looking ahead most of the time). While the
+    lids are closed (a blink hides the iris) the angles are carried over from the open frames around."""
+    out = {}
+    for iris, outer, inner, upper, lower, side in EYES:
+        p = positions[..., :2]
+        a, b = p[:, outer], p[:, inner]
+        axis = a - b if side == "Left" else b - a  # image left -> right across the eye
+        width = np.linalg.norm(axis, axis=1)
+        x = axis / width[:, None]
+        y = np.stack([-x[:, 1], x[:, 0]], axis=1)  # image down
+        d = p[:, iris] - 0.5 * (a + b)
+        u, v = np.sum(d * x, axis=1) / width, np.sum(d * y, axis=1) / width
+        u, v = u - np.nanmedian(u), v - np.nanmedian(v)
+        lids = np.linalg.norm(p[:, upper] - p[:, lower], axis=1) / width
+        shut = ~(lids >= CLOSED * np.nanmedian(lids))  # NaN (no face) counts as shut
+        if shut.any() and (~shut).any():
+            frames = np.arange(len(u))
+            u = np.interp(frames, frames[~shut], u[~shut])
+            v = np.interp(frames, frames[~shut], v[~shut])
+        out[side] = (np.degrees(np.arcsin(np.clip(u / EYEBALL, -1, 1))),
+                     np.degrees(np.arcsin(np.clip(v / EYEBALL, -1, 1))))
+    return out
+
+
+def gaze_weights(positions):
+    """{ARKit eye-look shape: (F,) weight in [0, 1]} (:data:`SHAPES`) from landmark pixels (F, 478, >=2)."""
+    weights = {}
+    for side, (yaw, pitch) in eye_angles(positions).items():
+        outward = yaw if side == "Left" else -yaw  # out = away from the nose
+        weights[f"eyeLookOut{side}"] = np.clip(outward / YAW_FULL, 0, 1)
+        weights[f"eyeLookIn{side}"] = np.clip(-outward / YAW_FULL, 0, 1)
+        weights[f"eyeLookDown{side}"] = np.clip(pitch / PITCH_FULL, 0, 1)
+        weights[f"eyeLookUp{side}"] = np.clip(-pitch / PITCH_FULL, 0, 1)
+    return weights
+
+
+def gaze_locks(shape_names, positions):
+    """Per-frame locks ``((shape name, (F,) weights), ...)`` holding the character's eye-look shapes
+    (:data:`SHAPES` matched by name or alias) at the irises' gaze: the solve then explains the lids'
+    motion by what is left (blinks, squints) instead of by a look it cannot see."""
+    pairs, _, _ = match_names(SHAPES, shape_names)
+    gaze = gaze_weights(positions)
+    return tuple((shape_names[j], gaze[SHAPES[i]]) for i, j in pairs)

@@ -1,0 +1,150 @@
+"""Face landmarks from rendered footage of a real face (the ICT face performing known weights): the
+detector follows blinks, the jaw, the gaze; Track Face Landmarks adds a take ready to solve; a
+four-section config retargets the footage onto another person's face."""
+
+import bpy
+import numpy as np
+import pytest
+
+from face_clips import EVENTS, GAZE, REST, ict_available, ict_character, ict_face, landmark_models, render_test_clip
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    ict_available()
+    models = landmark_models()
+    face = ict_face()
+    folder = tmp_path_factory.mktemp("face")
+    path, weights, gaze = render_test_clip(folder / "face.mp4", face)
+    return {"path": path, "weights": weights, "gaze": gaze, "face": face, "folder": folder, "models": models}
+
+
+@pytest.fixture(scope="module")
+def landmarks(rendered):
+    from facecap.solvers.video.landmarks import track_landmarks
+
+    return track_landmarks(rendered["path"])
+
+
+def _gap(points, upper, lower):
+    return np.linalg.norm(points[:, upper, :2] - points[:, lower, :2], axis=1)
+
+
+def test_every_frame_has_the_face_followed_from_one_detection(landmarks):
+    assert landmarks.found.all()
+    assert landmarks.detections == (1,)  # detected on frame 1, followed after
+    assert landmarks.confidence.min() > 0.9
+    assert landmarks.markers.names[0] == "lm000" and landmarks.markers.n_markers == 478
+
+
+def test_blinks_jaw_and_gaze_move_their_landmarks(rendered, landmarks):
+    p = landmarks.markers.positions
+    rest = slice(2, REST - 2)
+    for (shapes, start, rise, hold, _value) in EVENTS:
+        peak = slice(start + rise, start + rise + hold + 1)
+        if shapes[0].startswith("eyeBlink"):
+            for upper, lower in ((159, 145), (386, 374)):
+                gap = _gap(p, upper, lower)
+                # the lids close (measured: the eye nearer the camera to 0.3, the other to 0.52 of its rest gap)
+                assert gap[peak].mean() < 0.6 * gap[rest].mean(), (start, upper)
+        if shapes[0] == "jawOpen":
+            gap = _gap(p, 13, 14)  # inner lips
+            assert gap[peak].mean() > 4 * max(gap[rest].mean(), 1.0)
+    start, rise, hold, _ = GAZE
+    look = slice(start + rise, start + rise + hold + 1)
+    for iris, (outer, inner) in ((468, (33, 133)), (473, (263, 362))):
+        centre = 0.5 * (p[:, outer, 0] + p[:, inner, 0])
+        width = np.abs(p[:, outer, 0] - p[:, inner, 0])
+        offset = (p[:, iris, 0] - centre) / width  # image x right = the subject's left
+        moved = offset[look].mean() - offset[rest].mean()
+        print(f"iris {iris}: moved {moved:.3f} of the eye's width (a 20 degree turn of the rendered eye: 0.14)")
+        assert moved > 0.06, iris  # towards the subject's left (measured 0.097 for the right eye)
+
+
+def test_the_filter_keeps_the_blink(landmarks):
+    raw, smooth = landmarks.raw, landmarks.markers.positions
+    closed = min(_gap(smooth, 159, 145)[14:20])
+    assert closed <= 1.15 * min(_gap(raw, 159, 145)[14:20]) + 0.3  # a 2-frame closure is not flattened
+
+
+def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
+    from facecap.solvers.video.landmarks import RIGID
+
+    clip = bpy.data.movieclips.load(str(rendered["path"]))
+    scene = bpy.context.scene
+    scene.active_clip = clip
+    assert bpy.ops.facecap.track_face_landmarks() == {"FINISHED"}
+    settings = scene.facecap
+    assert len(settings.markers) == 468 and settings.take_name == "face.mp4 landmarks"  # no irises: not on skin
+    assert {m.name for m in settings.markers if m.stable} == set(RIGID)
+    assert settings.neutral_mode == "DETECT" and settings.binding_mode == "nearest"
+    empties = settings.marker_collection.objects
+    nose, eye = empties["lm001"], empties["lm033"]
+    assert nose.location.y < eye.location.y  # the face looks down -Y, like the characters
+
+
+def test_cancelling_track_face_landmarks_leaves_the_scene_untouched(rendered, empty_scene):
+    from facecap.facecap_addon.video_scene import ClipLandmarks
+    from facecap.solvers.video import Cancelled
+
+    clip = bpy.data.movieclips.load(str(rendered["path"]))
+    scene = bpy.context.scene
+    scene.active_clip = clip
+    before = (set(bpy.data.collections.keys()), set(bpy.data.objects.keys()), len(scene.facecap.markers))
+    session = ClipLandmarks(scene, clip)
+    assert session.step(4) is False and session.job.done == 4
+    session.cancel()
+    with pytest.raises(Cancelled, match="cancelled at frame 4"):
+        session.step()
+    assert (set(bpy.data.collections.keys()), set(bpy.data.objects.keys()), len(scene.facecap.markers)) == before
+
+
+def test_a_four_section_config_retargets_the_footage_onto_another_person(rendered):
+    """[target], [source] video, [tracking] method = "landmarks", [output]: nothing else to say."""
+    from facecap.facecap_addon.headless import run_take
+    from facecap.solvers.config import load_take_config
+    from facecap.solvers.io.weights import read_weights
+
+    folder, face = rendered["folder"], rendered["face"]
+    target = ict_character(folder / "person.blend", face, seed=7)
+    config = folder / "take.toml"
+    config.write_text(f'[target]\nblend = "{target.name}"\nobject = "ICT"\n[source]\nvideo = "face.mp4"\n'
+                      '[tracking]\nmethod = "landmarks"\n[output]\nweights = "solved.csv"\n', encoding="utf-8")
+    run_take(load_take_config(config), quiet=True)
+    solved = read_weights(folder / "solved.csv")
+    truth = rendered["weights"]
+    got = {n: solved.values[:, solved.names.index(n)] for n in face.shape_names if n in solved.names}
+    for shapes, start, rise, hold, value in EVENTS:
+        peak = slice(start + rise, start + rise + hold + 1)
+        for s in shapes:
+            print(f"{s}: truth {value:.2f}, solved {got[s][peak].max():.2f}")
+    jaw = got["jawOpen"][25:28].mean()
+    assert abs(jaw - 0.7) <= 0.15, jaw  # measured 0.68-0.72
+    smiles = [got[s][35:39].max() for s in ("mouthSmileLeft", "mouthSmileRight")]
+    assert min(smiles) >= 0.35, smiles  # measured 0.40-0.63 for 0.8
+    rest = slice(2, REST - 2)
+    assert max(np.abs(v[rest]).max() for v in got.values()) <= 0.1  # the rest is neutral
+    # Blinks and the inner brow raise are seen by the landmarks (test above) but not yet solved onto the
+    # shapes (measured blink peaks 0.01-0.25 for 1.0, browInnerUp 0.0 for 0.8): docs/accuracy.md.
+
+
+def test_track_writes_the_landmarks_with_their_depth(rendered):
+    """``python -m facecap track`` with method = "landmarks": the wide CSV with x, y, z, the face's
+    confidence per frame, the report."""
+    import json
+
+    from facecap.solvers.io import read_markers
+    from facecap.solvers.video.cli import load_track_config, run_track
+
+    folder = rendered["folder"]
+    config = folder / "track.toml"
+    config.write_text('[source]\nvideo = "face.mp4"\n[tracking]\nmethod = "landmarks"\n[output]\n'
+                      'markers = "lm.csv"\nconfidence = "conf.csv"\nreport = "lm.json"\n', encoding="utf-8")
+    run_track(load_track_config(config))
+    header = (folder / "lm.csv").read_text(encoding="utf-8").splitlines()[0].split(",")
+    assert header[:4] == ["frame", "lm000_x", "lm000_y", "lm000_z"] and len(header) == 1 + 478 * 3
+    report = json.loads((folder / "lm.json").read_text(encoding="utf-8"))
+    assert report["frames_with_face"] == report["frames"] == 58 and report["detections"] == [1]
+    assert report["frame_numbering"] == "frame 1 is the first frame of the footage"
+    markers = read_markers(folder / "lm.csv", units="px")
+    assert markers.n_frames == 58 and markers.dim == 3
