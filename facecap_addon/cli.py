@@ -26,6 +26,7 @@ bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 template convert PATH         install the optional human template from a copy of ICT-FaceKit (hash-checked);
                               `template info` says where it is ([actor] template, docs/strategies.md)
+rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
                               locked scipy/OpenCV wheels (docs/install.md)
 landmark-models               put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
@@ -72,6 +73,7 @@ import argparse  # noqa: E402
 import contextlib  # noqa: E402
 import ctypes  # noqa: E402
 import io  # noqa: E402
+import json  # noqa: E402
 import os  # noqa: E402
 import signal  # noqa: E402
 import threading  # noqa: E402
@@ -86,9 +88,9 @@ from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.clean_bench import bench_clean  # noqa: E402
-from ..solvers.tools.landmark_models import main as landmark_models_main  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
+from ..solvers.tools.landmark_models import main as landmark_models_main  # noqa: E402
 from ..solvers.tools.template import main as template_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
@@ -199,6 +201,15 @@ def _cmd_docs_images(args):
     return 0
 
 
+def _cmd_rig_bench(args):
+    from .rig_bench import rig_bench  # imports bpy at once: only for this command
+
+    figures = rig_bench(capture=args.capture, frames=args.frames, sample_frames=args.sample_frames, docs=args.docs,
+                        say=progress_line)
+    print(json.dumps(figures, indent=2), file=console.stdout())
+    return 0
+
+
 def _cmd_convert(args):
     return convert_main(args.rest, parents=[OUTPUT_OPTIONS])
 
@@ -300,6 +311,9 @@ COMMANDS = {
               "with its ratio and goal."),
     "docs-images": ("render the documentation's pictures from the sample character",
                     "Render the documentation's pictures (docs/images) from the sample character, headless."),
+    "rig-bench": ("the test rigs' figures (control rig, correctives, Rigify face from a capture)",
+                  "Solve the test rigs (a control rig with correctives, a bone-only face, a Rigify face) from known "
+                  "control curves and a real capture, and print their figures as JSON."),
     "template": ("install the optional human template from a copy of ICT-FaceKit, or say where it is", None),
     "build-extension": ("build the Blender extension zips (one per platform, wheels bundled)", None),
     "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",
@@ -383,6 +397,12 @@ def build_parser():
     p.add_argument("--memory", action="store_true",
                    help="only the memory case: peak memory of `retarget`'s process tree on 36,000- and 360,000-frame "
                         "takes (with --quick 3,600 and 36,000); about 20 minutes")
+    p = command("rig-bench", _cmd_rig_bench)
+    p.add_argument("--capture", type=Path, help="a real capture solved onto the Rigify face and the shape keys "
+                   "(e.g. c3dorg_29_Facial-Sing.c3d, bound by position)")
+    p.add_argument("--frames", type=int, default=3600, help="frames of the long Rigify take (default 3600)")
+    p.add_argument("--sample-frames", type=int, default=600, help="frames of the control-rig takes (default 600)")
+    p.add_argument("--docs", type=Path, help="also render the Rigify face from the capture to DIR/rigify_face.png")
     p = command("docs-images", _cmd_docs_images)
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
     p.add_argument("--size", type=int, default=280, help="tile height in pixels (default: 280)")
@@ -426,26 +446,14 @@ def main(argv=None):
         if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written (not an error)
             print(f"facecap: {exc}; nothing written", file=sys.stderr)
             return 130
-        for line in str(exc).splitlines():  # a config's problems: one line each
-            console.log.error(line)
-        return 1
+        return console.failed(exc)
     except KeyboardInterrupt:
         print("facecap: interrupted; outputs not finished were not written", file=sys.stderr)
         return 130
-    except OSError as exc:  # the system refused something the checks could not foresee
-        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        console.log.error(f"{where}{exc.strerror or exc}")
-        return 1
-    except MemoryError:
-        console.log.error("out of memory (the take is too large for this machine's memory)")
-        return 1
-    except Exception as exc:  # a bug: one line, the traceback on request
-        if os.environ.get("FACECAP_TRACEBACK"):
+    except Exception as exc:  # the system refused something, or a bug: one line all the same
+        if os.environ.get("FACECAP_TRACEBACK") and not isinstance(exc, (OSError, MemoryError)):
             raise
-        text = " ".join(str(exc).split())[:300]
-        console.log.error(f"internal error (a bug in facecap; run with FACECAP_TRACEBACK=1 for where): "
-                          f"{type(exc).__name__}: {text}")
-        return 1
+        return console.failed(exc)
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)

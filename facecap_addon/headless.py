@@ -29,7 +29,7 @@ from ..solvers.io.outputs import check_free_space
 from ..solvers.markers import UNIT_SCALE
 from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve_job
-from ..solvers.tuning.store import load_version, read_corrections_csv, save_version
+from ..solvers.tuning.store import load_version, save_version
 from ..solvers.video.cli import run_showing_progress
 from ..solvers.video.flow_config import LandmarkTake, check_against_footage
 from ..solvers.video.reading import Footage
@@ -39,6 +39,7 @@ from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, s
                           target_changed)
 from .landmark_take import hold_gaze, read_landmarks
 from .review import read_review_truth, write_take_review
+from .take_request import corrections_for, rig_request, shape_names, source_fields
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
@@ -95,10 +96,10 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
     timings["load_character"] = time.perf_counter() - t1 + t_open
+    columns = request.rig.control_names if request.rig is not None else shape_names(request.character)
     base_size = base.path.stat().st_size if base.path is not None and base.path.is_file() else 0
-    check_free_space(expected_sizes(config, take.n_frames(), len(_shape_names(request.character)), base_size),
-                     config=config.path)
-    say(f"[3/5] solving {take.describe()} x {len(_shape_names(request.character))} shapes "
+    check_free_space(expected_sizes(config, take.n_frames(), len(columns), base_size), config=config.path)
+    say(f"[3/5] solving {take.describe()} x {len(columns)} {'controls' if request.rig is not None else 'shapes'} "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
     if take.repeats:
@@ -304,6 +305,8 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     from .take import character_target  # loads bpy
 
     settings = config.settings
+    if config.rig is not None:
+        return rig_request(config, obj, take, tune=tune, say=progress_line)
     binding = config.binding or BindingSettings()
     # Only geometric samples the character at bound points; the others need its shape names and ranges.
     # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
@@ -333,15 +336,15 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
     if tuning is not None and tuning.library is not None:
         version = load_version(tuning.library)
     if tune:
-        corrections = _corrections(config, _shape_names(character))
+        corrections = corrections_for(config, shape_names(character))
     request = SolveRequest(character=character, settings=settings, inputs=take.inputs, markers=take.markers,
                            footage=take.footage, flow=getattr(config.video, "flow", None), version=version,
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
     if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
-        request, note = hold_gaze(request, _shape_names(character), take.landmarks)
+        request, note = hold_gaze(request, shape_names(character), take.landmarks)
         take.notes = tuple(take.notes) + ((note,) if note else ())
-    fields = _source_fields(config, take)
+    fields = source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()
         said = _once([n for n in bound.notes if n.startswith("warning")], SAID_BY_THE_SOLVE)
@@ -349,37 +352,6 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
         if binding.by_position:  # the binding named its unbound markers, each with why (distance, map)
             take.repeats = REPEATS_OF_THE_BINDING
     return request, fields
-
-
-def _shape_names(character):
-    return character.shape_names if hasattr(character, "shape_names") else character.names
-
-
-def _corrections(config, names):
-    tuning = config.tuning
-    if tuning is None or tuning.corrections is None:
-        raise ConfigError("the tune command needs the animator's corrections (frame,<shape>,... CSV)",
-                          path=config.path, key="tuning.corrections")
-    return read_corrections_csv(tuning.corrections, names)
-
-
-def _source_fields(config, take):
-    """Where the take came from, for the report."""
-    if take.markers is not None and isinstance(config.video, LandmarkTake):
-        return {"video_file": config.video.path, "source": {**take.source, "fps": take.markers.fps}}
-    if take.markers is not None:
-        m = take.markers
-        return {"markers_file": str(config.markers_path),
-                "source": {**take.source, "fps": m.fps, "segments": dict(m.segments.items())}}
-    if take.footage is not None:
-        info = take.footage.info
-        return {"video_file": config.video.path, "examples_file": str(config.examples_weights_path),
-                "source": {"format": "video", "kind": info.kind, "fps": info.fps, "width": info.width,
-                           "height": info.height, "scale": info.scale, "frames": [info.frames[0], info.frames[-1]],
-                           "count": info.n_frames}}
-    track = take.inputs.weights
-    return {"weights_file": str(config.weights_path),
-            "source": {"format": track.format, "fps": track.fps, "timecode": track.timecode}}
 
 
 def _run(request, *, quiet):
@@ -433,14 +405,19 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         t3 = time.perf_counter()
         say("[4/5] keying")
         replaced.extend(remove_earlier_solve(config.action_name))
-        action = key_weights(obj, result, anim.unique_action_name(config.action_name))
+        if config.rig is not None:
+            from .rig_solve import key_rig  # loads bpy
+
+            action = key_rig(config.rig, obj, result, anim.unique_action_name(config.action_name))
+        else:
+            action = key_weights(obj, result, anim.unique_action_name(config.action_name))
         fit_scene_to_take(bpy.context.scene, result.frames, fps)
         timings["key"] = time.perf_counter() - t3
         say("[5/5] writing outputs")
         if config.output_blend is not None:
             stamp_target(config.target_blend)
             save_blend_atomic(config.output_blend)
-        _export(config, obj, fps)
+        _export(config, obj, fps, result.frames)
         return action
 
     def write_weights():
@@ -480,10 +457,13 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     return outputs
 
 
-def _export(config, obj, fps):
-    """[output] gltf / fbx: the character and the keyed take through Blender's exporters."""
+def _export(config, obj, fps, frames=None):
+    """[output] gltf / fbx: the character and the keyed take through Blender's exporters (a rig: its bones)."""
     from .export import export_take  # loads bpy
+    from .rig_export import export_rig_take  # loads bpy
 
     for path in (config.output_gltf, config.output_fbx):
-        if path is not None:
+        if path is not None and config.rig is not None:
+            export_rig_take(obj, path, frames=frames, take_name=config.action_name)
+        elif path is not None:
             export_take(obj, path, head_target=config.settings.head_target, fps=fps, take_name=config.action_name)

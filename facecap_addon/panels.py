@@ -4,6 +4,24 @@ and Alignment), Solve (sub-panels: Strategy Inputs, Priors and Smoothing, Shapes
 import bpy
 
 
+
+def _draw_rig(layout, s):
+    """The solve's target: the shape keys, or a rig's controls (``[rig]``)."""
+    box = layout.box().column(align=True)
+    box.prop(s, "rig_preset")
+    if s.rig_preset == "NONE":
+        return
+    if s.rig_preset != "shape_keys":
+        box.prop(s, "rig_object")
+    box.prop(s, "rig_method")
+    if s.rig_method == "poses":
+        box.prop(s, "rig_poses")
+    else:
+        row = box.row(align=True)
+        row.prop(s, "rig_nonlinear")
+        row.prop(s, "rig_refine")
+        box.prop(s, "rig_probes")
+
 class FACECAP_UL_markers(bpy.types.UIList):
     """Markers of the take with their stable flag and gap count."""
 
@@ -243,6 +261,7 @@ class FACECAP_PT_solve(FacecapPanel, bpy.types.Panel):
     def draw(self, context):
         s = context.scene.facecap
         layout = self.layout
+        _draw_rig(layout, s)
         layout.prop(s, "strategy")
         layout.operator("facecap.solve", icon="SHAPEKEY_DATA")
         row = layout.row(align=True)

@@ -70,6 +70,18 @@ def _is_face_mesh(_self, obj):
     return obj.type == "MESH" and obj.data.shape_keys is not None
 
 
+#: The Solve panel's target: the shape keys (none), or a rig preset (``[rig] preset``).
+RIG_PRESET_ITEMS = (
+    ("NONE", "Shape Keys", "Solve the character's shape keys"),
+    ("rigify_face", "Rigify Face", "Solve the face controls of a generated Rigify rig"),
+    ("arkit_sliders", "ARKit Sliders", "Solve the ARKit-named sliders (custom properties) of a control object"),
+    ("shape_keys", "Shape Keys + Correctives", "Solve the undriven shape keys; corrective keys fire through their drivers"),
+)
+RIG_METHOD_ITEMS = (
+    ("probed", "Probed", "Evaluate the rig around rest and fit a model with its pairwise terms"),
+    ("poses", "Pose Library", "One control pose per shape, from an action with named pose markers"),
+)
+
 class FACECAP_PG_marker(bpy.types.PropertyGroup):
     """One imported marker; ``name`` is the marker name."""
 
@@ -208,6 +220,13 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     actor_template: StringProperty(**from_option("actor.template", label="Human Template"))
     actor_tier: StringProperty(name="Actor", description="What the last semantic solve knew of the actor's face "
                                "(a read-out)")
+    rig_preset: EnumProperty(items=RIG_PRESET_ITEMS, default="NONE", **from_option("rig.preset", label="Target"))
+    rig_object: PointerProperty(type=bpy.types.Object, **from_option("rig.object", label="Rig"))
+    rig_method: EnumProperty(items=RIG_METHOD_ITEMS, **from_option("rig.method", label="Method"))
+    rig_poses: PointerProperty(type=bpy.types.Action, **from_option("rig.poses", label="Poses"))
+    rig_nonlinear: BoolProperty(**from_option("rig.nonlinear", label="Nonlinear"))
+    rig_refine: BoolProperty(**from_option("rig.refine", label="Refine Through Rig"))
+    rig_probes: IntProperty(**from_option("rig.probes", label="Random Probes"))
     regularisation: FloatProperty(precision=5, **from_option("solve.regularisation", label="Regularisation"))
     sparsity: FloatProperty(precision=5, **from_option("solve.sparsity", label="Sparsity"))
     symmetry: FloatProperty(precision=4, **from_option("solve.symmetry", label="Symmetry"))

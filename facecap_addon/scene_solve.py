@@ -14,9 +14,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..solvers.config.rig import RigSettings
+from ..solvers.errors import FacecapError
 from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve
 from . import anim, layers, take
+from .rig_solve import build_rig_target, key_rig, rig_binding
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -32,6 +35,8 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     strategy = settings.strategy if footage is None else settings.video.flow_strategy
     markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
     rsettings = replace(take.retarget_settings(settings), strategy=strategy)
+    if settings.rig_preset != "NONE" and footage is None:
+        return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu)
     if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
@@ -48,6 +53,29 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
                         parent=settings.library_active or "", controls=shape_controls(settings), fps=settings.fps)
+
+
+def rig_settings(settings):
+    """``RigSettings`` of the Solve panel's rig target (None: the shape keys)."""
+    if settings.rig_preset == "NONE":
+        return None
+    return RigSettings(preset=settings.rig_preset, object=settings.rig_object.name if settings.rig_object else None,
+                       method=settings.rig_method, poses=settings.rig_poses.name if settings.rig_poses else None,
+                       nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
+
+
+def _rig_request(settings, markers, rsettings, *, corrections, mu):
+    if markers is None:
+        raise FacecapError("a rig's controls are solved from a marker take")
+    if settings.rig_method == "probed":  # its model stands for the character's shapes: the geometric solve
+        if rsettings.strategy not in SAMPLES_CHARACTER:
+            raise FacecapError("a probed rig is solved with the geometric strategy; use a pose library for the others")
+        rsettings = replace(rsettings, strategy="geometric")
+    rig = rig_settings(settings)
+    sampling = rig_binding(settings.target, markers, rsettings, binding_from_sidebar(settings))
+    target, _ = build_rig_target(settings.target, markers.names, rig, binding=sampling, n_frames=markers.n_frames)
+    return SolveRequest(character=None, settings=rsettings, markers=markers, corrections=corrections, mu=mu,
+                        controls=shape_controls(settings), fps=settings.fps, rig=target)
 
 
 def solve_take(settings, scene, **kwargs):
@@ -85,6 +113,12 @@ def key_solve(settings, result):
     """
     actor = result.info.get("actor_model")  # what a semantic solve knew of the actor: shown in the Solve panel
     settings.actor_tier = f"{actor['tier']}: {actor['statement']}" if actor else ""
+    name = settings.take_name or "FaceCap"
+    rig = rig_settings(settings)
+    if rig is not None:
+        action = key_rig(rig, settings.target, result, anim.unique_action_name(name), take_name=name)
+        settings.last_action = action.name
+        return action
     key = settings.target.data.shape_keys
     locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
     if locked and key is not None and layers.solved_action(key) is not None:
@@ -94,7 +128,6 @@ def key_solve(settings, result):
             if not np.isnan(previous[:, j]).all():
                 weights[:, result.shape_names.index(n)] = previous[:, j]
         result = replace(result, weights=weights)
-    name = settings.take_name or "FaceCap"
     action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
     settings.last_action = action.name
     return action

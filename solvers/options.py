@@ -16,7 +16,6 @@ that may take several forms. ``ui`` names the controls, comma-separated: ``facec
 (an operator's option); an empty ``ui`` needs a ``headless`` reason.
 """
 
-import difflib
 import math
 from dataclasses import dataclass
 
@@ -108,7 +107,7 @@ def _problem(option, kind, v):
     if kind == "choice":
         if v in option.choices:
             return None
-        return f"expected one of {', '.join(map(str, option.choices))}; got {v!r}" + suggest(v, option.choices)
+        return f"expected one of {', '.join(map(str, option.choices))}; got {v!r}"
     if kind == "frames":
         ok = isinstance(v, list) and len(v) == 2 and all(_is_int(x) for x in v) and v[0] <= v[1]
         return None if ok else f"expected [first, last] frame numbers with first <= last; got {v!r}"
@@ -419,6 +418,30 @@ OPTIONS = (
       ui="facecap.video.flow_components"),
     O("flow", "variance", "float", above=0.0, high=1.0, doc="Keep the fewest components explaining this share instead",
       headless="the sidebar sets the component count"),
+    # -- [rig] (a rig's controls as the target) ----------------------------------------------------
+    O("rig", "preset", "choice", choices=("rigify_face", "arkit_sliders", "shape_keys"),
+      doc="Solve a rig's controls instead of the shape keys: a Rigify face, a control object whose ARKit-named "
+          "sliders drive the face, or the undriven shape keys (correctives fire through their drivers)",
+      ui="facecap.rig_preset"),
+    O("rig", "object", "str", doc="The rig: the Rigify armature or the sliders' control object (presets)",
+      ui="facecap.rig_object"),
+    O("rig", "controls", "list",
+      doc="Controls named one by one: [{object, path, axes, lower, upper}], path 'pose.bones[\"b\"].location' "
+          "or '.rotation', '[\"property\"]' or 'key_blocks[\"shape\"].value' (added to the preset's)",
+      headless="the sidebar solves a preset's controls"),
+    O("rig", "method", "choice", default="probed", choices=("probed", "poses"),
+      doc="How the solver sees the rig: probed (evaluated around rest, a model with its pairwise terms) or a "
+          "pose library (one control pose per shape)", ui="facecap.rig_method"),
+    O("rig", "poses", "str", doc="method = \"poses\": the action holding one pose per frame, named by its pose "
+      "markers (ARKit / FACS names)", ui="facecap.rig_poses"),
+    O("rig", "nonlinear", "bool", default=True,
+      doc="Solve the rig's curvature and combination terms after the linear solve (bounded Gauss-Newton)",
+      ui="facecap.rig_nonlinear"),
+    O("rig", "refine", "bool", default=True,
+      doc="Refine the frames where the real rig differs from its model, through the rig itself",
+      ui="facecap.rig_refine"),
+    O("rig", "probes", "int", default=600, low=0, high=100_000,
+      doc="Random poses probed besides the single-control and pairwise probes", ui="facecap.rig_probes"),
     # -- [tuning] and [controls] ------------------------------------------------------------------
     O("tuning", "corrections", "path", doc="frame,<shape>,... corrected weights (the `tune` command)",
       ui="facecap.tuning_frames"),
@@ -438,57 +461,6 @@ OPTIONS = (
 
 BY_NAME = {o.name: o for o in OPTIONS}
 SECTIONS = tuple(dict.fromkeys(o.section for o in OPTIONS))
-
-def suggest(word, candidates):
-    """`` (did you mean 'x'?)`` for the candidate closest to ``word``, or ''."""
-    if not isinstance(word, str):
-        return ""
-    candidates = [str(c) for c in candidates]
-    folded = {c.casefold(): c for c in candidates}
-    close = difflib.get_close_matches(word, candidates, n=1, cutoff=0.6)
-    match = folded.get(word.casefold()) or (close[0] if close else None)
-    return f" (did you mean '{match}'?)" if match else ""
-
-
-def table_problems(data, options, *, prefix="", open_sections=("controls",), required=True):
-    """Every problem of TOML tables ``data`` against the option table ``options``, all at once:
-    [(key, message, covers)] for unknown sections and keys (with a "did you mean"), values of the wrong
-    kind or out of range, missing required keys (if ``required``). ``key``: ``section.key`` after
-    ``prefix`` (``defaults.``), None for a section's own problems; ``covers``: the key whose later
-    problems are consequences (a misspelt section covers the absent one it means). In ``open_sections``
-    any key is a table (``[controls]``: a key per shape).
-    """
-    by_name = {o.name: o for o in options}
-    sections = tuple(dict.fromkeys(o.section for o in options))
-    problems = []
-    for section, body in data.items():
-        if section not in sections:
-            hint = suggest(section, sections)
-            meant = hint.split("'")[1] if hint else section
-            problems.append((None, f"unknown section [{prefix}{section}]{hint}; known: {', '.join(sections)}",
-                             prefix + (meant if meant not in data else section)))
-            continue
-        if not isinstance(body, dict):
-            problems.append((None, f"[{prefix}{section}] must be a table; got {body!r}", prefix + section))
-            continue
-        keys = [o.key for o in options if o.section == section]
-        for key, value in body.items():
-            opt = by_name.get(f"{section}.{key}")
-            if opt is None and section in open_sections:
-                opt = by_name.get(f"{section}.<shape>")
-            if opt is None:
-                name = f"{prefix}{section}.{key}"
-                problems.append((name, f"unknown key{suggest(key, keys)}; known keys: {', '.join(keys)}", name))
-                continue
-            problem = opt.check(value)
-            if problem is not None:
-                problems.append((f"{prefix}{section}.{key}", problem, f"{prefix}{section}.{key}"))
-    for opt in options:
-        body = data.get(opt.section)
-        if required and opt.required and not (isinstance(body, dict) and opt.key in body):
-            problems.append((prefix + opt.name, "missing required key", prefix + opt.name))
-    return problems
-
 
 def option(name):
     """The ``Option`` called ``name`` ("section.key")."""

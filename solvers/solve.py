@@ -34,6 +34,8 @@ class SolveRequest:
     controls : {shape or glob: ShapeControl} applied to the solved weights; their locks hold shapes
         in the solve
     fps : frame rate for the controls' smoothing (default: the take's)
+    rig : solvers.rig.RigTarget when the character is a rig: its basis is solved, then its controls
+        (shape names are then control names: corrections, controls and locks name controls)
     """
 
     character: object
@@ -48,6 +50,7 @@ class SolveRequest:
     parent: str = ""
     controls: dict = None
     fps: float = None
+    rig: object = None
 
 
 def solve(request, progress=None):
@@ -60,6 +63,9 @@ def solve_job(request):
     """``solve`` as a ``Job`` that advances a footage frame per step (the modal operators and the
     CLI's Ctrl-C); a marker take is one step. Everything is validated before the first step."""
     character, inputs, settings = request.character, request.inputs, request.settings
+    rig, corrections = request.rig, request.corrections
+    if rig is not None:
+        character, corrections = rig.character, rig.offsets_of(corrections)
     if request.version is not None:
         character, inputs, settings = apply_version(request.version, character, inputs, settings)
     if request.controls:
@@ -75,14 +81,16 @@ def solve_job(request):
 
     def steps():
         result = retarget(request.markers, character, settings, inputs=inputs)
-        if request.corrections is not None:
-            tuned = retune_take(request.markers, character, settings, inputs, request.corrections, mu=request.mu,
+        if corrections is not None:
+            tuned = retune_take(request.markers, character, settings, inputs, corrections, mu=request.mu,
                                 base=result, parent=request.parent)
             result = replace(tuned.result, retune=tuned)
         yield None
+        if rig is not None:
+            result = yield from rig.finish_steps(result, request.markers, settings)
         return _with_controls(result, request, _take_fps(request))
 
-    return Job(steps(), 1, what="solve")
+    return Job(steps(), 1 + (rig.steps if rig is not None else 0), what="solve")
 
 
 def _names(character):

@@ -28,14 +28,15 @@ from ..capture.align import region_patterns
 from ..capture.cleaning import CleanSettings
 from ..character.binding_map import BindingSettings
 from ..character.shape_options import Region
-from ..errors import ConfigError, FacecapError, InputFileError, Problems
+from ..errors import ConfigError, FacecapError, InputFileError, Problems, table_problems
 from ..io.limits import MAX_TEXT_BYTES, check_input_file
 from ..io.outputs import user_path
-from ..options import OPTIONS, SECTIONS, default, table_problems
+from ..options import OPTIONS, SECTIONS, default
 from ..pipeline import RetargetSettings
 from ..video.flow_config import is_landmark_take, landmark_defaults, split_video_sections, video_take
 from ..video.landmarks import RIGID as LANDMARK_RIGID
 from .binding import parse_binding
+from .rig import parse_rig
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
 
@@ -80,6 +81,7 @@ class TakeConfig:
     output_html: Path | None = None  # [output] html: the review page (solvers.tools.report)
     truth_path: Path | None = None  # retarget --truth: known weights the review page overlays (no config key)
     binding: object = None  # [binding]: BindingSettings (solvers.character.binding_map)
+    rig: object = None  # [rig]: RigSettings (solvers.config.rig), None when the target is the shape keys
 
     @property
     def binding_map_path(self):
@@ -165,9 +167,11 @@ def load_take_config(path, data=None):
     if units == "bu" and "unit_scale" not in read_options:
         problems.add(ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale"))
     clean = part(_clean_settings, path, data.get("clean", {}), default=CleanSettings())
-    # a landmark take solves like markers, on geometric (measured there); a flow take on posed examples
-    strategy = get("solve", "strategy", default("solve.strategy") if video_raw is None else
-                   "geometric" if landmarks else "linear")
+    # a landmark take solves like markers, on geometric (measured there); a flow take on posed examples; a
+    # probed rig's controls on geometric (its model stands for the character's shapes)
+    probed_rig = isinstance(data.get("rig"), dict) and data["rig"].get("method", default("rig.method")) == "probed"
+    strategy = get("solve", "strategy", ("geometric" if probed_rig else default("solve.strategy")) if video_raw is None
+                   else "geometric" if landmarks else "linear")
     video = None if video_raw is None else part(video_take, path, video_raw, data, strategy)
     if video_raw is None:
         part(_check_source, path, data, strategy)
@@ -193,6 +197,7 @@ def load_take_config(path, data=None):
     outputs = {key: part(_export_path, path, key, resolve(get("output", key))) for key in EXPORT_SUFFIXES}
     tuning = part(parse_tuning, path, free.get("tuning"), base)
     controls = part(parse_controls, path, free.get("controls"), base)
+    rig = part(parse_rig, path, data.get("rig"))
     problems.raise_any()
     cal_units = get("calibration", "units")
     cal_fps = get("calibration", "fps")
@@ -246,6 +251,7 @@ def load_take_config(path, data=None):
         controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
         binding=binding,
+        rig=rig,
     )
 
 

@@ -31,8 +31,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ConfigError, FacecapError, Problems
-from ..options import BY_NAME, OPTIONS, SECTIONS, suggest, table_problems
+from ..errors import ConfigError, FacecapError, Problems, suggest, table_problems
+from ..options import BY_NAME, OPTIONS, SECTIONS
 from . import read_config_toml
 from .paths import take_inputs
 

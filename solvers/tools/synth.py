@@ -195,9 +195,20 @@ def synthesize_take(
     -------
     SyntheticTake
     """
-    rng = np.random.default_rng(seed)
-    F = weights.shape[0]
     face = basis.neutral[None] + np.einsum("fk,kmd->fmd", weights, basis.deltas)
+    return synthesize_points(basis.marker_names, face, weights, fps=fps, rest=rest, stable=stable, units=units,
+                             pivot=pivot, capture_rotation_deg=capture_rotation_deg, capture_offset=capture_offset,
+                             actor_scale=actor_scale, max_deg=max_deg, max_offset=max_offset,
+                             noise_sigma=noise_sigma, gap_fraction=gap_fraction, max_gap=max_gap, seed=seed)
+
+
+def synthesize_points(names, face, truth, *, fps=60.0, rest=60, stable=(), units="mm", pivot=(0.0, 0.03, -0.12),
+                      capture_rotation_deg=(0.0, 0.0, 90.0), capture_offset=(0.3, -0.15, 1.65), actor_scale=1.08,
+                      max_deg=25.0, max_offset=0.05, noise_sigma=0.0003, gap_fraction=0.05, max_gap=30, seed=2):
+    """``synthesize_take`` for a face given as its points per frame ``face`` (F, M, 3, metres; e.g. a
+    rig evaluated at its bound points ``names``); ``truth`` (F, ...) is kept as the take's weights."""
+    rng = np.random.default_rng(seed)
+    F = face.shape[0]
     rotvec, offset = head_motion(F, fps=fps, rest=rest, max_deg=max_deg, max_offset=max_offset, seed=seed + 1)
     R = Rotation.from_rotvec(rotvec).as_matrix()
     pivot = np.asarray(pivot, dtype=np.float64)
@@ -208,7 +219,7 @@ def synthesize_take(
 
     noisy = capture + rng.normal(0.0, noise_sigma * to_units, size=capture.shape)
     stable_set = set(stable)
-    for m, name in enumerate(basis.marker_names):
+    for m, name in enumerate(names):
         if name in stable_set:
             continue
         target = int(round(gap_fraction * F))
@@ -220,12 +231,12 @@ def synthesize_take(
             missing = int(np.isnan(noisy[:, m, 0]).sum())
 
     frames = np.arange(1, F + 1, dtype=np.float64)
-    names = basis.marker_names
+    names = tuple(names)
     head_rot = Rotation.from_matrix(Rc @ R @ Rc.T).as_rotvec(degrees=True)
     return SyntheticTake(
         markers=MarkerSet(names, frames, noisy, fps=fps, units=units, source="synthetic take"),
         clean=MarkerSet(names, frames, capture, fps=fps, units=units, source="synthetic take (clean)"),
-        weights=weights,
+        weights=truth,
         head_rotvec_deg=head_rot,
         head_offset=actor_scale * offset @ Rc.T * to_units,
     )

@@ -49,11 +49,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, FacecapError, InputFileError, Problems
+from ..errors import ConfigError, FacecapError, InputFileError, Problems, table_problems
 from ..io.csv import write_markers_csv, write_weights_csv
 from ..io.files import read_text_input, remove_stale_temporaries, write_json_atomic
 from ..io.outputs import Output, check_outputs
-from ..options import MAX_FPS, MAX_FRAME, Option, table_problems
+from ..options import MAX_FPS, MAX_FRAME, Option
 from .flow import track_with_flow_job
 from .landmarks import track_landmarks_job
 from .reading import Cancelled, Footage

@@ -59,7 +59,8 @@ def test_controls_agree_with_the_option(option):
         kind, prop = _resolve(control)
         if prop.type == "ENUM" and option.choices:
             items = {item.identifier for item in prop.enum_items}
-            if items <= {"AUTO"} | set(option.choices) | {c.upper() for c in option.choices}:
+            # AUTO: the file decides; NONE: the option left out (the Solve panel's target without [rig])
+            if items <= {"AUTO", "NONE"} | set(option.choices) | {c.upper() for c in option.choices}:
                 continue
             assert items <= set(option.choices), f"{control}: items {sorted(items)} not in {option.choices}"
         if kind == "setting" and prop.type in ("FLOAT", "INT") and not getattr(prop, "is_array", False) \

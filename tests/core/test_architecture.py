@@ -21,6 +21,7 @@ LAYERS = (
     ("facecap.solvers.tools", 70),
     ("facecap.solvers.config", 60),
     ("facecap.solvers.solve", 55),
+    ("facecap.solvers.rig", 52),  # a rig as the target: above the pipeline it finishes, below the solve path
     ("facecap.solvers.tuning", 50),
     ("facecap.solvers.video", 50),
     ("facecap.solvers.pipeline", 40),

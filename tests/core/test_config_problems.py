@@ -8,7 +8,7 @@ import pytest
 from facecap.solvers.config import load_take_config
 from facecap.solvers.config.batch import collect_takes
 from facecap.solvers.errors import ConfigError, ConfigProblems
-from facecap.solvers.options import suggest
+from facecap.solvers.errors import suggest
 from facecap.solvers.video.cli import load_track_config
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"

@@ -51,13 +51,13 @@ def run(shared, *, draws=5, frames=1200, targets=("sample",), layouts=("dense",)
                     try:
                         if character is None:
                             raise RuntimeError(bind_error)
-                        weights, names, upper, notes = run_method(method, draw, meshes[target], template,
+                        weights, names, upper, _ = run_method(method, draw, meshes[target], template,
                                                                   character=character)
                         metrics = compare(weights, names, draw.truth, draw.shape_names, upper=upper,
                                           frames=draw.performance_frames)
                         error = ""
                     except Exception as exc:  # noqa: BLE001  (a method that fails is a row of the table)
-                        metrics, notes, error = None, (), f"{type(exc).__name__}: {exc}"
+                        metrics, error = None, f"{type(exc).__name__}: {exc}"
                     row = {"seed": seed, "layout": layout, "target": target, "method": method,
                            "metrics": metrics, "seconds": time.perf_counter() - t0, "error": error,
                            "performance": draw.description}

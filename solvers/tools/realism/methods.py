@@ -52,7 +52,7 @@ def run_method(name, draw, mesh, template, *, character=None):
         return np.zeros((len(draw.truth), character.n_shapes)), character.shape_names, character.upper, ()
     if name == "plain":
         return plain_solve(draw, character), character.shape_names, character.upper, ()
-    inputs, notes = StrategyInputs(), ()
+    inputs = StrategyInputs()
     if name == "geometric":
         settings = replace(settings, strategy="geometric")
     elif name == "calibrated-old":

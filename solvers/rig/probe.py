@@ -1,0 +1,171 @@
+"""Probing a rig: which control poses to evaluate, and the ``RigModel`` fitted from what the rig gave.
+
+Blender evaluates (``facecap_addon.rig_eval``); this module only plans and fits. ``probe_rig`` takes
+``evaluate(offsets (N, C)) -> deltas (N, M, D)`` and
+
+1. moves each control alone to 1/4, 1/2, 3/4 and all of its span on each side it has (its linear
+   and own-curvature terms; the *checked step*: the cubic through rest and the 1/4, 1/2 and full
+   probes must predict the 3/4 probe within ``step_tol``, else the control is reported as uneven,
+   its response is not a cubic there, e.g. an in-between or a clamp, and the refinement through
+   the rig matters),
+2. tests every candidate pair (the rig's product drivers, plus, with ``find_pairs``, every two
+   controls that move a common bound point) at the corner of their spans: the pair gets a term when
+   the mixed difference x(a, b) - x(a, 0) - x(0, b) is above ``pair_tol`` of the larger one alone,
+3. adds random poses with a few controls on at once, fits the model on everything and reports its
+   error on a held-out fifth of them.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FacecapError
+from .model import fit_model
+
+STEPS = (0.25, 0.5, 0.75, 1.0)
+#: A control's support: the points it moves by at least this share of its own largest reach.
+SUPPORT = 0.05
+
+
+@dataclass(frozen=True)
+class ProbeReport:
+    """What probing found: probes evaluated, pairs with a term, the fit's RMS at the probes and on
+    held-out random poses (units of the bound points), controls whose checked step failed, and
+    controls that move no bound point."""
+
+    probes: int
+    pairs: tuple
+    fit_rms: float
+    holdout_rms: float
+    uneven: tuple
+    unseen: tuple
+
+    def as_dict(self):
+        return {"probes": self.probes, "pairs": [list(p) for p in self.pairs], "fit_rms": self.fit_rms,
+                "holdout_rms": self.holdout_rms, "uneven_controls": list(self.uneven), "unseen_controls": list(self.unseen)}
+
+
+def _axis_offsets(lower, upper):
+    """(rows, control index, signed fraction) of the single-control probes."""
+    rows, which = [], []
+    for i, (lo, hi) in enumerate(zip(lower, upper)):
+        for side in (hi, lo):
+            if side == 0:
+                continue
+            for t in STEPS:
+                u = np.zeros(len(lower))
+                u[i] = t * side
+                rows.append(u)
+                which.append((i, t * side))
+    return np.array(rows).reshape(-1, len(lower)), which
+
+
+def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, upper, pairs=(), find_pairs=True,
+              n_random=1000, active=4, seed=0, pair_tol=0.02, step_tol=0.02, progress=None):
+    """Probe a rig through ``evaluate`` and fit its ``RigModel``.
+
+    Parameters
+    ----------
+    evaluate : callable, offsets (N, C) from rest -> deltas (N, M, D) of the bound points from ``neutral``
+    rest, lower, upper : (C,) control rest values and limits (raw values)
+    pairs : control index pairs known to interact (e.g. read from the rig's driver expressions)
+    find_pairs : also test every two controls that move a common bound point
+    n_random, active : random poses and how many controls each moves at once
+    progress : callable(done, total) -> bool, False cancels (FacecapError "cancelled")
+
+    Returns
+    -------
+    (RigModel, ProbeReport)
+    """
+    rest, lower, upper = (np.asarray(a, dtype=np.float64) for a in (rest, lower, upper))
+    C = len(control_names)
+    lo, hi = lower - rest, upper - rest
+    if np.any(hi - lo <= 0):
+        bad = [n for n, a, b in zip(control_names, lo, hi) if b - a <= 0]
+        raise FacecapError(f"rig controls {bad[:5]} have an empty range (lower >= upper); check their limits")
+    rng = np.random.default_rng(seed)
+    total = [0]
+
+    def run(offsets):
+        out = evaluate(offsets)
+        total[0] += len(offsets)
+        if progress is not None and progress(total[0], planned) is False:
+            raise FacecapError("rig probing cancelled")
+        return out
+
+    axis, which = _axis_offsets(lo, hi)
+    planned = len(axis) + n_random + C * 4
+    axis_d = run(axis)
+    size = np.linalg.norm(axis_d, axis=2)  # (N, M)
+    reach = np.zeros((C, len(marker_names)))
+    for row, (i, _) in enumerate(which):
+        reach[i] = np.maximum(reach[i], size[row])
+    seen = reach > 1e-3 * max(reach.max(), 1e-300)
+    unseen = tuple(control_names[i] for i in range(C) if not seen[i].any())
+    # where a control acts: the points it moves by 5 % of its own largest reach (its fringe of
+    # skinning weights would make nearly every two face controls a candidate pair)
+    moved = seen & (reach >= SUPPORT * reach.max(axis=1, keepdims=True))
+    uneven = _uneven(axis_d, which, C, step_tol, control_names)
+
+    candidates = {(min(a, b), max(a, b)) for a, b in pairs if a != b}
+    if find_pairs:
+        overlap = moved.astype(np.float64) @ moved.T.astype(np.float64)
+        candidates |= {(a, b) for a in range(C) for b in range(a + 1, C) if overlap[a, b] > 0}
+    candidates = sorted(candidates)
+    planned += len(candidates)
+    kept = []
+    if candidates:
+        far = np.where(hi >= -lo, hi, lo)
+        corner = np.zeros((len(candidates), C))
+        singles = {}
+        for row, (i, t) in enumerate(which):
+            if t == far[i]:
+                singles[i] = axis_d[row]
+        for q, (a, b) in enumerate(candidates):
+            corner[q, a], corner[q, b] = far[a], far[b]
+        corner_d = run(corner)
+        for q, (a, b) in enumerate(candidates):
+            mixed = np.abs(corner_d[q] - singles[a] - singles[b]).max()
+            alone = max(np.abs(singles[a]).max(), np.abs(singles[b]).max(), 1e-300)
+            if mixed > pair_tol * alone:
+                kept.append((a, b))
+    else:
+        corner, corner_d = np.zeros((0, C)), np.zeros((0,) + axis_d.shape[1:])
+
+    rand = np.zeros((n_random, C))
+    for row in rand:
+        on = rng.choice(C, size=min(active, C), replace=False)
+        row[on] = rng.uniform(lo[on], hi[on])
+    rand_d = run(rand) if n_random else np.zeros((0,) + axis_d.shape[1:])
+    held = np.zeros(n_random, dtype=bool)
+    held[: n_random // 5] = True
+    fit_u = np.vstack([axis, corner, rand[~held]])
+    fit_d = np.concatenate([axis_d, corner_d, rand_d[~held]])
+    model, rms = fit_model(control_names, marker_names, neutral, fit_u, fit_d, pairs=kept, rest=rest, lower=lower,
+                           upper=upper)
+    holdout = float(np.sqrt(np.mean((model.deltas(rand[held]) - rand_d[held]) ** 2))) if held.any() else float("nan")
+    report = ProbeReport(total[0], tuple((control_names[a], control_names[b]) for a, b in kept), rms, holdout,
+                         uneven, unseen)
+    return model, report
+
+
+def _uneven(axis_d, which, C, tol, names):
+    """Controls whose response is not a cubic (the checked step): on each side, the cubic through
+    rest and the 1/4, 1/2 and full-span probes must predict the 3/4 probe within ``tol`` of its size."""
+    at = {(i, t): axis_d[row] for row, (i, t) in enumerate(which)}
+    out = []
+    for i in range(C):
+        for sign in (1.0, -1.0):
+            side = sorted((t for (j, t) in at if j == i and t * sign > 0), key=abs)
+            if len(side) < 4:
+                continue
+            ts = np.array([side[0], side[1], side[3]])
+            V = np.stack([ts, ts ** 2, ts ** 3], axis=1)  # x(t) = a t + b t^2 + c t^3
+            coef = np.linalg.solve(V, np.stack([at[(i, t)].ravel() for t in ts]))
+            t = side[2]
+            predicted = (coef.T @ np.array([t, t * t, t ** 3])).reshape(at[(i, t)].shape)
+            ref = np.abs(at[(i, side[3])]).max()
+            if ref > 0 and np.abs(predicted - at[(i, t)]).max() > tol * ref:
+                out.append(names[i])
+                break
+    return tuple(out)

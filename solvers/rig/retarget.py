@@ -1,0 +1,182 @@
+"""A rig as the target of the one solve path: its basis for the linear solve, then its controls.
+
+``RigTarget`` is what a front end hands ``solvers.solve`` (``SolveRequest.rig``): either a probed
+``RigModel`` (the controls are the solve's columns; the linear solve starts the bounded nonlinear
+solve of ``nonlinear``, then frames where the real rig differs from the model are refined through
+the rig) or a ``PoseLibrary`` (the poses are the columns; any strategy solves them by name; the
+weights become control values). ``finish`` turns the pipeline's ``RetargetResult`` over the
+columns into one over the controls: ``shape_names`` are the control names, ``weights`` the raw
+control values, the residuals those of the final solve, and ``info["rig"]`` says what was done.
+"""
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..character.shape_options import resolve_locks
+from ..errors import FacecapError
+from ..pipeline import stages
+from .nonlinear import iterate_nonlinear
+from .poses import PoseLibrary
+
+METHODS = ("probed", "poses")
+
+
+@dataclass(frozen=True, eq=False)
+class RigTarget:
+    """What the solve needs of a rig.
+
+    method : "probed" (``model``) or "poses" (``library`` with ``library_basis``, the poses at the bound points)
+    model : RigModel over the controls (probed; optional for poses, unused there)
+    nonlinear : solve the model's curvature and pair terms after the linear solve (probed)
+    evaluate : optional callable, control offsets (N, C) -> real deltas (N, M, D) at ``model.marker_names``:
+        the refinement through the rig
+    refine_mm : frames where the rig and the model differ by more than this (mm, RMS over the
+        markers) are refined through the rig
+    refine_rounds : refinement rounds at most
+    refine_stride : the rig is evaluated on every n-th frame of a refinement round (1: every frame)
+    max_iter : Gauss-Newton iterations per solve
+    info : what building the target found (probing report), carried into ``info["rig"]``
+    """
+
+    method: str
+    model: object = None
+    library: PoseLibrary = None
+    library_basis: object = None
+    nonlinear: bool = True
+    evaluate: object = None
+    refine_mm: float = 0.05
+    refine_rounds: int = 2
+    refine_stride: int = 1
+    max_iter: int = 20
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise FacecapError(f"[rig] method must be one of {', '.join(METHODS)}; got '{self.method}'")
+        if self.method == "probed" and self.model is None:
+            raise FacecapError("[rig] method \"probed\" needs the rig's model (probe the rig first)")
+        if self.method == "poses" and (self.library is None or self.library_basis is None):
+            raise FacecapError("[rig] method \"poses\" needs a pose library evaluated at the bound points")
+
+    @property
+    def control_names(self):
+        return self.model.control_names if self.method == "probed" else self.library.control_names
+
+    @property
+    def character(self):
+        """The Basis the pipeline solves: the model's secant basis, or the poses."""
+        return self.model.basis() if self.method == "probed" else self.library_basis
+
+    @property
+    def steps(self):
+        """Job steps ``finish_steps`` may take (for a progress bar)."""
+        if self.method == "poses" or not self.nonlinear:
+            return 1
+        return self.max_iter * (1 + self.refine_rounds) + 1
+
+    def offsets_of(self, controls):
+        """Corrections in control values {frame: {control: value}} -> the solve's column values (probed)."""
+        if controls is None:
+            return None
+        if self.method != "probed":
+            raise FacecapError("tuning from corrections needs [rig] method = \"probed\" (the controls are the columns)")
+        rest = dict(zip(self.model.control_names, self.model.rest))
+        return {f: {n: v - rest.get(n, 0.0) for n, v in row.items()} for f, row in controls.items()}
+
+    def finish_steps(self, result, markers, settings):
+        """Generator: the pipeline's ``result`` over the columns -> a RetargetResult over the controls."""
+        t0 = time.perf_counter()
+        if self.method == "poses":
+            controls = self.library.controls(result.weights)
+            info = {"method": "poses", "poses": list(self.library.pose_names), **self.info}
+            yield None
+            return replace(result, shape_names=self.library.control_names, weights=controls,
+                           source_weights=result.weights, source_names=self.library.pose_names,
+                           info={**result.info, "rig": info}, timings={**result.timings, "rig": time.perf_counter() - t0})
+        model, u = self.model, np.asarray(result.weights, dtype=np.float64)
+        info = {"method": "probed", "nonlinear": False, **self.info}
+        out = result
+        if self.nonlinear and not model.is_linear() and _markers_3d(result, markers):
+            out, solve_info = yield from self._refine(result, markers, settings)
+            info.update(solve_info)
+        else:
+            yield None
+        weights = model.controls(out.weights)
+        timings = {**result.timings, "rig": round(time.perf_counter() - t0, 6)}
+        return replace(out, shape_names=model.control_names, weights=weights, info={**out.info, "rig": info},
+                       timings=timings)
+
+    def _refine(self, result, markers, settings):
+        model = self.model.subset_markers(result.marker_names)
+        deltas = character_deltas(result, settings)
+        F = deltas.shape[0]
+        solved = np.isfinite(result.weights).all(axis=1)
+        start = np.where(solved[:, None], result.weights, 0.0)
+        locks = resolve_locks(model.control_names, settings.locks, n_frames=F)
+        locks = None if np.isnan(locks).all() else locks
+        priors = dict(regularisation=settings.regularisation, sparsity=settings.sparsity, smoothing=settings.smoothing,
+                      locks=locks, max_iter=self.max_iter)
+        nl = yield from iterate_nonlinear(model, deltas, start=start, **priors)
+        info = {"nonlinear": True, "iterations": nl.iterations, "converged": nl.converged,
+                "linear_residual_mm": _mean_mm(result.residual_rms[solved]),
+                "model_residual_mm": _mean_mm(nl.residual_rms[solved])}
+        u, rms, refined = nl.offsets, nl.residual_rms, 0
+        evaluate = self.evaluate
+        for _ in range(self.refine_rounds if evaluate is not None else 0):
+            defect, bad = rig_defect(evaluate, model, u, self.model.marker_names, result.marker_names, self.refine_mm,
+                                     self.refine_stride)
+            if not bad.any():
+                break
+            refined = max(refined, int(bad.sum()))
+            nl = yield from iterate_nonlinear(model, deltas, start=u, defect=defect, **priors)
+            u, rms = nl.offsets, nl.residual_rms
+        if evaluate is not None:
+            info["refined_frames"] = refined
+        u[~solved] = np.nan
+        rms = np.where(solved, rms, np.nan)
+        return replace(result, weights=u, residual_rms=rms), info
+
+
+def _markers_3d(result, markers):
+    return markers is not None and markers.dim == 3 and result.alignment is not None and result.stabilise is not None
+
+
+def _mean_mm(values):
+    values = np.asarray(values)
+    values = values[np.isfinite(values)]
+    return round(float(values.mean() * 1e3), 6) if values.size else None
+
+
+def rig_defect(evaluate, model, u, all_markers, used, refine_mm, stride=1):
+    """What the real rig adds to ``model`` at offsets ``u`` (F, C), on the frames where it matters:
+    (defect (F, M, D) zero elsewhere, those frames (F,) bool). The rig is evaluated on every
+    ``stride``-th frame (and the last) and the defect interpolated between them: the controls move
+    smoothly, and so does what the model misses."""
+    idx = [list(all_markers).index(n) for n in used]
+    F = u.shape[0]
+    at = np.unique(np.r_[np.arange(0, F, max(int(stride), 1)), F - 1])
+    real = evaluate(u[at])[:, idx]
+    sampled = real - model.deltas(u[at])
+    if len(at) == F:
+        defect = sampled
+    else:
+        flat = sampled.reshape(len(at), -1)
+        defect = np.empty((F, flat.shape[1]))
+        for j in range(flat.shape[1]):
+            defect[:, j] = np.interp(np.arange(F), at, flat[:, j])
+        defect = defect.reshape((F,) + sampled.shape[1:])
+    size = np.sqrt((defect ** 2).sum(axis=2).mean(axis=1))
+    bad = size > refine_mm * 1e-3
+    defect[~bad] = 0.0
+    return defect, bad
+
+
+def character_deltas(result, settings):
+    """The take's marker deltas in character space (F, M, D) at ``result.marker_names``: the final
+    stabilisation normalised again and carried by the result's alignment (what the geometric
+    strategy solved)."""
+    take, _ = stages.normalised(result.stabilise, settings, [])
+    idx = [take.names.index(n) for n in result.marker_names]
+    return result.alignment.apply_vectors(np.take(take.deltas, idx, axis=1))

@@ -1,0 +1,192 @@
+"""A rig as the target, on the three test rigs with ground truth (small takes; ``python -m facecap bench
+--rig`` gives the full figures): the sample character's control rig (sliders driving its shape keys
+through nonlinear drivers, plus corrective and in-between shapes), a bone-only face, and a Rigify face
+generated headless from the metarig that ships with Blender. Each is driven by known control curves,
+made into a marker take (head motion, noise, gaps), solved back from a take config, and compared on
+the controls and on the mesh at the bound points."""
+
+import json
+from pathlib import Path
+
+import bpy
+import numpy as np
+import pytest
+
+from facecap.facecap_addon import rig_samples, rig_samples_rigs, rig_target
+from facecap.facecap_addon.headless import run_take
+from facecap.facecap_addon.rig_bench import columns, control_curves, open_character, rmse, take_config, write_take
+from facecap.facecap_addon.rig_eval import RigEvaluator
+from facecap.solvers.io import read_markers, write_markers
+from facecap.solvers.tools.synth import performance_weights
+
+ROOT = Path(__file__).resolve().parents[2]
+FRAMES = 400
+#: The Rigify face: a shorter take (its rig evaluates slowest)
+RIGIFY_FRAMES = 300
+
+
+def config(folder, name, obj, rig="", outputs=""):
+    return take_config(folder, name, obj, rig=rig, outputs=outputs)
+
+
+def solved(result, names):
+    return columns(result, names)
+
+
+@pytest.fixture(scope="module")
+def control_rig(tmp_path_factory):
+    """Sliders -> shape keys through nonlinear drivers; the same take solved to the rig and to the keys."""
+    folder = tmp_path_factory.mktemp("control_rig")
+    mesh = open_character()
+    ctrl = rig_samples.build_control_rig(mesh, correctives=False)
+    controls = rig_target.preset_controls("arkit_sliders", mesh, ctrl)
+    names = [c.name for c in controls]
+    weights = performance_weights(names, FRAMES, seed=4)
+    sliders = rig_samples.sliders_for_weights(names, weights)
+    write_take(folder, mesh, controls, sliders)
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+    rig = run_take(config(folder, "rig", "Face", '[rig]\npreset = "arkit_sliders"\nobject = "FaceControls"\n'
+                          'probes = 300\n', 'blend = "rig_out.blend"\n'), quiet=True)[0]
+    plain = run_take(config(folder, "plain", "Face"), quiet=True)[0]
+    return folder, names, weights, sliders, rig, plain
+
+
+def test_control_rig_controls_are_solved_as_well_as_the_plain_shape_keys(control_rig):
+    """Controls RMSE within 1.2x of solving the same take to the plain shape keys."""
+    _, names, weights, sliders, rig, plain = control_rig
+    rig_error, plain_error = rmse(solved(rig, names), sliders), rmse(solved(plain, names), weights)
+    assert rig_error <= 1.2 * plain_error, (rig_error, plain_error)
+    info = rig.info["rig"]
+    assert info["method"] == "probed" and info["nonlinear"] and info["holdout_rms"] < 1e-6  # drivers fitted exactly
+    assert info["pairs"] == [] and info["unseen_controls"] == ["tongueOut"]
+
+
+def test_control_rig_is_keyed_on_the_solve_layer_and_plays_back(control_rig):
+    folder, names, _, _, rig, _ = control_rig
+    bpy.ops.wm.open_mainfile(filepath=str(folder / "rig_out.blend"))
+    ctrl, key = bpy.data.objects["FaceControls"], bpy.data.objects["Face"].data.shape_keys
+    track = ctrl.animation_data.nla_tracks["FaceCap Solve"]
+    assert track.lock and ctrl.animation_data.action is None  # the animator's layer is left free
+    frame = int(rig.frames[np.nanargmax(solved(rig, ["jawOpen"])[:, 0])])
+    bpy.context.scene.frame_set(frame)
+    k = list(rig.shape_names).index("jawOpen")
+    assert ctrl["jawOpen"] == pytest.approx(rig.weights[list(rig.frames).index(frame), k], abs=1e-5)
+    s = ctrl["jawOpen"]
+    response = rig_samples.RESPONSES[rig_samples.ARKIT_52.index("jawOpen") % 3][1]
+    assert key.key_blocks["jawOpen"].value == pytest.approx(response(s), abs=1e-5)  # through its driver
+
+
+@pytest.fixture(scope="module")
+def corrective_rig(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("corrective_rig")
+    mesh = open_character()
+    ctrl = rig_samples.build_control_rig(mesh, correctives=True)
+    controls = rig_target.preset_controls("arkit_sliders", mesh, ctrl)
+    names = [c.name for c in controls]
+    sliders = rig_samples.sliders_for_weights(names, performance_weights(names, FRAMES, seed=4))
+    write_take(folder, mesh, controls, sliders)
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+    results = {nl: run_take(config(folder, f"nl{nl}", "Face", f'[rig]\npreset = "arkit_sliders"\nobject = '
+                                   f'"FaceControls"\nprobes = 300\nnonlinear = {str(nl).lower()}\n'), quiet=True)[0]
+               for nl in (False, True)}
+    return names, sliders, results
+
+
+def test_correctives_firing_are_solved_with_half_the_linear_error(corrective_rig):
+    names, sliders, results = corrective_rig
+    index = {n: i for i, n in enumerate(names)}
+    firing = np.zeros(len(sliders), dtype=bool)
+    for _, (a, b), _ in rig_samples.CORRECTIVES:
+        firing |= sliders[:, index[a]] * sliders[:, index[b]] > 0.05
+    assert firing.sum() > 30
+    errors = {nl: rmse(solved(r, names)[firing], sliders[firing]) for nl, r in results.items()}
+    assert errors[True] <= 0.5 * errors[False], errors
+    info = results[True].info["rig"]
+    assert {tuple(p) for p in info["pairs"]} == {tuple(sorted(pair, key=names.index)) for _, pair, _ in
+                                                 rig_samples.CORRECTIVES}
+    assert info["uneven_controls"] == ["jawOpen"]  # the in-between on its middle is not a cubic
+
+
+def test_bone_only_face_is_solved_back_on_the_mesh(tmp_path):
+    mesh = open_character()
+    face, _ = rig_samples_rigs.build_bone_face(mesh)
+    face_name = face.name
+    specs = rig_samples_rigs.bone_face_controls()
+    controls = rig_target.spec_controls(specs, face)
+    truth = control_curves(controls, FRAMES, seed=2)
+    evaluator, points = write_take(tmp_path, face, controls, truth)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "rig.blend"))
+    rig_text = "[rig]\nprobes = 300\ncontrols = [" + ", ".join(
+        "{object = \"%s\", path = '%s'%s}" % (s["object"], s["path"], f", axes = {s['axes']}" if "axes" in s else "")
+        for s in specs) + "]\n"
+    result = run_take(config(tmp_path, "bones", face_name, rig_text), quiet=True)[0]
+    names = [c.name for c in controls]
+    got = solved(result, names)
+    span = np.array([c.upper - c.lower for c in controls])
+    assert rmse(got / span, truth / span) < 0.05  # within 5 % of each control's range
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "rig.blend"))  # the solve opened the file anew
+    face = bpy.data.objects[face_name]
+    evaluator = RigEvaluator(face, rig_target.spec_controls(specs, face), list(evaluator.marker_names))
+    mesh_error = np.sqrt(np.mean(np.sum((evaluator.evaluate(got) - points) ** 2, axis=2)))
+    assert mesh_error < 0.4e-3, mesh_error  # at the bound points: about the marker noise (0.3 mm per axis)
+    assert result.info["rig"]["evaluation"] == "numpy"
+
+
+@pytest.fixture(scope="module")
+def rigify_face(tmp_path_factory):
+    """Rigify's face generated headless on the sample character; known control curves solved back."""
+    folder = tmp_path_factory.mktemp("rigify")
+    mesh = open_character()
+    face, rig = rig_samples_rigs.build_rigify_face(mesh)
+    controls = rig_target.preset_controls("rigify_face", face, rig)
+    truth = control_curves(controls, RIGIFY_FRAMES, seed=3)
+    evaluator, points = write_take(folder, face, controls, truth)
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+    face_name, names, markers = face.name, [c.name for c in controls], list(evaluator.marker_names)
+    result = run_take(config(folder, "rigify", face_name, '[rig]\npreset = "rigify_face"\nobject = "rig"\n',
+                             'blend = "rig_out.blend"\ngltf = "rig_out.glb"\n'), quiet=True)[0]
+    return folder, face_name, names, truth, markers, points, result
+
+
+def test_rigify_face_is_solved_back_on_the_mesh(rigify_face):
+    folder, face_name, names, truth, markers, points, result = rigify_face
+    bpy.ops.wm.open_mainfile(filepath=str(folder / "rig.blend"))
+    face = bpy.data.objects[face_name]
+    evaluator = RigEvaluator(face, rig_target.preset_controls("rigify_face", face, bpy.data.objects["rig"]), markers)
+    mesh_error = np.sqrt(np.mean(np.sum((evaluator.evaluate(solved(result, names)) - points) ** 2, axis=2)))
+    # about the marker noise (0.3 mm per axis, 0.52 mm per marker in 3D): measured 0.51-0.56 mm
+    assert mesh_error < 0.6e-3, mesh_error
+    assert result.info["rig"]["evaluation"] == "numpy" and result.info["rig"]["controls"] == 70
+
+
+def test_rigify_face_keyed_plays_back_and_exports_bone_animation(rigify_face):
+    folder, face_name, names, *_ , result = rigify_face
+    bpy.ops.wm.open_mainfile(filepath=str(folder / "rig_out.blend"))
+    rig = bpy.data.objects["rig"]
+    assert rig.animation_data.nla_tracks["FaceCap Solve"].strips[0].action.get("facecap_solve")
+    k = names.index("jaw_master.rot_x")
+    busy = int(result.frames[np.nanargmax(np.abs(result.weights[:, list(result.shape_names).index(names[k])]))])
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    rest = np.array(rig.pose.bones["DEF-jaw"].matrix)
+    scene.frame_set(busy)
+    assert np.abs(np.array(rig.pose.bones["DEF-jaw"].matrix) - rest).max() > 1e-3  # the jaw moves on playback
+    data = (folder / "rig_out.glb").read_bytes()
+    size = int.from_bytes(data[12:16], "little")
+    gltf = json.loads(data[20:20 + size])
+    channels = [c for a in gltf["animations"] for c in a["channels"]]
+    joints = {n for s in gltf["skins"] for n in s["joints"]}
+    assert {"rotation", "translation"} <= {c["target"]["path"] for c in channels}
+    assert sum(c["target"]["node"] in joints for c in channels) > 50  # the deforming bones are animated
+
+
+def test_rigify_face_residual_is_within_1_5x_of_the_shape_keys_on_the_sample_take(rigify_face, tmp_path):
+    """The same performance (the bundled sample take) onto the Rigify face and onto the shape keys."""
+    folder, face_name, *_ = rigify_face
+    write_markers(tmp_path / "take.csv", read_markers(ROOT / "sample_blends" / "sample_take.csv", units="mm", fps=60.0))
+    (tmp_path / "rig.blend").symlink_to(folder / "rig.blend")
+    rig = run_take(config(tmp_path, "rig", face_name, '[rig]\npreset = "rigify_face"\nobject = "rig"\n'),
+                   quiet=True)[0]
+    keys = run_take(config(tmp_path, "keys", "Face"), quiet=True)[0]
+    ratio = np.nanmean(rig.residual_rms) / np.nanmean(keys.residual_rms)
+    assert ratio <= 1.5, ratio

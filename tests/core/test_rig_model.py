@@ -1,0 +1,221 @@
+"""The Blender-free side of rig targets: the rig model and its fit, probing, the bounded nonlinear
+solve with the temporal term, pose libraries, ``RigTarget`` through ``solvers.solve``, ``[rig]``."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from facecap.solvers.character.basis import Basis
+from facecap.solvers.config import load_take_config
+from facecap.solvers.engine import solve_bounded
+from facecap.solvers.errors import ConfigError, FacecapError
+from facecap.solvers.pipeline import RetargetSettings
+from facecap.solvers.rig import PoseLibrary, RigModel, RigTarget, fit_model, probe_rig, solve_nonlinear
+from facecap.solvers.rig.model import features
+from facecap.solvers.solve import SolveRequest, solve
+from facecap.solvers.tools.synth import performance_weights, synthesize_take
+
+ROOT = Path(__file__).resolve().parents[2]
+STABLE = ("head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",
+          "head_nose_bridge_C", "head_side_L", "head_side_R")
+#: Corrective pairs on the sample character's ARKit shapes (a * b fires a corrective shape).
+CORRECTIVE_PAIRS = (("jawOpen", "mouthSmileLeft"), ("jawOpen", "mouthSmileRight"), ("jawOpen", "mouthFunnel"),
+                    ("eyeBlinkLeft", "cheekSquintLeft"), ("browInnerUp", "browDownLeft"))
+
+
+def random_model(C=6, M=8, seed=0, cubic=True):
+    rng = np.random.default_rng(seed)
+    pairs = np.array([(0, 1), (2, 4)])
+    return RigModel([f"c{i}" for i in range(C)], [f"m{i}" for i in range(M)], rng.normal(size=(M, 3)) * 0.05,
+                    rng.normal(size=(C, M, 3)) * 0.005, rng.normal(size=(C, M, 3)) * 0.002,
+                    rng.normal(size=(C, M, 3)) * 0.001 * cubic, pairs, rng.normal(size=(2, M, 3)) * 0.004,
+                    np.zeros(C), -np.ones(C), np.ones(C))
+
+
+@pytest.fixture(scope="module")
+def corrective_rig():
+    """The sample character's shape keys plus corrective shapes on products of five pairs."""
+    basis = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz")
+    index = {n: i for i, n in enumerate(basis.shape_names)}
+    pairs = np.array([sorted((index[a], index[b])) for a, b in CORRECTIVE_PAIRS])
+    rng = np.random.default_rng(3)
+    fix = []
+    for a, b in pairs:
+        both = basis.deltas[a] + basis.deltas[b]
+        moving = np.linalg.norm(both, axis=1, keepdims=True) > 1e-4
+        fix.append(-0.4 * both + 0.002 * rng.normal(size=both.shape) * moving)
+    C = basis.n_shapes
+    zero = np.zeros_like(basis.deltas)
+    return RigModel(basis.shape_names, basis.marker_names, basis.neutral, basis.deltas, zero, zero, pairs,
+                    np.array(fix), np.zeros(C), basis.lower, basis.upper)
+
+
+def take_of(model, weights, seed=5):
+    """A marker take of ``model`` performing ``weights`` (head motion, noise, gaps)."""
+    C = model.n_controls
+    terms = features(weights, model.pairs)
+    extended = Basis(tuple(f"f{i}" for i in range(terms.shape[1])), model.marker_names, model.neutral,
+                     np.concatenate([model.linear, model.square, model.cube, model.pair_deltas]),
+                     np.full(terms.shape[1], -10.0), np.full(terms.shape[1], 10.0))
+    assert terms.shape[1] == 3 * C + len(model.pairs)
+    return synthesize_take(extended, terms, stable=STABLE, seed=seed)
+
+
+def test_model_jacobian_matches_finite_differences():
+    model = random_model()
+    u = np.random.default_rng(1).uniform(-0.8, 0.8, size=(4, model.n_controls))
+    J = model.jacobian(u)
+    h = 1e-6
+    for i in range(model.n_controls):
+        step = np.zeros_like(u)
+        step[:, i] = h
+        fd = (model.deltas(u + step) - model.deltas(u - step)).reshape(len(u), -1) / (2 * h)
+        np.testing.assert_allclose(J[:, :, i], fd, atol=1e-9)
+
+
+def test_fit_recovers_every_term_of_a_cubic_pairwise_rig():
+    model = random_model()
+    rng = np.random.default_rng(2)
+    u = rng.uniform(-1, 1, size=(400, model.n_controls)) * (rng.uniform(size=(400, model.n_controls)) < 0.5)
+    fitted, rms = fit_model(model.control_names, model.marker_names, model.neutral, u, model.deltas(u),
+                            pairs=[(1, 0), (2, 4)], rest=model.rest, lower=model.lower, upper=model.upper)
+    assert rms < 1e-9  # a nanometre: the ridge that keeps unprobed terms at 0
+    for name in ("linear", "square", "cube", "pair_deltas"):
+        np.testing.assert_allclose(getattr(fitted, name), getattr(model, name), atol=1e-8)
+
+
+def test_probing_finds_the_pairs_and_the_controls_that_are_not_cubic():
+    model = random_model(cubic=False)
+    tent = np.zeros(model.n_controls)
+
+    def evaluate(offsets):  # the model, plus an in-between on control 3 (a tent: not a cubic)
+        bump = np.maximum(0.0, 1.0 - np.abs(2.0 * offsets[:, 3] - 1.0))
+        return model.deltas(offsets) + bump[:, None, None] * 0.004
+
+    fitted, report = probe_rig(evaluate, model.control_names, model.marker_names, model.neutral, rest=tent,
+                               lower=model.lower, upper=model.upper, n_random=300)
+    assert set(report.pairs) == {("c0", "c1"), ("c2", "c4")}
+    assert report.uneven == ("c3",) and report.unseen == ()
+    assert report.holdout_rms > 1e-4  # the held-out poses show what a cubic misses of the tent (4 mm peak)
+    exact, only_pairs = probe_rig(model.deltas, model.control_names, model.marker_names, model.neutral, rest=tent,
+                                  lower=model.lower, upper=model.upper, pairs=[(0, 1)], find_pairs=False, n_random=50)
+    assert only_pairs.pairs == (("c0", "c1"),) and only_pairs.uneven == ()
+    assert only_pairs.holdout_rms > 1e-4  # the (2, 4) pair was neither read from drivers nor looked for
+    pairs_found = probe_rig(model.deltas, model.control_names, model.marker_names, model.neutral, rest=tent,
+                            lower=model.lower, upper=model.upper, n_random=50)[1]
+    assert pairs_found.holdout_rms < 1e-9 and pairs_found.fit_rms < 1e-9
+
+
+def test_probing_refuses_an_empty_range_and_can_be_cancelled():
+    model = random_model()
+    with pytest.raises(FacecapError, match=r"empty range"):
+        probe_rig(model.deltas, model.control_names, model.marker_names, model.neutral, rest=np.zeros(6),
+                  lower=np.r_[0.0, -np.ones(5)], upper=np.r_[0.0, np.ones(5)])
+    with pytest.raises(FacecapError, match="cancelled"):
+        probe_rig(model.deltas, model.control_names, model.marker_names, model.neutral, rest=np.zeros(6),
+                  lower=model.lower, upper=model.upper, progress=lambda done, total: False)
+
+
+def test_nonlinear_solve_halves_the_error_where_correctives_fire(corrective_rig):
+    """With correctives firing, the weight RMSE of the nonlinear solve is at most half the linear one's."""
+    model = corrective_rig
+    weights = performance_weights(model.control_names, 600, seed=4)
+    take = take_of(model, weights)
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 50))
+    firing = (features(weights, model.pairs)[:, 3 * model.n_controls:] > 0.05).any(axis=1)
+    assert firing.sum() > 50
+    errors = {}
+    for nonlinear in (False, True):
+        result = solve(SolveRequest(character=None, settings=settings, markers=take.markers,
+                                    rig=RigTarget("probed", model=model, nonlinear=nonlinear)))
+        assert result.shape_names == model.control_names
+        errors[nonlinear] = np.sqrt(np.nanmean((result.weights[firing] - weights[firing]) ** 2))
+        assert (result.weights >= model.lower - 1e-9).all() and (result.weights <= model.upper + 1e-9).all()
+    assert result.info["rig"]["iterations"] >= 1 and result.info["rig"]["converged"]
+    assert errors[True] <= 0.5 * errors[False], errors
+
+
+def test_nonlinear_solve_keeps_the_temporal_term_locks_and_bounds():
+    model = random_model()
+    rng = np.random.default_rng(6)
+    F = 200
+    t = np.linspace(0, 1, F)
+    truth = 0.8 * np.sin(2 * np.pi * (t[:, None] * (1 + np.arange(6)) / 2 + np.arange(6) / 6))
+    data = model.deltas(truth) + rng.normal(size=(F, 8, 3)) * 2e-4
+    start = np.zeros((F, 6))
+    rough = solve_nonlinear(model, data, start=start, smoothing=(0.0, 0.0), regularisation=1e-6)
+    smooth = solve_nonlinear(model, data, start=start, smoothing=(0.0, 0.3), regularisation=1e-6)
+    jitter = [np.abs(np.diff(r.offsets, 2, axis=0)).mean() for r in (rough, smooth)]
+    assert jitter[1] < 0.5 * jitter[0]
+    assert np.sqrt(np.mean((smooth.offsets - truth) ** 2)) < 0.05
+    locks = np.full(6, np.nan)
+    locks[2] = 0.25
+    held = solve_nonlinear(model, data, start=start, locks=locks)
+    np.testing.assert_array_equal(held.offsets[:, 2], 0.25)
+    assert held.offsets.min() >= -1.0 and held.offsets.max() <= 1.0
+    with pytest.raises(FacecapError, match=r"start must have shape \(200, 6\)"):
+        solve_nonlinear(model, data, start=np.zeros((10, 6)))
+
+
+def test_linear_solve_of_the_secant_basis_is_the_engine_solve():
+    model = random_model(cubic=False)
+    basis = model.basis()
+    np.testing.assert_allclose(basis.deltas, model.linear + model.square * 1.0)  # span 1 towards +1
+    assert np.array_equal(basis.lower, model.lower) and np.array_equal(basis.upper, model.upper)
+    d = model.deltas(np.full((3, 6), 0.5))
+    res = solve_bounded(basis.matrix(), d.reshape(3, -1), lower=basis.lower, upper=basis.upper)
+    assert res.weights.shape == (3, 6)
+
+
+def test_pose_library_turns_pose_weights_into_clipped_control_values():
+    lib = PoseLibrary(("jawOpen", "smile"), ("jaw", "cornerL", "cornerR"), [[0.3, 0.0, 0.0], [0.0, 0.8, 0.8]],
+                      rest=[0.0, 0.0, 0.0], lower=[-1.0, -1.0, -1.0], upper=[1.0, 1.0, 1.0])
+    np.testing.assert_allclose(lib.controls([[1.0, 0.5], [0.0, 2.0]]), [[0.3, 0.4, 0.4], [0.0, 1.0, 1.0]])
+    with pytest.raises(FacecapError, match=r"pose\(s\) \['idle'\] leave every control at rest"):
+        PoseLibrary(("idle",), ("jaw",), [[0.0]], rest=[0.0], lower=[-1.0], upper=[1.0])
+    with pytest.raises(FacecapError, match=r"poses must have shape \(1, 2\)"):
+        PoseLibrary(("a",), ("jaw", "x"), [[0.1]], rest=[0.0, 0.0], lower=[-1.0, -1.0], upper=[1.0, 1.0])
+
+
+def test_rig_model_names_bad_shapes_and_rest_outside_the_limits():
+    m = random_model()
+    with pytest.raises(FacecapError, match=r"rest value of control\(s\) \['c0'\]"):
+        RigModel(m.control_names, m.marker_names, m.neutral, m.linear, m.square, m.cube, m.pairs, m.pair_deltas,
+                 np.r_[2.0, np.zeros(5)], m.lower, m.upper)
+    with pytest.raises(FacecapError, match=r"linear must have shape \(6, 8, 3\)"):
+        RigModel(m.control_names, m.marker_names, m.neutral, m.linear[:2], m.square, m.cube, m.pairs,
+                 m.pair_deltas, m.rest, m.lower, m.upper)
+
+
+def write(tmp_path, rig):
+    (tmp_path / "take.csv").write_text("frame,a_x,a_y,a_z\n1,0,0,0\n")
+    path = tmp_path / "take.toml"
+    path.write_text(f'[target]\nobject = "Face"\n[source]\nmarkers = "take.csv"\n[stabilise]\nmarkers = ["a", "b", "c"]\n'
+                    f'[neutral]\nframes = [1, 1]\n[rig]\n{rig}')
+    return path
+
+
+@pytest.mark.parametrize("rig, message", [
+    ('method = "probed"\n', r"\[rig.preset\] name the controls"),
+    ('preset = "rigify_face"\n', r"\[rig.object\] preset \"rigify_face\" needs the rig"),
+    ('preset = "shape_keys"\nmethod = "poses"\n', r"\[rig.poses\] method = \"poses\" needs poses"),
+    ('preset = "shape_keys"\npreset2 = 1\n', r"\[rig.preset2\] unknown key"),
+    ('controls = [{object = "rig"}]\n', r"\[rig.controls\[0\]\] needs path"),
+    ('controls = [{object = "rig", path = "x", axes = [3]}]\n', r"axes must be a list of 0, 1, 2"),
+    ('controls = [{object = "rig", path = "x", lower = 1, upper = 0}]\n', r"lower \(1\) must be below upper"),
+    ('preset = "bones"\n', r"\[rig.preset\] expected one of rigify_face"),
+])
+def test_rig_section_errors_name_the_key(tmp_path, rig, message):
+    with pytest.raises(ConfigError, match=message):
+        load_take_config(write(tmp_path, rig))
+
+
+def test_rig_section_reads_presets_and_controls(tmp_path):
+    config = load_take_config(write(tmp_path, 'preset = "rigify_face"\nobject = "rig"\nprobes = 50\nrefine = false\n'
+                                    'controls = [{object = "rig", path = \'pose.bones["jaw"].rotation\', axes = [0]}]\n'))
+    rig = config.rig
+    assert (rig.preset, rig.object, rig.method, rig.probes, rig.refine, rig.nonlinear) == \
+        ("rigify_face", "rig", "probed", 50, False, True)
+    assert rig.controls == ({"object": "rig", "path": 'pose.bones["jaw"].rotation', "axes": [0]},)
+    assert load_take_config(write(tmp_path, 'preset = "shape_keys"\n')).rig.preset == "shape_keys"
