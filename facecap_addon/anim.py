@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Actions and F-curves <-> numpy, on Blender 4.2 LTS through 5.0.
+"""Actions and F-curves <-> numpy, on Blender 4.2 LTS through 5.3.
 
 Three action models are handled here so that nothing else in the add-on has to care:
 
@@ -9,7 +9,7 @@ Three action models are handled here so that nothing else in the add-on has to c
   live in a channelbag (``layer.strips[0].channelbag(slot)``) and an ID uses ``AnimData.action``
   *plus* ``AnimData.action_slot``. ``Action.fcurves`` still exists but only as a proxy for the first
   slot, so it is not used.
-* **5.0**: as 4.4, and the legacy ``Action.fcurves`` / ``groups`` / ``id_root`` are gone.
+* **5.0 and later** (5.3 checked): as 4.4, and the legacy ``Action.fcurves`` / ``groups`` / ``id_root`` are gone.
 
 Keys are written in bulk: ``keyframe_points.add(n)`` + ``foreach_set("co", ...)`` +
 ``foreach_set("interpolation", ...)`` (an enum accepts its integer values through ``foreach_set``)
@@ -334,7 +334,7 @@ def _write_samples(fcurve, frames, values):
     points = fcurve.keyframe_points
     points.add(1)
     points.foreach_set("co", [float(first), 0.0])
-    fcurve.convert_to_samples(first, last + 1)  # end excluded (4.2-5.0)
+    fcurve.convert_to_samples(first, last + 1)  # end excluded (4.2-5.3)
     if len(fcurve.sampled_points) != n:
         raise FacecapError(f"Blender {bpy.app.version_string} made {len(fcurve.sampled_points)} samples "
                            f"for frames {first}-{last} of '{fcurve.data_path}' (expected {n})")

@@ -27,8 +27,8 @@ docs-images [--out DIR]       render the documentation's pictures (docs/images) 
 template convert PATH         install the optional human template from a copy of ICT-FaceKit (hash-checked);
                               `template info` says where it is ([actor] template, docs/strategies.md)
 rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
-build-extension [--out DIR]   build and validate the Blender extension zips, one per platform, with the
-                              locked scipy/OpenCV wheels (docs/install.md)
+build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
+                              and platform, with the locked scipy/OpenCV wheels (docs/install.md)
 landmark-models               put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
                               facecap cache, for [tracking] method = "landmarks" outside Blender
 
@@ -315,7 +315,7 @@ COMMANDS = {
                   "Solve the test rigs (a control rig with correctives, a bone-only face, a Rigify face) from known "
                   "control curves and a real capture, and print their figures as JSON."),
     "template": ("install the optional human template from a copy of ICT-FaceKit, or say where it is", None),
-    "build-extension": ("build the Blender extension zips (one per platform, wheels bundled)", None),
+    "build-extension": ("build the Blender extension zips (per Blender generation and platform)", None),
     "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",
                         "Take MediaPipe's face-mesh models out of the locked mediapipe 0.10.21 wheel (downloaded once "
                         "with pip, hash checked) into the facecap cache, for [tracking] method = \"landmarks\" "

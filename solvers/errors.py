@@ -7,6 +7,8 @@ import tomllib
 from contextlib import contextmanager
 from pathlib import Path
 
+from .extension_builds import build_for_python
+
 
 #: A message quoting what it found (a header, a value) is cut to this many characters in the middle:
 #: one readable line, however long the file's line was.
@@ -213,10 +215,15 @@ def blender_platform():
     return f"{system}-{machine}"
 
 
-def extension_zip_name():
-    """The name of the extension zip built for this platform, e.g. ``facecap-0.1.0-linux_x64.zip``."""
+def extension_zip_name(python=None):
+    """The name of the extension zip built for this platform and this Python's Blenders, e.g.
+    ``facecap-0.1.0-blender5.1-and-newer-linux_x64.zip`` (``python``: default this interpreter's)."""
     try:
         version = tomllib.loads(_MANIFEST.read_text(encoding="utf-8"))["version"]
     except (OSError, ValueError, KeyError):
         version = "<version>"  # the name without a version is still the right advice
-    return f"facecap-{version}-{blender_platform().replace('-', '_')}.zip"
+    build = build_for_python(python or sys.version_info)
+    platform_name = blender_platform()
+    if build is None:  # no Blender runs this Python: name the pattern
+        return f"facecap-{version}-<build for your Blender>-{platform_name.replace('-', '_')}.zip"
+    return build.zip_name(version, platform_name)

@@ -160,7 +160,7 @@ class GeometricStrategy:
         alignment, residual = None, None
         if neutral is not None:
             alignment, residual = self._align(np.asarray(neutral, dtype=np.float64)[idx])
-        deltas = _taken(deltas, idx, alignment, overwrite=overwrite)
+        deltas = taken_markers(deltas, idx, alignment, overwrite=overwrite)
         if confidence is not None:
             confidence = np.take(np.nan_to_num(np.asarray(confidence, dtype=np.float64)), idx, axis=1)
         options = replace(self.options, smoothing=(0.0, 0.0)) if quick else self.options
@@ -168,7 +168,7 @@ class GeometricStrategy:
         res = solve_geometric(self.basis, deltas, options=options, confidence=confidence, lower=self.lower,
                               upper=self.upper, locks=None if np.isnan(locks).all() else locks,
                               regions=self.regions, start=start, **(QUICK_SOLVE if quick else {}))
-        rms = _residual_rms(res.weights, self.basis.deltas, deltas)
+        rms = residual_rms(res.weights, self.basis.deltas, deltas)
         rms[~res.solved] = np.nan
         warnings = [*self.notes, *res.warnings]
         flagged = getattr(alignment, "flagged", ())
@@ -228,7 +228,7 @@ def bound_markers(character, names, *, source="take"):
 BLOCK = 8192
 
 
-def _taken(deltas, idx, alignment, *, overwrite=False):
+def taken_markers(deltas, idx, alignment, *, overwrite=False):
     """``deltas[:, idx]`` (F, U, D), carried by ``alignment`` when given, in blocks of frames; np.take
     keeps the frame-major layout (deltas[:, idx] would be marker-major, 2x slower later).
 
@@ -249,7 +249,7 @@ def _taken(deltas, idx, alignment, *, overwrite=False):
     return out
 
 
-def _residual_rms(weights, basis_deltas, deltas):
+def residual_rms(weights, basis_deltas, deltas):
     """RMS residual per frame (F,) over the observed markers of ``deltas`` (F, M, D), in blocks of frames."""
     K, M, D = basis_deltas.shape
     out = np.empty(deltas.shape[0])

@@ -26,7 +26,7 @@ from ..errors import FacecapError
 from ..options import default
 from .actor_model import ActorKnowledge, build_actor_model
 from .base import StrategyResult, as_target
-from .geometric import QUICK_SOLVE, symmetric_pairs
+from .geometric import QUICK_SOLVE, residual_rms, symmetric_pairs, taken_markers
 from .mapping import Mapping
 from .sources import as_deltas
 
@@ -43,13 +43,15 @@ MODEL_ERROR = 0.1
 #: The noise the model error is compared with is at least this (metres): filtered captures show less.
 NOISE_FLOOR = 2e-4
 #: The priors' factor when nothing is known of the actor and the character's shapes do not explain the markers
-#: (the solve then shrinks towards rest: 0.197 -> 0.158 weights RMSE on the realism benchmark, nothing pinned).
+#: (the solve then shrinks towards rest; realism benchmark, 3 draws onto the sample character: weights RMSE
+#: 0.197 -> 0.179, the share at the upper bound 1.2 -> 0.6 %).
 UNCERTAIN_PRIORS = 10.0
 #: The priors' factor on shapes completed from the character's through measured poses (12 poses on the sample
 #: character: 0.187 -> 0.178 weights RMSE against 10x, mean per-shape r 0.23 -> 0.38).
 TRANSFERRED_PRIORS = 3.0
 #: A shape of an approximate actor model at its upper limit in more than this share of frames is solved again
-#: with its priors this much firmer (a held limit for seconds is a model that cannot explain the motion).
+#: with its priors this much firmer (a held limit for seconds is a model that cannot explain the motion;
+#: Facial-Sing onto the sample character: 2.7 -> 1.0 % of the weights at 1.0).
 PINNED_SHARE, PINNED_PRIORS = 0.2, 10.0
 #: Frames over which a pair's active side is decided (a running mean of their difference).
 DECIDE_FRAMES = 9
@@ -78,7 +80,7 @@ class SemanticStrategy:
     """Solve the actor's activations of the character's (semantic) shapes against the actor model.
 
     Parameters (keyword-only): the priors ``regularisation``, ``sparsity``, ``symmetry``, ``smoothing`` (as
-    ``geometric``, here relative to each shape's own size); ``exclusive`` keeps opposing shapes apart.
+    ``geometric``); ``exclusive`` keeps opposing shapes apart; ``model_error`` (see ``MODEL_ERROR``).
     """
 
     name = "semantic"
@@ -170,7 +172,7 @@ class SemanticStrategy:
         if missing:
             raise FacecapError(f"semantic: the take has no marker(s) {missing[:8]} of the actor model")
         idx = [names.index(n) for n in basis.marker_names]
-        D = np.take(deltas, idx, axis=1)
+        D = taken_markers(deltas, idx, None, overwrite=overwrite)  # in the take's memory when it is given up
         F, U, _ = D.shape
         if confidence is not None:
             confidence = np.take(np.nan_to_num(np.asarray(confidence, dtype=np.float64)), idx, axis=1)
@@ -211,7 +213,7 @@ class SemanticStrategy:
             notes.append(f"{len(pinned)} shape(s) sat at their upper limit in more than {100 * PINNED_SHARE:.0f}% of "
                          f"frames and were solved again with firmer priors (the actor model does not explain what "
                          f"drives them): {[basis.shape_names[k] for k in pinned]}")
-        rms = _residual_rms(res.weights, basis.deltas, D)
+        rms = residual_rms(res.weights, basis.deltas, D)
         rms[~res.solved] = np.nan
         info = {"mode": res.mode, "actor_model": self.model.report()}
         return StrategyResult(weights=res.weights, shape_names=basis.shape_names, solved=res.solved,
@@ -236,15 +238,3 @@ class SemanticStrategy:
         """Actor-space deltas (F, U, 3) of ``result.marker_names`` that ``result``'s weights explain."""
         K, U, D = self.model.basis.deltas.shape
         return (np.nan_to_num(result.weights) @ self.model.basis.deltas.reshape(K, U * D)).reshape(-1, U, D)
-
-
-def _residual_rms(weights, basis_deltas, deltas):
-    """RMS residual per frame (F,) over the observed markers."""
-    K, M, D = basis_deltas.shape
-    res = (np.nan_to_num(weights) @ basis_deltas.reshape(K, M * D)).reshape(-1, M, D) - deltas
-    seen = np.isfinite(deltas[:, :, 0])
-    sq = np.where(seen, np.nansum(res**2, axis=2), 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(sq.sum(axis=1) / seen.sum(axis=1))
-
-

@@ -10,13 +10,14 @@ from ..capture.align import align_actor
 from ..capture.noise import marker_noise
 from ..character.basis import Basis
 from ..errors import FacecapError
+from ..transforms import Similarity
 from .actor_model import ActorKnowledge
 from .calibrated import actor_basis_from_poses
 from .semantic import SemanticStrategy
 
 #: A template fitted from the upright start with markers farther than this (median, mm) from the face is
-#: refitted from the automatic multi-start alignment instead.
-TEMPLATE_START_MM = 3.0
+#: fitted again from the automatic multi-start alignment, and the closer fit kept (a good fit: 0.5-1 mm).
+TEMPLATE_START_MM = 1.5
 
 
 def character_in_actor_space(character, names, neutral, settings):
@@ -59,11 +60,19 @@ def poses_in_take(take, poses):
 def fit_template(template, names, neutral, align):
     """The human template fitted to the take's neutral: a TemplateFit whose deltas are in actor space."""
     ok = np.isfinite(neutral).all(axis=1)
-    upright = align.apply(neutral) if align is not None else None
-    fit = template.fit(names, upright) if upright is not None else None
+    # the markers' global similarity onto the character (the alignment's own is per bound marker)
+    sim = None if align is None else Similarity(align.scale, align.rotation, align.translation)
+    fit = template.fit(names, sim.apply(neutral)) if sim is not None else None
     if fit is None or not np.nanmedian(fit.residual_mm[ok]) <= TEMPLATE_START_MM:
-        return template.fit_automatic(names, neutral)
-    deltas = align.inverse_vectors(fit.deltas)
+        try:  # the character's upright pose was no good start: the multi-start search, if it does better
+            searched = template.fit_automatic(names, neutral)
+        except FacecapError:
+            if fit is None:
+                raise
+        else:
+            if fit is None or np.nanmedian(searched.residual_mm[ok]) < np.nanmedian(fit.residual_mm[ok]):
+                return searched
+    deltas = sim.inverse_vectors(fit.deltas)
     return type(fit)(fit.shape_names, fit.marker_names, deltas, fit.residual_mm, fit.scale, fit.notes)
 
 

@@ -1,16 +1,21 @@
-"""``python -m facecap build-extension``: the Blender extension zips, one per platform, with the wheels bundled.
+"""``python -m facecap build-extension``: the Blender extension zips, one per Blender generation and platform,
+with the wheels bundled.
 
 Blender ships numpy but neither scipy nor OpenCV, and an artist cannot ``pip install`` into it. So the
 extension carries unmodified PyPI wheels for them (``wheels.lock.toml``: file names and sha256 per
-platform), as Blender's extension platform expects. The build
+platform and Python), as Blender's extension platform expects. Blender 4.2-5.0 run Python 3.11 and
+5.1 and later Python 3.13, so there is one build per Python (``solvers/extension_builds.py``: the
+Blender versions each accepts, written into its manifest). The build
 
 1. fetches every locked wheel into a cache (``$FACECAP_CACHE/wheels``, default ``~/.cache/facecap``),
    downloading missing ones with ``pip download`` (pip's HTTP cache makes a repeat fast) and checking
    each file's sha256 against the lock;
-2. stages the add-on source with the wheels in ``./wheels`` and a generated ``blender_manifest.toml``
-   (the repository's manifest plus ``platforms = [...]`` and ``wheels = [...]``: never hand-edited);
+2. stages the add-on source, per build, with that build's wheels in ``./wheels`` and a generated
+   ``blender_manifest.toml`` (the repository's manifest plus the build's ``blender_version_min``/``max``,
+   ``platforms = [...]`` and ``wheels = [...]``: never hand-edited);
 3. runs Blender's own extension tool (``blender_ext.py``, shipped inside the ``bpy`` wheel) as a
-   subprocess to ``build --split-platforms`` and ``validate`` one zip per platform.
+   subprocess to ``build --split-platforms`` and ``validate`` one zip per platform, named after the build
+   (``facecap-0.1.0-blender5.1-and-newer-linux_x64.zip``).
 
 No Blender module is imported here: the tool is found on disk under the installed ``bpy`` package.
 """
@@ -32,13 +37,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import FacecapError
+from ..extension_builds import BUILDS, PLATFORMS, build_for_python, build_named
 
 REPO = Path(__file__).resolve().parents[2]
 LOCK_FILE = REPO / "wheels.lock.toml"
 MANIFEST = "blender_manifest.toml"
-PLATFORMS = ("windows-x64", "linux-x64", "macos-arm64", "macos-x64")
-BLENDER_PYTHON = "3.11"      # every supported Blender (4.2-5.0) runs CPython 3.11
-SIZE_TARGET_MB = 110.0       # one platform's zip; above this the build warns
+SIZE_TARGET_MB = 120.0       # one zip; above this the build warns
 TOOL_TIMEOUT = 900           # seconds for one pip download or extension-tool run
 
 
@@ -48,10 +52,11 @@ class BuildError(FacecapError):
 
 @dataclass(frozen=True)
 class LockedWheel:
-    """One wheel of ``wheels.lock.toml``: which package, for which Blender platform, and its hash."""
+    """One wheel of ``wheels.lock.toml``: which package, for which Python and Blender platform, and its hash."""
 
     name: str
     version: str
+    python: str
     platform: str
     file: str
     sha256: str
@@ -62,6 +67,7 @@ class LockedWheel:
 class BuiltZip:
     """One built and validated extension zip."""
 
+    build: str
     platform: str
     path: Path
     size: int
@@ -94,15 +100,21 @@ def read_lock(path=LOCK_FILE):
     wheels, imports = [], {}
     for p, package in enumerate(data.get("package", [])):
         try:
-            name, version = package["name"], package["version"]
+            name, version, python = package["name"], package["version"], package["python"]
             imports.update({module: name for module in package["imports"]})
             for w in package["wheel"]:
-                wheels.append(LockedWheel(name, version, w["platform"], w["file"], w["sha256"].lower(), int(w["size"])))
+                wheels.append(LockedWheel(name, version, python, w["platform"], w["file"], w["sha256"].lower(),
+                                          int(w["size"])))
         except KeyError as exc:
             raise BuildError(f"{path}: package {p + 1} has no `{exc.args[0]}`") from None
     for w in wheels:
-        if w.platform not in PLATFORMS:
-            raise BuildError(f"{path}: {w.file} has platform '{w.platform}'; expected one of {', '.join(PLATFORMS)}")
+        build = build_for_python(w.python)
+        if build is None:
+            raise BuildError(f"{path}: {w.name} {w.version} is for Python {w.python}, which no extension build "
+                             f"uses ({', '.join(b.python for b in BUILDS)})")
+        if w.platform not in build.platforms:
+            raise BuildError(f"{path}: {w.file} has platform '{w.platform}'; the {build.name} build is for "
+                             f"{', '.join(build.platforms)}")
         if f"-{w.version}-" not in w.file or not w.file.endswith(".whl"):
             raise BuildError(f"{path}: '{w.file}' is not a {w.name} {w.version} wheel")
     return wheels, imports
@@ -141,7 +153,8 @@ def fetch_assets(assets, cache_dir=None, *, log=print):
     store.mkdir(parents=True, exist_ok=True)
     out = {}
     for a in assets:
-        path = _cached(LockedWheel(a.name, a.version, "any", a.file, a.sha256, a.size), store, log)
+        # a universal wheel: pip finds it for any build's Python
+        path = _cached(LockedWheel(a.name, a.version, BUILDS[0].python, "any", a.file, a.sha256, a.size), store, log)
         with zipfile.ZipFile(path) as z:
             try:
                 out[a] = z.read(a.member)
@@ -189,7 +202,7 @@ def _download(wheel, store):
     _name, _version, _python, abi, platform_tags = wheel.file[:-4].split("-")
     with tempfile.TemporaryDirectory(dir=store, prefix=".download-") as tmp:
         cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
-               "--python-version", BLENDER_PYTHON, "--dest", tmp, f"{wheel.name}=={wheel.version}"]
+               "--python-version", wheel.python, "--dest", tmp, f"{wheel.name}=={wheel.version}"]
         if platform_tags != "any":  # a universal wheel needs no platform or ABI
             cmd[-3:-3] = ["--platform", platform_tags.split(".")[0], "--implementation", "cp", "--abi", abi]
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=TOOL_TIMEOUT)
@@ -216,25 +229,35 @@ def find_extension_tool():
     return found[-1]
 
 
-def generated_manifest(text, wheel_paths, platforms):
-    """The repository's manifest with ``platforms`` and ``wheels`` added as top-level keys.
+def generated_manifest(text, wheel_paths, platforms, ext_build=BUILDS[0]):
+    """The repository's manifest for one build: its Blender range, ``platforms`` and ``wheels`` added.
 
     Parameters
     ----------
     text : str
-        ``blender_manifest.toml`` as written in the repository (must not list wheels or platforms).
+        ``blender_manifest.toml`` as written in the repository (its ``blender_version_min`` is the oldest
+        build's; it must not set ``blender_version_max`` nor list wheels or platforms).
     wheel_paths : sequence of str
         Paths relative to the extension root (``./wheels/<file>``).
     platforms : sequence of str
         Blender platform names (``linux-x64``, ...).
+    ext_build : ExtensionBuild
+        Whose ``blender_version_min`` and (unless its range is open) ``blender_version_max`` are written.
     """
     data = tomllib.loads(text)
-    for key in ("wheels", "platforms"):
+    for key in ("wheels", "platforms", "blender_version_max"):
         if key in data:
-            raise BuildError(f"{MANIFEST}: `{key}` is generated by build-extension from {LOCK_FILE.name}; "
-                             "remove it from the repository's manifest")
+            raise BuildError(f"{MANIFEST}: `{key}` is generated by build-extension (from {LOCK_FILE.name} and "
+                             "solvers/extension_builds.py); remove it from the repository's manifest")
+    if data.get("blender_version_min") != BUILDS[0].blender_min:
+        raise BuildError(f"{MANIFEST}: blender_version_min must be the oldest build's, "
+                         f"\"{BUILDS[0].blender_min}\"; got {data.get('blender_version_min')!r}")
+    versions = [f'blender_version_min = "{ext_build.blender_min}"']
+    if ext_build.blender_max is not None:
+        versions.append(f'blender_version_max = "{ext_build.blender_max}"  # exclusive')
+    text = re.sub(r'^blender_version_min\s*=.*$', lambda _: "\n".join(versions), text, count=1, flags=re.MULTILINE)
     lines = [
-        "# Generated by `python -m facecap build-extension` from wheels.lock.toml.",
+        f"# Generated by `python -m facecap build-extension` from wheels.lock.toml ({ext_build.blenders}).",
         "platforms = [" + ", ".join(f'"{p}"' for p in platforms) + "]",
         "wheels = [",
         *(f'  "{w}",' for w in wheel_paths),
@@ -245,8 +268,10 @@ def generated_manifest(text, wheel_paths, platforms):
     at = first_table.start() if first_table else len(text)
     out = text[:at] + "\n".join(lines) + "\n" + text[at:]
     check = tomllib.loads(out)
-    if check["wheels"] != list(wheel_paths) or check["platforms"] != list(platforms):
-        raise BuildError(f"{MANIFEST}: the generated wheel and platform lists did not read back")
+    range_back = (check["blender_version_min"], check.get("blender_version_max"))
+    if (check["wheels"] != list(wheel_paths) or check["platforms"] != list(platforms)
+            or range_back != (ext_build.blender_min, ext_build.blender_max)):
+        raise BuildError(f"{MANIFEST}: the generated Blender range, wheel and platform lists did not read back")
     return out
 
 
@@ -266,9 +291,9 @@ def _ignore(out_dir):
     return ignore
 
 
-def stage_source(stage, wheel_files, platforms, *, source=REPO, out_dir=None, assets=None):
+def stage_source(stage, wheel_files, platforms, *, ext_build=BUILDS[0], source=REPO, out_dir=None, assets=None):
     """Copy the add-on source into ``stage`` with the wheels in ``./wheels``, the ``assets``
-    ({LockedAsset: bytes}) at their targets and the generated manifest."""
+    ({LockedAsset: bytes}) at their targets and the manifest generated for ``ext_build``."""
     text = (Path(source) / MANIFEST).read_text(encoding="utf-8")
     skip = _top_level_excludes(tomllib.loads(text)) | {"wheels", MANIFEST}
     out_dir = None if out_dir is None else Path(out_dir).resolve()
@@ -289,7 +314,7 @@ def stage_source(stage, wheel_files, platforms, *, source=REPO, out_dir=None, as
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(data)
     rel = [f"./wheels/{Path(p).name}" for p in wheel_files]
-    (stage / MANIFEST).write_text(generated_manifest(text, rel, platforms), encoding="utf-8")
+    (stage / MANIFEST).write_text(generated_manifest(text, rel, platforms, ext_build), encoding="utf-8")
     return tomllib.loads(text)
 
 
@@ -302,15 +327,41 @@ def _run_tool(tool, *args, cwd=None):
     return proc.stdout
 
 
-def build(out_dir, *, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_FILE, source=REPO, log=print):
-    """Build and validate one extension zip per platform in ``out_dir``.
+def _plan(wheels, builds, platforms, lock):
+    """[(build, its platforms among ``platforms``, its wheels for them)], checking every platform of a
+    build has a wheel of each of the build's packages."""
+    jobs = []
+    for b in builds:
+        mine = tuple(p for p in platforms if p in b.platforms)
+        if not mine:
+            continue
+        ours = [w for w in wheels if w.python == b.python]
+        chosen = [w for w in ours if w.platform in mine]
+        for p in mine:
+            missing = {w.name for w in ours} - {w.name for w in chosen if w.platform == p}
+            if missing:
+                raise BuildError(f"{Path(lock).name}: no {p} wheel for {', '.join(sorted(missing))} "
+                                 f"(Python {b.python}, the {b.name} build)")
+        jobs.append((b, mine, chosen))
+    if not jobs:
+        raise BuildError(f"no build is made for {', '.join(platforms)}: "
+                         + "; ".join(f"{b.name} is for {', '.join(b.platforms)}" for b in builds))
+    return jobs
+
+
+def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_FILE, source=REPO,
+          log=print):
+    """Build and validate one extension zip per build and platform in ``out_dir``.
 
     Parameters
     ----------
     out_dir : path-like
         Where the zips go (created if missing); same-named zips are replaced.
+    builds : sequence of str, optional
+        Names of builds (``solvers/extension_builds.py``); default all.
     platforms : sequence of str
-        A subset of ``PLATFORMS``; each gets its own zip with only its wheels.
+        A subset of ``PLATFORMS``; each build makes a zip for those of them it supports, with only its
+        wheels.
     cache_dir, tool, lock, source
         Wheel cache (default ``default_cache_dir()``), ``blender_ext.py`` (default: from the bpy wheel),
         the lock file and the extension source root.
@@ -318,36 +369,42 @@ def build(out_dir, *, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_
     Returns
     -------
     list of BuiltZip
-        In the order of ``platforms``.
+        Build by build, each in the order of ``platforms``.
     """
     platforms = tuple(dict.fromkeys(platforms))
     unknown = [p for p in platforms if p not in PLATFORMS]
     if unknown or not platforms:
         raise BuildError(f"unknown platform(s) {unknown}; choose from {', '.join(PLATFORMS)}")
+    try:
+        chosen_builds = [build_named(n) for n in dict.fromkeys(builds)] if builds else list(BUILDS)
+    except KeyError as exc:
+        raise BuildError(exc.args[0]) from None
     wheels, _ = read_lock(lock)
-    chosen = [w for w in wheels if w.platform in platforms]
-    for p in platforms:
-        missing = {w.name for w in wheels} - {w.name for w in chosen if w.platform == p}
-        if missing:
-            raise BuildError(f"{Path(lock).name}: no {p} wheel for {', '.join(sorted(missing))}")
+    jobs = _plan(wheels, chosen_builds, platforms, lock)
     tool = Path(tool) if tool else find_extension_tool()
-    paths = fetch_wheels(chosen, cache_dir, log=log)
+    paths = fetch_wheels([w for _, _, chosen in jobs for w in chosen], cache_dir, log=log)
     assets = fetch_assets(read_assets(lock), cache_dir, log=log)
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="facecap-extension-") as tmp:
-        stage = Path(tmp) / "facecap"
-        stage.mkdir()
-        manifest = stage_source(stage, [paths[w.file] for w in chosen], platforms, source=source, out_dir=out_dir,
-                                assets=assets)
-        _run_tool(tool, "build", "--source-dir", stage, "--output-dir", out_dir, "--split-platforms", cwd=tmp)
     built = []
-    for p in platforms:
-        path = out_dir / f"{manifest['id']}-{manifest['version']}-{p.replace('-', '_')}.zip"
-        if not path.is_file():
-            raise BuildError(f"Blender's extension tool did not write {path}")
-        _run_tool(tool, "validate", path)
-        built.append(BuiltZip(p, path, path.stat().st_size, tuple(w.file for w in chosen if w.platform == p)))
+    for b, mine, chosen in jobs:
+        # The tool's own output goes beside the final zips (same file system: renamed, not copied).
+        with tempfile.TemporaryDirectory(prefix="facecap-extension-") as tmp, \
+                tempfile.TemporaryDirectory(prefix=".facecap-build-", dir=out_dir) as made:
+            stage = Path(tmp) / "facecap"
+            stage.mkdir()
+            manifest = stage_source(stage, [paths[w.file] for w in chosen], mine, ext_build=b, source=source,
+                                    out_dir=out_dir, assets=assets)
+            _run_tool(tool, "build", "--source-dir", stage, "--output-dir", made, "--split-platforms", cwd=tmp)
+            for p in mine:
+                tool_zip = Path(made) / f"{manifest['id']}-{manifest['version']}-{p.replace('-', '_')}.zip"
+                if not tool_zip.is_file():
+                    raise BuildError(f"Blender's extension tool did not write {tool_zip.name}")
+                path = out_dir / b.zip_name(manifest["version"], p)
+                os.replace(tool_zip, path)
+                _run_tool(tool, "validate", path)
+                built.append(BuiltZip(b.name, p, path, path.stat().st_size,
+                                      tuple(w.file for w in chosen if w.platform == p)))
     return built
 
 
@@ -355,16 +412,20 @@ def main(argv=None, *, parents=()):
     """Entry point for ``facecap build-extension``; returns the exit code."""
     parser = argparse.ArgumentParser(
         prog="facecap build-extension", parents=list(parents),
-        description="Build and validate the Blender extension zips (one per platform, scipy and OpenCV bundled).")
+        description="Build and validate the Blender extension zips (one per Blender generation and platform, "
+                    "scipy and OpenCV bundled).")
     parser.add_argument("--out", default="dist", help="output folder (default: ./dist)")
+    parser.add_argument("--build", action="append", choices=[b.name for b in BUILDS],
+                        help="make only this build's zips (repeatable; default: all: "
+                             + "; ".join(f"{b.name}: {b.blenders}" for b in BUILDS) + ")")
     parser.add_argument("--platform", action="append", choices=PLATFORMS,
-                        help="build only this platform (repeatable; default: all four)")
+                        help="build only this platform (repeatable; default: every platform of each build)")
     parser.add_argument("--cache", help="wheel cache folder (default: $FACECAP_CACHE or ~/.cache/facecap)")
     args = parser.parse_args(argv)
-    built = build(args.out, platforms=args.platform or PLATFORMS, cache_dir=args.cache,
+    built = build(args.out, builds=args.build, platforms=args.platform or PLATFORMS, cache_dir=args.cache,
                   log=lambda line: print(line, flush=True))
     for z in built:
         mb = z.size / 1e6
         over = f"  (over the {SIZE_TARGET_MB:.0f} MB target)" if mb > SIZE_TARGET_MB else ""
-        print(f"{z.platform}: {z.path} ({mb:.1f} MB, validated){over}")
+        print(f"{z.build} {z.platform}: {z.path} ({mb:.1f} MB, validated){over}")
     return 0

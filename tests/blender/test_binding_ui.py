@@ -165,5 +165,14 @@ def test_facial_sing_in_the_sidebar(landmarks):
     assert sum(bound.values()) >= 30 and not bound["Unlabeled1"] and not bound["root-1"]
     assert bpy.ops.facecap.refresh_shapes() == {"FINISHED"}
     assert bpy.ops.facecap.solve() == {"FINISHED"}
+    # the default (semantic, nothing known of the actor) fits looser than the character's shapes allow
+    # (priors): a binding gone wrong leaves tens of mm; the figures: <= 2 % at 1.0, no gaze
     mean = float(re.search(r"RMS residual ([0-9.]+) mm", s.last_report).group(1))
-    assert mean < 4.0, s.last_report
+    assert mean < 5.0, s.last_report
+    key = obj.data.shape_keys
+    names = [b.name for b in key.key_blocks[1:]]
+    solved = anim.read_curves(key, [(layers.shape_path(n), 0) for n in names], action=layers.solved_action(key))[1]
+    assert solved.shape == (3000, len(names))
+    assert np.mean(solved >= 0.999) <= 0.02
+    gaze = [i for i, n in enumerate(names) if n.startswith("eyeLook")]
+    assert np.abs(solved[:, gaze]).max() < 1e-3

@@ -15,6 +15,7 @@ from png_pixels import png_pixels
 from facecap.facecap_addon import review as rv
 from facecap.facecap_addon.demo import SAMPLE_CONFIG
 from facecap.facecap_addon.headless import run_take
+from facecap.facecap_addon.scene_binding import bound_basis
 from facecap.solvers.config import load_take_config
 from facecap.solvers.tools.report import marker_geometry, pick_frames
 
@@ -81,7 +82,7 @@ def test_tiles_show_the_solved_pose_with_the_markers_on_the_face(solved, tmp_pat
     key = obj.data.shape_keys
     bpy.context.view_layer.update()  # the keyed solve poses the face at the current frame (as any redraw would)
     before, values = _counts(), [b.value for b in key.key_blocks]
-    geometry, why = marker_geometry(result, rv.basis_from_object(obj, result.marker_names), config.settings)
+    geometry, why = marker_geometry(result, bound_basis(obj, result.stabilise.markers, config.settings), config.settings)
     assert why == ""
     picks = pick_frames(result, fps=60)
     sheet = rv.render_sheet(obj, result, geometry, picks)
@@ -97,9 +98,11 @@ def test_tiles_show_the_solved_pose_with_the_markers_on_the_face(solved, tmp_pat
         assert inside.all()
         cols, rows_ = tile.model[:, 0].astype(int), tile.model[:, 1].astype(int)
         assert (px[rows_, cols].min(axis=1) < WHITE).mean() > 0.95
-        # the distances drawn are the solve's per-marker residual at that frame
-        np.testing.assert_allclose(tile.distance_mm, result.frame_marker_residual[row] * 1e3, atol=1e-9,
-                                   equal_nan=True)
+        # the distances drawn are the solve's per-marker residual at that frame, in the character's mm: the
+        # default solve fits in the actor's space (here the character's shapes taken as the actor's)
+        scale = result.alignment.scale
+        np.testing.assert_allclose(tile.distance_mm, result.frame_marker_residual[row] * 1e3 * scale, rtol=1e-6,
+                                   atol=1e-9, equal_nan=True)
         assert tile.frame == result.frames[row] and tile.kind == kind
         if kind == "peak":  # an expression at its peak is not the neutral face
             assert np.abs(px - neutral).mean() > 0.3

@@ -47,6 +47,7 @@ def solved(empty_scene, data):
     assert bpy.ops.facecap.import_markers(filepath=str(data.dir / "take01.csv"), units="mm", fps=60.0) == {"FINISHED"}
     s = empty_scene.facecap
     s.target = obj
+    s.strategy = "geometric"  # the character's own shapes are what the retune corrects (character_basis)
     s.neutral_first, s.neutral_last = int(data.frames[0]), int(data.frames[0]) + 50
     assert bpy.ops.facecap.refresh_shapes() == {"FINISHED"}
     assert bpy.ops.facecap.solve() == {"FINISHED"}

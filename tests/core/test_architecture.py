@@ -34,6 +34,7 @@ LAYERS = (
     ("facecap.solvers.transforms", 0),
     ("facecap.solvers.errors", -1),
     ("facecap.solvers.options", -1),
+    ("facecap.solvers.extension_builds", -2),
 )
 
 

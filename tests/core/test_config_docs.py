@@ -18,8 +18,11 @@ def test_the_reference_is_current():
 
 
 def test_the_command_reference_is_current():
+    """The same words as --help prints; spacing aside, since argparse lays out its columns differently from
+    Python 3.13 on (CI checks this on 3.11 and 3.13)."""
     text = render_commands(cli.command_helps())
-    assert (DOCS / "commands.md").read_text(encoding="utf-8") == text, f"docs/commands.md is stale: {REGENERATE}"
+    written = (DOCS / "commands.md").read_text(encoding="utf-8")
+    assert written.split() == text.split(), f"docs/commands.md is stale: {REGENERATE}"
 
 
 def test_every_command_is_in_the_command_reference():

@@ -20,7 +20,11 @@ def test_platform_names_follow_blender(monkeypatch, system, machine, expected):
     monkeypatch.setattr(errors.platform, "system", lambda: system)
     monkeypatch.setattr(errors.platform, "machine", lambda: machine)
     assert errors.blender_platform() == expected
-    assert errors.extension_zip_name() == f"facecap-0.1.0-{expected.replace('-', '_')}.zip"
+    suffix = expected.replace("-", "_")
+    # the zip of the Blenders that run this Python: Blender 4.2-5.0 run 3.11, 5.1 and newer 3.13
+    assert errors.extension_zip_name((3, 11, 9)) == f"facecap-0.1.0-blender4.2-5.0-{suffix}.zip"
+    assert errors.extension_zip_name((3, 13, 5)) == f"facecap-0.1.0-blender5.1-and-newer-{suffix}.zip"
+    assert errors.extension_zip_name((3, 12, 0)) == f"facecap-0.1.0-<build for your Blender>-{suffix}.zip"
 
 
 def test_inside_blender_the_message_names_the_zip_not_pip(monkeypatch):

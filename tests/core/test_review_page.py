@@ -10,7 +10,7 @@ import time
 import numpy as np
 import plotly.graph_objects as go
 import pytest
-from review_takes import fabricated_result, sample_solve
+from review_takes import fabricated_result, sample_solve, stable_markers
 from scipy.spatial.transform import Rotation
 
 from facecap.solvers.tools.report import (
@@ -201,6 +201,20 @@ def test_strategies_without_markers_or_head_leave_those_plots_out(solved):
     html, figures = build_page(Review(result=parallel, take="weights only"))
     assert [f["id"] for f in figures] == ["weights"]
     assert "No head motion" in html and "does not fit markers" in html
+
+
+def test_the_page_says_what_the_solve_knew_of_the_actor_and_whether_it_is_plausible(solved):
+    """A semantic solve states its tier first; a geometric one says it has no model of the actor."""
+    from facecap.solvers.pipeline import RetargetSettings, retarget
+
+    _, _, _, basis, take = solved
+    semantic = retarget(take.markers, basis, RetargetSettings(stable_markers(), (1, 50)))
+    html, _ = build_page(Review(result=semantic, take="sample"))
+    actor = html[html.index("<h3>The actor</h3>"):html.index("<h3>Warnings</h3>")]
+    assert "<b>character</b>: nothing is known about the actor" in actor and "taken as the actor" in actor
+    assert "Held at rest (no marker sees them): eyeLookDownLeft" in actor and "Plausible:" in actor
+    html, _ = build_page(Review(result=solved[0], take="sample"))
+    assert "does not solve against a model of the actor" in html
 
 
 def test_ten_minute_page_is_under_10_mb(tmp_path):

@@ -49,9 +49,9 @@ def test_deltas_taken_over_their_own_memory_are_the_copy(monkeypatch, alignment,
     deltas[rng.random((1000, 12)) < 0.1] = np.nan
     cols = {"same": list(range(12)), "permuted": list(rng.permutation(12)), "fewer": [11, 0, 5, 3, 9, 1, 2]}[idx]
     monkeypatch.setattr(geometric, "BLOCK", 64)  # 16 blocks, the last one short
-    copied = geometric._taken(deltas, cols, alignment)
+    copied = geometric.taken_markers(deltas, cols, alignment)
     given = deltas.copy()
-    taken = geometric._taken(given, cols, alignment, overwrite=True)
+    taken = geometric.taken_markers(given, cols, alignment, overwrite=True)
     assert np.array_equal(taken, copied, equal_nan=True)
     assert np.shares_memory(taken, given)  # no second array
     assert not np.shares_memory(copied, deltas)  # without overwrite the input is left alone

@@ -35,7 +35,9 @@ def tree_files():
     ignored = _ignored()
     for path in sorted(ROOT.rglob("*")):
         rel = path.relative_to(ROOT)
-        if any(part in SKIP_DIRS for part in rel.parts) or not path.is_file() or path in ignored:
+        # .venv-3.13 and the like: a second Python's environment (CI makes one for the core tests)
+        if any(part in SKIP_DIRS or part.startswith(".venv") for part in rel.parts) or not path.is_file() \
+                or path in ignored:
             continue
         if path.suffix.lower() in TEXT_SUFFIXES and path.stat().st_size < 5_000_000:
             yield path

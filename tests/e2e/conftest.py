@@ -21,7 +21,7 @@ def cache_dir():
 
 @pytest.fixture(scope="session")
 def extension_zips(tmp_path_factory):
-    """``python -m facecap build-extension`` run once: {platform: zip path} for all four platforms."""
+    """``python -m facecap build-extension`` run once: {(build, platform): zip path} for every build."""
     out = tmp_path_factory.mktemp("dist")
     proc = subprocess.run([sys.executable, "-m", "facecap", "build-extension", "--out", str(out)],
                           capture_output=True, text=True, timeout=1800, cwd=out)
@@ -30,7 +30,8 @@ def extension_zips(tmp_path_factory):
     assert proc.returncode == 0, f"build-extension failed:\n{proc.stdout}\n{proc.stderr}"
     zips = {}
     for line in proc.stdout.splitlines():
-        platform, _, rest = line.partition(": ")
+        which, _, rest = line.partition(": ")
         if ", validated)" in rest:
-            zips[platform] = Path(rest.split(" (")[0])
+            build, platform = which.split(" ")
+            zips[(build, platform)] = Path(rest.split(" (")[0])
     return {"zips": zips, "stdout": proc.stdout}

@@ -1,13 +1,15 @@
 """Cached Blender environments for the install matrix: one venv per supported Blender release.
 
 Each venv holds only that release's ``bpy`` wheel (with the packages the wheel itself requires) and the
-numpy that Blender release ships, so scipy and OpenCV can come only from the extension zip. Venvs live
-in ``<cache>/venvs`` (``$FACECAP_CACHE``, default ``~/.cache/facecap``) and are reused across runs; a
-venv is built under a temporary name and renamed when complete, under a file lock, so an interrupted
-or concurrent run never leaves a half-built one in use.
+numpy that Blender release ships, on the Python that release runs, so scipy and OpenCV can come only
+from the extension zip. Venvs live in ``<cache>/venvs`` (``$FACECAP_CACHE``, default
+``~/.cache/facecap``) and are reused across runs; a venv is built under a temporary name and renamed
+when complete, under a file lock, so an interrupted or concurrent run never leaves a half-built one in
+use. The Python of each release is found on ``PATH`` (``python3.13``) or in pyenv's versions folder.
 """
 
 import contextlib
+import glob
 import json
 import os
 import shutil
@@ -15,12 +17,17 @@ import subprocess
 import sys
 from pathlib import Path
 
-#: (bpy wheel, the numpy that Blender release bundles): the LTS releases and the newest, latest patches.
+#: (bpy wheel, the numpy that Blender release bundles): the LTS releases, the last release of each
+#: Python generation and the newest, latest patches.
 MATRIX = (
-    ("4.2.23", "1.24.3"),  # 4.2 LTS; 4.2/4.3 bundle numpy 1.24.3
+    ("4.2.23", "1.24.3"),  # 4.2 LTS; 4.2/4.3 bundle numpy 1.24.3 (Python 3.11)
     ("4.5.15", "1.26.4"),  # 4.5 LTS; 4.4-5.0 bundle numpy 1.26.4
-    ("5.0.1", "1.26.4"),
+    ("5.0.1", "1.26.4"),   # the last release on Python 3.11
+    ("5.2.3", "2.3.4"),    # 5.2 LTS; 5.1 and later bundle numpy 2.3 (Python 3.13)
+    ("5.3.0", "2.3.4"),    # the newest release
 )
+#: The release whose default solve the others are compared with (the figure the docs quote).
+REFERENCE = "5.0.1"
 READY = "facecap-ready.json"
 PIP_TIMEOUT = 1800
 CI = os.environ.get("FACECAP_CI") == "1"
@@ -60,13 +67,43 @@ def file_lock(path):
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def blender_venv(cache, bpy_version, numpy_version, log=print):
-    """The Python of the cached venv for ``bpy_version``, built on first use.
+def _version_of(python):
+    """``"3.13"`` for an interpreter that runs, else None (a pyenv shim of a version not selected fails)."""
+    try:
+        proc = subprocess.run([python, "-c", "import sys; print('%d.%d' % sys.version_info[:2])"],
+                              capture_output=True, text=True, timeout=60)
+    except OSError:
+        return None
+    return proc.stdout.strip() if proc.returncode == 0 else None
+
+
+def find_python(version):
+    """An interpreter of Python ``version`` (``"3.11"``): this one, ``python3.11`` on PATH, or pyenv's.
 
     Raises
     ------
     PrerequisiteError
-        When pip cannot install the wheels (no network and nothing cached).
+        When there is none on this machine.
+    """
+    if "%d.%d" % sys.version_info[:2] == version:
+        return sys.executable
+    pyenv = os.environ.get("PYENV_ROOT") or os.path.expanduser("~/.pyenv")
+    candidates = [shutil.which(f"python{version}")]
+    candidates += sorted(glob.glob(os.path.join(pyenv, "versions", f"{version}.*", "bin", f"python{version}")))
+    for python in filter(None, candidates):
+        if _version_of(python) == version:
+            return python
+    raise PrerequisiteError(f"no Python {version} here (python{version} on PATH or in pyenv), which that "
+                            "Blender release runs")
+
+
+def blender_venv(cache, bpy_version, numpy_version, python_version, log=print):
+    """The Python of the cached venv for ``bpy_version`` on Python ``python_version``, built on first use.
+
+    Raises
+    ------
+    PrerequisiteError
+        When pip cannot install the wheels (no network and nothing cached) or no such Python is here.
     """
     name = f"bpy-{bpy_version}-numpy-{numpy_version}"
     root = Path(cache) / "venvs" / name
@@ -78,8 +115,9 @@ def blender_venv(cache, bpy_version, numpy_version, log=print):
         partial = root.with_name(f"{name}.partial")
         shutil.rmtree(partial, ignore_errors=True)
         shutil.rmtree(root, ignore_errors=True)
+        base = find_python(python_version)
         log(f"building the Blender {bpy_version} venv in {root} (once; cached)")
-        subprocess.run([sys.executable, "-m", "venv", str(partial)], check=True, capture_output=True)
+        subprocess.run([base, "-m", "venv", str(partial)], check=True, capture_output=True)
         python = venv_python(partial)
         proc = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
                                f"bpy=={bpy_version}", f"numpy=={numpy_version}"],

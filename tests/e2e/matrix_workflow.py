@@ -10,11 +10,14 @@ not stop the steps that do not depend on it. No project code is imported from th
 add-on's helpers come from the installed extension (``bl_ext.user_default.facecap``).
 """
 
+import base64
 import importlib
 import importlib.util
 import json
 import os
+import re
 import sys
+import tempfile
 import time
 import traceback
 
@@ -65,6 +68,26 @@ class Workflow:
             "python": list(sys.version_info[:3]),
             "importable_before_install": {m: importlib.util.find_spec(m) is not None for m in ("scipy", "cv2")},
         }
+
+    def other_build_refused(self):
+        """The zip of the other Python generation: Blender's installer refuses it, saying why."""
+        out = self.inp["other_zip"]
+        with tempfile.TemporaryFile(mode="w+") as log:
+            sys.stdout.flush()
+            saved = os.dup(1)
+            os.dup2(log.fileno(), 1)  # the installer's messages, printed by Blender and by Python
+            try:
+                result = bpy.ops.extensions.package_install_files(filepath=out, repo="user_default",
+                                                                  enable_on_install=True)
+            finally:
+                sys.stdout.flush()
+                os.dup2(saved, 1)
+                os.close(saved)
+            log.seek(0)
+            text = log.read()
+        folder = os.path.join(bpy.utils.user_resource("EXTENSIONS"), "user_default", "facecap")
+        return {"result": sorted(result), "output": text, "installed": os.path.isdir(folder),
+                "enabled": ADDON in bpy.context.preferences.addons}
 
     def install(self):
         start = time.perf_counter()
@@ -208,12 +231,60 @@ class Workflow:
                 "actions": sorted(bpy.data.actions.keys())}
 
     def export_review(self):
-        """Export Review Report with the extension's own plotly.js (no plotly package in this Blender)."""
+        """Export Review Report with the extension's own plotly.js (no plotly package in this Blender) and
+        its contact sheet rendered with this Blender's Workbench."""
         path = self.inp["review_html"]
-        r = bpy.ops.facecap.export_review(filepath=path, render=False)
+        r = bpy.ops.facecap.export_review(filepath=path, render=True)
         text = open(path, encoding="utf-8").read() if os.path.isfile(path) else ""
-        return {"result": sorted(r), "bytes": len(text), "plotly_package": importlib.util.find_spec("plotly") is not None,
-                "has_plotly_js": "plotly.js v" in text}
+        tiles = re.findall(r'<img id="tile-(\d+)" src="data:image/png;base64,([^"]+)"', text)
+        return {"result": sorted(r), "bytes": len(text), "has_plotly_js": "plotly.js v" in text,
+                "plotly_package": importlib.util.find_spec("plotly") is not None, "tiles": len(tiles),
+                "binding_tile": 'id="tile-binding"' in text,
+                "face_fraction": [self.face_fraction(base64.b64decode(png)) for _, png in tiles]}
+
+    @staticmethod
+    def face_fraction(png):
+        """The share of a rendered tile that is not the white background (Blender decodes the PNG)."""
+        with tempfile.NamedTemporaryFile(suffix=".png", delete=False) as fh:
+            fh.write(png)
+        try:
+            img = bpy.data.images.load(fh.name)
+            w, h = img.size
+            px = np.empty(w * h * 4, dtype=np.float32)
+            img.pixels.foreach_get(px)
+            bpy.data.images.remove(img)
+        finally:
+            os.remove(fh.name)
+        rgb = np.round(px.reshape(h, w, 4)[:, :, :3] * 255.0)
+        return float((rgb.min(axis=2) < 250).mean())
+
+    def bind_by_position(self):
+        """The sample take with its markers renamed (no vertex group matches): bound by position to the
+        sample character (nearest surface point after an automatic alignment), then solved."""
+        scene_data, scene_binding = self.addon("facecap_addon.scene_data"), self.addon("facecap_addon.scene_binding")
+        bpy.ops.wm.open_mainfile(filepath=self.inp["blend"])
+        obj = bpy.data.objects["Face"]
+        rename = self.inp["rename"]
+        mesh = scene_data.mesh_from_object(obj)
+        truth_points = {rename[n]: w @ mesh.vertices[i] for n, (i, w) in mesh.vertex_groups.items() if n in rename}
+        obj.vertex_groups.clear()  # nothing to bind by name
+        assert bpy.ops.facecap.import_markers(filepath=self.inp["renamed_take"], units="mm", fps=60.0) == {"FINISHED"}
+        s = bpy.context.scene.facecap
+        stable = set(self.inp["renamed_stable"])
+        for item in s.markers:
+            item.stable = item.name in stable
+        s.neutral_first, s.neutral_last = 1, 50
+        s.target, s.binding_mode = obj, "nearest"
+        r = bpy.ops.facecap.bind_markers()
+        empties = [o for o in bpy.data.collections[scene_binding.COLLECTION].objects if o.parent == obj]
+        err_mm = [float(np.linalg.norm(np.array(e.location) - truth_points[e[scene_binding.TAG]]) * 1000)
+                  for e in empties]
+        assert bpy.ops.facecap.refresh_shapes() == {"FINISHED"}
+        solved = bpy.ops.facecap.solve()
+        names = self.shape_names()
+        _, values = self.solved(names)
+        return {"result": sorted(r), "summary": s.binding_summary, "points": len(empties), "error_mm": err_mm,
+                "solve": sorted(solved), "names": names, "weights": values.tolist()}
 
     def bundled_modules(self):
         import cv2
@@ -223,10 +294,11 @@ class Workflow:
 
     def run(self):
         self.step("environment", self.environment)
+        self.step("other_build_refused", self.other_build_refused)
         self.step("install", self.install)
         for name in ("open_sample", "import_markers", "suggest_stable", "detect_neutral", "set_neutral", "stabilise",
                      "clean_markers", "solve", "export_review", "retune", "track_clip", "solve_clip_flow",
-                     "save_and_reopen", "bundled_modules"):
+                     "save_and_reopen", "bind_by_position", "bundled_modules"):
             self.step(name, getattr(self, name))
         return self.out
 

@@ -67,6 +67,13 @@ def run(shared, *, draws=5, frames=1200, targets=("sample",), layouts=("dense",)
     return rows
 
 
+def _finite(reduce, values):
+    """reduce over the finite values; NaN when there are none (the zero method moves no shape: no r)."""
+    values = np.asarray(values, float)
+    values = values[np.isfinite(values)]
+    return float(reduce(values)) if values.size else float("nan")
+
+
 def summarise(rows):
     """{(layout, target, method): {"median": {region: {figure: value}}, "worst": ..., "n": draws, "errors": n}}."""
     groups = {}
@@ -80,9 +87,9 @@ def summarise(rows):
             have = [m[region] for m in ok if region in m]
             if not have:
                 continue
-            summary["median"][region] = {f: float(np.nanmedian([m[f] for m in have])) for f in have[0]}
-            summary["worst"][region] = {"rmse": float(np.nanmax([m["rmse"] for m in have])),
-                                        "r": float(np.nanmin([m["r"] for m in have]))}
+            summary["median"][region] = {f: _finite(np.nanmedian, [m[f] for m in have]) for f in have[0]}
+            summary["worst"][region] = {"rmse": _finite(np.nanmax, [m["rmse"] for m in have]),
+                                        "r": _finite(np.nanmin, [m["r"] for m in have])}
         out[key] = summary
     return out
 

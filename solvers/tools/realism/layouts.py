@@ -39,6 +39,10 @@ SPARSE = (
 )
 #: Landmarks a video tracker's user would stabilise on: the nose bridge, the eye corners, the temples' contour.
 LANDMARK_STABLE = (0, 1, 15, 16, 27, 28, 36, 39, 42, 45)
+#: What a user gives when the automatic binding of the landmarks refuses: landmark -> the characters' vertex
+#: group (nose tip, chin, mouth corners, inner brows).
+LANDMARK_PAIRS = (("lm30", "nose_tip_C"), ("lm08", "chin_C"), ("lm48", "mouth_corner_R"), ("lm54", "mouth_corner_L"),
+                  ("lm21", "brow_inner_R"), ("lm22", "brow_inner_L"))
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,7 @@ class Layout:
     vertices: tuple
     stable: tuple
     by_position: bool = False
+    landmarks: tuple = ()  # (marker, vertex group) pairs for a binding by position that the automatic one refused
 
 
 def layout(name, landmarks68=None):
@@ -64,7 +69,7 @@ def layout(name, landmarks68=None):
     if name == "landmarks68":
         names = tuple(f"lm{i:02d}" for i in range(68))
         return Layout("landmarks68", names, tuple(int(v) for v in landmarks68),
-                      tuple(names[i] for i in LANDMARK_STABLE), by_position=True)
+                      tuple(names[i] for i in LANDMARK_STABLE), by_position=True, landmarks=LANDMARK_PAIRS)
     raise ValueError(f"unknown layout {name!r}; known: dense, sparse, landmarks68")
 
 

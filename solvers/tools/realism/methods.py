@@ -7,8 +7,10 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from ...character.basis import Basis
 from ...character.binding_map import BindingSettings
 from ...character.template import HumanTemplate
+from ...errors import FacecapError
 from ...pipeline import RetargetSettings, retarget
 from ...pipeline.binding import bind_character
 from ...strategies.options import ActorSettings, CalibrationSettings, StrategyInputs
@@ -25,6 +27,7 @@ METHODS = {
     "poses12+template": "semantic, 12 calibration poses and the human template",
     "template": "semantic, the human template (no calibration)",
     "calibration": "semantic, one calibration pose per shape",
+    "oracle": "semantic with the actor's true (linear) shapes as its profile: the floor of this benchmark",
 }
 
 
@@ -33,9 +36,17 @@ def _poses(table):
 
 
 def bound_character(mesh, draw, settings):
-    """The character's shapes at the draw's markers (vertex groups, or nearest for a layout bound by position)."""
-    mode = "nearest" if draw.layout.by_position else "vertex_groups"
-    return bind_character(mesh, draw.markers, settings, BindingSettings(mode=mode)).basis
+    """The character's shapes at the draw's markers: vertex groups, or for a layout bound by position the
+    automatic binding and, when it refuses (ambiguous, no fit), the layout's landmark pairs, as a user would."""
+    if not draw.layout.by_position:
+        return bind_character(mesh, draw.markers, settings, BindingSettings(mode="vertex_groups")).basis
+    try:
+        return bind_character(mesh, draw.markers, settings, BindingSettings(mode="nearest")).basis
+    except FacecapError:
+        if not draw.layout.landmarks:
+            raise
+        landmarks = BindingSettings(mode="nearest", landmarks=draw.layout.landmarks)
+        return bind_character(mesh, draw.markers, settings, landmarks).basis
 
 
 def base_settings(draw):
@@ -69,6 +80,9 @@ def run_method(name, draw, mesh, template, *, character=None):
             inputs = replace(inputs, calibration=draw.calibration)
         if name in ("template", "poses12+template"):
             inputs = replace(inputs, template=template)
+        if name == "oracle":  # the actor's own shapes, as no user can know them (combination terms left out)
+            a = draw.actor
+            inputs = replace(inputs, profile=Basis(a.shape_names, a.names, a.neutral, a.deltas))
     res = retarget(draw.markers, character, settings, inputs=inputs)
     return res.weights, res.shape_names, character.upper, tuple(res.warnings)
 

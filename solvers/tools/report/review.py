@@ -203,7 +203,8 @@ class MarkerGeometry:
     ``actor_neutral`` (U, 3): the take's neutral aligned onto them (``binding_mm``: the distance of
     each, the binding's quality). ``captured(rows)`` / ``model(rows)``: (R, U, 3) the take's markers at
     those rows (stabilised, relative to the neutral, aligned) and the bound points as the solved weights
-    pose them. For ``geometric`` their distance is the solve's own per-marker residual.
+    pose them. For ``geometric`` their distance is the solve's own per-marker residual; a solve in the actor's
+    space (``semantic``) fits the actor's shapes, so there it is how far the character follows the markers.
     """
 
     names: tuple

@@ -168,6 +168,8 @@ def actor_html(review):
                      f'{esc(actor["statement"])}.</p>')
         if actor.get("unseen"):
             parts.append(f'<p class="note">Held at rest (no marker sees them): {esc(", ".join(actor["unseen"]))}.</p>')
+    else:
+        parts.append('<p class="note">This strategy does not solve against a model of the actor.</p>')
     check = info.get("plausibility")
     if check is not None:
         if check.get("plausible"):
@@ -175,7 +177,7 @@ def actor_html(review):
                          'limit, no opposing shapes together.</p>')
         else:
             parts.append('<p class="warn">Not plausible animation: see the first warning below.</p>')
-    return "".join(parts) or '<p class="note">This strategy does not solve against a model of the actor.</p>'
+    return "".join(parts)
 
 
 def worst_html(figure):
