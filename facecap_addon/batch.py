@@ -18,8 +18,10 @@ from pathlib import Path
 
 from ..solvers.config import load_take_config
 from ..solvers.config.batch import InputDigests, collect_takes, config_digest
-from ..solvers.config.paths import check_across_takes, resolved, take_inputs, take_outputs
+from ..solvers.config.paths import check_across_takes, check_outputs, take_inputs, take_outputs
 from ..solvers.errors import ConfigError, FacecapError
+from ..solvers.io.outputs import Output
+from ..solvers.io.outputs import check_outputs as check_output_policy
 from ..solvers.tools.batch_summary import Summary, iso_time, new_record, one_line, read_previous, table
 from ..solvers.tools.report.index import TakeSummary, write_batch_index
 from . import console
@@ -60,10 +62,16 @@ def run_batch(args, *, out=None, err=None):
     if not takes:
         raise ConfigError("no take configs (.toml) in " + ", ".join(map(str, args.takes)) + " nor in the folders "
                           "one level down; name take configs, folders of them, or a batch file")
-    summary_path = Path(os.path.expanduser(args.summary or DEFAULT_SUMMARY)).resolve()
-    records, planned = plan(takes, open_blend=_open_blend())
-    check_summary_path(summary_path, planned)
-    specs = to_run(planned, records, read_previous(summary_path) if args.resume else {}, replace=args.replace)
+    summary_path = Path(os.path.expanduser(args.summary or DEFAULT_SUMMARY))
+    overwrite = bool(getattr(args, "overwrite", False))
+    records, planned = plan(takes, open_blend=_open_blend(), overwrite=overwrite)
+    logs = summary_path.parent / f"{summary_path.stem}-logs"
+    previous = read_previous(summary_path, done=logs / "done") if args.resume else {}  # says when it is not one
+    check_summary_path(summary_path, planned, takes, overwrite=overwrite)
+    summary_path = summary_path.resolve()
+    logs = summary_path.parent / f"{summary_path.stem}-logs"
+    check_logs_folder(logs)
+    specs = to_run(planned, records, previous, replace=args.replace, overwrite=overwrite, done=logs / "done")
     jobs = args.jobs or default_jobs()
     header = {"command": ["facecap", "batch", *map(str, getattr(args, "argv", []))], "cwd": os.getcwd(),
               "jobs": None if args.scheduler else jobs, "scheduler": args.scheduler, "resume": bool(args.resume)}
@@ -73,8 +81,7 @@ def run_batch(args, *, out=None, err=None):
     progress = Progress(len(specs), err, quiet=console.quiet())
     finished = True
     if specs:
-        logs = summary_path.parent / f"{summary_path.stem}-logs"
-        shutil.rmtree(logs, ignore_errors=True)
+        shutil.rmtree(logs, ignore_errors=True)  # facecap's own (check_logs_folder)
         events = Events(summary, progress)
         if args.scheduler:
             finished = FarmPool(args.scheduler).run(specs, events)
@@ -108,9 +115,10 @@ def write_index(summary):
     return path
 
 
-def to_run(planned, records, previous, *, replace=False):
+def to_run(planned, records, previous, *, replace=False, overwrite=False, done=None):
     """The specs of the takes to run, longest first; the up-to-date ones (``previous``: the earlier
-    summary's records, ``--resume``) are recorded as skipped in ``records`` instead."""
+    summary's records, ``--resume``) are recorded as skipped in ``records`` instead. ``done``: the
+    folder where each take's worker records it finished (``batch_worker.run_one``)."""
     specs = []
     for p in planned:
         prev = previous.get(str(p.take.path))
@@ -118,7 +126,8 @@ def to_run(planned, records, previous, *, replace=False):
             records[str(p.take.path)] = skipped(prev, p.record)
         else:
             specs.append({"config": str(p.take.path), "data": p.take.data, "replace": bool(replace),
-                          "record": p.record, "length": _length(p.config)})
+                          "overwrite": bool(overwrite), "record": p.record, "length": _length(p.config),
+                          "done": None if done is None else str(done / done_name(p.take.path))})
     specs.sort(key=lambda s: -s["length"])  # the longest first: the last take to finish is a short one
     return specs
 
@@ -144,7 +153,7 @@ def _finish(summary, finished, out, err):
     return 1 if any(r["status"] in ("failed", "cancelled") for r in records.values()) else 0
 
 
-def plan(takes, *, open_blend=None):
+def plan(takes, *, open_blend=None, overwrite=False):
     """Read every take: ({config path: record}, [Planned]). A take that cannot be read or parsed
     is recorded failed; takes that would write the same file (or one another's inputs) raise
     ConfigError before any work."""
@@ -157,6 +166,7 @@ def plan(takes, *, open_blend=None):
             continue
         try:
             take, config = _parse(take, open_blend)
+            check_outputs(config, overwrite=overwrite)  # the output policy, before any take runs
             record["digest"] = _digest(take, config, digests)
         except FacecapError as exc:
             record.update(status="failed", error=one_line(exc))
@@ -191,14 +201,43 @@ def _open_blend():
     return path or None
 
 
-def check_summary_path(path, planned):
-    """The summary (JSON, CSV and the index page) must not be a take's input or output."""
-    mine = {resolved(path.with_suffix(suffix)) for suffix in (".json", ".csv", ".html")} | {resolved(path)}
+def check_summary_path(path, planned, takes=(), *, overwrite=False):
+    """The summary (JSON, CSV and the index page) through the output policy: not a take's input or
+    output, nor a batch file or take config, not a folder or a special file, and an existing file only
+    when it is the summary of an earlier batch (or ``overwrite``)."""
+    inputs = {}
+    for t in takes:
+        inputs[f"take '{t.name}' config"] = t.path
+        if t.listed_by is not None:
+            inputs[f"the batch file {t.listed_by.name}"] = t.listed_by
     for p in planned:
         for key, file in {**take_inputs(p.config), **take_outputs(p.config)}.items():
-            if resolved(file) in mine:
-                raise ConfigError(f"the batch summary {path.name} is take '{p.take.name}' {key}; give another "
-                                  "--summary", path=path)
+            inputs[f"take '{p.take.name}' {key}"] = file
+    outputs = [Output("--summary", path, "batch_summary"), Output("--summary (its CSV)", path.with_suffix(".csv"),
+                                                                  "batch_csv"),
+               Output("--summary (its index page)", path.with_suffix(".html"), "html")]
+    check_output_policy(outputs, inputs, overwrite=overwrite)
+
+
+def check_logs_folder(folder):
+    """The worker logs' folder beside the summary is emptied at the start of a run: refuse when it holds
+    anything facecap did not put there (it may be someone's folder that happens to have that name)."""
+    if not folder.exists() and not folder.is_symlink():
+        return
+    if folder.is_symlink() or not folder.is_dir():
+        raise FacecapError(f"{folder}: the batch keeps its worker logs here, but it is not a folder of facecap's; "
+                           "give another --summary")
+    for entry in folder.iterdir():
+        ours = (entry.is_file() and entry.name.startswith("worker-") and entry.suffix == ".log") or \
+            (entry.name == "done" and entry.is_dir() and not entry.is_symlink())
+        if not ours:
+            raise FacecapError(f"{folder}: the batch keeps its worker logs here and empties it, but it holds "
+                               f"{entry.name}, which facecap did not write; give another --summary")
+
+
+def done_name(config_path):
+    """The file name of a take's completion record (``batch_worker.run_one`` writes it)."""
+    return hashlib.sha256(str(config_path).encode("utf-8")).hexdigest()[:24] + ".json"
 
 
 def up_to_date(previous, planned):
@@ -256,7 +295,7 @@ class Events:
         self.summary.records[record["config"]] = record
         self.summary.dirty = True
         self.progress.finished(record)
-        self.summary.write(force=False)
+        self.summary.write()  # at once: a batch killed now still knows this take finished
 
     def tick(self):
         self.summary.write(force=False)

@@ -24,8 +24,10 @@ from multiprocessing.connection import Connection
 
 from ..solvers.config import load_take_config
 from ..solvers.errors import FacecapError
+from ..solvers.io.files import write_json_atomic
 from ..solvers.tools.batch_summary import iso_time, one_line, result_fields
 from ..solvers.tools.report.page import shared_plotly_js
+from .blend_files import start_blender
 from .headless import run_take
 from .review import ReviewOptions
 
@@ -71,7 +73,8 @@ class CharacterCache:
 
 def run_one(spec, characters=None):
     """Run one take of a batch; returns its summary record (status ``ok`` or ``failed`` with a
-    one-line error). ``spec``: {"config", "data", "replace", "record"} (``batch.plan``).
+    one-line error). ``spec``: {"config", "data", "replace", "overwrite", "record", "done"} (``batch.to_run``;
+    ``done``: where its completion is recorded the moment it finishes).
     KeyboardInterrupt (the batch cancelled) is not caught: outputs are atomic, so nothing
     half-written is left."""
     record = dict(spec["record"])
@@ -88,8 +91,8 @@ def run_one(spec, characters=None):
         # a batch's review pages share one plotly.min.js beside them instead of embedding 4.8 MB each
         review = None if config.output_html is None else \
             ReviewOptions(plotly_js=shared_plotly_js(config.output_html.parent))
-        result, outputs = run_take(config, replace=spec.get("replace", False), say=say, characters=characters,
-                                   review=review)
+        result, outputs = run_take(config, replace=spec.get("replace", False), overwrite=spec.get("overwrite", False),
+                                   say=say, characters=characters, review=review)
     except FacecapError as exc:
         record.update(status="failed", error=one_line(exc))
     except Exception as exc:  # a bug or a broken file deep inside one take must not stop the others
@@ -99,14 +102,25 @@ def run_one(spec, characters=None):
         record.update(status="ok", **result_fields(result, outputs, warnings, {}))
     record["seconds"] = {**record.get("seconds", {}), "total": round(time.perf_counter() - t0, 3)}
     record["finished"] = iso_time(time.time())
+    if record["status"] == "ok" and spec.get("done"):
+        record_done(spec["done"], record)
     return record
+
+
+def record_done(path, record):
+    """Write a finished take's record to ``path`` at once, atomically: the batch's summary follows a
+    moment later, and a batch killed in that moment must not run the take again on ``--resume``."""
+    try:
+        write_json_atomic(path, record)
+    except (FacecapError, OSError) as exc:  # the take itself is done; only --resume loses this shortcut
+        record["note"] = one_line(f"its completion record could not be written ({exc})")
 
 
 def serve(fd_in, fd_out):
     """The worker's loop: start Blender, say ready, then run every take spec received on ``fd_in``
     and send its record on ``fd_out`` until the pipe closes (or None arrives). Returns the exit status:
     0, or 130 when interrupted (SIGINT / SIGTERM: the take running then is reported cancelled)."""
-    import bpy  # bpy: Blender starts here, once for every take this worker runs
+    bpy = start_blender()  # once for every take this worker runs
 
     requests, replies = Connection(fd_in, writable=False), Connection(fd_out, readable=False)
     replies.send(("ready", {"pid": os.getpid(), "blender": bpy.app.version_string}))

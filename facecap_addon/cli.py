@@ -17,11 +17,12 @@ tune --config take.toml       retune what the strategy learned from [tuning] cor
 batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
   [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
   [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
-bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks]
+bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
                               time the solve, the keying and the whole CLI, with ratios to naive baselines;
                               --accuracy: accuracy over random scenarios; --batch: batch --jobs 2 against
                               sequential retarget runs; --memory: peak memory of the CLI's process tree on
-                              long takes; --landmarks: face landmarks on rendered footage of a real face
+                              long takes; --landmarks: face landmarks on rendered footage of a real face;
+                              --clean: spike removal and gap filling on long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 template convert PATH         install the optional human template from a copy of ICT-FaceKit (hash-checked);
                               `template info` says where it is ([actor] template, docs/strategies.md)
@@ -34,8 +35,10 @@ landmark-models               put MediaPipe's face-mesh models (from the locked 
 Every command takes -q/--quiet (only warnings and errors on stderr) and -v/--verbose (debug lines too,
 Blender's own output among them); ``facecap --version``. Progress and warnings go to stderr through
 logging (``console.py``), a command's product to stdout. Every expected failure (bad config, missing or
-malformed file) exits with status 1 and one line on stderr naming the file and field; there is no
-traceback for those.
+malformed file, a full disk) exits with status 1 and one line on stderr per problem naming the file and
+field; Ctrl-C and SIGTERM exit with 130 at any moment; a bug is one line too ("internal error", its
+traceback with FACECAP_TRACEBACK=1). Outputs go through one output policy (``solvers/io/outputs.py``;
+``--overwrite`` lets them replace files facecap did not write).
 """
 
 import importlib
@@ -84,6 +87,7 @@ from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
 from ..solvers.tools.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
+from ..solvers.tools.clean_bench import bench_clean  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.tools.landmark_models import main as landmark_models_main  # noqa: E402
@@ -102,7 +106,7 @@ from .review import review_flags  # noqa: E402
 
 def _cmd_retarget(args):
     config = review_flags(load_take_config(args.config), args.html, args.truth)
-    result, outputs = run_take(config, replace=args.replace)
+    result, outputs = run_take(config, replace=args.replace, overwrite=args.overwrite)
 
     ok = np.isfinite(result.residual_rms)
     residual = (f"mean residual {np.mean(result.residual_rms[ok]) * 1e3:.3f} mm ({result.residual_space} space)"
@@ -173,7 +177,7 @@ def _cmd_track(args):
 
 def _cmd_tune(args):
     config = load_take_config(args.config)
-    result, outputs = run_take(config, tune=True)
+    result, outputs = run_take(config, tune=True, overwrite=args.overwrite)
     tuned = result.retune
     v = tuned.version
     print(f"retuned '{result.strategy}' from {len(tuned.frames)} corrected frame(s): corrected RMSE "
@@ -223,6 +227,10 @@ def _cmd_bench(args):
         for row in bench_memory((3600, 36000) if args.quick else MEMORY_FRAMES):
             print(row["line"], flush=True)
         return 0
+    if args.clean:  # the cleaning case on its own
+        for row in bench_clean((360, 3600) if args.quick else (3600, 36000)):
+            print(_bench_line(row), flush=True)
+        return 0
     if args.batch:  # minutes of its own: only when asked
         print(_bench_line(bench_batch(takes=args.batch_takes, jobs=args.batch_jobs, repeat=args.repeat)), flush=True)
         return 0
@@ -249,6 +257,12 @@ def _cmd_landmark_models(args):
 def _bench_line(row):
     ratio = f"{row['ratio']:.0f}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
     return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
+
+
+def _overwrite_flag(parser):
+    parser.add_argument("--overwrite", action="store_true",
+                        help="let outputs replace existing files facecap did not write (default: refused; "
+                             "facecap's own earlier outputs are always replaced)")
 
 
 def version():
@@ -333,6 +347,7 @@ def build_parser():
                    help="start from [target] blend even when the output .blend exists (default: add the solve to it)")
     p.add_argument("--html", default=None, help="write the review page here (overrides [output] html)")
     p.add_argument("--truth", default=None, help="known weights CSV (frame,<shape>,...) the review page overlays")
+    _overwrite_flag(p)
     p = command("batch", _cmd_batch)
     p.add_argument("takes", nargs="+", metavar="TAKES",
                    help="take configs, folders of them (and of take folders), or batch files (a [batch] table and "
@@ -345,6 +360,7 @@ def build_parser():
     p.add_argument("--resume", action="store_true",
                    help="skip takes the summary records as done with the same inputs and config, outputs present")
     p.add_argument("--replace", action="store_true", help="as retarget --replace, for every take")
+    _overwrite_flag(p)
     p = command("demo", _cmd_demo)
     p.add_argument("--out", default="facecap-demo", help="output folder (default: ./facecap-demo)")
     command("inspect", _cmd_inspect)
@@ -352,6 +368,7 @@ def build_parser():
     command("track", _cmd_track)
     p = command("tune", _cmd_tune)
     p.add_argument("--config", required=True, help="take config (.toml) with [tuning] corrections")
+    _overwrite_flag(p)
     command("compare", _cmd_compare)
     command("config-docs", _cmd_config_docs)
     p = command("bench", _cmd_bench)
@@ -374,6 +391,9 @@ def build_parser():
     p.add_argument("--batch-takes", type=int, default=20, help="takes of 720 frames in the batch case (default 20)")
     p.add_argument("--batch-jobs", type=int, default=2, help="--jobs of the batch case (default 2)")
     p.add_argument("--repeat", type=int, default=3, help="runs of the batch case, median (default 3)")
+    p.add_argument("--clean", action="store_true",
+                   help="only the cleaning case: spike removal and spline gap fill on 3,600 and 36,000 frames with "
+                        "5%% spikes, against one spline per gap")
     p.add_argument("--memory", action="store_true",
                    help="only the memory case: peak memory of `retarget`'s process tree on 36,000- and 360,000-frame "
                         "takes (with --quick 3,600 and 36,000); about 20 minutes")
@@ -426,11 +446,14 @@ def main(argv=None):
         if isinstance(exc, Cancelled):  # Ctrl-C during a video take's flow: nothing was written (not an error)
             print(f"facecap: {exc}; nothing written", file=sys.stderr)
             return 130
-        console.log.error(str(exc))
-        return 1
+        return console.failed(exc)
     except KeyboardInterrupt:
         print("facecap: interrupted; outputs not finished were not written", file=sys.stderr)
         return 130
+    except Exception as exc:  # the system refused something, or a bug: one line all the same
+        if os.environ.get("FACECAP_TRACEBACK") and not isinstance(exc, (OSError, MemoryError)):
+            raise
+        return console.failed(exc)
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, previous)

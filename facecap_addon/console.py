@@ -19,6 +19,8 @@ import sys
 import threading
 import warnings
 
+from ..solvers.errors import FacecapError
+
 #: The package's top-level name: ``facecap``, or ``bl_ext.<repo>.facecap`` inside Blender.
 PACKAGE = __name__.rsplit(".", 2)[0]
 log = logging.getLogger(PACKAGE)
@@ -174,3 +176,21 @@ def closed_pipe_ends_quietly():
         except (OSError, ValueError):
             pass
         raise SystemExit(141) from None
+
+
+def failed(exc):
+    """Say why a command failed and return its exit status, 1: a project error's message (a config's
+    problems one line each), what the system refused (a file, the memory), or a bug as an internal error
+    (``FACECAP_TRACEBACK=1`` shows where); never a traceback."""
+    if isinstance(exc, FacecapError):
+        for line in str(exc).splitlines():
+            log.error(line)
+    elif isinstance(exc, OSError):
+        log.error((f"{exc.filename}: " if getattr(exc, "filename", None) else "") + str(exc.strerror or exc))
+    elif isinstance(exc, MemoryError):
+        log.error("out of memory (the take is too large for this machine's memory)")
+    else:
+        text = " ".join(str(exc).split())[:300]
+        log.error(f"internal error (a bug in facecap; run with FACECAP_TRACEBACK=1 for where): "
+                  f"{type(exc).__name__}: {text}")
+    return 1

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..solvers.errors import FacecapError
 from ..solvers.io.files import atomic_path
+from ..solvers.io.outputs import Output, check_outputs
 from . import anim, layers
 from .scene_data import shape_key_names
 
@@ -50,6 +51,9 @@ def export_take(obj, path, *, head_target="", fps=None, take_name=None):
     fmt = FORMATS.get(path.suffix.lower())
     if fmt is None:
         raise FacecapError(f"{path}: export to .glb (binary glTF) or .fbx; got '{path.suffix}'")
+    # the output policy; replacing an existing file was chosen (the file browser, or the run's own checks)
+    check_outputs([Output("the export", path, "glb" if path.suffix.lower() == ".glb" else "fbx")],
+                  {"the open .blend": bpy.data.filepath or None}, overwrite=True)
     key = getattr(obj.data, "shape_keys", None) if obj is not None else None
     solve = None if key is None else layers.solved_action(key)
     if solve is None:

@@ -17,13 +17,15 @@ import numpy as np
 from ..solvers.capture.cleaning import clean
 from ..solvers.character.binding_map import BindingSettings
 from ..solvers.config.checks import check_against_take
-from ..solvers.config.paths import check_outputs, take_outputs
+from ..solvers.config.paths import check_outputs, expected_sizes, take_outputs
 from ..solvers.config.strategies import load_strategy_inputs
 from ..solvers.engine.split import LONG_TAKE_FRAMES, release_freed_memory, run_beside
 from ..solvers.errors import ConfigError, InputFileError
 from ..solvers.io import import_markers
 from ..solvers.io.csv import write_weights_csv
-from ..solvers.io.files import atomic_path, remove_stale_temporaries, write_json_atomic
+from ..solvers.io.files import remove_stale_temporaries, write_json_atomic
+from ..solvers.io.locks import output_lock
+from ..solvers.io.outputs import check_free_space
 from ..solvers.markers import UNIT_SCALE
 from ..solvers.pipeline import SAMPLES_CHARACTER
 from ..solvers.solve import SolveRequest, solve_job
@@ -33,6 +35,8 @@ from ..solvers.video.flow_config import LandmarkTake, check_against_footage
 from ..solvers.video.reading import Footage
 from . import console
 from .actor_outputs import write_actor_basis, write_profile
+from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, stamp_target, start_blender,
+                          target_changed)
 from .landmark_take import hold_gaze, read_landmarks
 from .review import read_review_truth, write_take_review
 from .take_request import corrections_for, rig_request, shape_names, source_fields
@@ -40,6 +44,8 @@ from .take_request import corrections_for, rig_request, shape_names, source_fiel
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
 PARALLEL_READ_BYTES = 4 << 20
+#: The take report's schema version (its first key, ``"facecap_report"``, also marks it as facecap's own)
+REPORT_SCHEMA = 1
 #: Weights (frames x shapes) above which the weights CSV is written in a forked child.
 PARALLEL_WRITE_VALUES = 200_000
 
@@ -52,31 +58,47 @@ def progress_line(message):
         console.log.info(message)
 
 
-def run_take(config, *, quiet=False, tune=False, replace=False, say=None, characters=None, review=None):
+def run_take(config, *, quiet=False, tune=False, replace=False, overwrite=False, say=None, characters=None,
+             review=None):
     """Solve a take config end to end and write its outputs; returns (RetargetResult, outputs dict).
 
     ``[tuning] library`` and ``[controls]`` are honoured; with ``tune``, ``[tuning] corrections``
     are retuned from and the new library version stored (``[tuning] out``). An existing output
     .blend is added to (everything in it kept, the new solve the active layer) unless ``replace``:
-    then the run starts from ``[target] blend``. Nothing is read or solved before every output path
-    is checked (``preflight``). ``say``: where progress and warning lines go (default: stderr unless
-    ``quiet``); ``characters``: a cache of sampled characters kept across takes (a batch worker's
-    ``CharacterCache``). On takes of ``LONG_TAKE_FRAMES`` or more the returned result's stabilised
-    markers are released before keying (its head poses stay), unless the review page is written.
+    then the run starts from ``[target] blend``; a run adding to it holds its lock from reading it to
+    writing it back (``solvers.io.locks``: a second run waits). Nothing is read or solved before every
+    output path is checked (``preflight``; ``overwrite`` lets outputs replace files facecap did not
+    write). ``say``: where progress and warning lines go (default: stderr unless ``quiet``);
+    ``characters``: a cache of sampled characters kept across takes (a batch worker's ``CharacterCache``).
+    On takes of ``LONG_TAKE_FRAMES`` or more the returned result's stabilised markers are released
+    before keying (its head poses stay), unless the review page is written.
     ``[output] html`` writes the review page last (``review``: its ``facecap_addon.review.ReviewOptions``;
     ``config.truth_path`` the known weights it overlays).
     """
     say = say or ((lambda _m: None) if quiet else progress_line)
     t0 = time.perf_counter()
-    timings = {}
-    base = preflight(config, tune=tune, replace=replace)
+    preflight(config, tune=tune, replace=replace, overwrite=overwrite)  # before waiting for a lock
     truth = read_review_truth(config)  # a bad --truth file fails before the solve
+    lock = output_lock(config.output_blend, say=say) if config.output_blend is not None else contextlib.nullcontext()
+    with lock:
+        base = choose_base(config, replace=replace)  # under the lock: the file as the last writer left it
+        return _run_locked(config, base, say=say, t0=t0, truth=truth, quiet=quiet, tune=tune, characters=characters,
+                           review=review)
+
+
+def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review):
+    timings = {}
     take, obj, timings["read"], t_open = _read_and_open(config, say, base, quiet=quiet)
     check_against_take(config, take.markers, take.inputs)
+    changed = target_changed(config.target_blend) if base.mode == "added" else None
+    if changed:
+        take.notes = tuple(take.notes) + (changed,)
     t1 = time.perf_counter()
     request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
     timings["load_character"] = time.perf_counter() - t1 + t_open
     columns = request.rig.control_names if request.rig is not None else shape_names(request.character)
+    base_size = base.path.stat().st_size if base.path is not None and base.path.is_file() else 0
+    check_free_space(expected_sizes(config, take.n_frames(), len(columns), base_size), config=config.path)
     say(f"[3/5] solving {take.describe()} x {len(columns)} {'controls' if request.rig is not None else 'shapes'} "
         f"(strategy: {request.settings.strategy})")
     result = _run(request, quiet=quiet)
@@ -129,36 +151,30 @@ class Base:
         return {"mode": self.mode, "opened": None if self.path is None else str(self.path)}
 
 
-def preflight(config, *, tune=False, replace=False):
-    """Every check that needs no solve, before any work: something will be written, no output is an
-    input or another output, every output can be written; stale temporary files of earlier killed
-    runs are removed. Returns the ``Base`` to open."""
+def preflight(config, *, tune=False, replace=False, overwrite=False):
+    """Every check that needs no solve, before any work: something will be written, the output
+    policy allows every output (``solvers.io.outputs``: none is an input or another output, an existing
+    one is facecap's own of its kind unless ``overwrite``, each can be written); stale temporary files
+    of earlier killed runs are removed. Returns the ``Base`` to open."""
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
     if not tune and not take_outputs(config):
         raise ConfigError("nothing would be written: give [output] blend, weights, report, html, gltf or fbx",
                           path=config.path, key="output")
-    check_outputs(config, library=versions_folder(config) if tune else None)
+    check_outputs(config, library=versions_folder(config) if tune else None, overwrite=overwrite)
     for path in take_outputs(config).values():
         remove_stale_temporaries(path.parent)
+    return choose_base(config, replace=replace)
+
+
+def choose_base(config, *, replace=False):
+    """The ``Base`` a run opens: the existing output .blend (added to), else ``[target] blend``."""
     out = config.output_blend
     if out is not None and out.is_file():
         if replace:
             return Base(config.target_blend, "replaced")
-        check_blend_file(out, "[output.blend]", config.path)
         return Base(out, "added")
     return Base(config.target_blend, "new")
-
-
-def check_blend_file(path, key, config_path):
-    """Raise ConfigError unless ``path`` starts like a .blend (plain, gzip or zstd compressed)."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(8)
-    except OSError as exc:
-        raise ConfigError(f"{key} {path}: cannot be read ({exc.strerror})", path=config_path) from None
-    if not head.startswith((b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")):
-        raise ConfigError(f"{key} {path}: not a .blend file", path=config_path)
 
 
 #: Binding notes the solve says again in its own words (``stages.usable_markers``: no sample over the
@@ -193,6 +209,13 @@ class _Take:
             return self.footage.info.fps
         return self.inputs.weights.fps
 
+    def n_frames(self):
+        if self.markers is not None:
+            return self.markers.n_frames
+        if self.footage is not None:
+            return self.footage.info.n_frames
+        return len(self.inputs.weights.frames)
+
     def describe(self):
         if self.markers is not None:
             return f"{self.markers.n_frames} frames from {self.markers.n_markers} markers"
@@ -211,16 +234,16 @@ def _read_and_open(config, say, base, *, quiet=False):
         t = time.perf_counter()
         return read_take(config, say, quiet=quiet), time.perf_counter() - t
 
-    def open_blend():  # Blender's start-up (the first ``import bpy``) is in here
+    def open_character():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
         return open_target(config, say, base), time.perf_counter() - t
 
     path = config.markers_path
     if path is not None and path.is_file() and path.stat().st_size > PARALLEL_READ_BYTES:
-        (obj, t_open), (take, t_read) = run_beside(open_blend, read)
+        (obj, t_open), (take, t_read) = run_beside(open_character, read)
     else:
         take, t_read = read()
-        obj, t_open = open_blend()
+        obj, t_open = open_character()
     return take, obj, t_read, t_open
 
 
@@ -259,15 +282,14 @@ def read_take(config, say, *, quiet=True):
 
 def open_target(config, say, base=None):
     """Open the run's ``Base`` .blend (default ``[target] blend``, if given); returns ``[target] object``."""
-    import bpy  # bpy: Blender starts on first import
+    bpy = start_blender()
 
     base = base or Base(config.target_blend, "new")
     if base.path is not None:
         if not base.path.is_file():
             raise InputFileError(base.path, "file not found (config [target] blend)")
-        check_blend_file(base.path, "[output.blend]" if base.mode == "added" else "[target.blend]", config.path)
         say(f"[2/5] opening {base.path}" + (" (adding to it)" if base.mode == "added" else ""))
-        bpy.ops.wm.open_mainfile(filepath=str(base.path), load_ui=False)
+        open_blend(base.path, "the existing [output] blend" if base.mode == "added" else "[target] blend")
     obj = bpy.data.objects.get(config.target_object)
     if obj is None:
         where = "the existing [output] blend (--replace starts from [target] blend)" if base.mode == "added" \
@@ -377,9 +399,12 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
     from .import_scene import fit_scene_to_take  # loads bpy
     from .take import key_weights  # loads bpy
 
+    replaced = []
+
     def key_and_save():
         t3 = time.perf_counter()
         say("[4/5] keying")
+        replaced.extend(remove_earlier_solve(config.action_name))
         if config.rig is not None:
             from .rig_solve import key_rig  # loads bpy
 
@@ -390,7 +415,8 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         timings["key"] = time.perf_counter() - t3
         say("[5/5] writing outputs")
         if config.output_blend is not None:
-            _save_blend_atomic(config.output_blend)
+            stamp_target(config.target_blend)
+            save_blend_atomic(config.output_blend)
         _export(config, obj, fps, result.frames)
         return action
 
@@ -407,6 +433,8 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         if config.output_weights is not None:
             write_weights()
     outputs = {"action": action.name, **outputs}
+    if replaced:
+        outputs["replaced_action"] = replaced[0]
     if config.output_weights is not None:
         outputs["weights"] = str(config.output_weights)
     if config.output_blend is not None:
@@ -416,7 +444,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
             outputs[key] = str(getattr(config, f"output_{key}"))
     timings["total"] = time.perf_counter() - t0
     if config.output_report is not None:
-        report = result.report()
+        report = {"facecap_report": REPORT_SCHEMA, **result.report()}
         report["config"] = str(config.path)
         report.update(report_fields)
         report["outputs"] = outputs
@@ -439,36 +467,3 @@ def _export(config, obj, fps, frames=None):
             export_rig_take(obj, path, frames=frames, take_name=config.action_name)
         elif path is not None:
             export_take(obj, path, head_target=config.settings.head_target, fps=fps, take_name=config.action_name)
-
-
-def _save_blend_atomic(path):
-    import bpy  # bpy: Blender starts on first import
-
-    with atomic_path(path, suffix=".blend") as tmp:
-        tmp.unlink()  # a name only: over an existing file Blender would keep a .blend1 backup of it
-        with _unevaluated_save_context(bpy):
-            bpy.ops.wm.save_as_mainfile(filepath=str(tmp), copy=True, compress=True)
-
-
-@contextlib.contextmanager
-def _unevaluated_save_context(bpy):
-    """The save's context: a scene of its own with no users when the file has one scene.
-
-    An operator call first evaluates its context's view layer, and that copies every keyed action
-    for evaluation: on a 100-minute take about 1.2 GiB beside the 1.15 GiB of keys (measured at
-    120,000 frames: +0.41 GiB at the save, +0.003 GiB with this context). A scene without users is
-    not written, so the file is the same. Only with one scene: the file then opens on it as before
-    (with several it would open on the first one, not necessarily the active one).
-    """
-    scenes = bpy.data.scenes
-    if len(scenes) != 1:
-        yield
-        return
-    context = scenes.new("facecap save context")
-    context.user_clear()  # not written into the file
-    try:
-        with bpy.context.temp_override(scene=context, view_layer=context.view_layers[0]):
-            yield
-    finally:
-        context.use_fake_user = True  # a user for the removal to take (Blender 4.2-4.5 report a bad count otherwise)
-        scenes.remove(context)

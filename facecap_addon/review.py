@@ -21,6 +21,7 @@ import numpy as np
 
 from ..solvers.errors import ConfigError, FacecapError
 from ..solvers.io.images import encode_png
+from ..solvers.io.outputs import Output, check_outputs, user_path
 from ..solvers.solve import solve
 from ..solvers.tools.report import (
     ContactSheet,
@@ -385,11 +386,11 @@ def read_review_truth(config):
 def review_flags(config, html=None, truth=None):
     """``config`` with ``retarget --html`` / ``--truth`` applied (paths relative to the working folder)."""
     if html is not None:
-        config = dataclasses.replace(config, output_html=Path(html).expanduser().resolve())
+        config = dataclasses.replace(config, output_html=user_path(html))
     if truth is not None:
         if config.output_html is None:
             raise ConfigError("--truth is shown on the review page: give --html or [output] html", path=config.path)
-        config = dataclasses.replace(config, truth_path=Path(truth).expanduser().resolve())
+        config = dataclasses.replace(config, truth_path=user_path(truth))
     return config
 
 
@@ -402,10 +403,12 @@ def export_scene_review(settings, scene, path, *, truth=None, render=True):
 
     path = Path(bpy.path.abspath(str(path)))
     truth_data = None
-    if truth:
-        truth_file = Path(bpy.path.abspath(str(truth)))
-        if truth_file.resolve() == path.resolve():
-            raise ConfigError(f"the review page {path} would overwrite the truth weights it shows")
+    truth_file = Path(bpy.path.abspath(str(truth))) if truth else None
+    # the output policy; replacing an existing file was chosen in the file browser
+    check_outputs([Output("the review page", path, "html")], {"the truth weights": truth_file,
+                                                              "the open .blend": bpy.data.filepath or None},
+                  overwrite=True)
+    if truth_file is not None:
         truth_data = read_truth(truth_file)
     request = request_from_scene(settings, scene)
     result = solve(request)

@@ -1,5 +1,6 @@
 """Project error classes: every bad input raises one of these with a message a user can act on."""
 
+import difflib
 import platform
 import sys
 import tomllib
@@ -54,6 +55,112 @@ class ConfigError(FacecapError):
         if key is not None:
             where += f"[{key}] "
         super().__init__(where + one_line(message))
+
+
+class ConfigProblems(ConfigError):
+    """Every problem found in one config, reported at once: one ``ConfigError`` line each (``errors``)."""
+
+    def __init__(self, errors):
+        self.errors = list(errors)
+        first = self.errors[0]
+        self.path, self.key = first.path, first.key
+        FacecapError.__init__(self, "\n".join(str(e) for e in self.errors))
+
+
+class Problems:
+    """Collects the ConfigErrors of one config so that all are reported together.
+
+    ``part(fn, *args, default=...)`` runs one parser and keeps its error; keys already reported (and
+    everything below them) are ``reported`` and a later error about them is a consequence, not news.
+    """
+
+    def __init__(self):
+        self.errors = []
+        self.reported = set()
+
+    def add(self, error, covers=None):
+        """Keep ``error`` unless it is about a key already reported; ``covers``: the key whose later
+        errors it explains (default: its own key)."""
+        errors = error.errors if isinstance(error, ConfigProblems) else [error]
+        for e in errors:
+            if e.key is not None and self.covered(e.key):
+                continue
+            self.errors.append(e)
+            for key in (e.key, covers):
+                if key is not None:
+                    self.reported.add(key)
+
+    def covered(self, key):
+        """Whether ``key`` (``section.key``) is, or is below, a key already reported."""
+        return any(key == k or key.startswith(k + ".") for k in self.reported)
+
+    def part(self, fn, *args, default=None, **kwargs):
+        """``fn(*args, **kwargs)``, or ``default`` when it raises a ConfigError (kept)."""
+        try:
+            return fn(*args, **kwargs)
+        except ConfigError as exc:
+            self.add(exc)
+            return default
+
+    def raise_any(self):
+        if len(self.errors) == 1:
+            raise self.errors[0]
+        if self.errors:
+            raise ConfigProblems(self.errors)
+
+
+def suggest(word, candidates):
+    """`` (did you mean 'x'?)`` for the candidate closest to ``word``, or ''."""
+    if not isinstance(word, str):
+        return ""
+    candidates = [str(c) for c in candidates]
+    folded = {c.casefold(): c for c in candidates}
+    close = difflib.get_close_matches(word, candidates, n=1, cutoff=0.6)
+    match = folded.get(word.casefold()) or (close[0] if close else None)
+    return f" (did you mean '{match}'?)" if match else ""
+
+
+def table_problems(data, options, *, prefix="", open_sections=("controls",), required=True):
+    """Every problem of TOML tables ``data`` against an option table ``options`` (``solvers.options.Option``
+    rows: ``section``, ``key``, ``required``, ``check``), all at once:
+    [(key, message, covers)] for unknown sections and keys (with a "did you mean"), values of the wrong
+    kind or out of range, missing required keys (if ``required``). ``key``: ``section.key`` after
+    ``prefix`` (``defaults.``), None for a section's own problems; ``covers``: the key whose later
+    problems are consequences (a misspelt section covers the absent one it means). In ``open_sections``
+    any key is a table (``[controls]``: a key per shape).
+    """
+    by_name = {o.name: o for o in options}
+    sections = tuple(dict.fromkeys(o.section for o in options))
+    problems = []
+    for section, body in data.items():
+        if section not in sections:
+            hint = suggest(section, sections)
+            meant = hint.split("'")[1] if hint else section
+            problems.append((None, f"unknown section [{prefix}{section}]{hint}; known: {', '.join(sections)}",
+                             prefix + (meant if meant not in data else section)))
+            continue
+        if not isinstance(body, dict):
+            problems.append((None, f"[{prefix}{section}] must be a table; got {body!r}", prefix + section))
+            continue
+        keys = [o.key for o in options if o.section == section]
+        for key, value in body.items():
+            opt = by_name.get(f"{section}.{key}")
+            if opt is None and section in open_sections:
+                opt = by_name.get(f"{section}.<shape>")
+            if opt is None:
+                name = f"{prefix}{section}.{key}"
+                problems.append((name, f"unknown key{suggest(key, keys)}; known keys: {', '.join(keys)}", name))
+                continue
+            problem = opt.check(value)
+            if problem is not None and getattr(opt, "choices", ()) and value not in opt.choices:
+                problem += suggest(value, opt.choices)
+            if problem is not None:
+                problems.append((f"{prefix}{section}.{key}", problem, f"{prefix}{section}.{key}"))
+    for opt in options:
+        body = data.get(opt.section)
+        if required and opt.required and not (isinstance(body, dict) and opt.key in body):
+            problems.append((prefix + opt.name, "missing required key", prefix + opt.name))
+    return problems
 
 
 #: Top-level module -> the PyPI package that provides it (bundled in the extension zips: wheels.lock.toml).

@@ -21,6 +21,10 @@ from dataclasses import dataclass
 
 #: Frame rates above this are refused as typos (a 10 kHz optical system is already unusual).
 MAX_FPS = 10_000.0
+#: Frame numbers above this are refused (Blender's own limit is 1,048,574).
+MAX_FRAME = 1_048_574
+#: Blender keeps at most this many bytes of an ID's name (objects, actions, cameras) and cuts the rest.
+MAX_NAME_BYTES = 63
 
 
 @dataclass(frozen=True)
@@ -39,6 +43,7 @@ class Option:
     ui: str = ""  # the sidebar control (see the module docstring)
     headless: str = ""  # why there is no control, when ``ui`` is empty
     hint: str = ""  # said before what was expected when a value is refused
+    max_bytes: int = None  # ``str``: longest value in UTF-8 bytes (Blender's name limit)
 
     @property
     def name(self):
@@ -54,14 +59,15 @@ class Option:
 
     def range_text(self):
         """The allowed range in words (for messages and docs), or ''."""
-        parts = []
-        if self.above is not None:
-            parts.append(f"> {self.above:g}")
-        if self.low is not None:
-            parts.append(f">= {self.low:g}")
-        if self.high is not None:
-            parts.append(f"<= {self.high:g}")
-        return " and ".join(parts)
+        parts = [f"{sign} {_number_text(v)}" for sign, v in (("> ", self.above), (">=", self.low), ("<=", self.high))
+                 if v is not None]
+        return " and ".join(p.replace(">  ", "> ") for p in parts)
+
+
+def _number_text(v):
+    """A bound in words: ``%g`` (1e+06, 0.5), or every digit of a whole number ``%g`` would round (1048574)."""
+    short = f"{v:g}"
+    return str(int(v)) if float(v).is_integer() and float(short) != float(v) else short
 
 
 def _is_int(v):
@@ -93,9 +99,15 @@ def _problem(option, kind, v):
     if kind in ("str", "path"):
         if not isinstance(v, str) or not v.strip():
             return f"expected a {'file name' if kind == 'path' else 'text'}; got {v!r}"
-        return "must not contain NUL characters" if "\0" in v else None
+        if "\0" in v:
+            return "must not contain NUL characters"
+        if option.max_bytes is not None and len(v.encode("utf-8")) > option.max_bytes:
+            return f"at most {option.max_bytes} bytes (Blender's limit for a name); got {len(v.encode('utf-8'))}"
+        return None
     if kind == "choice":
-        return None if v in option.choices else f"expected one of {', '.join(map(str, option.choices))}; got {v!r}"
+        if v in option.choices:
+            return None
+        return f"expected one of {', '.join(map(str, option.choices))}; got {v!r}"
     if kind == "frames":
         ok = isinstance(v, list) and len(v) == 2 and all(_is_int(x) for x in v) and v[0] <= v[1]
         return None if ok else f"expected [first, last] frame numbers with first <= last; got {v!r}"
@@ -124,7 +136,8 @@ OPTIONS = (
     # -- [target] ----------------------------------------------------------------------------------
     O("target", "blend", "path", doc="The character's .blend (default: the open file)",
       headless="the sidebar works on the open .blend"),
-    O("target", "object", "str", required=True, doc="The mesh object with the shape keys", ui="facecap.target"),
+    O("target", "object", "str", required=True, max_bytes=MAX_NAME_BYTES, doc="The mesh object with the shape keys",
+      ui="facecap.target"),
     # -- [source] ----------------------------------------------------------------------------------
     O("source", "markers", "path", doc="Marker take: C3D, TRC, CSV (wide or long) or JSON",
       ui="facecap.markers_path"),
@@ -137,7 +150,7 @@ OPTIONS = (
     O("source", "units", "choice", choices=UNITS,
       doc="Units of the coordinates (default: the file's, else guessed from the face size with a note)",
       ui="facecap.units, op:facecap.import_markers.units"),
-    O("source", "unit_scale", "float", above=0.0, doc="Metres per unit for `units = \"bu\"` (Blender units)",
+    O("source", "unit_scale", "float", above=0.0, high=1e3, doc="Metres per unit for `units = \"bu\"` (Blender units)",
       ui="op:facecap.import_markers.unit_scale"),
     O("source", "fps", "float", above=0.0, high=MAX_FPS, doc="Frame rate (default: the file's)",
       ui="facecap.fps"),
@@ -150,14 +163,16 @@ OPTIONS = (
     O("source", "columns", "names", doc="A marker CSV without a header row: its columns, `frame` or `time` then "
       "marker names (a name stands for its x, y, z columns; `name_x`, `name_y` for 2D tracks)",
       headless="File > Import reads CSVs with a header row"),
-    O("source", "first", "int", doc="Video takes: first footage frame read",
+    O("source", "first", "int", high=MAX_FRAME, doc="Video takes: first footage frame read",
       headless="the Movie Clip's frame range"),
-    O("source", "last", "int", doc="Video takes: last footage frame read", headless="the Movie Clip's frame range"),
+    O("source", "last", "int", high=MAX_FRAME, doc="Video takes: last footage frame read",
+      headless="the Movie Clip's frame range"),
     O("source", "step", "int", default=1, low=1, high=1000, doc="Video takes: read every n-th frame",
       headless="the Movie Clip's frame range"),
     O("source", "scale", "float", default=1.0, above=0.0, high=1.0, doc="Video takes: downscale before the flow",
       headless="the Movie Clip's proxy settings"),
-    O("source", "frame_offset", "int", default=0, doc="Video takes: added to footage frame numbers",
+    O("source", "frame_offset", "int", default=0, low=-MAX_FRAME, high=MAX_FRAME,
+      doc="Video takes: added to footage frame numbers",
       headless="the Movie Clip's start frame"),
     # -- [clean] -----------------------------------------------------------------------------------
     O("clean", "fix_swaps", "bool", default=False, doc="Detect and undo label swaps between neighbouring markers",
@@ -165,9 +180,11 @@ OPTIONS = (
     O("clean", "swap_ratio", "float", default=0.5, above=0.0, high=1.0,
       doc="A swap is taken when the swapped labels cost less than this times the kept ones",
       headless="an expert setting of the swap test"),
-    O("clean", "spike_speed", "float", above=0.0, doc="Remove samples moving faster than this (units per second)",
+    O("clean", "spike_speed", "float", above=0.0, high=1e9,
+      doc="Remove samples moving faster than this (units per second)",
       headless="the sidebar uses the robust spike test (spike_mad)"),
-    O("clean", "spike_mad", "float", above=0.0, doc="Remove spikes beyond this many robust sigmas of acceleration",
+    O("clean", "spike_mad", "float", above=0.0, high=1e3,
+      doc="Remove spikes beyond this many robust sigmas of acceleration",
       ui="op:facecap.clean_markers.spike_mad"),
     O("clean", "fill_spline", "int", default=0, low=0, high=100_000, doc="Longest gap (frames) filled by a spline",
       ui="op:facecap.clean_markers.fill_spline"),
@@ -176,11 +193,12 @@ OPTIONS = (
       ui="op:facecap.clean_markers.fill_model"),
     O("clean", "model_rank", "int", low=1, high=200, doc="Components of the gap model (default: 99.5 % of variance)",
       headless="an expert setting of the gap model"),
-    O("clean", "lowpass_hz", "float", above=0.0, doc="Zero-phase Butterworth low-pass cutoff (Hz, below fps / 2)",
+    O("clean", "lowpass_hz", "float", above=0.0, high=MAX_FPS / 2,
+      doc="Zero-phase Butterworth low-pass cutoff (Hz, below fps / 2)",
       ui="op:facecap.clean_markers.lowpass_hz"),
     O("clean", "lowpass_order", "int", default=4, low=1, high=12, doc="Butterworth filter order",
       headless="an expert setting of the low-pass filter"),
-    O("clean", "one_euro", "floats", length=3, above=0.0,
+    O("clean", "one_euro", "floats", length=3, above=0.0, high=1e4,
       doc="One-Euro filter [min_cutoff_hz, beta, d_cutoff_hz] instead of the low-pass",
       headless="an alternative filter for live-style captures"),
     # -- [binding] ---------------------------------------------------------------------------------
@@ -261,7 +279,8 @@ OPTIONS = (
     O("solve", "projection", "choice", default="front", choices=("front", "camera"),
       doc="2D takes: the character seen from the front (orthographic) or through a camera",
       ui="facecap.video.projection"),
-    O("solve", "camera", "str", doc="2D takes: camera object for projection = \"camera\" (default: scene camera)",
+    O("solve", "camera", "str", max_bytes=MAX_NAME_BYTES,
+      doc="2D takes: camera object for projection = \"camera\" (default: scene camera)",
       ui="facecap.video.camera"),
     # -- [output] ----------------------------------------------------------------------------------
     O("output", "blend", "path", doc="The .blend written with the solve layer", headless=OUTPUT_FILE),
@@ -278,7 +297,8 @@ OPTIONS = (
       ui="op:facecap.export_take.filepath"),
     O("output", "fbx", "path", doc="FBX (.fbx) of the same: the character, its shape keys and the baked take",
       ui="op:facecap.export_take.filepath"),
-    O("output", "action", "str", doc="Name of the new action (default: the take file's name)", ui="facecap.take_name"),
+    O("output", "action", "str", max_bytes=MAX_NAME_BYTES - 5, ui="facecap.take_name",
+      doc="Name of the new action (default: the take file's name; room is kept for Blender's \" Head\")"),
     O("output", "head", "str", doc="Key the removed head motion on \"Object\" or \"Armature:bone\"",
       ui="facecap.head_target, facecap.head_bone"),
     # -- [actor] (semantic) ------------------------------------------------------------------------
@@ -317,11 +337,13 @@ OPTIONS = (
       headless="the sidebar's table has both columns"),
     O("mapping", "table", "table", doc="{source = {shape = gain}} (or keyed by target): many-to-many mapping",
       ui="facecap.mapping"),
-    O("mapping", "gain", ("float", "table"), default=1.0, doc="parallel: gain, or {shape = gain}",
+    O("mapping", "gain", ("float", "table"), default=1.0, low=-1e3, high=1e3, doc="parallel: gain, or {shape = gain}",
       ui="facecap.parallel_gain"),
-    O("mapping", "offset", ("float", "table"), default=0.0, doc="parallel: offset, or {shape = offset}",
+    O("mapping", "offset", ("float", "table"), default=0.0, low=-10.0, high=10.0,
+      doc="parallel: offset, or {shape = offset}",
       ui="facecap.parallel_offset"),
-    O("mapping", "clamp", ("floats", "table"), length=2, doc="parallel: [lo, hi], or {shape = [lo, hi]}",
+    O("mapping", "clamp", ("floats", "table"), length=2, low=-10.0, high=10.0,
+      doc="parallel: [lo, hi], or {shape = [lo, hi]}",
       headless="the Shapes panel's per-shape clamp does this in the sidebar"),
     O("mapping", "curve", ("str", "table"), default="linear",
       doc="parallel: \"linear\", \"smoothstep\", \"gamma:<g>\", or {shape = curve}",
@@ -345,7 +367,8 @@ OPTIONS = (
       doc="rbf: smoothing; 0 reproduces the examples exactly", ui="facecap.rbf_smoothing"),
     O("examples", "degree", "int", default=1, low=-1, high=2, doc="rbf: polynomial tail degree (-1 = none)",
       ui="facecap.rbf_degree"),
-    O("examples", "n_components", "int", low=1, high=1000, doc="rbf / pca: principal components (default: the strategy's)",
+    O("examples", "n_components", "int", low=1, high=1000,
+      doc="rbf / pca: principal components (default: the strategy's)",
       ui="facecap.n_components"),
     O("examples", "far", "float", default=2.0, above=0.0, high=1e6,
       doc="rbf: frames farther than this x the example spacing are reported as extrapolated", ui="facecap.rbf_far"),
@@ -354,7 +377,8 @@ OPTIONS = (
       doc="Related-basis regression or posed basis frames (Chuang & Bregler)", ui="facecap.pca_mode"),
     O("pca", "ica", "bool", default=False, doc="Rotate the components to independent ones (FastICA)",
       ui="facecap.pca_ica"),
-    O("pca", "n_basis", "int", default=8, low=1, high=1000, doc="Leading components whose extreme frames are basis frames",
+    O("pca", "n_basis", "int", default=8, low=1, high=1000,
+      doc="Leading components whose extreme frames are basis frames",
       ui="facecap.pca_n_basis"),
     O("pca", "variance", "float", default=0.99, above=0.0, high=1.0, doc="Share of the variance kept",
       ui="facecap.pca_variance"),
@@ -377,9 +401,10 @@ OPTIONS = (
       headless="the sidebar always refines the eyes"),
     O("tracking", "models", "path", doc="Landmarks: folder of the face-mesh model files (default: found)",
       headless="the extension bundles the models"),
-    O("tracking", "region", "floats", length=4, low=0.0, doc="Face region [x, y, w, h] in pixels (default: the frame)",
+    O("tracking", "region", "floats", length=4, low=0.0, high=1e6,
+      doc="Face region [x, y, w, h] in pixels (default: the frame)",
       ui="facecap.video.region"),
-    O("tracking", "reference", "int", doc="The neutral reference frame (default: the first frame read)",
+    O("tracking", "reference", "int", high=MAX_FRAME, doc="The neutral reference frame (default: the first frame read)",
       headless="the sidebar uses the current frame"),
     O("tracking", "stable_region", "list", doc="[x, y, w, h] or [[x, y, w, h], ...] that move with the head only",
       ui="facecap.video.stable_region"),
@@ -420,7 +445,8 @@ OPTIONS = (
     # -- [tuning] and [controls] ------------------------------------------------------------------
     O("tuning", "corrections", "path", doc="frame,<shape>,... corrected weights (the `tune` command)",
       ui="facecap.tuning_frames"),
-    O("tuning", "mu", "float", above=0.0, doc="Prior of the correction (absent: chosen automatically; inf = gains only)",
+    O("tuning", "mu", "float", above=0.0, high=1e12,
+      doc="Prior of the correction (absent: chosen automatically; inf = gains only)",
       ui="facecap.tune_auto_mu, facecap.tune_mu"),
     O("tuning", "library", "path", doc="A stored library version to solve with",
       ui="facecap.library_active, facecap.library_versions"),
@@ -435,7 +461,6 @@ OPTIONS = (
 
 BY_NAME = {o.name: o for o in OPTIONS}
 SECTIONS = tuple(dict.fromkeys(o.section for o in OPTIONS))
-
 
 def option(name):
     """The ``Option`` called ``name`` ("section.key")."""

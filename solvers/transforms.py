@@ -119,6 +119,9 @@ def _spread_ok(cov, ratio=1e-3):
 
 #: Frames whose quaternion eigenvalue gap is below this (relative) bound take the SVD path.
 _MIN_GAP = 1e-2
+#: Cross-covariances larger (or smaller) than this are scaled to unit size first: the closed form raises
+#: them to the 4th power, which overflows (or underflows) the float range beyond it.
+_SAFE_SCALE = 1e50
 
 
 def best_rotation(H):
@@ -135,6 +138,14 @@ def best_rotation(H):
     """
     H = np.asarray(H, dtype=np.float64)
     F = H.shape[0]
+    if not np.isfinite(H).all():
+        raise FacecapError("best_rotation: the point sets' cross-covariance is not finite (coordinates beyond "
+                           "the float range, or NaN points)")
+    size = np.abs(H).reshape(F, 9).max(axis=1) if F else np.zeros(0)
+    extreme = (size > _SAFE_SCALE) | ((size < 1.0 / _SAFE_SCALE) & (size > 0))
+    if extreme.any():  # the polynomial has H to the 4th power: bring such frames to unit size (R is the same)
+        H = H.copy()
+        H[extreme] /= size[extreme, None, None]
     sxx, sxy, sxz, syx, syy, syz, szx, szy, szz = np.ascontiguousarray(H.reshape(F, 9).T)
     N = np.array([
         [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],

@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import FacecapError, needs
 from ..markers import MarkerSet
 from ..options import default
+from .smoothing import penalised_fit
 
 
 @dataclass(frozen=True)
@@ -246,12 +247,14 @@ def remove_spikes(markers, *, max_speed=None, mad=None):
 def fill_gaps_spline(markers, *, max_gap):
     """Fill interior gaps of at most ``max_gap`` frames with a cubic smoothing spline.
 
-    The spline (scipy ``make_smoothing_spline``) runs through up to ``max(3 * gap, 12)`` visible
-    frames on each side; its smoothing weight is chosen once per marker by hiding 5-frame blocks
-    of the marker's longest visible run and keeping the weight that predicts them best.
+    One discrete cubic smoothing spline per marker through all its visible samples, on the take's
+    frames (``smoothing.penalised_fit``: one banded solve, so the work grows with the take's length
+    however many gaps the spike removal cut), gives the values of its gaps; its smoothing weight is
+    chosen once per marker by hiding 5-frame blocks of the marker's visible samples and keeping the
+    weight that predicts them best. Visible samples and longer gaps are left as they are.
     """
     with needs("scipy", "Spline gap filling (Clean Markers)"):
-        from scipy.interpolate import make_smoothing_spline  # scipy: loaded on first use
+        import scipy.linalg  # noqa: F401 - scipy: checked here, used by penalised_fit
 
     pos = markers.positions.copy()
     t = markers.frames
@@ -259,53 +262,45 @@ def fill_gaps_spline(markers, *, max_gap):
     for m in range(markers.n_markers):
         vis = ~np.isnan(pos[:, m, 0])
         runs = [(a, b) for a, b, interior in gap_runs(vis) if interior and b - a <= max_gap]
-        if not runs:
+        if not runs or vis.sum() < 5:
             continue
         lam = _choose_smoothing(t, pos[:, m], vis)
-        for a, b in runs:
-            context = max(3 * (b - a), 12)
-            left = np.flatnonzero(vis[:a])[-context:]
-            right = b + np.flatnonzero(vis[b:])[:context]
-            idx = np.concatenate([left, right])
-            if idx.size < 5:
-                continue
-            pos[a:b, m] = _spline_per_axis(make_smoothing_spline, t[idx], pos[idx, m], lam, t[a:b])
-            filled[m] += b - a
+        visible = np.flatnonzero(vis)
+        first, last = visible[0], visible[-1] + 1
+        fit = penalised_fit(t[first:last], pos[first:last, m], vis[first:last], lam)
+        rows = np.concatenate([np.arange(a, b) for a, b in runs])
+        pos[rows, m] = fit[rows - first]
+        filled[m] += rows.size
     return markers.with_positions(pos), StepReport("fill_spline", _counts(markers, filled),
                                                    f"gaps of up to {max_gap} frames filled by spline")
 
 
 _LAMBDAS = 10.0 ** np.arange(-1.0, 3.01, 0.5)
-
-
-def _spline_per_axis(make_smoothing_spline, x, y, lam, at):
-    """A smoothing spline through each column of ``y`` (N, D), evaluated at ``at`` (T,): (T, D).
-
-    One spline per axis because scipy < 1.16 (the 1.15 bundled for Blender's numpy 1.24) takes only
-    1-D ``y``; later scipy fits the columns of a 2-D ``y`` independently too (each its own GCV weight
-    when ``lam`` is None), so the result is the same.
-    """
-    return np.stack([make_smoothing_spline(x, y[:, d], lam=lam)(at) for d in range(y.shape[1])], axis=1)
+#: The smoothing weight of a marker with too few visible samples to choose one (the grid's middle)
+_DEFAULT_LAMBDA = 10.0
 
 
 def _choose_smoothing(t, track, vis, block=5, period=20, longest=240):
-    """Smoothing weight for ``make_smoothing_spline`` by hold-out of 5-frame blocks (None = GCV)."""
-    with needs("scipy", "Spline gap filling (Clean Markers)"):
-        from scipy.interpolate import make_smoothing_spline  # scipy: loaded on first use
-
+    """Smoothing weight for ``penalised_fit`` by hold-out: in the marker's longest visible run (or, with
+    no run of ``4 * period`` frames, its first ``longest`` visible samples), blocks of ``block`` samples
+    every ``period`` are hidden and predicted from the rest; the weight predicting them best wins."""
     runs = _visible_runs(vis)
     a, b = max(runs, key=lambda r: r[1] - r[0])
-    b = min(b, a + longest)
-    if b - a < 4 * period:
-        return None
-    rows = np.arange(a, b)
-    hide = ((rows - a) % period >= period // 2) & ((rows - a) % period < period // 2 + block)
+    if b - a >= 4 * period:
+        chosen = np.arange(a, min(b, a + longest))
+    else:
+        chosen = np.flatnonzero(vis)[:longest]
+        if chosen.size < 4 * period:
+            return _DEFAULT_LAMBDA
+    k = np.arange(chosen.size)
+    hide = (k % period >= period // 2) & (k % period < period // 2 + block)
     hide[:period] = hide[-period:] = False
-    fit, test = rows[~hide], rows[hide]
-    errors = []
-    for lam in _LAMBDAS:
-        predicted = _spline_per_axis(make_smoothing_spline, t[fit], track[fit], lam, t[test])
-        errors.append(np.mean((predicted - track[test]) ** 2))
+    first, last = chosen[0], chosen[-1] + 1
+    weights = vis[first:last].astype(np.float64)
+    weights[chosen[hide] - first] = 0.0
+    test = chosen[hide]
+    errors = [np.mean((penalised_fit(t[first:last], track[first:last], weights, lam)[test - first] - track[test]) ** 2)
+              for lam in _LAMBDAS]
     return float(_LAMBDAS[int(np.argmin(errors))])
 
 

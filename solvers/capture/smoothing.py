@@ -91,3 +91,45 @@ def _kernels(w, half_window, order):
     x.flags.writeable = ok.flags.writeable = False
     _last = (half_window, order, w.copy(), x, ok)
     return x, ok
+
+
+def penalised_fit(t, values, weights, lam):
+    """The discrete cubic smoothing spline through weighted samples, at every ``t``: ``f`` minimising
+    ``sum_i weights_i (values_i - f_i)^2 + lam * sum_j h_j (second divided difference of f at j)^2``.
+
+    It is the penalty of a cubic smoothing spline (``lam`` times the integral of f''^2, as
+    ``scipy.interpolate.make_smoothing_spline``'s ``lam``) on the grid ``t``: where weights are 0 (gaps)
+    f is the cubic that joins its neighbours. One pentadiagonal solve (``scipy.linalg.solveh_banded``)
+    for every column: the work grows linearly with ``len(t)``.
+
+    Parameters
+    ----------
+    t : ndarray (N,), increasing
+    values : ndarray (N, D); rows of weight 0 may hold anything (NaN)
+    weights : ndarray (N,) of 0 or more; at least two rows of positive weight
+    lam : float > 0
+
+    Returns
+    -------
+    ndarray (N, D)
+    """
+    from scipy.linalg import solveh_banded  # scipy: loaded on first use (Clean Markers needs it anyway)
+
+    t = np.asarray(t, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    y = np.where(w[:, None] > 0, np.asarray(values, dtype=np.float64).reshape(len(t), -1), 0.0)
+    n = t.size
+    h = np.diff(t)
+    # second divided difference at interior node j+1: a f_j + b f_(j+1) + c f_(j+2), weight (h_j + h_(j+1)) / 2
+    span = h[:-1] + h[1:]
+    a, c = 2.0 / (h[:-1] * span), 2.0 / (h[1:] * span)
+    b = -(a + c)
+    s = lam * span / 2.0
+    band = np.zeros((3, n))  # upper form: band[2] the diagonal, band[1] the first, band[0] the second superdiagonal
+    band[2] = w
+    for k, coef in enumerate((a, b, c)):
+        band[2, k:k + n - 2] += s * coef * coef
+    for k, (p, q) in enumerate(((a, b), (b, c))):
+        band[1, k + 1:k + n - 1] += s * p * q
+    band[0, 2:] = s * a * c
+    return solveh_banded(band, w[:, None] * y, lower=False, check_finite=False)

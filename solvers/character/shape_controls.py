@@ -28,7 +28,7 @@ import numpy as np
 
 from ..capture.smoothing import local_polynomial
 from ..errors import FacecapError, InputFileError
-from ..io.files import write_json_atomic
+from ..io.files import read_text_input, write_json_atomic
 from .aliases import canonical_names, name_key
 
 CURVES = ("linear", "smoothstep", "gamma:<g>")
@@ -59,6 +59,13 @@ def _number(value):
     return isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
 
 
+#: Blender's shape-key slider range: weights (clamp, lock, offset) beyond it are typos
+MAX_WEIGHT = 10.0
+#: Allowed range of each number of a control (upper bounds: typos beyond them; a smoothing half-window
+#: of a minute already flattens any performance)
+LIMITS = {"gain": (-1e3, 1e3), "offset": (-MAX_WEIGHT, MAX_WEIGHT), "smoothing": (0.0, 60.0)}
+
+
 @dataclass(frozen=True)
 class ShapeControl:
     """Everyday controls of one shape (defaults change nothing).
@@ -80,25 +87,26 @@ class ShapeControl:
     lock: float = None
 
     def __post_init__(self):
-        for key in ("gain", "offset", "smoothing"):
+        for key, (low, high) in LIMITS.items():
             value = getattr(self, key)
-            if not _number(value) or not np.isfinite(value):
-                raise FacecapError(f"shape control: `{key}` must be a finite number; got {value!r}")
+            if not _number(value) or not np.isfinite(value) or not low <= value <= high:
+                raise FacecapError(f"shape control: `{key}` must be a number from {low:g} to {high:g}"
+                                   f"{' seconds' if key == 'smoothing' else ''}; got {value!r}")
             object.__setattr__(self, key, float(value))
-        if self.smoothing < 0:
-            raise FacecapError(f"shape control: `smoothing` must be >= 0 seconds; got {self.smoothing}")
         if self.clamp is not None:
             c = tuple(self.clamp) if isinstance(self.clamp, (list, tuple)) else ()
-            if len(c) != 2 or not all(_number(v) and np.isfinite(v) for v in c) or c[0] > c[1]:
-                raise FacecapError(f"shape control: `clamp` must be (lo, hi) with lo <= hi; got {self.clamp!r}")
+            if len(c) != 2 or not all(_number(v) and np.isfinite(v) and abs(v) <= MAX_WEIGHT for v in c) or c[0] > c[1]:
+                raise FacecapError(f"shape control: `clamp` must be (lo, hi) with lo <= hi, each from -{MAX_WEIGHT:g} "
+                                   f"to {MAX_WEIGHT:g}; got {self.clamp!r}")
             object.__setattr__(self, "clamp", (float(c[0]), float(c[1])))
         curve_function(self.curve, what="shape control")
         if not isinstance(self.mute, (bool, np.bool_)):
             raise FacecapError(f"shape control: `mute` must be true or false; got {self.mute!r}")
         object.__setattr__(self, "mute", bool(self.mute))
         if self.lock is not None:
-            if not _number(self.lock) or not np.isfinite(self.lock):
-                raise FacecapError(f"shape control: `lock` must be a number or None; got {self.lock!r}")
+            if not _number(self.lock) or not np.isfinite(self.lock) or abs(self.lock) > MAX_WEIGHT:
+                raise FacecapError(f"shape control: `lock` must be a number from -{MAX_WEIGHT:g} to {MAX_WEIGHT:g} or "
+                                   f"None; got {self.lock!r}")
             object.__setattr__(self, "lock", float(self.lock))
 
     def is_identity(self):
@@ -247,9 +255,7 @@ def load_preset(path):
     """``{key: ShapeControl}`` from a JSON preset; errors name the file and the field."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputFileError(path, "preset file not found") from None
+        data = json.loads(read_text_input(path, "preset file not found"))  # a regular file, within its size
     except json.JSONDecodeError as exc:
         raise InputFileError(path, f"not valid JSON: {exc.msg}", line=exc.lineno) from None
     except (OSError, UnicodeDecodeError) as exc:

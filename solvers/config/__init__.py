@@ -26,9 +26,12 @@ from pathlib import Path
 
 from ..capture.align import region_patterns
 from ..capture.cleaning import CleanSettings
+from ..character.binding_map import BindingSettings
 from ..character.shape_options import Region
-from ..errors import ConfigError, FacecapError
-from ..options import BY_NAME, OPTIONS, SECTIONS, default
+from ..errors import ConfigError, FacecapError, InputFileError, Problems, table_problems
+from ..io.limits import MAX_TEXT_BYTES, check_input_file
+from ..io.outputs import user_path
+from ..options import OPTIONS, SECTIONS, default
 from ..pipeline import RetargetSettings
 from ..video.flow_config import is_landmark_take, landmark_defaults, split_video_sections, video_take
 from ..video.landmarks import RIGID as LANDMARK_RIGID
@@ -108,7 +111,10 @@ def read_config_toml(path):
     """
     path = Path(os.path.expanduser(str(path))).resolve()
     try:
+        check_input_file(path, limit=MAX_TEXT_BYTES, missing="config file not found")
         return path, tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a UTF-8 BOM is fine
+    except InputFileError as exc:
+        raise ConfigError(str(exc).removeprefix(f"{path}: "), path=path) from None
     except FileNotFoundError:
         raise ConfigError("config file not found", path=path) from None
     except tomllib.TOMLDecodeError as exc:
@@ -137,8 +143,10 @@ def load_take_config(path, data=None):
     else:
         path = Path(os.path.expanduser(str(path))).resolve()
         data = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}  # popped below: a copy
-    _check_schema(path, data)
+    problems = Problems()
+    data = _check_schema(path, data, problems)
     free = {k: data.pop(k) for k in ("tuning", "controls") if k in data}  # parsed by config.tuning
+    part = problems.part
 
     video_raw = split_video_sections(data)  # [source] video, [tracking], [flow]: a markerless video take
     landmarks = is_landmark_take(video_raw)  # ... whose face landmarks are solved like markers
@@ -150,42 +158,63 @@ def load_take_config(path, data=None):
         return data.get(section, {}).get(key, default)
 
     def resolve(value):
-        return None if value is None else (base / os.path.expanduser(value)).resolve()
+        return None if value is None else user_path(value, base)
 
     units = get("source", "units")
     fps = get("source", "fps")
     read_options = {k: get("source", k) for k in ("format", "unit_scale", "up_axis", "delimiter", "decimal", "columns")}
     read_options = {k: v for k, v in read_options.items() if v is not None}
     if units == "bu" and "unit_scale" not in read_options:
-        raise ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale")
-    clean = _clean_settings(path, data.get("clean", {}))
+        problems.add(ConfigError("Blender units need unit_scale (metres per unit)", path=path, key="source.unit_scale"))
+    clean = part(_clean_settings, path, data.get("clean", {}), default=CleanSettings())
     # a landmark take solves like markers, on geometric (measured there); a flow take on posed examples; a
     # probed rig's controls on geometric (its model stands for the character's shapes)
     probed_rig = isinstance(data.get("rig"), dict) and data["rig"].get("method", default("rig.method")) == "probed"
     strategy = get("solve", "strategy", ("geometric" if probed_rig else default("solve.strategy")) if video_raw is None
                    else "geometric" if landmarks else "linear")
-    video = None if video_raw is None else video_take(path, video_raw, data, strategy)
-    if video is None:
-        _check_source(path, data, strategy)
+    video = None if video_raw is None else part(video_take, path, video_raw, data, strategy)
+    if video_raw is None:
+        part(_check_source, path, data, strategy)
     stable, frames = (), [1, 1]
     normalise = {}
-    if (video is None or landmarks) and (strategy != "parallel" or "markers" in data.get("stabilise", {})
-                                         or data.get("neutral")):
-        stable, frames, normalise = _stabilise_neutral(path, data, resolve)
+    if (video_raw is None or landmarks) and (strategy != "parallel" or "markers" in data.get("stabilise", {})
+                                             or data.get("neutral")):
+        stable, frames, normalise = part(_stabilise_neutral, path, data, resolve, default=((), [1, 1], {}))
     numbers = {key: get(section, key, default(f"{section}.{key}")) for section, key in (
         ("solve", "regularisation"), ("solve", "sparsity"), ("solve", "symmetry"),
         ("stabilise", "fine_weight"), ("stabilise", "head_smoothing"), ("stabilise", "fine_iterations"),
     )}
     smoothing = get("solve", "smoothing", default("solve.smoothing"))
-    shape_options = _shape_options(path, data.get("solve", {}))
-    projection, camera_name = _projection(path, data.get("solve", {}))
-    binding = parse_binding(path, data.get("binding"))
+    shape_options = part(_shape_options, path, data.get("solve", {}), default={})
+    projection, camera_name = part(_projection, path, data.get("solve", {}), default=("front", None))
+    binding = part(parse_binding, path, data.get("binding"), default=BindingSettings())
     markers_path = resolve(get("source", "markers"))
     weights_path = resolve(get("source", "weights"))
-    strategy_options = strategy_settings(path, data, strategy)
-    _check_profile_output(path, data, strategy)
+    strategy_options = {}
+    if not (video_raw is not None and video is None):  # a broken video take: its strategy inputs are no news
+        strategy_options = part(strategy_settings, path, data, strategy, default={})
+    part(_check_profile_output, path, data, strategy)
+    outputs = {key: part(_export_path, path, key, resolve(get("output", key))) for key in EXPORT_SUFFIXES}
+    tuning = part(parse_tuning, path, free.get("tuning"), base)
+    controls = part(parse_controls, path, free.get("controls"), base)
+    rig = part(parse_rig, path, data.get("rig"))
+    problems.raise_any()
     cal_units = get("calibration", "units")
     cal_fps = get("calibration", "fps")
+    try:
+        settings = RetargetSettings(
+            stable_markers=tuple(stable),
+            neutral_frames=(frames[0], frames[1]),
+            **normalise,
+            head_target=get("output", "head", ""),
+            strategy=strategy,
+            smoothing=(float(smoothing[0]), float(smoothing[1])),
+            **numbers,
+            **shape_options,
+            **strategy_options,
+        )
+    except FacecapError as exc:  # how the sections' values fit together
+        raise ConfigError(str(exc), path=path) from None
     return TakeConfig(
         path=path,
         target_blend=resolve(get("target", "blend")),
@@ -196,17 +225,7 @@ def load_take_config(path, data=None):
         read_options=read_options,
         clean=clean,
         bind_vertex_groups=binding.mode == "vertex_groups",
-        settings=RetargetSettings(
-            stable_markers=tuple(stable),
-            neutral_frames=(frames[0], frames[1]),
-            **normalise,
-            head_target=get("output", "head", ""),
-            strategy=strategy,
-            smoothing=(float(smoothing[0]), float(smoothing[1])),
-            **numbers,
-            **shape_options,
-            **strategy_options,
-        ),
+        settings=settings,
         output_blend=resolve(get("output", "blend")),
         output_weights=resolve(get("output", "weights")),
         output_report=resolve(get("output", "report")),
@@ -222,17 +241,17 @@ def load_take_config(path, data=None):
         output_actor_basis=resolve(get("output", "actor_basis")),
         actor_profile_path=resolve(get("actor", "profile")),
         output_profile=resolve(get("output", "profile")),
-        output_gltf=_export_path(path, "gltf", resolve(get("output", "gltf"))),
-        output_fbx=_export_path(path, "fbx", resolve(get("output", "fbx"))),
+        output_gltf=outputs["gltf"],
+        output_fbx=outputs["fbx"],
         output_html=resolve(get("output", "html")),
         projection=projection,
         camera_name=camera_name,
-        tuning=parse_tuning(path, free.get("tuning"), base),
-        controls=parse_controls(path, free.get("controls"), base),
+        tuning=tuning,
+        controls=controls,
         controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
         binding=binding,
-        rig=parse_rig(path, data.get("rig")),
+        rig=rig,
     )
 
 
@@ -348,25 +367,18 @@ def _check_source(path, data, strategy):
                               key="source.weights")
 
 
-def _check_schema(path, data):
-    """Every section and key known and every value of its kind and in its range (``solvers.options``);
-    the sections' own parsers check how values fit together."""
+def _check_schema(path, data, problems):
+    """Every section and key known and every value of its kind and in its range (``solvers.options``),
+    each problem kept in ``problems``; returns ``data`` without what was refused (so that the sections'
+    own parsers, which check how values fit together, see only values of the right kind)."""
+    for key, message, covers in table_problems(data, OPTIONS):
+        problems.add(ConfigError(message, path=path, key=key), covers=covers)
+    kept = {}
     for section, body in data.items():
-        if section not in SECTIONS:
-            raise ConfigError(f"unknown section [{section}]; known: {', '.join(SECTIONS)}", path=path)
-        if not isinstance(body, dict):
-            raise ConfigError(f"[{section}] must be a table", path=path)
-        for key, value in body.items():
-            opt = BY_NAME.get(f"{section}.{key}") or (BY_NAME["controls.<shape>"] if section == "controls" else None)
-            if opt is None:
-                known = [o.key for o in OPTIONS if o.section == section]
-                raise ConfigError(f"unknown key; known keys: {', '.join(known)}", path=path, key=f"{section}.{key}")
-            problem = opt.check(value)
-            if problem is not None:
-                raise ConfigError(problem, path=path, key=f"{section}.{key}")
-    for opt in OPTIONS:
-        if opt.required and opt.key not in data.get(opt.section, {}):
-            raise ConfigError("missing required key", path=path, key=opt.name)
+        if section not in SECTIONS or not isinstance(body, dict) or problems.covered(section):
+            continue
+        kept[section] = {k: v for k, v in body.items() if not problems.covered(f"{section}.{k}")}
+    return kept
 
 
 def _number(value):

@@ -31,12 +31,13 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ConfigError, FacecapError
+from ..errors import ConfigError, FacecapError, Problems, suggest, table_problems
 from ..options import BY_NAME, OPTIONS, SECTIONS
 from . import read_config_toml
 from .paths import take_inputs
 
-#: The keys of a batch file's [batch] table
+#: The sections of a batch file, and the keys of its [batch] table
+BATCH_SECTIONS = ("batch", "defaults")
 BATCH_KEYS = ("takes",)
 #: The placeholder of a take's name in the defaults' [output] values
 TAKE_PLACEHOLDER = "{take}"
@@ -114,7 +115,15 @@ def take_names(paths):
 
 
 def _tomls(folder):
-    return sorted(p for p in folder.glob("*.toml") if p.is_file())
+    """The .toml files of ``folder``; a symbolic link to another one of them is that one, not a second take."""
+    files = [p for p in folder.glob("*.toml") if p.is_file()]
+    kept, seen = [], set()
+    for p in sorted(files, key=lambda p: (p.is_symlink(), p.name)):  # real files first: they keep their name
+        real = p.resolve()
+        if real not in seen:
+            seen.add(real)
+            kept.append(p)
+    return sorted(kept)
 
 
 def _is_batch_file(path):
@@ -163,40 +172,42 @@ def read_defaults(path, data):
     ------
     ConfigError naming the batch file and the key.
     """
+    problems = Problems()
     for section in data:
         if section not in ("batch", "defaults"):
-            raise ConfigError(f"unknown section [{section}] in a batch file; known: batch, defaults", path=path)
+            problems.add(ConfigError(f"unknown section [{section}] in a batch file{suggest(section, BATCH_SECTIONS)}; "
+                                     "known: batch, defaults", path=path))
     batch = data["batch"]
     for key in batch:
         if key not in BATCH_KEYS:
-            raise ConfigError(f"unknown key; known keys: {', '.join(BATCH_KEYS)}", path=path, key=f"batch.{key}")
+            problems.add(ConfigError(f"unknown key{suggest(key, BATCH_KEYS)}; known keys: {', '.join(BATCH_KEYS)}",
+                                     path=path, key=f"batch.{key}"))
     takes = batch.get("takes")
     if not (isinstance(takes, list) and takes and all(isinstance(t, str) and t.strip() and "\0" not in t
                                                       for t in takes)):
-        raise ConfigError(f"expected a list of take configs, folders or globs; got {takes!r}", path=path,
-                          key="batch.takes")
+        problems.add(ConfigError(f"expected a list of take configs, folders or globs; got {takes!r}", path=path,
+                                 key="batch.takes"))
     defaults = data.get("defaults", {})
     if not isinstance(defaults, dict):
-        raise ConfigError("[defaults] must be a table of take-config sections", path=path)
+        problems.add(ConfigError("[defaults] must be a table of take-config sections", path=path))
+        defaults = {}
+    for key, message, covers in table_problems(defaults, OPTIONS, prefix="defaults.", required=False):
+        problems.add(ConfigError(message, path=path, key=key), covers=covers)
     out = {}
     for section, body in defaults.items():
-        if section not in SECTIONS:
-            raise ConfigError(f"unknown section [defaults.{section}]; known: {', '.join(SECTIONS)}", path=path)
-        if not isinstance(body, dict):
-            raise ConfigError(f"[defaults.{section}] must be a table", path=path)
+        if section not in SECTIONS or not isinstance(body, dict):
+            continue
         out[section] = {}
         for key, value in body.items():
             name = f"defaults.{section}.{key}"
-            opt = BY_NAME.get(f"{section}.{key}") or (BY_NAME["controls.<shape>"] if section == "controls" else None)
-            if opt is None:
-                known = [o.key for o in OPTIONS if o.section == section]
-                raise ConfigError(f"unknown key; known keys: {', '.join(known)}", path=path, key=name)
-            problem = opt.check(value)
-            if problem is not None:
-                raise ConfigError(problem, path=path, key=name)
+            if problems.covered(name):
+                continue
+            opt = BY_NAME.get(f"{section}.{key}") or BY_NAME["controls.<shape>"]
             if isinstance(value, str) and TAKE_PLACEHOLDER in value and section != "output":
-                raise ConfigError(f"{TAKE_PLACEHOLDER} is only filled in [defaults.output]", path=path, key=name)
+                problems.add(ConfigError(f"{TAKE_PLACEHOLDER} is only filled in [defaults.output]", path=path,
+                                         key=name))
             out[section][key] = _absolute(path.parent, value) if _is_path(opt) else copy.deepcopy(value)
+    problems.raise_any()
     return out
 
 

@@ -10,6 +10,7 @@ import os
 from ..character.binding import parse_target
 from ..character.binding_map import BindingSettings
 from ..errors import ConfigError, FacecapError
+from ..io.outputs import user_path
 from ..options import default
 
 
@@ -39,7 +40,7 @@ def parse_binding(path, section):
                           key="binding.max_distance_mm")
     map_path = None
     if "map" in section:
-        map_path = (path.parent / os.path.expanduser(section["map"])).resolve()
+        map_path = user_path(section["map"], path.parent)
         if not map_path.is_file():
             raise ConfigError(f"file not found: {map_path}", path=path, key="binding.map")
     return BindingSettings(mode=mode, map_path=map_path, landmarks=_landmarks(path, landmarks),

@@ -3,7 +3,8 @@ they name, smoothing windows shorter than the take. Errors name the config key."
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, InputFileError
+from ..options import MAX_FRAME
 
 
 def _inside(config, key, ranges, frames, what):
@@ -17,6 +18,16 @@ def _inside(config, key, ranges, frames, what):
                               key=key)
 
 
+def _keyable(path, frames):
+    """InputFileError naming the take's file when its frames go beyond what Blender can key."""
+    if frames is None or not len(frames):
+        return
+    first, last = float(np.min(frames)), float(np.max(frames))
+    if last > MAX_FRAME or first < -MAX_FRAME:
+        raise InputFileError(path, f"frames {first:g} to {last:g}: Blender keys frames from -{MAX_FRAME} to "
+                                   f"{MAX_FRAME} only (a stray row, or frame numbers that are sample counts?)")
+
+
 def check_against_take(config, markers=None, inputs=None):
     """Raise ConfigError when a frame range or window of ``config`` does not fit the takes read.
 
@@ -24,6 +35,8 @@ def check_against_take(config, markers=None, inputs=None):
     inputs : StrategyInputs (the calibration take, the solved weights of ``parallel``)
     """
     s = config.settings
+    _keyable(config.markers_path, None if markers is None else markers.frames)
+    _keyable(config.weights_path, getattr(getattr(inputs, "weights", None), "frames", None))
     if markers is not None:
         if not s.neutral_detect and s.neutral_file is None:
             ranges = s.neutral_ranges or ((s.neutral_frames,) if s.neutral_frames else ())

@@ -1,5 +1,8 @@
-"""Where a take reads and writes, checked before any work: no output may be one of the take's inputs,
-two outputs may not share a path, and every output must be writable where it is going.
+"""Where a take reads and writes, checked before any work by the one output policy
+(``solvers.io.outputs``): no output may be one of the take's inputs, two outputs may not share a path,
+an existing file is replaced only when it is facecap's own output of that kind, and every output must be
+writable where it is going. Across a batch's takes, no two takes write one file and no take writes what
+another reads.
 
 Paths are compared after expanding ``~``, resolving ``..`` and symbolic links, and, on a
 case-insensitive file system, ignoring case; an existing output is also compared by identity
@@ -10,6 +13,8 @@ import os
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..io.outputs import Output, check_location, path_key, resolved
+from ..io.outputs import check_outputs as check_output_policy
 
 #: (TakeConfig attribute, config key) of every file a take reads
 INPUTS = (
@@ -26,16 +31,16 @@ INPUTS = (
     ("binding_map_path", "[binding.map]"),
     ("truth_path", "--truth"),
 )
-#: (TakeConfig attribute, config key) of every file a take writes
+#: (TakeConfig attribute, config key, output kind) of every file a take writes
 OUTPUTS = (
-    ("output_blend", "[output.blend]"),
-    ("output_weights", "[output.weights]"),
-    ("output_report", "[output.report]"),
-    ("output_actor_basis", "[output.actor_basis]"),
-    ("output_profile", "[output.profile]"),
-    ("output_gltf", "[output.gltf]"),
-    ("output_fbx", "[output.fbx]"),
-    ("output_html", "[output.html]"),
+    ("output_blend", "[output.blend]", "blend"),
+    ("output_weights", "[output.weights]", "weights_csv"),
+    ("output_report", "[output.report]", "report"),
+    ("output_actor_basis", "[output.actor_basis]", "npz"),
+    ("output_profile", "[output.profile]", "npz"),
+    ("output_gltf", "[output.gltf]", "glb"),
+    ("output_fbx", "[output.fbx]", "fbx"),
+    ("output_html", "[output.html]", "html"),
 )
 
 
@@ -61,98 +66,44 @@ def take_inputs(config):
 def take_outputs(config):
     """{config key: Path} of every file the take writes (the library folder of a retune is checked by
     ``check_outputs`` as a folder)."""
-    return {key: getattr(config, attr) for attr, key in OUTPUTS if getattr(config, attr, None) is not None}
+    return {key: getattr(config, attr) for attr, key, _ in OUTPUTS if getattr(config, attr, None) is not None}
 
 
-def resolved(path):
-    """``path`` with ``~`` expanded and ``..`` / symbolic links resolved (the parts that exist)."""
-    return Path(os.path.expanduser(str(path))).resolve()
+def output_list(config):
+    """The take's outputs as ``solvers.io.outputs.Output`` (key, path, kind)."""
+    return [Output(key, getattr(config, attr), kind) for attr, key, kind in OUTPUTS
+            if getattr(config, attr, None) is not None]
 
 
-def _case_insensitive(folder):
-    """Whether ``folder`` (or its nearest existing ancestor) lives on a case-insensitive file system."""
-    folder = Path(folder)
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    flipped = Path(str(folder).swapcase())
-    return flipped != folder and flipped.exists() and os.path.samefile(flipped, folder)
+#: Low estimates of output sizes (bytes) for the free-space check: per weights-CSV value, per key in a
+#: compressed .blend, and the fixed part of a report or page.
+CSV_BYTES_PER_VALUE = 4
+BLEND_BYTES_PER_KEY = 4
+FIXED_BYTES = 16 << 10
 
 
-def _key(path):
-    p = resolved(path)
-    return str(p).casefold() if _case_insensitive(p.parent) else str(p)
+def expected_sizes(config, frames, shapes, base_size=0):
+    """[(Output, bytes)] the take's outputs will need at least (``solvers.io.outputs.check_free_space``):
+    ``frames`` x ``shapes`` weights, the .blend the run opens being ``base_size`` bytes."""
+    values = frames * max(1, shapes)
+    sizes = {"blend": base_size + values * BLEND_BYTES_PER_KEY, "weights_csv": values * CSV_BYTES_PER_VALUE,
+             "report": FIXED_BYTES + frames * 8, "html": FIXED_BYTES}
+    return [(out, sizes.get(out.kind, FIXED_BYTES)) for out in output_list(config)]
 
 
-def _same(a, b):
-    if _key(a) == _key(b):
-        return True
-    try:
-        return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
-def check_outputs(config, *, library=None):
-    """Raise ConfigError (one line naming both keys) when an output is one of the take's inputs, or
-    two outputs share a path; then check every output can be written (``check_writable``).
-    ``library``: the folder a retune writes library versions to (``[tuning] out``)."""
-    inputs, outputs = take_inputs(config), take_outputs(config)
-    for out_key, out in outputs.items():
-        for in_key, inp in inputs.items():
-            if _same(out, inp):
-                raise ConfigError(f"{out_key} is the same file as {in_key} ({resolved(inp)}): a take never writes "
-                                  "over what it reads", path=config.path)
-    keys = list(outputs)
-    for i, a in enumerate(keys):
-        for b in keys[i + 1:]:
-            if _same(outputs[a], outputs[b]):
-                raise ConfigError(f"{a} and {b} are the same file ({resolved(outputs[a])}): one would be lost",
-                                  path=config.path)
-    if library is not None:
-        for in_key, inp in inputs.items():
-            if _same(library, inp):
-                raise ConfigError(f"[tuning.out] is {in_key} ({resolved(inp)}); it must be a folder for the "
-                                  "library versions", path=config.path)
-        check_writable(library, "[tuning.out]", config.path, folder=True)
-    for key, out in outputs.items():
-        check_writable(out, key, config.path)
+def check_outputs(config, *, library=None, overwrite=False):
+    """Raise ConfigError (one line naming the keys) unless the output policy allows every output of the
+    take (``solvers.io.outputs.check_outputs``): none is an input or another output, an existing one is
+    facecap's own output of its kind (or ``overwrite``), each can be written. ``library``: the folder a
+    retune writes library versions to (``[tuning] out``)."""
+    folders = [] if library is None else [("[tuning.out]", library)]
+    check_output_policy(output_list(config), take_inputs(config), overwrite=overwrite, config=config.path,
+                        folders=folders)
 
 
 def check_writable(path, key, config_path, *, folder=False):
-    """Raise ConfigError naming ``key`` when ``path`` cannot be written: a file where a folder is
-    needed (or the reverse), a read-only folder, a name or path too long for the file system."""
-    path = Path(os.path.expanduser(str(path)))
-
-    def fail(message):
-        raise ConfigError(f"{key} {path}: {message}", path=config_path)
-
-    if path.exists():
-        if folder and not path.is_dir():
-            fail("is a file; a folder is needed")
-        if not folder and path.is_dir():
-            fail("is a folder; a file name is needed")
-        if not os.access(path, os.W_OK):
-            fail("is not writable")
-    parent = path.parent
-    while not parent.exists():
-        if parent.parent == parent:
-            break
-        parent = parent.parent
-    if not parent.is_dir():
-        fail(f"cannot be created: {parent} is a file, not a folder")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        fail(f"cannot be written: the folder {parent} is read-only")
-    try:
-        name_max = os.pathconf(parent, "PC_NAME_MAX")
-        path_max = os.pathconf(parent, "PC_PATH_MAX")
-    except (OSError, ValueError, AttributeError):  # no pathconf (Windows): the usual limits
-        name_max, path_max = 255, 4096
-    longest = max((len(os.fsencode(part)) for part in path.parts), default=0)
-    if longest > name_max - 40:  # room for the temporary file's name beside it
-        fail(f"a name in the path is {longest} bytes; this file system allows {name_max} (less the room a "
-             "temporary file beside it needs)")
-    if len(os.fsencode(str(path.resolve()))) > path_max - 40:
-        fail(f"the path is longer than this file system allows ({path_max} bytes)")
+    """Raise ConfigError naming ``key`` when ``path`` cannot be written (``solvers.io.outputs.check_location``)."""
+    check_location(path, key, config=config_path, folder=folder)
 
 
 def check_across_takes(configs, names=None):
@@ -167,7 +118,7 @@ def check_across_takes(configs, names=None):
     by_inode = {}  # (device, inode) of an existing output -> (take index, output key)
     for i, config in enumerate(configs):
         for key, path in take_outputs(config).items():
-            for known, table in ((_key(path), writers), (_identity(path), by_inode)):
+            for known, table in ((path_key(path), writers), (_identity(path), by_inode)):
                 if known is None:
                     continue
                 j, other = table.setdefault(known, (i, key))
@@ -176,7 +127,7 @@ def check_across_takes(configs, names=None):
                                       f"({resolved(path)}): one would be lost", path=config.path)
     for i, config in enumerate(configs):
         for key, path in take_inputs(config).items():
-            for known, table in ((_key(path), writers), (_identity(path), by_inode)):
+            for known, table in ((path_key(path), writers), (_identity(path), by_inode)):
                 j, other = table.get(known, (i, None)) if known is not None else (i, None)
                 if j != i:
                     raise ConfigError(f"take '{names[i]}' reads {key} ({resolved(path)}), which take '{names[j]}' "

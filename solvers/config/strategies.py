@@ -40,6 +40,14 @@ def _number(value):
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+#: Largest gain and offset magnitudes of [mapping] (as the option table's bounds: typos beyond them)
+MAX_GAIN, MAX_OFFSET = 1e3, 10.0
+
+
+def _bounded(limit):
+    return lambda v: _number(v) and np.isfinite(v) and abs(v) <= limit
+
+
 def _frame_pair(value):
     return isinstance(value, list) and len(value) == 2 and all(isinstance(v, int) and not isinstance(v, bool)
                                                                for v in value) and value[0] <= value[1]
@@ -127,8 +135,8 @@ def _table(table, keyed_by, fail):
         if not isinstance(entry, dict) or not entry:
             fail(key, "expected a name, a list of names or { name = gain, ... }")
         for inner, gain in entry.items():
-            if not _number(gain):
-                fail(key, f"gain for '{inner}' must be a number; got {gain!r}")
+            if not _bounded(MAX_GAIN)(gain):
+                fail(key, f"gain for '{inner}' must be a number between -{MAX_GAIN:g} and {MAX_GAIN:g}; got {gain!r}")
             source, target = (outer, inner) if keyed_by == "source" else (inner, outer)
             rows.append((source, target, float(gain)))
     return tuple(rows)
@@ -162,13 +170,14 @@ def _mapping(m, fail):
     if neutral is not None and not _frame_pair(neutral):
         fail("mapping.neutral", f"expected [first, last] frame numbers of the source weights; got {neutral}")
     clamp = m.get("clamp")
-    clamp_ok = lambda v: isinstance(v, list) and len(v) == 2 and all(_number(x) for x in v) and v[0] <= v[1]  # noqa: E731
+    clamp_ok = lambda v: (isinstance(v, list) and len(v) == 2 and all(_bounded(MAX_OFFSET)(x) for x in v)  # noqa: E731
+                          and v[0] <= v[1])
     return MappingSettings(
         table=_table(m.get("table", {}), keyed_by, fail),
         keyed_by=keyed_by,
         aliases=m.get("aliases", True),
-        gain=_per_shape(m.get("gain", 1.0), "mapping.gain", fail, _number),
-        offset=_per_shape(m.get("offset", 0.0), "mapping.offset", fail, _number),
+        gain=_per_shape(m.get("gain", 1.0), "mapping.gain", fail, _bounded(MAX_GAIN)),
+        offset=_per_shape(m.get("offset", 0.0), "mapping.offset", fail, _bounded(MAX_OFFSET)),
         clamp=None if clamp is None else _per_shape(clamp, "mapping.clamp", fail, clamp_ok),
         curve=_per_shape(m.get("curve", "linear"), "mapping.curve", fail, _curve_ok),
         mirror=m.get("mirror", False),

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from ..character.shape_controls import control_from_dict, load_preset
 from ..errors import ConfigError, FacecapError
+from ..io.outputs import user_path
 
 TUNING_KEYS = {"corrections": str, "mu": (int, float), "library": str, "out": str}
 
@@ -49,7 +50,7 @@ def parse_tuning(path, section, base):
     mu = section.get("mu")
     if mu is not None and not mu > 0:
         raise ConfigError(f"must be > 0 (inf = gains only); got {mu}", path=path, key="tuning.mu")
-    resolve = lambda v: None if v is None else (Path(base) / v).resolve()  # noqa: E731
+    resolve = lambda v: None if v is None else user_path(v, base)  # noqa: E731
     return TuningConfig(corrections=resolve(section.get("corrections")), mu=None if mu is None else float(mu),
                         library=resolve(section.get("library")), out=resolve(section.get("out")))
 
@@ -65,7 +66,7 @@ def parse_controls(path, section, base):
         preset = section["preset"]
         if not isinstance(preset, str):
             raise ConfigError(f"expected a file name; got {preset!r}", path=path, key="controls.preset")
-        preset_path = (Path(base) / preset).resolve()
+        preset_path = user_path(preset, base)
         if not preset_path.is_file():
             raise ConfigError(f"file not found: {preset_path}", path=path, key="controls.preset")
         controls.update(load_preset(preset_path))

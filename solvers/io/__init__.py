@@ -26,14 +26,17 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import FacecapError, InputFileError
-from ..markers import MarkerSet
+from ..markers import UNIT_SCALE, MarkerSet
 from .c3d import read_c3d
 from .c3d_write import write_c3d
 from .csv import read_wide_csv, sniff, time_column
 from .csv_long import is_long_header, read_long_csv
 from .csv_write import write_markers_csv
 from .json import read_json, write_json
+from .limits import check_input_file
 from .timing import FPS_ASSUMED, UNITS_GUESSED
 from .trc import read_trc, write_trc
 from .weights import WeightTrack, read_weights
@@ -68,6 +71,7 @@ class ImportResult:
 def detect_format(path):
     """Format name of ``path`` (see FORMATS), from its extension and, for text, its header."""
     path = Path(path)
+    check_input_file(path)
     fmt = EXTENSIONS.get(path.suffix.lower())
     if fmt is None:
         try:
@@ -101,6 +105,7 @@ def import_markers(path, *, format=None, units=None, fps=None, **options):
     **options
         ``unit_scale``, ``up_axis`` and, for CSV, ``delimiter`` and ``decimal``.
     """
+    check_input_file(path)
     fmt = detect_format(path) if format is None else format
     if fmt not in FORMATS:
         raise FacecapError(f"`format` must be one of {', '.join(FORMATS)}; got {format!r}")
@@ -112,7 +117,29 @@ def import_markers(path, *, format=None, units=None, fps=None, **options):
     reader = {"c3d": read_c3d, "trc": read_trc, "json": read_json, "csv": read_wide_csv,
               "csv-long": read_long_csv}[fmt]
     markers = reader(path, units=units, fps=fps, notes=notes, **options)
+    check_magnitude(path, markers)
     return ImportResult(markers=markers, format=fmt, notes=tuple(notes), decided=_decided(notes, units, fps))
+
+
+#: Largest coordinate a take may hold: 10 km (3D, in metres) or 10 million pixels (2D). Beyond it the
+#: file is damaged (a C3D's data block shifted) or its units are wrong, and the fits would overflow.
+MAX_COORDINATE_M = 1e4
+MAX_COORDINATE_PX = 1e7
+
+
+def check_magnitude(path, markers):
+    """InputFileError naming the file when a coordinate lies beyond ``MAX_COORDINATE_M`` / ``_PX``."""
+    pos = markers.positions
+    if pos.size == 0:
+        return
+    with np.errstate(invalid="ignore"):
+        largest = float(np.nanmax(np.abs(pos))) if np.isfinite(pos).any() else 0.0
+    scale = UNIT_SCALE.get(markers.units)
+    limit = MAX_COORDINATE_PX if markers.dim == 2 or scale is None else MAX_COORDINATE_M / scale
+    if largest > limit:
+        unit = markers.units or "units"
+        raise InputFileError(path, f"coordinates reach {largest:.3g} {unit}, beyond the {limit:.3g} {unit} any capture "
+                                   "holds: a damaged file, or the wrong units")
 
 
 def _decided(notes, units, fps):

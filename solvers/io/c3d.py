@@ -21,12 +21,21 @@ import struct
 import numpy as np
 
 from ..errors import InputFileError
+from .limits import check_input_file
 from .timing import UNIT_ALIASES, check_markerset, finish_arrays, unique_names
 
 BLOCK = 512
 INTEL, DEC, MIPS = 84, 85, 86
 _TYPES = {-1: 1, 1: 1, 2: 2, 4: 4}
 
+
+
+def _text(data):
+    """A label's bytes as text: UTF-8 (facecap's writer, ezc3d), else Latin-1 (older writers' bytes)."""
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")
 
 class _Param:
     __slots__ = ("etype", "dims", "data")
@@ -74,13 +83,12 @@ class _C3D:
         if p is None or p.etype != -1:
             return None
         if len(p.dims) == 0:
-            return [p.data.decode("latin-1").strip()]
+            return [_text(p.data).strip()]
         width = p.dims[0]
         if width == 0:
             return []
         count = len(p.data) // width
-        return [p.data[i * width:(i + 1) * width].decode("latin-1").strip().strip("\x00").strip()
-                for i in range(count)]
+        return [_text(p.data[i * width:(i + 1) * width]).strip().strip("\x00").strip() for i in range(count)]
 
     def floats(self, group, name):
         p = self.get(group, name)
@@ -184,6 +192,7 @@ def read_c3d(path, *, units=None, fps=None, unit_scale=None, up_axis=None, notes
     """
     notes = [] if notes is None else notes
     path = str(path)
+    check_input_file(path)
     try:
         fh = open(path, "rb")
     except FileNotFoundError:

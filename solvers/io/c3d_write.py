@@ -22,14 +22,29 @@ def _group(group_id, name):
 
 
 def _chars(strings, width):
-    return b"".join(s.encode("latin-1", "replace")[:width].ljust(width) for s in strings)
+    return b"".join(s.encode("utf-8").ljust(width) for s in strings)
+
+
+def _unstorable(names, width):
+    """The names a C3D text field of ``width`` bytes cannot give back as they are (UTF-8, padded with
+    spaces that readers strip): too long, empty, edged with spaces, or holding control characters."""
+    return [n for n in names if len(n.encode("utf-8")) > width or n != n.strip() or not n
+            or any(ord(c) < 32 or ord(c) == 127 for c in n)]
+
+
+def _refuse(path, what, names, width):
+    shown = ", ".join(repr(n) for n in names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    raise FacecapError(f"{path}: C3D stores {what} of at most {width} bytes (UTF-8), without control characters or "
+                       f"spaces at either end; these cannot be stored as they are: {shown}; rename them, or write "
+                       ".csv, .trc or .json, which keep them")
 
 
 def write_c3d(path, markers):
     """Write a 3D MarkerSet as an Intel float C3D (gaps: residual -1), atomically.
 
     Frames must be whole numbers >= 0; missing frames between first and last are written as gaps.
-    Labels are cut to 30 characters, which must keep them unique.
+    Labels are written as UTF-8 in C3D's 30-byte fields (segment labels: 255 bytes); a name that does not
+    fit as it is is refused, naming it (a cut or changed name would not be read back).
     """
     if markers.dim != 3:
         raise FacecapError(f"{path}: C3D holds 3D points; got {markers.dim}D markers")
@@ -38,9 +53,13 @@ def write_c3d(path, markers):
         raise FacecapError(f"{path}: C3D needs whole, non-negative frame numbers")
     first, last = int(frames[0]), int(frames[-1])
     n_frames, n_points = last - first + 1, markers.n_markers
-    names = [n[:30] for n in markers.names]
-    if len(set(names)) != len(names):
-        raise FacecapError(f"{path}: marker names are not unique in their first 30 characters")
+    names = list(markers.names)
+    bad = _unstorable(names, 30)
+    if bad:
+        _refuse(path, "marker names", bad, 30)
+    bad = _unstorable(list(markers.segments), 255)
+    if bad:
+        _refuse(path, "segment labels", bad, 255)
     if n_points > 65535:
         raise FacecapError(f"{path}: C3D holds at most 65535 points")
     if len(markers.segments) and sum(len(v) for v in markers.segments.values()) > 255:
@@ -75,7 +94,7 @@ def write_c3d(path, markers):
         p.append(_param(3, "ACTUAL_END_FIELD", 2, (2,), struct.pack("<HH", last & 0xFFFF, last >> 16)))
         spans = [(lab, a, b) for lab, v in markers.segments.items() for a, b in v]
         if spans:
-            width = max(1, min(255, max(len(s[0].encode("latin-1", "replace")) for s in spans)))
+            width = max(1, max(len(s[0].encode("utf-8")) for s in spans))
             p.append(_group(4, "FACECAP"))
             p.append(_param(4, "SEGMENTS", -1, (width, len(spans)), _chars([s[0] for s in spans], width)))
             p.append(_param(4, "RANGES", 4, (2, len(spans)),

@@ -22,6 +22,7 @@ All three give bit-identical arrays. Header lines are read whole, however long.
 import collections
 import csv
 import io
+import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +36,8 @@ from .csv_vector import vector_numeric as _vector_numeric
 
 # The writers live in csv_write; imported here so `from .csv import write_markers_csv` keeps working.
 from .csv_write import AXES, segment_labels, write_markers_csv, write_weights_csv  # noqa: F401
-from .csv_columns import FRAME_HEADERS, TIME_HEADERS, header_columns
+from .csv_columns import FRAME_HEADERS, TIME_HEADERS, header_cells, header_columns
+from .limits import check_input_file
 from .timing import check_markerset, finish_arrays, segments_from_labels
 
 GAP_TOKENS = ("", "na", "nan", "n/a", "null", "none", "-nan")
@@ -56,6 +58,7 @@ class Sniffed:
 
 
 def _open_text(path):
+    check_input_file(path)
     try:
         return open(path, encoding="utf-8-sig", newline="")
     except FileNotFoundError:
@@ -89,7 +92,8 @@ def sniff(path, *, delimiter=None, decimal=None, columns=None):
     if columns is not None:  # no header row: the first line is data, part of the sample
         sample = [header_text] + sample
     if delimiter is None:
-        counts = [header_text.count(d) for d in DELIMITERS]
+        unquoted = re.sub(r'"(?:[^"]|"")*"', "", header_text)  # a quoted name's commas do not count
+        counts = [unquoted.count(d) for d in DELIMITERS]
         delimiter = DELIMITERS[int(np.argmax(counts))] if max(counts) else ","
     elif delimiter not in DELIMITERS:
         raise FacecapError(f"`delimiter` must be one of {DELIMITERS!r}; got {delimiter!r}")
@@ -106,12 +110,10 @@ def sniff(path, *, delimiter=None, decimal=None, columns=None):
     if decimal == "," and delimiter == ",":
         raise FacecapError("`decimal` ',' needs a delimiter other than ','")
     if columns is not None:
-        first = next(csv.reader([header_text], delimiter=delimiter), [])
+        first = header_cells(header_text, delimiter)
         header = header_columns(path, columns, len(first))
         return Sniffed(path, delimiter, decimal, header, header_line - 1)
-    header = next(csv.reader([header_text], delimiter=delimiter), [])
-    header = tuple(h.strip() for h in header)
-    return Sniffed(path, delimiter, decimal, header, header_line)
+    return Sniffed(path, delimiter, decimal, header_cells(header_text, delimiter), header_line)
 
 
 def _head_lines(fh):

@@ -1,4 +1,5 @@
-"""The header of a marker CSV that has none, from the column names a take config gives (``[source] columns``)."""
+"""Header rows of CSV files: the cells of one (``header_cells``, RFC 4180 quoting), and the header of a marker
+CSV that has none, from the column names a take config gives (``[source] columns``)."""
 
 from ..errors import FacecapError, InputFileError
 from .csv_write import AXES
@@ -32,3 +33,29 @@ def header_columns(path, columns, width):
                              f"{', ...' if len(header) > 6 else ''}); the first row has {width} fields "
                              "(a plain marker name stands for 3 columns, x y z)", line=1)
     return tuple(header)
+
+
+def header_cells(line, delimiter):
+    """The cells of a header line (RFC 4180 quoting): unquoted cells stripped of spaces, quoted ones kept
+    exactly as written (a name may begin or end with a space)."""
+    cells, cell, quoted, inside, i = [], [], False, False, 0
+    while i < len(line):
+        c = line[i]
+        if inside:
+            if c == '"' and line[i + 1:i + 2] == '"':
+                cell.append('"')
+                i += 1
+            elif c == '"':
+                inside = False
+            else:
+                cell.append(c)
+        elif c == '"' and not "".join(cell).strip():
+            cell, quoted, inside = [], True, True
+        elif c == delimiter:
+            cells.append("".join(cell) if quoted else "".join(cell).strip())
+            cell, quoted = [], False
+        else:
+            cell.append(c)
+        i += 1
+    cells.append("".join(cell) if quoted else "".join(cell).strip())
+    return tuple(cells)

@@ -2,7 +2,10 @@
 
 Writers format blocks of rows at once (``%.9g``, empty for NaN) and replace their output
 atomically: a wide marker CSV ``frame,<m>_x,<m>_y[,<m>_z]`` (plus a ``segment`` column when the
-take has non-overlapping segments) and a weights CSV ``frame,<shape>,...``.
+take has non-overlapping segments) and a weights CSV ``frame,<shape>,...``. Text cells (the header's
+names, segment labels) are quoted as RFC 4180 says (the ``csv`` module), so a name holding the
+delimiter or a quote reads back as it was; a line break, which facecap's readers do not take inside a
+header or a label, is refused with the name.
 """
 
 import numpy as np
@@ -58,10 +61,35 @@ def _write_table(path, header, frames, values, delimiter, *, labels=None):
     frame_text = _format_frames(np.asarray(frames, dtype=np.float64))
     if labels is not None:
         header = header + ["segment"]
+        edged = sorted({label for label in labels if label != label.strip()})
+        if edged:  # data cells are read stripped, quoted or not
+            raise FacecapError(f"{path}: a CSV segment label cannot begin or end with a space: {edged[:5]}; rename it")
+        labels = [_quoted(label, delimiter, path, "segment label") for label in labels]
+    head = _text_row(header, delimiter, path)
     with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
-        fh.write(delimiter.join(header) + "\n")
+        fh.write(head)
         for text in _data_lines(frame_text, values, delimiter, labels):
             fh.write(text)
+
+
+def _no_line_break(text, path, what):
+    if "\n" in text or "\r" in text:
+        raise FacecapError(f"{path}: a CSV {what} cannot hold a line break (facecap's readers read a header or a "
+                           f"label as one line): {text!r}; rename it")
+
+
+def _text_row(cells, delimiter, path):
+    """One CSV line of text ``cells``, quoted where RFC 4180 needs it (and where a reader would strip spaces)."""
+    return delimiter.join(_quoted(cell, delimiter, path, "header name") for cell in cells) + "\n"
+
+
+def _quoted(text, delimiter, path, what):
+    """``text`` as one CSV cell, quoted as RFC 4180 does (``csv.QUOTE_MINIMAL``) and also when it has
+    spaces at either end (unquoted cells are read stripped)."""
+    _no_line_break(text, path, what)
+    if delimiter in text or '"' in text or text != text.strip():
+        return '"' + text.replace('"', '""') + '"'
+    return text
 
 
 WRITE_BLOCK_CELLS = 1 << 18

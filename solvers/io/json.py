@@ -29,6 +29,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from ..markers import MarkerSet
 from .files import write_text_atomic
+from .limits import check_input_file
 from .timing import check_markerset, finish
 
 SCHEMA_VERSION = 1
@@ -44,6 +45,7 @@ def _parse_int(text):
 
 
 def _load(path):
+    check_input_file(path)
     try:
         with open(path, encoding="utf-8-sig") as fh:
             return json.load(fh, parse_int=_parse_int)

@@ -20,6 +20,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from .csv import GAP_TOKENS
 from .files import atomic_path
+from .limits import check_input_file
 from .timing import UNIT_ALIASES, check_markerset, finish_arrays, unique_names
 
 
@@ -29,6 +30,7 @@ def _cells(line):
 
 
 def _read_lines(path):
+    check_input_file(path)
     try:
         with open(path, encoding="utf-8-sig", newline="") as fh:
             text = fh.read()
@@ -187,8 +189,10 @@ def write_trc(path, markers):
     """Write a 3D MarkerSet as a TRC file (gaps as empty cells), atomically."""
     if markers.dim != 3:
         raise FacecapError(f"{path}: TRC holds 3D points; got {markers.dim}D markers")
-    if any(("\t" in n or "\n" in n or "\r" in n or not n.strip()) for n in markers.names):
-        raise FacecapError(f"{path}: TRC marker names cannot be empty or contain tabs or line breaks")
+    bad = [n for n in markers.names if "\t" in n or "\n" in n or "\r" in n or n != n.strip() or not n]
+    if bad:
+        raise FacecapError(f"{path}: TRC marker names cannot be empty, contain tabs or line breaks, or begin or end "
+                           f"with a space: {bad[:5]}; rename them, or write .csv or .json")
     units = markers.units if markers.units in ("m", "cm", "mm") else "m"
     f, m = markers.n_frames, markers.n_markers
     first = markers.frames[0]

@@ -14,7 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FacecapError
 from ..io.files import write_json_atomic, write_text_atomic
+from ..io.limits import MAX_TEXT_BYTES, check_input_file
 
 #: The summary's schema version (``"facecap_batch"`` in the JSON)
 SCHEMA = 1
@@ -121,16 +123,76 @@ def to_csv(records):
     return out.getvalue()
 
 
-def read_previous(path):
-    """{take config path: record} of an earlier summary (``--resume``); {} when there is none or
-    it is not a facecap batch summary."""
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    if not isinstance(data, dict) or data.get("facecap_batch") != SCHEMA:
-        return {}
-    return {r["config"]: r for r in data.get("takes", []) if isinstance(r, dict) and "config" in r}
+def read_previous(path, done=None):
+    """{take config path: record} of an earlier summary (``--resume``), with the completion records in
+    the folder ``done`` (each written by its worker the moment the take finished: newer than the
+    summary, which may lag) over them. {} when there is no summary.
+
+    Raises
+    ------
+    FacecapError (one line naming the file) when ``path`` is not a facecap batch summary: resuming
+    from it would run every take again and write over it.
+    """
+    path = Path(path)
+    records = {}
+    if path.exists():
+        check_input_file(path, limit=MAX_TEXT_BYTES)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise FacecapError(f"{path}: --resume needs the batch's summary; this is not one (not JSON: {exc})") \
+                from None
+        if not isinstance(data, dict) or data.get("facecap_batch") != SCHEMA or not isinstance(data.get("takes"), list):
+            raise FacecapError(f"{path}: --resume needs the batch's summary; this is not one (no \"facecap_batch\": "
+                               f"{SCHEMA} with a list of \"takes\"); give the summary the batch wrote, or drop "
+                               "--resume")
+        for r in data["takes"]:
+            record = valid_record(r)
+            if record is not None:
+                records[record["config"]] = record
+    for file in sorted(Path(done).glob("*.json")) if done is not None and Path(done).is_dir() else ():
+        try:
+            record = valid_record(json.loads(file.read_text(encoding="utf-8")))
+        except (OSError, ValueError):
+            continue  # unreadable: that take is simply run again
+        if record is not None:
+            records[record["config"]] = record
+    return records
+
+
+def valid_record(record):
+    """A take record read back from disk with every field of the expected type (else its default), or
+    None when it names no take config."""
+    if not isinstance(record, dict) or not isinstance(record.get("config"), str):
+        return None
+    template = new_record(_Named(str(record.get("take") or Path(record["config"]).stem), Path(record["config"])))
+    out = {}
+    for key, default in template.items():
+        value = record.get(key, default)
+        kinds = _FIELD_KINDS.get(key, (type(default),) if default is not None else (str,))
+        out[key] = value if value is None or (isinstance(value, kinds) and not isinstance(value, bool)) else default
+    out["outputs"] = {str(k): v for k, v in out["outputs"].items() if isinstance(v, str)}
+    if not isinstance(out["seconds"].get("total", 0), (int, float)):
+        out["seconds"] = {}
+    if out["status"] not in FINAL + PENDING:
+        out["status"] = "failed"
+    if not isinstance((out["digest"] or {}).get("combined", ""), str):
+        out["digest"] = None
+    return out
+
+
+class _Named:
+    """The two fields of a BatchTake that ``new_record`` reads."""
+
+    def __init__(self, name, path):
+        self.name, self.path, self.listed_by = name, path, None
+
+
+#: Record fields and the types they may hold when read back (others: the default's type)
+_FIELD_KINDS = {"frames": (int,), "shapes": (int,), "residual_mm": (int, float), "residual_max_mm": (int, float),
+                "warnings": (int,), "warning_messages": (list,), "seconds": (dict,), "outputs": (dict,),
+                "digest": (dict,), "error": (str,), "note": (str,), "worker": (str,), "started": (str,),
+                "finished": (str,), "strategy": (str,), "residual_space": (str,), "listed_by": (str,)}
 
 
 def table(records, width=None):

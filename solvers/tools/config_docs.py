@@ -1,5 +1,5 @@
 """``python -m facecap config-docs [--out docs/config.md] [--commands docs/commands.md]``: the config reference
-(take configs from the option table ``solvers.options``, track configs from ``video.cli.TRACK_KEYS``, batch
+(take configs from the option table ``solvers.options``, track configs from ``video.cli.TRACK_OPTIONS``, batch
 files from ``config.batch``) and the command reference (every command's ``--help``), generated from the code
 so they cannot drift from what it accepts."""
 
@@ -10,7 +10,7 @@ from pathlib import Path
 from ..errors import FacecapError
 from ..io.files import write_text_atomic
 from ..options import OPTIONS, SECTIONS
-from ..video.cli import TRACK_KEYS
+from ..video.cli import TRACK_OPTIONS
 
 INTRO = """# Config reference
 
@@ -99,9 +99,11 @@ def render():
             out.append(f"| `{o.key}` | {_kind(o)} | {_default(o)} | {o.range_text()} | {where} | {doc} |")
         out.append("")
     out.append(TRACK_INTRO)
-    for section, keys in TRACK_KEYS.items():
-        out += [f"### track [{section}]", "", "| key | default | description |", "|---|---|---|"]
-        out += [f"| `{key}` | {_cell(default)} | {_cell(doc)} |" for key, (default, doc) in keys.items()]
+    for section in dict.fromkeys(o.section for o in TRACK_OPTIONS):
+        out += [f"### track [{section}]", "", "| key | kind | default | allowed | description |", "|---|---|---|---|---|"]
+        out += [f"| `{o.key}` | {_kind(o)} | {_default(o)} | {o.range_text()} | "
+                f"{_cell(o.doc + (' **Required.**' if o.required else ''))} |"
+                for o in TRACK_OPTIONS if o.section == section]
         out.append("")
     out += [BATCH_INTRO, "### [batch]", "", "| key | kind | description |", "|---|---|---|"]
     out += [f"| `{key}` | {kind} | {_cell(doc)} |" for key, (kind, doc) in BATCH_DOCS.items()]

@@ -27,6 +27,7 @@ from ..character.aliases import canonical_names, name_key
 from ..character.basis import Basis
 from ..errors import FacecapError, InputFileError
 from ..io.files import new_temporary, read_text_input
+from ..io.outputs import mark_output, write_error
 from ..pipeline import jsonable
 from ..strategies.options import ExamplePairs
 
@@ -137,7 +138,11 @@ def _write_new(path, write):
     path = Path(path)
     tmp = new_temporary(path)
     try:
-        write(tmp)
+        try:
+            write(tmp)
+        except OSError as exc:  # a full disk, a permission taken away: one line naming the file
+            raise write_error(path, exc) from None
+        mark_output(tmp)
         for n in range(1, 10000):
             target = path if n == 1 else path.with_name(f"{path.stem}-{n}{path.suffix}")
             try:

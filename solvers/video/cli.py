@@ -39,6 +39,7 @@ the removed ``frame_offset`` key are errors that say so.
 import argparse
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -48,9 +49,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, FacecapError
+from ..errors import ConfigError, FacecapError, InputFileError, Problems, table_problems
 from ..io.csv import write_markers_csv, write_weights_csv
-from ..io.files import write_json_atomic
+from ..io.files import read_text_input, remove_stale_temporaries, write_json_atomic
+from ..io.outputs import Output, check_outputs
+from ..options import MAX_FPS, MAX_FRAME, Option
 from .flow import track_with_flow_job
 from .landmarks import track_landmarks_job
 from .reading import Cancelled, Footage
@@ -64,127 +67,137 @@ except ImportError:  # a Blender without the pip dependencies: plain progress li
 
 log = logging.getLogger(__name__)
 
-#: Every key of a track config: {section: {key: (default, what it means)}} (``facecap config-docs`` writes
-#: it into docs/config.md; the config is checked against it).
-TRACK_KEYS = {
-    "source": {
-        "video": ("", "Video file, image folder, glob or printf pattern. **Required.**"),
-        "first": ("the first frame", "First footage frame read (frame 1 is the first of the footage)"),
-        "last": ("the last frame", "Last footage frame read"),
-        "step": ("1", "Read every n-th frame"),
-        "scale": ("1", "Downscale factor in (0, 1] before tracking"),
-        "fps": ("the video's (image sequences: 24)", "Frame rate"),
-        "frame_offset": ("", "Removed: frames count from 1 (an error that says so)"),
-    },
-    "tracking": {
-        "points": ("", "`name,x,y` file of the points at the reference frame (source pixels); or `region`"),
-        "region": ("", "[x, y, w, h] in source pixels: automatic features in this box; or `points`"),
-        "method": ("`lk`", "`lk` (Lucas-Kanade points), dense flow: `dis`, `farneback`, `tvl1`, or `landmarks` "
-                           "(the face's landmarks: no `points` or `region`)"),
-        "reference": ("the first frame read", "The neutral frame the points are given at"),
-        "max_points": ("100", "`region`: the most features found"),
-        "reregister": ("`true`", "`lk`: drift control by re-registration to the reference"),
-        "reseed": ("`true`", "`lk`: re-acquire lost points from the reference patch"),
-        "win_size": ("21", "`lk`: window size (working pixels)"),
-        "levels": ("3", "`lk`: pyramid levels"),
-        "fb_threshold": ("1", "`lk`: forward-backward error (working pixels) above which a point is lost"),
-        "drift": ("`fuse`", "Dense flow: `fuse` (chained and direct), `direct` (to the reference) or `none`"),
-        "preset": ("`balanced`", "`dis`: `ultrafast`, `fast` or `balanced` (speed against quality)"),
-        "smoothing": ("`true`", "`landmarks`: filter the detector's jitter (zero lag, fast lip motion kept)"),
-        "iris": ("`true`", "`landmarks`: eyelids and irises from the iris model"),
-        "models": ("found", "`landmarks`: folder of the three model files"),
-    },
-    "output": {
-        "markers": ("", "The 2D tracks: `frame,<name>_x,<name>_y` in pixels (origin top left; `landmarks` adds "
-                        "`<name>_z`, the model's depth). **Required.**"),
-        "confidence": ("", "Per-sample confidence in [0, 1]: `frame,<name>,...`"),
-        "report": ("", "JSON: summary, losses, re-acquisitions, footage"),
-    },
-}
-SCHEMA = {section: set(keys) for section, keys in TRACK_KEYS.items()}
-METHODS = ("lk", "dis", "farneback", "tvl1", "landmarks")
-LANDMARK_OPTIONS = {"smoothing", "iris", "models"}
+#: Every key of a track config, checked as a take config's are (``solvers.options``: kinds, ranges with upper
+#: bounds, a "did you mean" for unknown sections and keys); ``facecap config-docs`` writes it into docs/config.md.
+TRACK_OPTIONS = tuple(Option(*row[:3], **row[3]) for row in (
+    ("source", "video", "path", {"required": True, "doc": "Video file, image folder, glob or printf pattern"}),
+    ("source", "first", "int", {"high": MAX_FRAME, "doc": "First footage frame read (frame 1 is the first of the "
+                                "footage; default: the first)"}),
+    ("source", "last", "int", {"high": MAX_FRAME, "doc": "Last footage frame read (default: the last)"}),
+    ("source", "step", "int", {"default": 1, "low": 1, "high": 1000, "doc": "Read every n-th frame"}),
+    ("source", "scale", "float", {"default": 1.0, "above": 0.0, "high": 1.0, "doc": "Downscale before tracking"}),
+    ("source", "fps", "float", {"above": 0.0, "high": MAX_FPS, "doc": "Frame rate (default: the video's; image "
+                                "sequences 24)"}),
+    ("source", "frame_offset", "int", {"doc": "Removed: frames count from 1 (an error that says so)"}),
+    ("tracking", "points", "path", {"doc": "`name,x,y` file of the points at the reference frame (source "
+                                    "pixels); or `region`"}),
+    ("tracking", "region", "floats", {"length": 4, "low": 0.0, "high": 1e6, "doc": "[x, y, w, h] in source "
+                                      "pixels: automatic features in this box; or `points`"}),
+    ("tracking", "method", "choice", {"default": "lk", "choices": ("lk", "dis", "farneback", "tvl1", "landmarks"),
+                                      "doc": "`lk` (Lucas-Kanade points), dense flow: `dis`, `farneback`, `tvl1`, or "
+                                      "`landmarks` (the face's landmarks: no `points` or `region`)"}),
+    ("tracking", "reference", "int", {"high": MAX_FRAME, "doc": "The neutral frame the points are given at "
+                                      "(default: the first frame read)"}),
+    ("tracking", "max_points", "int", {"default": 100, "low": 1, "high": 10_000, "doc": "`region`: the most "
+                                       "features found"}),
+    ("tracking", "reregister", "bool", {"default": True, "doc": "`lk`: drift control by re-registration to the "
+                                        "reference"}),
+    ("tracking", "reseed", "bool", {"default": True, "doc": "`lk`: re-acquire lost points from the reference "
+                                    "patch"}),
+    ("tracking", "win_size", "int", {"default": 21, "low": 3, "high": 255, "doc": "`lk`: window size (working "
+                                     "pixels)"}),
+    ("tracking", "levels", "int", {"default": 3, "low": 0, "high": 10, "doc": "`lk`: pyramid levels"}),
+    ("tracking", "fb_threshold", "float", {"default": 1.0, "above": 0.0, "high": 1e3, "doc": "`lk`: "
+                                           "forward-backward error (working pixels) above which a point is lost"}),
+    ("tracking", "drift", "choice", {"default": "fuse", "choices": ("fuse", "direct", "none"), "doc": "Dense flow: "
+                                     "`fuse` (chained and direct), `direct` (to the reference) or `none`"}),
+    ("tracking", "preset", "choice", {"default": "balanced", "choices": ("ultrafast", "fast", "balanced", "medium"),
+                                      "doc": "`dis`: speed against quality"}),
+    ("tracking", "smoothing", "bool", {"default": True, "doc": "`landmarks`: filter the detector's jitter (zero "
+                                       "lag, fast lip motion kept)"}),
+    ("tracking", "iris", "bool", {"default": True, "doc": "`landmarks`: eyelids and irises from the iris model"}),
+    ("tracking", "models", "path", {"doc": "`landmarks`: folder of the three model files (default: found)"}),
+    ("output", "markers", "path", {"required": True, "doc": "The 2D tracks: `frame,<name>_x,<name>_y` in pixels "
+                                   "(origin top left; `landmarks` adds `<name>_z`, the model's depth)"}),
+    ("output", "confidence", "path", {"doc": "Per-sample confidence in [0, 1]: `frame,<name>,...`"}),
+    ("output", "report", "path", {"doc": "JSON: summary, losses, re-acquisitions, footage"}),
+))
+#: The track report's schema version (its first key, ``"facecap_track"``, also marks it as facecap's own)
+REPORT_SCHEMA = 1
+#: Options of one tracking method only
+LK_ONLY, DENSE_ONLY = ("reregister", "reseed", "win_size", "fb_threshold", "levels"), ("drift", "preset")
+LANDMARK_ONLY = ("smoothing", "iris", "models")
 
 
-def load_track_config(path):
-    """Parse and check a track config; returns a dict of resolved settings."""
-    path = Path(path)
+def read_track_toml(path):
+    """(absolute path, TOML tables) of a track config; ConfigError naming the file when unreadable."""
+    path = Path(os.path.expanduser(str(path))).resolve()
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError("config file not found", path=path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read: {exc}", path=path) from None
+        text = read_text_input(path, "config file not found")
+        return path, tomllib.loads(text)
+    except InputFileError as exc:
+        raise ConfigError(str(exc).removeprefix(f"{path}: "), path=path) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"not valid TOML: {exc}", path=path) from None
-    base = path.resolve().parent
-    for section, keys in SCHEMA.items():
-        table = data.get(section, {})
-        if not isinstance(table, dict):
-            raise ConfigError("must be a table", path=path, key=section)
-        unknown = sorted(set(table) - keys)
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown}; expected some of {sorted(keys)}", path=path, key=section)
-    src, trk, out = (data.get(s, {}) for s in ("source", "tracking", "output"))
-    if "video" not in src:
-        raise ConfigError("missing `video` (a video file or image sequence)", path=path, key="source")
-    if "markers" not in out:
-        raise ConfigError("missing `markers` (the output CSV)", path=path, key="output")
-    method = str(trk.get("method", "lk")).lower()
-    if method not in METHODS:
-        raise ConfigError(f"`method` must be one of {', '.join(METHODS)}; got {trk.get('method')!r}",
-                          path=path, key="tracking")
+    except (RecursionError, ValueError) as exc:  # nested too deeply; an integer beyond Python's digit limit
+        raise ConfigError(f"not valid TOML: {exc or 'values nested too deeply'}", path=path) from None
+
+
+def load_track_config(path, *, overwrite=False):
+    """Parse and check a track config (``TRACK_OPTIONS``: every problem of the file at
+    once, with a "did you mean"), then its outputs against the output policy (``solvers.io.outputs``);
+    returns a dict of resolved settings."""
+    path, data = read_track_toml(path)
+    problems = Problems()
+    for key, message, covers in table_problems(data, TRACK_OPTIONS, open_sections=()):
+        problems.add(ConfigError(message, path=path, key=key), covers=covers)
+    src, trk, out = ({k: v for k, v in (data.get(s) or {}).items() if not problems.covered(f"{s}.{k}")}
+                     if isinstance(data.get(s), dict) else {} for s in ("source", "tracking", "output"))
+    given = data.get("tracking") if isinstance(data.get("tracking"), dict) else {}
+    method = trk.get("method", "lk")
     if method == "landmarks":
-        if "points" in trk or "region" in trk:
-            raise ConfigError("method \"landmarks\" finds the face itself: no `points` or `region`", path=path,
-                              key="tracking")
-    elif ("points" in trk) == ("region" in trk):
-        raise ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
-                          path=path, key="tracking")
+        if "points" in given or "region" in given:
+            problems.add(ConfigError("method \"landmarks\" finds the face itself: no `points` or `region`",
+                                     path=path, key="tracking"))
+        if "reference" in given:
+            problems.add(ConfigError("method \"landmarks\" has no reference frame", path=path,
+                                     key="tracking.reference"))
+    elif ("points" in given) == ("region" in given) and not problems.covered("tracking"):
+        problems.add(ConfigError("give exactly one of `points` (a name,x,y file) and `region` = [x, y, w, h]",
+                                 path=path, key="tracking"))
     region = trk.get("region")
-    if region is not None and (not isinstance(region, list) or len(region) != 4
-                               or not all(isinstance(v, (int, float)) for v in region)):
-        raise ConfigError(f"`region` must be [x, y, w, h] in pixels; got {region!r}", path=path, key="tracking")
-
-    def resolve(value, key):
-        if not isinstance(value, str) or not value:
-            raise ConfigError(f"`{key}` must be a path string; got {value!r}", path=path, key=key.split(".")[0])
-        p = Path(value)
-        return str(p if p.is_absolute() else base / p)
-
-
+    if region is not None and not (region[2] > 0 and region[3] > 0):
+        problems.add(ConfigError(f"expected [x, y, w, h] with w, h > 0; got {region!r}", path=path,
+                                 key="tracking.region"))
     for section, key in (("source", "first"), ("source", "last"), ("source", "frame_offset"),
                          ("tracking", "reference")):
         table = src if section == "source" else trk
         if key in table and (problem := frame_number_error(f"{section}.{key}", table[key])):
-            raise ConfigError(problem, path=path, key=f"{section}.{key}")
-    footage = {k: src[k] for k in ("first", "last", "step", "scale", "fps") if k in src}
+            problems.add(ConfigError(problem, path=path, key=f"{section}.{key}"))
     options = {k: trk[k] for k in trk if k not in ("points", "region", "method", "reference")}
-    lk_only, dense_only = {"reregister", "reseed", "win_size", "fb_threshold", "levels"}, {"drift", "preset"}
-    others = {"lk": dense_only | LANDMARK_OPTIONS, "landmarks": lk_only | dense_only | {"max_points"}}
-    wrong = sorted(set(options) & others.get(method, lk_only | LANDMARK_OPTIONS))
-    if method == "landmarks":
-        for key in ("smoothing", "iris"):
-            if key in options and not isinstance(options[key], bool):
-                raise ConfigError(f"expected true or false; got {options[key]!r}", path=path, key=f"tracking.{key}")
-        if "models" in options:
-            options["models"] = resolve(options["models"], "tracking.models")
-        if "reference" in trk:
-            raise ConfigError("method \"landmarks\" has no reference frame", path=path, key="tracking.reference")
+    others = {"lk": DENSE_ONLY + LANDMARK_ONLY, "landmarks": LK_ONLY + DENSE_ONLY + ("max_points",)}
+    wrong = sorted(set(options) & set(others.get(method, LK_ONLY + LANDMARK_ONLY)))
     if wrong:
-        raise ConfigError(f"{wrong} do not apply to method {method!r}", path=path, key="tracking")
-    return {
-        "video": resolve(src["video"], "source.video"),
-        "footage": footage,
-        "points": resolve(trk["points"], "tracking.points") if "points" in trk else None,
+        problems.add(ConfigError(f"{wrong} do not apply to method {method!r}", path=path, key="tracking"))
+    problems.raise_any()
+    base = path.parent
+
+    def resolve(value):
+        return base / os.path.expanduser(value)
+
+    if "models" in options:
+        options["models"] = str(resolve(options["models"]))
+
+    settings = {
+        "config": path,
+        "video": str(resolve(src["video"])),
+        "footage": {k: src[k] for k in ("first", "last", "step", "scale", "fps") if k in src},
+        "points": str(resolve(trk["points"])) if "points" in trk else None,
         "region": region,
         "method": method,
         "reference": trk.get("reference"),
         "options": options,
-        "markers": resolve(out["markers"], "output.markers"),
-        "confidence": resolve(out["confidence"], "output.confidence") if "confidence" in out else None,
-        "report": resolve(out["report"], "output.report") if "report" in out else None,
+        **{key: str(resolve(out[key])) if key in out else None for key in ("markers", "confidence", "report")},
     }
+    check_outputs([Output(f"[output.{key}]", settings[key], kind) for key, kind in TRACK_OUTPUTS],
+                  {"the config itself": path, "[source.video]": settings["video"],
+                   "[tracking.points]": settings["points"], "[tracking.models]": options.get("models")},
+                  overwrite=overwrite, config=path)
+    return settings
+
+
+#: [output] key -> the kind of file it is (``solvers.io.outputs.KINDS``)
+TRACK_OUTPUTS = (("markers", "markers_csv"), ("confidence", "weights_csv"), ("report", "track_report"))
 
 
 class FrameProgress:
@@ -248,12 +261,14 @@ def write_outputs(settings, result, info):
     footage = {"path": info.path, "fps": info.fps, "width": info.width, "height": info.height,
                "scale": info.scale, "frames": [info.frames[0], info.frames[-1]], "count": info.n_frames}
     if settings["report"] and settings["method"] == "landmarks":
-        write_json_atomic(settings["report"], {"summary": result.summary(), **result.report(),
+        write_json_atomic(settings["report"], {"facecap_track": REPORT_SCHEMA, "summary": result.summary(),
+                                               **result.report(),
                                                "frame_numbering": "frame 1 is the first frame of the footage",
                                                "footage": footage, "markers": list(result.markers.names)})
     elif settings["report"]:
         write_json_atomic(settings["report"], {
-            "summary": result.summary(), "method": result.method, "reference": result.reference,
+            "facecap_track": REPORT_SCHEMA, "summary": result.summary(), "method": result.method,
+            "reference": result.reference,
             "frame_numbering": "frame 1 is the first frame of the footage",
             "footage": footage, "markers": list(result.markers.names), "lost": result.lost,
             "reseeded": result.reseeded,
@@ -327,6 +342,8 @@ def main(argv=None, *, parents=()):
         argv = argv[1:]
     parser = argparse.ArgumentParser(prog="facecap track", description=DESCRIPTION, parents=list(parents))
     parser.add_argument("--config", required=True, help="track config (.toml) with [source], [tracking], [output]")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="let outputs replace existing files facecap did not write (default: refused)")
     if not parents:  # run on its own (python -m facecap.solvers.video.cli); the command line gives -q / -v
         parser.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args(argv)
@@ -337,7 +354,10 @@ def main(argv=None, *, parents=()):
 def _main(args, stop):
     shown = None
     try:
-        settings = load_track_config(args.config)
+        settings = load_track_config(args.config, overwrite=args.overwrite)
+        for key in ("markers", "confidence", "report"):
+            if settings[key] is not None:
+                remove_stale_temporaries(Path(settings[key]).parent)
         shown = None if getattr(args, "quiet", False) else FrameProgress(f"track ({settings['method']})")
 
         def progress(done, total):
@@ -354,7 +374,8 @@ def _main(args, stop):
         print(f"facecap: {exc}; nothing written", file=sys.stderr)
         return 130
     except FacecapError as exc:
-        print(f"facecap: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        for line in str(exc).splitlines():  # a config's problems: one line each
+            print(f"facecap: error: {' '.join(line.split())}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("facecap: interrupted", file=sys.stderr)

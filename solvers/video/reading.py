@@ -21,9 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FacecapError, InputFileError, needs
+from ..io.limits import check_input_file
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
 PREFETCH = 8  # frames decoded ahead by the reader thread
+#: Largest video file (or image of a sequence) opened, bytes: far beyond any face take's footage
+MAX_VIDEO_BYTES = 1 << 40
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".webp", ".pgm", ".ppm")
 
 
@@ -241,6 +244,7 @@ class Footage:
             raise InputFileError(self.path, "file not found")
         if self.path.is_dir():
             raise InputFileError(self.path, "is a directory with no images")
+        check_input_file(self.path, limit=MAX_VIDEO_BYTES)  # not a FIFO or a device: OpenCV would wait on it
         cap = cv2.VideoCapture(str(self.path))
         ok = cap.isOpened()
         ok_frame = ok and cap.read()[0]
@@ -267,6 +271,7 @@ class Footage:
         return [i + 1 + self.frame_offset for i in range(self._count)]
 
     def _read_image(self, path):
+        check_input_file(path, limit=MAX_VIDEO_BYTES)
         img = self.cv2.imread(str(path), self.cv2.IMREAD_UNCHANGED)
         if img is None:
             raise InputFileError(path, "cannot read as an image")

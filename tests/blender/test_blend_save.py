@@ -5,7 +5,7 @@ import bpy
 import numpy as np
 
 from facecap.facecap_addon import anim
-from facecap.facecap_addon.headless import _save_blend_atomic
+from facecap.facecap_addon.blend_files import save_blend_atomic
 
 
 def _keyed_mesh(frames=200):
@@ -31,7 +31,7 @@ def test_one_scene_file_is_saved_whole_without_the_save_context(empty_scene, tmp
     _keyed_mesh()
     scene = bpy.context.scene.name
     out = tmp_path / "out.blend"
-    _save_blend_atomic(out)
+    save_blend_atomic(out)
     assert _saved(out) == {"scenes": [scene], "actions": ["solve"], "objects": ["Face"]}
     assert [s.name for s in bpy.data.scenes] == [scene]  # the save's own scene is gone again
     assert bpy.context.scene.name == scene
@@ -41,6 +41,6 @@ def test_a_file_of_several_scenes_is_saved_as_it_is(empty_scene, tmp_path):
     _keyed_mesh()
     bpy.data.scenes.new("Second").use_fake_user = True
     out = tmp_path / "out.blend"
-    _save_blend_atomic(out)
+    save_blend_atomic(out)
     assert sorted(_saved(out)["scenes"]) == sorted(s.name for s in bpy.data.scenes)
     assert len(bpy.data.scenes) == 2

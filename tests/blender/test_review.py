@@ -140,5 +140,5 @@ def test_export_review_report_from_the_sidebar(tmp_path):
     assert len(re.findall(r'<img id="tile-\d+"', html)) >= 6 and 'id="tile-binding"' in html
     assert "weights RMSE 0.0" in html  # the truth overlay's summary (the sample solves to RMSE ~0.018)
     assert "character.blend: Face" in html
-    with pytest.raises(RuntimeError, match="overwrite the truth"):
+    with pytest.raises(RuntimeError, match="the review page is the same file as the truth weights"):
         bpy.ops.facecap.export_review(filepath=str(truth), truth_path=str(truth))

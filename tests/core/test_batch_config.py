@@ -114,7 +114,7 @@ def test_a_missing_or_unreadable_take_is_that_takes_error_not_the_batch(shoot):
 
 @pytest.mark.parametrize("text, key, message", [
     ('[batch]\ntakes = ["takes/"]\n[defaults.solve]\nregularisaton = 1.0\n', "defaults.solve.regularisaton",
-     "unknown key; known keys: strategy, regularisation"),
+     "unknown key (did you mean 'regularisation'?); known keys: strategy, regularisation"),
     ('[batch]\ntakes = ["takes/"]\n[defaults.source]\nunits = "inch"\n', "defaults.source.units",
      "expected one of m, cm, mm, bu, px; got 'inch'"),
     ('[batch]\ntakes = ["takes/"]\n[defaults.source]\nmarkers = "{take}.csv"\n', "defaults.source.markers",

@@ -5,8 +5,11 @@ import io
 import json
 from pathlib import Path
 
+import pytest
+
 from facecap.facecap_addon.batch_progress import Progress
 from facecap.solvers.config.batch import BatchTake
+from facecap.solvers.errors import FacecapError
 from facecap.solvers.tools.batch_summary import CSV_COLUMNS, Summary, new_record, read_previous, table
 
 
@@ -35,7 +38,8 @@ def test_summary_json_and_csv(tmp_path):
     assert read_previous(tmp_path / "s.json")["/shoot/take01.toml"]["digest"] == {"combined": "abc"}
     assert read_previous(tmp_path / "missing.json") == {}
     (tmp_path / "other.json").write_text('{"takes": []}')
-    assert read_previous(tmp_path / "other.json") == {}
+    with pytest.raises(FacecapError, match="other.json: --resume needs the batch's summary; this is not one"):
+        read_previous(tmp_path / "other.json")  # resuming from it would run every take again over it
 
 
 def test_while_running_the_summary_is_written_at_most_once_a_second(tmp_path):

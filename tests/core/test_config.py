@@ -108,7 +108,7 @@ def test_source_and_clean_sections(tmp_path):
         load_take_config(write(tmp_path, BASE.replace('units = "mm"', 'units = "bu"')))
     with pytest.raises(ConfigError, match=r"\[clean.one_euro\] expected"):
         load_take_config(write(tmp_path, BASE + "[clean]\none_euro = [1]\n"))
-    with pytest.raises(ConfigError, match=r"\[clean.lowpass_hz\] expected a number > 0; got -3"):
+    with pytest.raises(ConfigError, match=r"\[clean.lowpass_hz\] expected a number > 0 and <= 5000; got -3"):
         load_take_config(write(tmp_path, BASE + "[clean]\nlowpass_hz = -3\n"))
     with pytest.raises(ConfigError, match=r"\[clean\] choose one filter"):
         load_take_config(write(tmp_path, BASE + "[clean]\nlowpass_hz = 12\none_euro = [1.0, 0.01, 1.0]\n"))

@@ -7,7 +7,7 @@ from facecap.facecap_addon import cli
 from facecap.solvers.config.batch import BATCH_KEYS
 from facecap.solvers.options import OPTIONS
 from facecap.solvers.tools.config_docs import BATCH_DOCS, render, render_commands
-from facecap.solvers.video.cli import SCHEMA, TRACK_KEYS
+from facecap.solvers.video.cli import TRACK_OPTIONS
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 REGENERATE = "python -m facecap config-docs --out docs/config.md --commands docs/commands.md"
@@ -44,9 +44,9 @@ def test_every_option_is_documented_with_its_default_and_range():
 def test_every_track_and_batch_key_is_documented():
     """``track``'s own [tracking] schema (points, max_points, reseed...) was in no page."""
     text = render()
-    assert SCHEMA == {s: set(keys) for s, keys in TRACK_KEYS.items()}  # the config is checked against these
-    for section, keys in TRACK_KEYS.items():
-        assert f"### track [{section}]" in text
-        for key, (_, doc) in keys.items():
-            assert f"| `{key}` |" in text and doc.split("`")[0][:20] in text, (section, key)
+    for o in TRACK_OPTIONS:  # the table the config is checked against
+        assert f"### track [{o.section}]" in text
+        assert f"| `{o.key}` |" in text and o.doc.split("`")[0][:20] in text, o.name
+        if o.range_text():
+            assert o.range_text() in text, o.name
     assert set(BATCH_DOCS) == set(BATCH_KEYS) and "### [batch]" in text and "[defaults.target]" in text

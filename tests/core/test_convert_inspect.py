@@ -75,14 +75,15 @@ def test_convert_refuses_the_input_as_output_in_every_spelling(tmp_path, capsys)
     for out in (src, tmp_path / "sub" / ".." / "take.c3d", tmp_path / "link.c3d", tmp_path / "hard.c3d"):
         assert convert([str(src), str(out)]) == 1
         lines, err = one_line(capsys)
-        assert lines == [] and len(err) == 1 and "is the input file" in err[0], out
+        assert lines == [] and len(err) == 1 and "OUT is the same file as IN" in err[0], out
     assert digest(src) == before
 
 
 @pytest.mark.parametrize("args, message", [
     (["missing.c3d", "out.csv"], "file not found"),
     (["take.c3d", "out.xlsx"], "cannot write '.xlsx'; use .csv, .c3d, .trc, .json"),
-    (["take.c3d", "nofolder/out.csv"], "does not exist"),
+    (["take.c3d", "notes.csv"], "exists and is not a marker CSV"),  # someone's file: --overwrite to replace
+    (["take.c3d", "afile/out.csv"], "afile is a file, not a folder"),
     (["take.c3d", "adir"], "cannot write 'no extension'"),
     (["bad.csv", "out.json"], "line 2, field 'a_y': expected a number, got 'zero'"),
     (["take.c3d", "out.csv", "--out-units", "px"], None),
@@ -92,6 +93,8 @@ def test_convert_bad_input_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch,
     write_markers(tmp_path / "take.c3d", take())
     (tmp_path / "bad.csv").write_text("frame,a_x,a_y,a_z\n1,0,zero,0\n")
     (tmp_path / "adir").mkdir()
+    (tmp_path / "notes.csv").write_text("frame notes: not a take\n")
+    (tmp_path / "afile").write_text("x")
     listing = sorted(os.listdir(tmp_path))
     if message is None:  # argparse: usage error, exit 2
         with pytest.raises(SystemExit) as exc:

@@ -5,6 +5,7 @@ one line, not a traceback."""
 import os
 import shutil
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -12,7 +13,8 @@ import pytest
 from facecap.facecap_addon.headless import preflight
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import ConfigError
-from facecap.solvers.io.files import TMP_MARK, remove_stale_temporaries, umask, write_text_atomic
+from facecap.solvers.io.files import (STALE_AGE, TMP_MARK, machine_tag, remove_stale_temporaries, umask,
+                                     write_text_atomic)
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 
@@ -106,14 +108,30 @@ def test_a_config_that_writes_nothing_is_refused(tmp_path):
 def test_stale_temporaries_of_dead_runs_are_removed_live_ones_kept(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    dead = out / f".w.csv{TMP_MARK}999999999.abc.csv"
-    live = out / f".w.csv{TMP_MARK}{os.getpid()}.abc.csv"
+    tag = machine_tag()
+    dead = out / f".w.csv{TMP_MARK}{tag}.999999999.abc.csv"
+    live = out / f".w.csv{TMP_MARK}{tag}.{os.getpid()}.abc.csv"
+    saving = out / f".x.blend{TMP_MARK}{tag}.999999999.abc.blend@"  # Blender's own file beside a dead save
     other = out / ".w.csv.tmp"  # not of our naming: never touched
-    for p in (dead, live, other):
+    for p in (dead, live, saving, other):
         p.write_text("partial")
     preflight(load_take_config(write_config(tmp_path, 'weights = "out/w.csv"')))
-    assert not dead.exists() and live.exists() and other.exists()
+    assert not dead.exists() and not saving.exists() and live.exists() and other.exists()
     assert remove_stale_temporaries(tmp_path / "missing") == []
+
+
+def test_a_temporary_of_another_machine_or_container_is_judged_by_its_age_not_its_pid(tmp_path):
+    """Regression (reliability-2 #05): a run on another farm node or in another PID namespace deleted a
+    live writer's temporary file because that pid was not alive *here*."""
+    other_tag = "0" * 12 if machine_tag() != "0" * 12 else "1" * 12
+    elsewhere = tmp_path / f".a.blend{TMP_MARK}{other_tag}.999999999.abc.blend"
+    legacy = tmp_path / f".a.blend{TMP_MARK}999999999.abc.blend"  # an older facecap's untagged name
+    for p in (elsewhere, legacy):
+        p.write_text("being written on another node")
+    assert remove_stale_temporaries(tmp_path) == []
+    assert elsewhere.exists() and legacy.exists()
+    later = time.time() + STALE_AGE + 60
+    assert sorted(remove_stale_temporaries(tmp_path, now=later)) == sorted([elsewhere, legacy])
 
 
 def test_outputs_get_the_permissions_of_new_files(tmp_path):

@@ -108,9 +108,9 @@ def test_lock_passes_through_and_becomes_a_solver_lock(weights):
 def test_bad_controls_name_the_field():
     with pytest.raises(FacecapError, match="`clamp` must be"):
         ShapeControl(clamp=(1.0, 0.0))
-    with pytest.raises(FacecapError, match="`smoothing` must be >= 0"):
+    with pytest.raises(FacecapError, match="`smoothing` must be a number from 0 to 60 seconds"):
         ShapeControl(smoothing=-0.1)
-    with pytest.raises(FacecapError, match="`gain` must be a finite number"):
+    with pytest.raises(FacecapError, match="`gain` must be a number from -1000 to 1000"):
         ShapeControl(gain=float("nan"))
     with pytest.raises(FacecapError, match="`mute` must be true or false"):
         ShapeControl(mute="yes")
@@ -198,10 +198,10 @@ def test_tuning_and_controls_sections_of_a_take_config(tmp_path):
 
 
 @pytest.mark.parametrize("text, match", [
-    ("[tuning]\nmu = 0\n", r"\[tuning.mu\] expected a number > 0; got 0"),
+    ("[tuning]\nmu = 0\n", r"\[tuning.mu\] expected a number > 0 and <= 1e\+12; got 0"),
     ("[tuning]\nmu = \"auto\"\n", r"\[tuning.mu\] expected a number; got 'auto'"),
     ("[tuning]\nlibary = \"v.npz\"\n", r"\[tuning.libary\] unknown key"),
-    ("[controls]\njawOpen = { gain = \"x\" }\n", r"\[controls.jawOpen\] `gain` must be a finite number"),
+    ("[controls]\njawOpen = { gain = \"x\" }\n", r"\[controls.jawOpen\] `gain` must be a number from -1000 to 1000"),
     ("[controls]\njawOpen = 1.2\n", r"\[controls.jawOpen\] expected a table; got 1.2"),
     ("[controls]\npreset = \"missing.json\"\n", r"\[controls.preset\] file not found"),
 ])

@@ -80,11 +80,12 @@ def test_track_region_from_a_subprocess(take):
 
 
 @pytest.mark.parametrize("tracking,extra,message", [
-    ('points = "points2d.csv"\nmethod = "sift"', "", r"\[tracking\] `method` must be one of lk, dis"),
+    ('points = "points2d.csv"\nmethod = "sift"', "",
+     r"\[tracking.method\] expected one of lk, dis, farneback, tvl1, landmarks; got 'sift'"),
     ('points = "points2d.csv"\nregion = [0, 0, 10, 10]', "", "exactly one of"),
-    ('region = [0, 0, 10]', "", "must be \\[x, y, w, h\\]"),
+    ('region = [0, 0, 10]', "", r"\[tracking.region\] expected a list of 4 numbers"),
     ('points = "missing.csv"', "", "missing.csv: file not found"),
-    ('points = "points2d.csv"\ncolour = 1', "", r"\[tracking\] unknown key\(s\) \['colour'\]"),
+    ('points = "points2d.csv"\ncolour = 1', "", r"\[tracking.colour\] unknown key; known keys: points, region"),
     ('points = "points2d.csv"\nmethod = "dis"\nwin_size = 11', "", "do not apply to method 'dis'"),
 ])
 def test_config_errors_are_one_line_and_exit_non_zero(take, capsys, tracking, extra, message):

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from ...errors import FacecapError
 from ...io.files import atomic_path
+from ...io.outputs import Output, check_outputs
 from .blob import Blob
 from .figures import binding_figure, build_figures
 from .review import source_view
@@ -74,6 +75,7 @@ def shared_plotly_js(folder):
     target = Path(folder) / PLOTLY_JS
     data = source.read_bytes()
     if not (target.is_file() and target.stat().st_size == len(data) and target.read_bytes() == data):
+        check_outputs([Output("the review pages' shared script", target, "plotly_js")])  # not someone's file
         target.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(target) as tmp:
             tmp.write_bytes(data)
