@@ -213,15 +213,42 @@ def _coarse(surface, pc, R, s, t, unit):
 
 
 def align_automatic(surface, markers, *, unit, scale, allow_scale=True, chunk=48):
-    """Multi-start alignment of (M, 3) markers to the surface without landmarks.
+    """Multi-start alignment of (M, 3) markers to the surface without landmarks (:func:`automatic_poses`):
+    the pose that fits best. Raises FacecapError when none fits (NO_FIT_MM) or when a different pose
+    (rotated by more than DISTINCT_DEG) scores almost as well as the best (:func:`ambiguous`).
+
+    Returns (Similarity, a one-line note).
+    """
+    results, h = automatic_poses(surface, markers, unit=unit, scale=scale, allow_scale=allow_scale, chunk=chunk)
+    best, sim = results[0]
+    second = next(((sc, other) for sc, other in results[1:]
+                   if rotation_angle_deg(other.rotation @ sim.rotation.T) > DISTINCT_DEG), None)
+    kept = max(3, int(np.ceil(TRIM * len(markers))))
+    if best > NO_FIT_MM:
+        raise FacecapError(
+            f"automatic binding found no pose that fits: the best leaves the markers {best:.1f} mm from the surface "
+            f"(trimmed RMS) at {sim.scale / scale:.2f}x the same-size scale; are the markers' units right, and is the "
+            "mesh a face? Give at least three landmarks in [binding.landmarks] (marker = a vertex group or vertex "
+            "index of the character), e.g. the markers on the nose tip, the chin and an outer eye corner")
+    if second is not None and ambiguous(best, second[0], kept):
+        angle = float(rotation_angle_deg(second[1].rotation @ sim.rotation.T))
+        raise FacecapError(
+            f"automatic binding is ambiguous: two poses {angle:.0f} deg apart fit the markers almost equally well "
+            f"(trimmed RMS distance {best:.2f} mm and {second[0]:.2f} mm); give at least three landmarks "
+            "(marker -> vertex) to say which")
+    note = (f"automatic alignment: {h} starting rotations, best trimmed RMS distance {best:.2f} mm"
+            + (f", next distinct pose {second[0]:.2f} mm" if second is not None else ""))
+    return sim, note
+
+
+def automatic_poses(surface, markers, *, unit, scale, allow_scale=True, chunk=48):
+    """The automatic search's poses of (M, 3) markers on the surface, best first.
 
     Every rotation of :func:`hypotheses`, the cloud's most protruding marker touching the
     surface's farthest point in that direction, is refined coarsely at each of SEARCH_SCALES; the
-    best distinct rotations (FINALISTS in all) are refined fully and scored (:func:`score`).
-    Raises FacecapError when a different pose (rotated by more than DISTINCT_DEG) scores almost
-    as well as the best (:func:`ambiguous`).
+    best distinct rotations (FINALISTS in all) are refined and scored (:func:`score`).
 
-    Returns (Similarity, a one-line note).
+    Returns ([(trimmed RMS distance mm, Similarity)] sorted by distance, the number of starting rotations).
     """
     if len(markers) < 4:
         raise FacecapError(f"automatic binding needs at least 4 markers with a neutral position; got {len(markers)}")
@@ -264,25 +291,7 @@ def align_automatic(surface, markers, *, unit, scale, allow_scale=True, chunk=48
                         scale_range=SEARCH_SCALE_RANGE)
         results.append((score(surface, sim, markers, unit), sim))
     results.sort(key=lambda x: x[0])
-    best, sim = results[0]
-    second = next(((sc, other) for sc, other in results[1:]
-                   if rotation_angle_deg(other.rotation @ sim.rotation.T) > DISTINCT_DEG), None)
-    kept = max(3, int(np.ceil(TRIM * len(markers))))
-    if best > NO_FIT_MM:
-        raise FacecapError(
-            f"automatic binding found no pose that fits: the best leaves the markers {best:.1f} mm from the surface "
-            f"(trimmed RMS) at {sim.scale / scale:.2f}x the same-size scale; are the markers' units right, and is the "
-            "mesh a face? Give at least three landmarks in [binding.landmarks] (marker = a vertex group or vertex "
-            "index of the character), e.g. the markers on the nose tip, the chin and an outer eye corner")
-    if second is not None and ambiguous(best, second[0], kept):
-        angle = float(rotation_angle_deg(second[1].rotation @ sim.rotation.T))
-        raise FacecapError(
-            f"automatic binding is ambiguous: two poses {angle:.0f} deg apart fit the markers almost equally well "
-            f"(trimmed RMS distance {best:.2f} mm and {second[0]:.2f} mm); give at least three landmarks "
-            "(marker -> vertex) to say which")
-    note = (f"automatic alignment: {h} starting rotations, best trimmed RMS distance {best:.2f} mm"
-            + (f", next distinct pose {second[0]:.2f} mm" if second is not None else ""))
-    return sim, note
+    return results, h
 
 
 def _cloud_normal(pc):
@@ -293,4 +302,4 @@ def _cloud_normal(pc):
     return frame[:, 2]
 
 
-__all__ = ["align_automatic", "align_landmarks", "ambiguous", "hypotheses", "refine", "rodrigues", "score", "solve_spd"]
+__all__ = ["align_automatic", "align_landmarks", "ambiguous", "automatic_poses", "hypotheses", "refine", "rodrigues", "score", "solve_spd"]

@@ -8,7 +8,8 @@ distance to the surface, bound flag):
 * ``nearest`` (:func:`bind_nearest`): the actor's neutral markers are aligned to the character's
   neutral surface by a similarity (scale, rotation, translation) -- from at least three
   ``landmarks`` (marker -> vertex index or point), or without them by a multi-start search over
-  rotations that refuses when two different poses fit almost equally well -- refined by robust
+  rotations, the poses that fit the neutral told apart by how much of the take's motion the
+  character's shapes explain there (refused when none or two do) -- refined by robust
   point-to-plane ICP; each marker is then bound to its closest surface point. Markers farther
   than ``max_distance_mm`` from the surface, or without a neutral position, stay unbound.
 
@@ -16,14 +17,15 @@ The pipeline uses ``binding.points(vertices)`` (M, 3) for the bound points on th
 ``binding.sample(deltas)`` (K, M, 3) for the shape-key deltas at those points.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..errors import FacecapError
 from ..options import default
 from ..transforms import Similarity, rotation_angle_deg
-from .alignment import CANDIDATES, SEARCH_SCALE_RANGE, SEARCH_SCALES, align_automatic, align_landmarks, refine
+from .alignment import (CANDIDATES, DISTINCT_DEG, FLOOR_MM, NO_FIT_MM, SEARCH_SCALE_RANGE, SEARCH_SCALES,
+                        align_automatic, align_landmarks, automatic_poses, refine)
 from .surface import closest_points, interpolate, make_surface, skin_triangles, triangulate
 
 #: A bound marker farther than this from the surface (mm) stays unbound (the default).
@@ -223,7 +225,7 @@ def _far_note(names, dist, far, limit, what):
 
 
 def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_distance_mm=MAX_DISTANCE_MM,
-                 mm_per_unit=1000.0, marker_mm_per_unit=1000.0, allow_scale=True):
+                 mm_per_unit=1000.0, marker_mm_per_unit=1000.0, allow_scale=True, motion=None):
     """Align the actor's neutral markers to the character's surface and bind each to its closest point.
 
     Parameters
@@ -245,6 +247,11 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
         automatic search expects faces of about the same physical size (within 0.7-1.4x).
     allow_scale : bool
         Fit a uniform scale (the actor's face and the character's differ in size).
+    motion : callable or None
+        ``motion(binding)`` -> the share of the take's motion the character's shapes explain at that
+        binding's points (or None: the take does not move enough to tell). Given, the automatic search
+        chooses among the poses that fit the neutral by it (:func:`choose_by_motion`): a face curve of
+        68 landmarks fits a stylised face's surface as well upside down as upright.
 
     Returns
     -------
@@ -265,36 +272,103 @@ def bind_nearest(vertices, triangles, names, markers, *, landmarks=None, max_dis
                      f"{_few([n for n, h in zip(names, have) if not h])}")
     unit = 1.0 / mm_per_unit  # one millimetre in mesh units
     prior_scale = marker_mm_per_unit / mm_per_unit  # same-size faces in their own units
-    if landmarks:
-        pairs = _landmark_pairs(surface, names, markers, landmarks)
-        start = align_landmarks(pairs, allow_scale=allow_scale)
-        mode = "nearest (landmarks)"
-    else:
+    skin = make_surface(vertices, skin_triangles(len(vertices), tris))  # a marker sits on skin: not an eyeball
+
+    def bind_at(start, mode, notes):
+        sim, fit = refine(surface, markers[have], start, unit=unit, allow_scale=allow_scale)
+        if mode == "nearest (automatic)":
+            check_automatic_pose(surface, sim, markers[have], prior_scale, allow_scale=allow_scale)
+        m = len(names)
+        tri, bary, dist = np.full(m, -1), np.full((m, 3), np.nan), np.full(m, np.nan)
+        t, b, _, d = closest_points(skin, sim.apply(markers[have]))
+        tri[have], bary[have], dist[have] = t, b, d * mm_per_unit
+        bound = have.copy()
+        far = bound & (dist > max_distance_mm)
+        notes = list(notes) + [fit]
+        if far.any():
+            notes.append(_far_note(names, dist, far, max_distance_mm, "marker"))
+            tri[far], bary[far] = -1, np.nan
+            bound &= ~far
+        return Binding(names, tri, bary, dist, bound, sim, mode, skin.triangles, tuple(notes))
+
+    if not landmarks:
+        mode = "nearest (automatic)"
+        if motion is not None:
+            poses, h = automatic_poses(surface, markers[have], unit=unit, scale=prior_scale, allow_scale=allow_scale)
+            found = choose_by_motion(poses, h, lambda start: bind_at(start, mode, notes), motion)
+            if found is not None:
+                binding, search = found
+                return replace(binding, notes=binding.notes[:len(notes)] + (search,) + binding.notes[len(notes):])
         start, search = align_automatic(surface, markers[have], unit=unit, scale=prior_scale,
                                         allow_scale=allow_scale)
-        mode = "nearest (automatic)"
-        notes.append(search)
-    sim, fit = refine(surface, markers[have], start, unit=unit, allow_scale=allow_scale)
-    notes.append(fit)
-    if not landmarks:
-        check_automatic_pose(surface, sim, markers[have], prior_scale, allow_scale=allow_scale)
-    if landmarks:
-        before = np.linalg.norm(start.apply(pairs[1]) - pairs[2], axis=1) * mm_per_unit
-        after = np.linalg.norm(sim.apply(pairs[1]) - pairs[2], axis=1) * mm_per_unit
-        notes.append(f"{len(pairs[0])} landmarks: {before.mean():.1f} mm from their targets by the landmark fit, "
-                     f"{after.mean():.1f} mm after ICP (worst {after.max():.1f} mm)")
-    m = len(names)
-    tri, bary, dist = np.full(m, -1), np.full((m, 3), np.nan), np.full(m, np.nan)
-    skin = make_surface(vertices, skin_triangles(len(vertices), tris))  # a marker sits on skin: not an eyeball
-    t, b, _, d = closest_points(skin, sim.apply(markers[have]))
-    tri[have], bary[have], dist[have] = t, b, d * mm_per_unit
-    bound = have.copy()
-    far = bound & (dist > max_distance_mm)
-    if far.any():
-        notes.append(_far_note(names, dist, far, max_distance_mm, "marker"))
-        tri[far], bary[far] = -1, np.nan
-        bound &= ~far
-    return Binding(names, tri, bary, dist, bound, sim, mode, skin.triangles, tuple(notes))
+        return bind_at(start, mode, notes + [search])
+    pairs = _landmark_pairs(surface, names, markers, landmarks)
+    start = align_landmarks(pairs, allow_scale=allow_scale)
+    found = bind_at(start, "nearest (landmarks)", notes)
+    before = np.linalg.norm(start.apply(pairs[1]) - pairs[2], axis=1) * mm_per_unit
+    after = np.linalg.norm(found.similarity.apply(pairs[1]) - pairs[2], axis=1) * mm_per_unit
+    note = (f"{len(pairs[0])} landmarks: {before.mean():.1f} mm from their targets by the landmark fit, "
+            f"{after.mean():.1f} mm after ICP (worst {after.max():.1f} mm)")
+    return replace(found, notes=found.notes[:len(notes) + 1] + (note,) + found.notes[len(notes) + 1:])
+
+
+#: The motion test of automatic poses (``choose_by_motion``): at most this many distinct poses that fit the
+#: neutral are tried, those within MOTION_FIT_FACTOR of the best fit's distance. On the realism benchmark's ICT
+#: actors (onto the sample character and another ICT face; 18 draws) and on Facial-Sing, every pose kept was
+#: upright and explained 30-97% of the take's motion, the poses turned away 0-21% (docs/binding.md): a pose
+#: explaining less than MOTION_MIN is no binding, and two poses more than SAME_POSE_DEG apart within
+#: MOTION_MARGIN of each other cannot be told apart.
+MOTION_POSES = 4
+MOTION_FIT_FACTOR = 2.0
+MOTION_MIN = 0.25
+MOTION_MARGIN = 0.15
+SAME_POSE_DEG = 45.0
+
+
+def choose_by_motion(poses, starts, bind_at, motion):
+    """The binding, among the automatic search's distinct ``poses`` that fit the neutral, whose shapes explain
+    the most of the take's motion (``motion(binding)``). Returns None when the take does not move enough to
+    tell (the caller decides by the fit alone); raises FacecapError when no pose explains the motion or two do
+    equally. Returns (Binding, a one-line note)."""
+    best_fit = poses[0][0]
+    if best_fit > NO_FIT_MM:
+        return None  # align_automatic says why
+    tried, chosen = [], []
+    for fit, sim in poses:
+        if len(chosen) == MOTION_POSES or fit > MOTION_FIT_FACTOR * best_fit + FLOOR_MM:
+            break
+        if any(rotation_angle_deg(sim.rotation @ other.rotation.T) <= DISTINCT_DEG for _, other in chosen):
+            continue
+        chosen.append((fit, sim))
+        try:
+            binding = bind_at(sim)
+        except FacecapError:  # scale at the end of the search, or on the back of the head
+            continue
+        share = motion(binding)
+        if share is None:
+            return None
+        tried.append((share, fit, binding))
+    if not tried:
+        return None
+    tried.sort(key=lambda x: -x[0])
+    share, fit, binding = tried[0]
+    if share < MOTION_MIN:
+        raise FacecapError(
+            f"automatic binding found no pose where the character's shapes move as the markers do: the best of "
+            f"{len(tried)} pose(s) that fit the neutral explains {100 * share:.0f}% of the take's motion (a right "
+            f"binding explains 30-97%); {LANDMARK_ADVICE}")
+    rival = next(((s, b) for s, _, b in tried[1:] if s > share - MOTION_MARGIN and rotation_angle_deg(
+        b.similarity.rotation @ binding.similarity.rotation.T) > SAME_POSE_DEG), None)
+    if rival is not None:  # (poses a few degrees apart that explain the motion alike are one pose: the best kept)
+        angle = float(rotation_angle_deg(rival[1].similarity.rotation @ binding.similarity.rotation.T))
+        raise FacecapError(
+            f"automatic binding is ambiguous: two poses {angle:.0f} deg apart explain the take's motion almost "
+            f"equally ({100 * share:.0f}% and {100 * rival[0]:.0f}%); {LANDMARK_ADVICE}")
+    others = ", ".join(f"{100 * s:.0f}%" for s, _, _ in tried[1:])
+    note = (f"automatic alignment: {starts} starting rotations, {len(tried)} pose(s) fit the neutral (trimmed RMS "
+            f"{best_fit:.2f}-{max(f for _, f, _ in tried):.2f} mm); the chosen one ({fit:.2f} mm) explains "
+            f"{100 * share:.0f}% of the take's motion" + (f" (the others {others})" if others else ""))
+    return binding, note
 
 
 #: The automatic alignment's scale may end this close (relative) to the ends of its search before the pose

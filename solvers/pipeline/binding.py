@@ -94,10 +94,11 @@ def bind_character(mesh, markers, settings, binding, *, record=None):
     else:
         notes = []
         neutral = actor_neutral(markers, settings, notes)
-        found = bind_nearest(mesh.vertices, mesh.triangles, names, neutral,
-                             landmarks=landmark_targets(mesh, binding.landmarks) or None,
+        landmarks = landmark_targets(mesh, binding.landmarks) or None
+        found = bind_nearest(mesh.vertices, mesh.triangles, names, neutral, landmarks=landmarks,
                              max_distance_mm=binding.max_distance_mm, mm_per_unit=mesh.mm_per_unit,
-                             marker_mm_per_unit=1000.0)
+                             marker_mm_per_unit=1000.0,
+                             motion=None if landmarks else motion_judge(mesh, markers, settings))
         found = replace(found, notes=tuple(notes) + found.notes)
     rec = binding_record(found, n_vertices=len(mesh.vertices), source=markers.source)
     table = {n: (bool(b), None if not np.isfinite(d) else float(d))
@@ -125,6 +126,80 @@ def actor_neutral(markers, settings, notes):
     out = np.full((markers.n_markers, 3), np.nan)
     out[markers.index(usable.names)] = neutral
     return out
+
+
+#: The motion test of automatic bindings: frames of the take it looks at (evenly spread), and the motion below
+#: which (95th percentile over markers and frames, mm) a take is too still to judge a pose by.
+MOTION_FRAMES = 600
+MOTION_STILL_MM = 1.0
+#: ... and the share of those frames, the ones that move most, whose motion it explains.
+MOTION_TOP = 0.25
+
+
+def take_motion(markers, settings):
+    """(names, (f, M, 3) motion from the neutral in the stabilised head frame, metres) of up to MOTION_FRAMES
+    frames of the take, or None when it cannot be prepared or barely moves."""
+    usable = stages.usable_markers(markers, settings, []).to_units("m")
+    sel = np.zeros(usable.n_frames, dtype=bool)
+    sel[np.linspace(0, usable.n_frames - 1, min(usable.n_frames, MOTION_FRAMES)).astype(int)] = True
+    for first, last in stages.neutral_ranges(settings):  # the neutral the solve uses, all of its frames
+        sel |= usable.frame_range_mask(first, last)
+    sub = replace(usable, frames=usable.frames[sel], positions=usable.positions[sel], segments={})
+    try:
+        take, _, _ = stages.prepare_take(sub, settings, [])
+    except FacecapError:  # the solve says why; the binding falls back to the neutral's fit
+        return None
+    size = np.linalg.norm(take.deltas, axis=2)
+    if not np.isfinite(size).any() or np.nanpercentile(size, 95) * 1e3 < MOTION_STILL_MM:
+        return None
+    return tuple(take.names), take.deltas
+
+
+def motion_judge(mesh, markers, settings):
+    """``motion(binding)`` for ``bind_nearest``: the share of the take's motion (``take_motion``) that the
+    character's shapes at the binding's points explain (``explained_share``, the motion turned into the
+    character's frame); None without motion to judge by."""
+    found = take_motion(markers, settings)
+    if found is None:
+        return None
+    names, deltas = found
+
+    def explained(binding):
+        basis = sampled_basis(mesh, binding_sampling(binding))
+        cols = [names.index(n) for n in basis.marker_names if n in names]
+        if len(cols) < 3:
+            return None
+        rows = [basis.marker_names.index(names[c]) for c in cols]
+        D = (deltas[:, cols] @ binding.similarity.rotation.T).reshape(len(deltas), -1)  # scale: no matter
+        A = basis.deltas[:, rows].reshape(basis.n_shapes, -1).T
+        return explained_share(A, D)
+
+    return explained
+
+
+def explained_share(A, D, *, sweeps=60, top=MOTION_TOP):
+    """The share of the motion ``D`` (f, P; NaN where a marker is missing) that non-negative weights of the
+    shapes ``A`` (P, K) explain, over the ``top`` share of frames that move most (where the motion stands
+    above the markers' noise): shapes only push one way, so a pose that needs them negative (upside down,
+    mirrored) explains little. Coordinate descent on each frame's normal equations; None without motion."""
+    seen = np.isfinite(D)
+    D = np.where(seen, D, 0.0)
+    size = np.sqrt(np.sum(D * D, axis=1) / np.maximum(seen.sum(axis=1), 1))
+    keep = (seen.sum(axis=1) >= 9) & (size > 0)
+    if keep.sum() < 10:
+        return None
+    keep &= size >= np.percentile(size[keep], 100 * (1 - top))
+    D, m = D[keep], seen[keep].astype(np.float64)
+    G = np.einsum("pk,fp,pl->fkl", A, m, A)  # each frame's normal matrix over the markers it has
+    B = D @ A
+    diag = np.maximum(np.einsum("fkk->fk", G), 1e-12 * max(float(np.max(G)), 1e-300))
+    W = np.zeros_like(B)
+    for _ in range(sweeps):
+        for k in range(A.shape[1]):
+            step = (np.einsum("fl,fl->f", W, G[:, :, k]) - B[:, k]) / diag[:, k]
+            W[:, k] = np.maximum(0.0, W[:, k] - step)
+    residual = np.sum(D * D) - 2 * np.sum(W * B) + np.einsum("fk,fkl,fl->", W, G, W)
+    return float(1.0 - residual / np.sum(D * D))
 
 
 def landmark_targets(mesh, landmarks):

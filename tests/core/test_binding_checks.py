@@ -1,13 +1,26 @@
 """Automatic binding never silently wrong: a pose that ran out of scale (wrong units) or that puts the markers on
-the back of the head is refused, naming the landmarks that would settle it."""
+the back of the head is refused, naming the landmarks that would settle it; among the poses that fit the neutral,
+the take's motion decides (a pose where the character's shapes do not move as the markers do is refused)."""
+
+import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from sample_geometry import geometry_module
+from shared_data import ICT_FACEKIT, REALDATA, require
 
 from facecap.solvers.character.binding import bind_nearest, check_automatic_pose
+from facecap.solvers.character.binding_map import BindingSettings
+from facecap.solvers.character.face_model import load_ict
 from facecap.solvers.character.surface import make_surface, triangulate
 from facecap.solvers.errors import FacecapError
+from facecap.solvers.pipeline.binding import bind_character, explained_share, motion_judge
+from facecap.solvers.tools.realism.actors import Perturbation
+from facecap.solvers.tools.realism.methods import base_settings
+from facecap.solvers.tools.realism.scenario import make_draw
+from facecap.solvers.tools.realism.takes import REST, load_performances
+from facecap.solvers.tools.realism.targets import make_target
 from facecap.solvers.transforms import Similarity
 
 
@@ -46,3 +59,54 @@ def test_poses_at_the_scale_bound_or_on_the_back_of_the_head_are_refused(head):
     at_bound = Similarity(1e-3 * 1.25 * 1.15, np.eye(3), np.zeros(3))
     with pytest.raises(FacecapError, match="at the end of the search"):
         check_automatic_pose(surface, at_bound, face, 1e-3)
+
+
+def test_non_negative_shapes_explain_motion_they_push_and_not_its_mirror():
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(90, 12))  # 30 markers x 3, 12 shapes
+    W = rng.uniform(0, 1, size=(200, 12)) * (rng.uniform(size=(200, 12)) < 0.3)
+    D = W @ A.T
+    assert explained_share(A, D) == pytest.approx(1.0, abs=1e-3)
+    assert explained_share(A, D + rng.normal(scale=0.05 * D.std(), size=D.shape)) > 0.95
+    assert explained_share(A, -D) < 0.3  # the motion needs the shapes pushed backwards: a wrong pose
+
+
+@pytest.fixture(scope="module")
+def realism():
+    require(ICT_FACEKIT)
+    model = load_ict(ICT_FACEKIT)
+    performances = load_performances(REALDATA / "llf", model.shape_names)
+    return model, performances, make_target("sample", model)
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_68_landmarks_on_a_stylised_face_bind_by_the_motion_or_ask_for_landmarks(realism, seed):
+    """68 landmarks of a real face's outline fit the sample character's surface best upside down (seed 0: the
+    only pose that fits; seed 2: the best fit of four): the chin's landmark must move with jawOpen in the pose
+    kept, or binding must stop and ask for landmarks. Before the motion test both bound silently with jawOpen
+    moving no landmark at all."""
+    model, performances, mesh = realism
+    draw = make_draw(model, performances, seed, layout="landmarks68", frames=600, perturbation=Perturbation())
+    settings = base_settings(draw)
+    try:
+        bound = bind_character(mesh, draw.markers, settings, BindingSettings(mode="nearest"))
+    except FacecapError as exc:
+        assert seed == 0 and re.search(r"no pose where the character's shapes move as the markers do: the best of "
+                                       r"\d pose\(s\) that fit the neutral explains \d+% .*nose tip", str(exc))
+        return
+    assert seed == 2
+    basis = bound.basis
+    chin = np.linalg.norm(basis.deltas[basis.shape_names.index("jawOpen"), basis.marker_names.index("lm08")])
+    assert chin * 1e3 > 20.0  # the sample character's jaw drops the chin by about 35 mm
+    assert re.search(r"pose\(s\) fit the neutral .* explains \d+% of the take's motion", " ".join(bound.notes))
+
+
+def test_a_still_take_is_bound_by_the_fit_alone(realism):
+    """With no motion to judge by (the neutral frames alone), the automatic pose is the fit's, as before."""
+    model, performances, mesh = realism
+    draw = make_draw(model, performances, 1, layout="landmarks68", frames=600, perturbation=Perturbation())
+    settings = base_settings(draw)
+    markers = draw.markers
+    still = replace(markers, frames=markers.frames[:REST], positions=markers.positions[:REST], segments={})
+    assert motion_judge(mesh, still, settings) is None
+    assert motion_judge(mesh, markers, settings) is not None
