@@ -27,6 +27,7 @@ from ..solvers.io.images import read_tga, write_png
 from ..solvers.config import load_take_config
 from .demo import SAMPLE_CONFIG
 from .headless import run_take
+from .render_state import mark_rendered
 from .scene_data import vertex_group_bindings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -188,6 +189,7 @@ class _Stage:
         self.caption.data.body = caption
         path = self.tmp / "tile.tga"
         self.scene.render.filepath = str(path)
+        mark_rendered()  # a review page forked from here could not render
         bpy.ops.render.render(write_still=True)
         return read_tga(path)
 

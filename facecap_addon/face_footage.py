@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..solvers.errors import FacecapError
+from .render_state import mark_rendered
 
 SKIN, LIPS, BROWS = (0.78, 0.58, 0.48), (0.62, 0.34, 0.34), (0.20, 0.14, 0.10)
 SCLERA, IRIS, PUPIL, CAVITY = (0.92, 0.90, 0.88), (0.30, 0.20, 0.12), (0.02, 0.02, 0.02), (0.15, 0.04, 0.04)
@@ -303,6 +304,7 @@ def render_face_clip(path, neutral, polygons, deltas, weights, *, head=None, gaz
         if window is not None:
             window.scene = scene
         with bpy.context.temp_override(scene=scene):
+            mark_rendered()  # a review page forked from here could not render
             bpy.ops.render.render(animation=True, scene=scene.name)
     finally:
         bpy.app.handlers.frame_change_pre.remove(pose)

@@ -32,6 +32,7 @@ from ..solvers.tools.report import (
     read_truth,
     write_review_page,
 )
+from . import render_state
 from .scene_data import vertex_group_bindings
 
 #: Tile height in pixels and width / height (a face is taller than wide).
@@ -41,9 +42,8 @@ MARGIN = 1.5
 #: Seconds a forked render may take in all (then it is stopped and the page has no contact sheet);
 #: the sample's nine tiles take 2-4 s with software OpenGL.
 RENDER_TIMEOUT = 120.0
-#: Whether this process has rendered (has an OpenGL context): a child forked from it could not render
-#: (its copy of the context is unusable and hangs), so it renders here.
-_state = {"rendered_here": False}
+#: Whether this process has rendered (has an OpenGL context), by any facecap render: see render_state.
+_state = render_state.STATE
 
 
 @dataclasses.dataclass(frozen=True)

@@ -25,6 +25,7 @@ from ..solvers.tools.synth import performance_weights, synthesize_points
 from . import rig_samples, rig_samples_rigs, rig_target
 from .docs_images import compose
 from .headless import run_take
+from .render_state import mark_rendered
 from .rig_eval import RigEvaluator
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -193,6 +194,7 @@ def render_rigify(blend, face_name, result, path, *, count=5, size=(190, 216)):
         for frame in picks:
             scene.frame_set(frame)
             render.filepath = str(Path(tmp) / "tile.tga")
+            mark_rendered()  # a review page forked from here could not render
             bpy.ops.render.render(write_still=True)
             tiles.append(read_tga(Path(tmp) / "tile.tga"))
     path.parent.mkdir(parents=True, exist_ok=True)
