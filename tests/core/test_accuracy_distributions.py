@@ -62,14 +62,32 @@ def test_no_rigid_markers_says_so_and_names_candidates():
 
 
 # -- tracking: the project's LK beside the plain reference on every footage kind --------------------------
+def kinds_here():
+    """Every footage kind, but the photographed ones where the photographs are missing: they ship in the bpy
+    wheel, which the README's test command installs (there every kind runs) and CI's core tests on the
+    second Python do not (the core never needs Blender)."""
+    import importlib.util
+
+    from facecap.solvers.tools.scenarios_footage import KINDS, photograph_files
+
+    try:
+        photograph_files()
+    except FileNotFoundError:
+        assert importlib.util.find_spec("bpy") is None  # with bpy installed the photographs must be found
+        print("no bpy wheel here: the photographed footage kinds are left to the run with bpy")
+        return [k for k, spec in KINDS.items() if spec["texture"] != "photo"]
+    return list(KINDS)
+
+
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
     pytest.importorskip("cv2")
-    from facecap.solvers.tools.scenarios_footage import KINDS, footage_scenario
+    from facecap.solvers.tools.scenarios_footage import footage_scenario
 
     d = tmp_path_factory.mktemp("kinds")
     # every kind x 3 draws, small so the suite stays quick (the benchmark has 480p-1080p)
-    return [footage_scenario(seed, kind, d, size=(320, 240), n_frames=30) for kind in KINDS for seed in range(3)]
+    return [footage_scenario(seed, kind, d, size=(320, 240), n_frames=30) for kind in kinds_here()
+            for seed in range(3)]
 
 
 @pytest.fixture(scope="module")
@@ -80,10 +98,11 @@ def tracks(clips):
 
 
 def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
-    from facecap.solvers.tools.scenarios_footage import KINDS, UNTUNED
+    from facecap.solvers.tools.scenarios_footage import UNTUNED
 
-    assert len(tracks) >= 3 * len(KINDS)
-    for kind in KINDS:
+    kinds = kinds_here()
+    assert len(tracks) >= 3 * len(kinds)
+    for kind in kinds:
         k = [r for r in tracks if r["kind"] == kind]
         ours, plain = np.median([r["ours_median_px"] for r in k]), np.median([r["plain_median_px"] for r in k])
         lost_ours = np.mean([r["ours_lost_pct"] for r in k])
@@ -103,10 +122,9 @@ def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
 
 def test_dense_flow_matches_or_beats_plain_dis_on_every_footage_kind(clips):
     from facecap.solvers.tools.accuracy_bench import flow_row
-    from facecap.solvers.tools.scenarios_footage import KINDS
 
     rows = [flow_row(sc, grid_step=4) for sc in clips if sc.seed == 0]  # one per kind: time
-    for kind in KINDS:
+    for kind in kinds_here():
         k = [r for r in rows if r["kind"] == kind]
         ours, plain = np.median([r["ours_median_px"] for r in k]), np.median([r["plain_median_px"] for r in k])
         print(f"{kind:18s} flow end-point error on the face: ours {ours:.4f} px, plain DIS {plain:.4f} px")
