@@ -84,24 +84,24 @@ import numpy as np  # noqa: E402
 from ..solvers.config import load_take_config  # noqa: E402
 from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
-from ..solvers.tools.accuracy_bench import main as accuracy_main  # noqa: E402
-from ..solvers.tools.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.bench.accuracy_bench import main as accuracy_main  # noqa: E402
+from ..solvers.tools.bench.bench import run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
-from ..solvers.tools.clean_bench import bench_clean  # noqa: E402
+from ..solvers.tools.bench.clean_bench import bench_clean  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
 from ..solvers.tools.inspect import main as inspect_main  # noqa: E402
 from ..solvers.tools.landmark_models import main as landmark_models_main  # noqa: E402
 from ..solvers.tools.template import main as template_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
-from . import console  # noqa: E402
-from .batch import run_batch  # noqa: E402
-from .batch_worker import serve  # noqa: E402
-from .bench import MEMORY_FRAMES, bench_batch, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
-from .demo import run_demo  # noqa: E402
-from .headless import progress_line, run_take  # noqa: E402
-from .landmark_bench import main as landmark_bench_main  # noqa: E402
-from .review import review_flags  # noqa: E402
+from .headless import console  # noqa: E402
+from .batch.batch import run_batch  # noqa: E402
+from .batch.batch_worker import serve  # noqa: E402
+from .bench.bench import MEMORY_FRAMES, bench_batch, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
+from .headless.demo import run_demo  # noqa: E402
+from .headless.headless import progress_line, run_take  # noqa: E402
+from .bench.landmark_bench import main as landmark_bench_main  # noqa: E402
+from .render.review import review_flags  # noqa: E402
 
 
 def _cmd_retarget(args):
@@ -193,7 +193,7 @@ def _cmd_tune(args):
 
 
 def _cmd_docs_images(args):
-    from .docs_images import render_docs_images  # imports bpy (and bmesh) at once: only for this command
+    from .render.docs_images import render_docs_images  # imports bpy (and bmesh) at once: only for this command
 
     written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, say=progress_line)
     for name, path in written.items():
@@ -202,7 +202,7 @@ def _cmd_docs_images(args):
 
 
 def _cmd_rig_bench(args):
-    from .rig_bench import rig_bench  # imports bpy at once: only for this command
+    from .bench.rig_bench import rig_bench  # imports bpy at once: only for this command
 
     figures = rig_bench(capture=args.capture, frames=args.frames, sample_frames=args.sample_frames, docs=args.docs,
                         say=progress_line)
@@ -215,13 +215,13 @@ def _cmd_convert(args):
 
 
 def _cmd_bench(args):
-    if args.realism is not None:  # the cross-character benchmark (solvers/tools/realism/bench.py): its own options
-        from ..solvers.tools.realism.bench import main as realism_main  # scipy: loaded when the benchmark runs
+    if args.realism is not None:  # the cross-character benchmark (solvers/tools/synthetic/realism/): own options
+        from ..solvers.tools.synthetic.realism.bench import main as realism_main  # scipy: loaded when it runs
 
         return realism_main(args.realism)
     if args.landmarks:  # renders a real face performing a recording, then retargets the footage (minutes)
         return landmark_bench_main(["--frames", args.frames if args.frames != "60" else "300"])
-    if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/accuracy_bench.py)
+    if args.accuracy:  # accuracy distributions instead of timings (solvers/tools/bench/accuracy_bench.py)
         return accuracy_main(["--draws", args.draws, "--clips", args.clips, "--size", args.size, "--frames", args.frames])
     if args.memory:  # the memory case on its own (it takes minutes per take)
         for row in bench_memory((3600, 36000) if args.quick else MEMORY_FRAMES):

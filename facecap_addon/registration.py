@@ -4,7 +4,7 @@ orders the three)."""
 
 import bpy
 
-from . import panels, panels_tune, panels_video, properties, properties_video
+from .ui import panels, panels_tune, panels_video, properties, properties_video
 
 # the video group before the settings that point to it
 PROPERTY_CLASSES = properties_video.CLASSES + properties.CLASSES

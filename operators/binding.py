@@ -2,7 +2,7 @@
 
 import bpy
 
-from ..facecap_addon import scene_binding, take
+from ..facecap_addon.scene import scene_binding, take
 from ..solvers.errors import FacecapError
 
 

@@ -4,7 +4,7 @@ import os
 
 import bpy
 
-from ..facecap_addon.export import FORMATS, export_take
+from ..facecap_addon.scene.export import FORMATS, export_take
 from ..solvers.errors import FacecapError
 
 SUFFIX = {"GLTF": ".glb", "FBX": ".fbx"}

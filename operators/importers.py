@@ -8,8 +8,8 @@ from bpy.props import CollectionProperty, EnumProperty, FloatProperty, StringPro
 from bpy.types import OperatorFileListElement
 from bpy_extras.io_utils import ImportHelper
 
-from ..facecap_addon import import_scene, take
-from ..facecap_addon.scene_sources import markers_from_clip, markers_from_empties
+from ..facecap_addon.scene import import_scene, take
+from ..facecap_addon.scene.scene_sources import markers_from_clip, markers_from_empties
 from ..solvers.capture.cleaning import CleanSettings, clean
 from ..solvers.errors import FacecapError
 from ..solvers.io import import_markers

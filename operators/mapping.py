@@ -2,7 +2,7 @@
 
 import bpy
 
-from ..facecap_addon import take
+from ..facecap_addon.scene import take
 from ..solvers.errors import FacecapError
 from ..solvers.strategies.mapping import Mapping
 

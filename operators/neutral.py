@@ -7,8 +7,8 @@ import bpy
 import numpy as np
 from bpy.props import IntProperty, StringProperty
 
-from ..facecap_addon import take
-from ..facecap_addon.take import can_stabilise
+from ..facecap_addon.scene import take
+from ..facecap_addon.scene.take import can_stabilise
 from ..solvers.capture.neutral import neutral_from_frames
 from ..solvers.capture.normalise import detect_neutral_frames
 from ..solvers.errors import FacecapError

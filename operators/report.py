@@ -4,7 +4,7 @@ import bpy
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper
 
-from ..facecap_addon import review
+from ..facecap_addon.render import review
 from ..solvers.errors import FacecapError
 
 

@@ -3,7 +3,7 @@
 import bpy
 import numpy as np
 
-from ..facecap_addon import scene_solve
+from ..facecap_addon.scene import scene_solve
 from ..solvers.errors import FacecapError
 from .video import ClipJobOperator  # its cancel and _stop: Blender ending the operator, the timer and status bar
 

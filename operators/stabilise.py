@@ -3,8 +3,8 @@
 import bpy
 import numpy as np
 
-from ..facecap_addon import take
-from ..facecap_addon.take import can_stabilise
+from ..facecap_addon.scene import take
+from ..facecap_addon.scene.take import can_stabilise
 from ..solvers.capture.stable_markers import suggest_stable_markers
 from ..solvers.errors import FacecapError
 from ..solvers.pipeline.stages import stabilise_take

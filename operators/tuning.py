@@ -2,7 +2,7 @@
 shape-control presets and "jump to the next worst frame".
 
 Corrections are the *final* weights (solve layer + the animator's layer above it) at the tuning
-frames; see ``facecap_addon/layers.py`` and ``solvers/tuning_take.py``.
+frames; see ``facecap_addon/scene/layers.py`` and ``solvers/tuning_take.py``.
 """
 
 import bpy
@@ -10,7 +10,7 @@ import numpy as np
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..facecap_addon import layers, scene_solve, tuning_scene
+from ..facecap_addon.scene import layers, scene_solve, tuning_scene
 from ..solvers.character.shape_controls import load_preset, save_preset
 from ..solvers.errors import FacecapError
 from ..solvers.tuning.retune import fit_gain_offset

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import bpy
 
-from ..facecap_addon import import_scene
-from ..facecap_addon.properties_video import METHOD_ITEMS
-from ..facecap_addon.video_scene import ClipFlowSolving, ClipLandmarks, ClipTracking, use_landmark_defaults
+from ..facecap_addon.scene import import_scene
+from ..facecap_addon.ui.properties_video import METHOD_ITEMS
+from ..facecap_addon.scene.video_scene import ClipFlowSolving, ClipLandmarks, ClipTracking, use_landmark_defaults
 from ..solvers.errors import FacecapError
 
 TICK_SECONDS = 0.02  # timer interval

@@ -18,9 +18,9 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from facecap.facecap_addon.scene_data import basis_from_object
+from facecap.facecap_addon.scene.scene_data import basis_from_object
 from facecap.solvers.io.csv import write_markers_csv, write_weights_csv
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 HERE = Path(__file__).resolve().parent
 N_FRAMES = 720  # 12 s at 60 fps

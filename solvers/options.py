@@ -3,7 +3,7 @@ where the sidebar shows it.
 
 From this table come the take config's schema and value checks (``solvers.config``), the defaults
 of the settings dataclasses (``default("solve.regularisation")``), the Blender property defaults,
-ranges and descriptions (``facecap_addon.properties``), and ``docs/config.md``
+ranges and descriptions (``facecap_addon.ui.properties``), and ``docs/config.md``
 (``python -m facecap config-docs``). A test checks that every option has a sidebar control or says
 why it is headless-only, and that every sidebar setting is an option or says why it is not.
 

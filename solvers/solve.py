@@ -1,6 +1,6 @@
 """The one solve path. Every front end describes its take as a ``SolveRequest`` and runs it here:
-the sidebar's *Solve and Key*, *Retune* and *Solve from Clip Flow* (``facecap_addon.scene_solve``)
-and the command line's ``retarget``, ``tune`` and video retarget (``facecap_addon.headless``).
+the sidebar's *Solve and Key*, *Retune* and *Solve from Clip Flow* (``facecap_addon.scene.scene_solve``)
+and the command line's ``retarget``, ``tune`` and video retarget (``facecap_addon.headless.headless``).
 
 A request carries the take (markers, or footage for flow features; solved weights ride in
 ``inputs.weights`` for ``parallel``), the character, the settings and inputs, and optionally a

@@ -26,7 +26,7 @@ class Face:
 
 def ict_face(path=ICT_FACEKIT / "ict_face.npz"):
     """The ICT face in the characters' axes with ARKit shape names (``landmark_bench.ict_arrays``)."""
-    from facecap.facecap_addon.landmark_bench import ict_arrays
+    from facecap.facecap_addon.bench.landmark_bench import ict_arrays
 
     return Face(*ict_arrays(path))
 
@@ -68,7 +68,7 @@ def clip_weights(face, n=N_FRAMES):
 
 def render_test_clip(path, face, *, n=N_FRAMES):
     """Render the test clip of ``face`` to ``path`` (H.264); returns (path, weights, gaze)."""
-    from facecap.facecap_addon.face_footage import Shot, render_face_clip
+    from facecap.facecap_addon.render.face_footage import Shot, render_face_clip
 
     weights, head, gaze = clip_weights(face, n)
     render_face_clip(path, face.neutral, face.polygons, face.deltas, weights, head=head, gaze=gaze,
@@ -79,7 +79,7 @@ def render_test_clip(path, face, *, n=N_FRAMES):
 def ict_character(path, face, *, seed=7, modes=20, name="ICT"):
     """Save another ICT identity (``modes`` identity coefficients drawn from ``seed``) as a .blend with one
     object ``name`` and a shape key per expression; returns the path."""
-    from facecap.facecap_addon.landmark_bench import ict_character as save
+    from facecap.facecap_addon.bench.landmark_bench import ict_character as save
 
     return save(path, face.neutral, face.polygons, face.shape_names, face.deltas, face.identity, seed, modes, name)
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..transforms import Similarity, fit_similarity, rotation_angle_deg
-from .surface import NearCache, closest_points, squared_distances
+from .surface import closest_points
 
 #: Cauchy weight scale (times the residuals' robust sigma) and the sigma's floor, mm.
 CAUCHY = 2.385
@@ -132,11 +132,10 @@ def refine(surface, markers, start, *, unit, allow_scale=True, iterations=60, sc
     R, s, t = start.rotation.copy(), float(start.scale), start.apply(c)
     log_s0 = np.log(s)
     lo, hi = log_s0 - np.log(scale_range), log_s0 + np.log(scale_range)
-    near = NearCache(surface, CANDIDATES)  # the markers move a little per iteration
     for it in range(1, iterations + 1):
         srp = s * pc @ R.T
         x = srp + t
-        tri, _, q, _ = closest_points(surface, x, cache=near)
+        tri, _, q, _ = closest_points(surface, x, candidates=CANDIDATES)
         n = surface.normals[tri]
         r = np.sum(n * (x - q), axis=1) / unit
         w = _weights(r)
@@ -151,7 +150,7 @@ def refine(surface, markers, start, *, unit, allow_scale=True, iterations=60, sc
         if np.abs(delta[:3]).max() < 1e-4 and np.abs(delta[3:6]).max() < 1e-2 and abs(delta[6]) < 1e-4:
             break  # every marker moved by less than ~0.01 mm (a face is ~0.1 m across)
     sim = Similarity(scale=s, rotation=R, translation=t - s * R @ c)
-    d = closest_points(surface, sim.apply(markers), cache=near)[3] / unit
+    d = closest_points(surface, sim.apply(markers), candidates=CANDIDATES)[3] / unit
     at_bound = allow_scale and abs(abs(np.log(s) - log_s0) - np.log(scale_range)) < 1e-9
     return sim, (f"ICP: {it} iterations, median distance {np.median(d):.2f} mm, "
                  f"{int(np.sum(d > 3 * max(np.median(d), SIGMA_FLOOR_MM)))} marker(s) off the surface"
@@ -196,13 +195,15 @@ def _coarse(surface, pc, R, s, t, unit):
     tri = np.linspace(0, surface.n_triangles - 1, min(COARSE_SAMPLES, surface.n_triangles)).astype(int)
     sample = surface.vertices[surface.triangles[tri]].mean(axis=1)
     normals = surface.normals[tri]
+    from scipy.spatial import cKDTree  # scipy: loaded when a character is first bound, not with the package
+
+    tree = cKDTree(sample)
     log_s0 = np.log(s)
     for _ in range(COARSE_ITERATIONS + 1):
         srp = s[:, None, None] * pc @ np.swapaxes(R, 1, 2)
         x = srp + t[:, None]
-        d2 = squared_distances(x, sample)
-        near = np.argmin(d2, axis=-1)
-        dist = np.sqrt(np.maximum(np.take_along_axis(d2, near[..., None], -1)[..., 0], 0)) / unit
+        dist, near = tree.query(x.reshape(-1, 3))
+        dist, near = dist.reshape(x.shape[:2]) / unit, near.reshape(x.shape[:2])
         n = normals[near]
         r = np.sum(n * (x - sample[near]), -1) / unit
         delta = _step(srp / unit, n, r, _weights(r), np.log(s), log_s0, False)  # scale held: no collapse

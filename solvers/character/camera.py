@@ -2,12 +2,12 @@
 
 Pixels have their origin at the top-left corner of the image and y growing downwards, like the
 2D tracks of footage (``solvers.video``) and a movie clip's markers converted by
-``facecap_addon.video_scene``. The model follows Blender's view plane
+``facecap_addon.scene.video_scene``. The model follows Blender's view plane
 (``BKE_camera_params_compute_viewplane``): the sensor fit picks the image dimension the sensor
 size spans (``AUTO``: the larger one, with the sensor *width*), and the lens shift is a fraction
 of that dimension. Blender's camera looks down its local -Z with +Y up.
 
-Never imports Blender: ``facecap_addon.scene_camera.camera_from_scene`` reads a camera object into
+Never imports Blender: ``facecap_addon.scene.scene_camera.camera_from_scene`` reads a camera object into
 :meth:`Camera.from_blender`.
 """
 

@@ -1,8 +1,9 @@
 """A character's neutral surface as triangles: closest points (triangle + barycentric coordinates).
 
-numpy only (a real Blender has no scipy): the exact query tests every triangle in blocks; the
-approximate one tests only the triangles around each point's nearest vertices, which is what
-alignment iterations need (tens of markers, thousands of triangles, many iterations).
+The triangles' centroids are kept in a k-d tree (SciPy's ``cKDTree``; the extension bundles SciPy): the
+approximate query tests the k triangles whose centroids are nearest each point, which is what alignment
+iterations need (tens of markers, thousands of triangles, many iterations); the exact one tests only the
+triangles whose centroids are near enough to hold a closer point than the approximate answer.
 """
 
 from dataclasses import dataclass
@@ -11,10 +12,10 @@ import numpy as np
 
 from ..errors import FacecapError
 
-#: Point-triangle pairs evaluated per block by the exact query (bounds the temporary memory).
-BLOCK_PAIRS = 1 << 18
-#: The approximate query looks at triangles within this share of the mesh's diagonal of the points' box.
-NEAR_MARGIN = 0.1
+#: Triangles whose closest points the exact query starts from (the nearest centroids), before it widens.
+EXACT_START = 8
+#: Points per block of the exact query (bounds the temporary memory where a mesh has huge triangles).
+EXACT_BLOCK = 256
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,14 +31,21 @@ class Surface:
     vertex_triangles : ndarray (V, k) int
         Triangles around each vertex, padded with -1.
     centroids : ndarray (T, 3)
-        Triangle centroids (the approximate query's candidates).
+        Triangle centroids (the queries' candidates).
+    tree : scipy.spatial.cKDTree
+        The centroids' k-d tree.
+    reach : float
+        The largest distance from a triangle's centroid to its corners: no point of a triangle is farther
+        than that from its centroid.
     """
 
     vertices: np.ndarray
     triangles: np.ndarray
     normals: np.ndarray
     vertex_triangles: np.ndarray
-    centroids: np.ndarray = None
+    centroids: np.ndarray
+    tree: object
+    reach: float
 
     @property
     def n_triangles(self):
@@ -88,7 +96,11 @@ def make_surface(vertices, triangles):
     length = np.linalg.norm(n, axis=1, keepdims=True)
     normals = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
     centroids = (a + b + c) / 3.0
-    return Surface(vertices, tris, normals, _vertex_triangles(len(vertices), tris), centroids)
+    from scipy.spatial import cKDTree  # scipy: loaded when a character is first bound, not with the package
+
+    reach = float(max(np.linalg.norm(x - centroids, axis=1).max() for x in (a, b, c)))
+    return Surface(vertices, tris, normals, _vertex_triangles(len(vertices), tris), centroids, cKDTree(centroids),
+                   reach)
 
 
 def _vertex_triangles(n_vertices, tris):
@@ -156,38 +168,7 @@ def _dot(u, v):
     return np.einsum("ij,ij->i", u, v)
 
 
-class NearCache:
-    """Each point's ``k`` nearest triangle centroids, reused from call to call (ICP iterations move
-    the points a little each time): ``spare`` x k candidates are kept per point, and a point's are
-    searched again only when it has moved more than half the gap between its k-th and its last
-    candidate's distance -- within that, its k nearest are among the kept ones, so the answer is
-    the one a fresh query gives (up to rounding between centroids equally near at the k-th place).
-    """
-
-    def __init__(self, surface, k, spare=16):
-        self.surface, self.k, self.big = surface, int(k), int(k) * int(spare)
-        self.anchor = self.ids = self.slack = None
-
-    def __call__(self, points):
-        """(N, k) triangle ids of the centroids nearest each of ``points`` (N, 3)."""
-        n = len(points)
-        if self.anchor is None or len(self.anchor) != n:
-            self.anchor, self.slack = np.full((n, 3), np.nan), np.full(n, -1.0)
-            self.ids = np.zeros((n, min(self.big, len(self.surface.centroids))), dtype=np.int64)
-        with np.errstate(invalid="ignore"):
-            stale = ~(np.linalg.norm(points - self.anchor, axis=1) <= self.slack)
-        if stale.any():
-            ids, d2 = nearest_triangles(self.surface, points[stale], self.ids.shape[1], distances=True)
-            k = min(self.k, ids.shape[1])
-            self.ids[stale], self.anchor[stale] = ids, points[stale]
-            self.slack[stale] = (np.sqrt(d2[:, -1]) - np.sqrt(d2[:, k - 1])) / 2
-        k = min(self.k, self.ids.shape[1])
-        d2 = np.sum((self.surface.centroids[self.ids] - points[:, None]) ** 2, axis=-1)
-        near = np.argpartition(d2, k - 1, axis=1)[:, :k]
-        return np.take_along_axis(self.ids, near, axis=1)
-
-
-def closest_points(surface, points, *, candidates=None, cache=None):
+def closest_points(surface, points, *, candidates=None):
     """Closest surface points to (N, 3) ``points``.
 
     Parameters
@@ -195,10 +176,8 @@ def closest_points(surface, points, *, candidates=None, cache=None):
     surface : Surface
     points : ndarray (N, 3)
     candidates : int or None
-        None tests every triangle (exact); k tests the k triangles whose centroids are nearest
-        each point (fast; exact unless the mesh mixes very large and small triangles there).
-    cache : NearCache or None
-        Gives the k nearest centroids instead (the same ones; cheaper for points that moved little).
+        None gives the exact closest points; k tests the k triangles whose centroids are nearest each
+        point (exact unless the mesh mixes very large and small triangles there).
 
     Returns
     -------
@@ -207,13 +186,18 @@ def closest_points(surface, points, *, candidates=None, cache=None):
     closest : ndarray (N, 3)
     distance : ndarray (N,)
     """
-    points = np.asarray(points, dtype=np.float64)
-    if cache is not None:
-        tri = cache(points)
-    elif candidates is None:
-        tri = _all_triangle_pairs(surface, points)
-    else:
-        tri = nearest_triangles(surface, points, candidates)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    tri = nearest_triangles(surface, points, candidates or EXACT_START)
+    if candidates is not None:
+        return _best_of(surface, points, tri)
+    parts = [_best_of(surface, points[i:i + EXACT_BLOCK], _exact_candidates(surface, points[i:i + EXACT_BLOCK],
+                                                                              tri[i:i + EXACT_BLOCK]))
+             for i in range(0, len(points), EXACT_BLOCK)]
+    return tuple(np.concatenate(x) for x in zip(*parts)) if parts else _best_of(surface, points, tri)
+
+
+def _best_of(surface, points, tri):
+    """closest_points' answer among the (N, k) candidate triangles ``tri`` of each point (-1: none)."""
     n, k = tri.shape
     flat = tri.ravel()
     a, b, c = surface.corners(np.where(flat < 0, 0, flat))
@@ -227,46 +211,25 @@ def closest_points(surface, points, *, candidates=None, cache=None):
 
 
 def nearest_triangles(surface, points, k, *, distances=False):
-    """(N, k) ids of the triangles whose centroids are nearest each point (among those near the
-    points' bounding box, when there are enough: a face's markers cover a part of a head); with
-    ``distances``, sorted nearest first, with their (N, k) squared distances."""
-    cen = surface.centroids
-    ids = None
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    margin = NEAR_MARGIN * np.linalg.norm(surface.vertices.max(axis=0) - surface.vertices.min(axis=0))
-    inside = np.flatnonzero(((cen >= lo - margin) & (cen <= hi + margin)).all(axis=1))
-    if len(inside) >= 4 * k:
-        ids, cen = inside, cen[inside]
-    d2 = squared_distances(points, cen)
-    k = min(k, len(cen))
-    near = np.argpartition(d2, k - 1, axis=1)[:, :k]
-    if distances:
-        d2 = np.take_along_axis(d2, near, axis=1)
-        order = np.argsort(d2, axis=1)
-        near, d2 = np.take_along_axis(near, order, axis=1), np.take_along_axis(d2, order, axis=1)
-    found = near if ids is None else ids[near]
-    return (found, d2) if distances else found
+    """(N, k) ids of the triangles whose centroids are nearest each point, nearest first; with
+    ``distances``, also their (N, k) squared distances."""
+    k = min(int(k), surface.n_triangles)
+    d, ids = surface.tree.query(np.asarray(points, dtype=np.float64).reshape(-1, 3), k=k)
+    ids, d = np.asarray(ids, dtype=np.int64).reshape(-1, k), np.asarray(d).reshape(-1, k)
+    return (ids, d**2) if distances else ids
 
 
-def squared_distances(a, b):
-    """(..., N, P) squared distances between points a (..., N, 3) and b (P, 3) (|a|^2 - 2 a.b + |b|^2)."""
-    return np.sum(a**2, axis=-1)[..., None] - 2.0 * (a @ b.T) + np.sum(b**2, axis=-1)
-
-
-def _all_triangle_pairs(surface, points):
-    """Exact query in blocks: the best triangle per point, as an (N, 1) array."""
-    t = surface.n_triangles
-    step = max(1, BLOCK_PAIRS // t)
-    best = np.empty((len(points), 1), dtype=np.int64)
-    all_tri = np.arange(t)
-    for start in range(0, len(points), step):
-        chunk = points[start:start + step]
-        a, b, c = surface.corners(np.tile(all_tri, len(chunk)))
-        p = np.repeat(chunk, t, axis=0)
-        q, _ = closest_on_triangles(p, a, b, c)
-        d2 = np.sum((p - q) ** 2, axis=1).reshape(len(chunk), t)
-        best[start:start + step, 0] = np.argmin(d2, axis=1)
-    return best
+def _exact_candidates(surface, points, start):
+    """(N, m) candidate triangles (-1 padded) that surely hold each point's closest surface point: the
+    closest point among ``start`` is at distance d, and a triangle holding a closer one has its centroid
+    within d + reach of the point."""
+    _, _, _, d = _best_of(surface, points, start)
+    found = surface.tree.query_ball_point(points, d + surface.reach * (1 + 1e-9) + 1e-12)
+    width = max(len(f) for f in found)
+    out = np.full((len(points), width), -1, dtype=np.int64)
+    for i, f in enumerate(found):
+        out[i, :len(f)] = f
+    return out
 
 
 def interpolate(values, triangles, triangle, barycentric):
@@ -284,6 +247,5 @@ def interpolate(values, triangles, triangle, barycentric):
     return np.einsum("...ncd,nc->...nd", v, barycentric)
 
 
-__all__ = ["NearCache", "Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface",
-           "nearest_triangles", "squared_distances",
+__all__ = ["Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface", "nearest_triangles",
            "triangulate"]

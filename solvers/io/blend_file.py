@@ -12,7 +12,7 @@ short (half copied, a full disk):
 * gzip (Blender before 3.0): the gzip header.
 
 Damage inside a block's contents cannot be seen this way; the Blender layer opens a file in a forked
-child first where it can (``facecap_addon.blend_files``).
+child first where it can (``facecap_addon.headless.blend_files``).
 """
 
 import os

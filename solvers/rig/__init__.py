@@ -1,6 +1,6 @@
 """A face rig as a solve target: bones, custom properties that drivers read, shape keys.
 
-Blender only evaluates the rig (``facecap_addon.rig_eval``); here the rig is a ``RigModel`` (the
+Blender only evaluates the rig (``facecap_addon.rig.rig_eval``); here the rig is a ``RigModel`` (the
 bound points as a quadratic function of the controls, fitted from probes: ``probe_rig``) solved by
 bounded nonlinear least squares (``solve_nonlinear``), or a ``PoseLibrary`` (a control pose per
 semantic shape, columns of the existing solve). ``RigTarget`` carries either through

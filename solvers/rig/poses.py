@@ -1,6 +1,6 @@
 """A pose library: one control pose per semantic shape (ARKit / FACS names), as a Basis column.
 
-Each pose is evaluated once on the rig at the bound points (``facecap_addon.rig_eval``); the poses'
+Each pose is evaluated once on the rig at the bound points (``facecap_addon.rig.rig_eval``); the poses'
 displacements are the columns of the existing solve, so every strategy (geometric, calibrated,
 parallel...) solves for the poses by name, and the weights become control values as
 ``rest + sum_k w_k (pose_k - rest)``, clipped to the controls' limits.

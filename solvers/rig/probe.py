@@ -1,6 +1,6 @@
 """Probing a rig: which control poses to evaluate, and the ``RigModel`` fitted from what the rig gave.
 
-Blender evaluates (``facecap_addon.rig_eval``); this module only plans and fits. ``probe_rig`` takes
+Blender evaluates (``facecap_addon.rig.rig_eval``); this module only plans and fits. ``probe_rig`` takes
 ``evaluate(offsets (N, C)) -> deltas (N, M, D)`` and
 
 1. moves each control alone to 1/4, 1/2, 3/4 and all of its span on each side it has (its linear

@@ -1,6 +1,6 @@
 """Frozen settings and data inputs of the non-geometric strategies, as the pipeline receives them.
 
-The take config (``solvers.config``) and the Blender sidebar (``facecap_addon.take``) both build
+The take config (``solvers.config``) and the Blender sidebar (``facecap_addon.scene.take``) both build
 these; ``wiring.fit_strategy`` turns them into a fitted strategy. Settings are small values that
 live in a config or a .blend (names, frame ranges, gains, options); inputs are data read from
 files or the scene (a calibration take, posed example weights, a training take, solved weights).

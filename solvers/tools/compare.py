@@ -22,7 +22,7 @@ from ..character.basis import Basis
 from ..strategies import make_strategy
 from ..strategies.pca import farthest_frames
 from ..strategies.wiring import filled_frames
-from .synth import performance_weights, synthesize_take
+from .synthetic.synth import performance_weights, synthesize_take
 
 SAMPLE_BASIS = Path(__file__).resolve().parents[2] / "sample_blends" / "character_basis.npz"
 STABLE = ("head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",

@@ -1,12 +1,12 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""facecap_addon.anim: bulk action writing/reading on Blender 4.2 LTS through 5.0."""
+"""facecap_addon.scene.anim: bulk action writing/reading on Blender 4.2 LTS through 5.0."""
 
 import bpy
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from facecap.facecap_addon import anim
+from facecap.facecap_addon.scene import anim
 from facecap.solvers.errors import FacecapError
 
 pytestmark = pytest.mark.blender

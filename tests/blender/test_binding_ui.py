@@ -13,8 +13,8 @@ import pytest
 from scene_fixtures import LayoutStub
 from shared_data import REALDATA
 
-from facecap.facecap_addon import anim, layers, scene_binding
-from facecap.facecap_addon.scene_data import basis_from_object, mesh_from_object
+from facecap.facecap_addon.scene import anim, layers, scene_binding
+from facecap.facecap_addon.scene.scene_data import basis_from_object, mesh_from_object
 from facecap.solvers.character.mesh import group_sampling, sampled_basis
 from facecap.solvers.io import import_markers
 from facecap.solvers.io.csv import read_weights_csv, write_markers_csv

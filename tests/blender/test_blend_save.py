@@ -4,8 +4,8 @@ and the file holds what the session holds, no more."""
 import bpy
 import numpy as np
 
-from facecap.facecap_addon import anim
-from facecap.facecap_addon.blend_files import save_blend_atomic
+from facecap.facecap_addon.scene import anim
+from facecap.facecap_addon.headless.blend_files import save_blend_atomic
 
 
 def _keyed_mesh(frames=200):

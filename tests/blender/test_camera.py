@@ -6,7 +6,7 @@ import pytest
 from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
 
-from facecap.facecap_addon.scene_camera import camera_from_scene
+from facecap.facecap_addon.scene.scene_camera import camera_from_scene
 from facecap.solvers.character.camera import look_at
 
 

@@ -10,12 +10,12 @@ from bpy_extras.object_utils import world_to_camera_view
 from mathutils import Matrix, Vector
 from scene_fixtures import build_character
 
-from facecap.facecap_addon.scene_data import basis_from_object
-from facecap.facecap_addon.scene_camera import projection_for
+from facecap.facecap_addon.scene.scene_data import basis_from_object
+from facecap.facecap_addon.scene.scene_camera import projection_for
 from facecap.solvers import Basis, MarkerSet, RetargetSettings
 from facecap.solvers.character.camera import look_at
 from facecap.solvers.pipeline import retarget
-from facecap.solvers.tools.synth import performance_weights
+from facecap.solvers.tools.synthetic.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 
@@ -59,7 +59,7 @@ def test_geometric_2d_through_the_scene_camera(empty_scene):
 def test_solve_and_key_a_tracked_2d_take_through_the_sidebar_camera(empty_scene, tmp_path):
     """The artist's path: a 2D take in the scene (as Track Clip Footage leaves it), the Video panel's
     projection set to the camera, Solve and Key; then the same take headless through the CLI."""
-    from facecap.facecap_addon import anim, import_scene, layers, take
+    from facecap.facecap_addon.scene import anim, import_scene, layers, take
 
     scene = empty_scene
     basis = Basis.load_npz(SAMPLES / "character_basis.npz")

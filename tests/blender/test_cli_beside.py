@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import headless
+from facecap.facecap_addon.headless import headless
 from facecap.solvers.engine import split as engine_split
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import InputFileError

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from png_pixels import png_pixels
 
-from facecap.facecap_addon import docs_images as di
+from facecap.facecap_addon.render import docs_images as di
 
 SIZE = 96  # the smallest tile height at which the 2.5 mm marker dots still cover whole pixels
 SOLVED_IS_TRUTH = di.SAMPLE / "sample_take_weights.csv"  # a "solve" equal to the truth: rows must match

@@ -13,10 +13,10 @@ from scene_fixtures import build_character
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from synthetic_face import make_basis  # noqa: E402
 
-from facecap.facecap_addon import anim, layers  # noqa: E402
-from facecap.facecap_addon.export import shown_values  # noqa: E402
+from facecap.facecap_addon.scene import anim, layers  # noqa: E402
+from facecap.facecap_addon.scene.export import shown_values  # noqa: E402
 from facecap.solvers.io.csv import write_markers_csv  # noqa: E402
-from facecap.solvers.tools.synth import synthesize_take  # noqa: E402
+from facecap.solvers.tools.synthetic.synth import synthesize_take  # noqa: E402
 
 N_FRAMES = 120
 FPS = 30

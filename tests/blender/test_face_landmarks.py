@@ -84,7 +84,7 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
 
 
 def test_cancelling_track_face_landmarks_leaves_the_scene_untouched(rendered, empty_scene):
-    from facecap.facecap_addon.video_scene import ClipLandmarks
+    from facecap.facecap_addon.scene.video_scene import ClipLandmarks
     from facecap.solvers.video import Cancelled
 
     clip = bpy.data.movieclips.load(str(rendered["path"]))
@@ -101,7 +101,7 @@ def test_cancelling_track_face_landmarks_leaves_the_scene_untouched(rendered, em
 
 def test_a_four_section_config_retargets_the_footage_onto_another_person(rendered):
     """[target], [source] video, [tracking] method = "landmarks", [output]: nothing else to say."""
-    from facecap.facecap_addon.headless import run_take
+    from facecap.facecap_addon.headless.headless import run_take
     from facecap.solvers.config import load_take_config
     from facecap.solvers.io.weights import read_weights
 

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import batch as batch_module
+from facecap.facecap_addon.batch import batch as batch_module
 from facecap.facecap_addon import cli
-from facecap.facecap_addon.headless import preflight
+from facecap.facecap_addon.headless.headless import preflight
 from facecap.solvers.errors import FacecapError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -4,7 +4,7 @@ import bpy
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import anim, take
+from facecap.facecap_addon.scene import anim, take
 from facecap.operators import importers
 from facecap.solvers import MarkerSet
 from facecap.solvers.io import write_markers

@@ -12,9 +12,9 @@ from scene_fixtures import LayoutStub, build_character, draw_panel, modal_driver
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from synthetic_face import make_basis  # noqa: E402
 
-from facecap.facecap_addon import anim, layers  # noqa: E402
+from facecap.facecap_addon.scene import anim, layers  # noqa: E402
 from facecap.solvers.io.csv import write_markers_csv  # noqa: E402
-from facecap.solvers.tools.synth import synthesize_take  # noqa: E402
+from facecap.solvers.tools.synthetic.synth import synthesize_take  # noqa: E402
 
 N_FRAMES = 240
 
@@ -238,7 +238,7 @@ def test_solve_and_key_runs_modal_then_keys_or_esc_leaves_the_scene_as_it_was(ta
     import threading
     from types import SimpleNamespace
 
-    from facecap.facecap_addon import scene_solve
+    from facecap.facecap_addon.scene import scene_solve
 
     _import(take)
     context, scene = bpy.context, bpy.context.scene

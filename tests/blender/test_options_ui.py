@@ -4,7 +4,7 @@ setting is an option or says why not, and the controls built from the option tab
 import bpy
 import pytest
 
-from facecap.facecap_addon import properties, properties_video
+from facecap.facecap_addon.ui import properties, properties_video
 from facecap.solvers.options import OPTIONS
 
 GROUPS = {"facecap": properties.FACECAP_PG_settings, "facecap.video": properties_video.FACECAP_PG_video}

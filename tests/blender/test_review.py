@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from png_pixels import png_pixels
 
-from facecap.facecap_addon import review as rv
-from facecap.facecap_addon.demo import SAMPLE_CONFIG
-from facecap.facecap_addon.headless import run_take
-from facecap.facecap_addon.scene_binding import bound_basis
+from facecap.facecap_addon.render import review as rv
+from facecap.facecap_addon.headless.demo import SAMPLE_CONFIG
+from facecap.facecap_addon.headless.headless import run_take
+from facecap.facecap_addon.scene.scene_binding import bound_basis
 from facecap.solvers.config import load_take_config
 from facecap.solvers.tools.report import marker_geometry, pick_frames
 
@@ -56,8 +56,8 @@ FRESH_PROCESS_REVIEW = """
 import dataclasses, json, sys
 import bpy
 from facecap.facecap_addon import review as rv
-from facecap.facecap_addon.demo import SAMPLE_CONFIG
-from facecap.facecap_addon.headless import run_take
+from facecap.facecap_addon.headless.demo import SAMPLE_CONFIG
+from facecap.facecap_addon.headless.headless import run_take
 from facecap.solvers.config import load_take_config
 from pathlib import Path
 config = dataclasses.replace(load_take_config(SAMPLE_CONFIG), output_blend=None, output_report=None,

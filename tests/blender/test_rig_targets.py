@@ -12,12 +12,13 @@ import bpy
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import rig_samples, rig_samples_rigs, rig_target
-from facecap.facecap_addon.headless import run_take
-from facecap.facecap_addon.rig_bench import columns, control_curves, open_character, rmse, take_config, write_take
-from facecap.facecap_addon.rig_eval import RigEvaluator
+from facecap.facecap_addon.bench import rig_samples, rig_samples_rigs
+from facecap.facecap_addon.rig import rig_target
+from facecap.facecap_addon.headless.headless import run_take
+from facecap.facecap_addon.bench.rig_bench import columns, control_curves, open_character, rmse, take_config, write_take
+from facecap.facecap_addon.rig.rig_eval import RigEvaluator
 from facecap.solvers.io import read_markers, write_markers
-from facecap.solvers.tools.synth import performance_weights
+from facecap.solvers.tools.synthetic.synth import performance_weights
 
 ROOT = Path(__file__).resolve().parents[2]
 FRAMES = 400

@@ -6,7 +6,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from facecap.facecap_addon.scene_data import basis_from_object
+from facecap.facecap_addon.scene.scene_data import basis_from_object
 from facecap.solvers import Basis
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"

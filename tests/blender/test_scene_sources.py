@@ -4,8 +4,8 @@ import bpy
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import anim, take
-from facecap.facecap_addon.scene_sources import markers_from_clip, markers_from_empties
+from facecap.facecap_addon.scene import anim, take
+from facecap.facecap_addon.scene.scene_sources import markers_from_clip, markers_from_empties
 from facecap.solvers import FacecapError
 
 

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import anim, layers
+from facecap.facecap_addon.scene import anim, layers
 from facecap.solvers.video.synthetic import write_synthetic_clip
 
 W, H, N, AMP = 240, 180, 90, 4.0
@@ -93,7 +93,7 @@ def _driver():
 
 
 def test_esc_cancels_with_the_scene_untouched(scene, monkeypatch):
-    from facecap.facecap_addon.video_scene import ClipFlowSolving
+    from facecap.facecap_addon.scene.video_scene import ClipFlowSolving
     from facecap.operators import video as video_ops
 
     monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)  # one frame per tick
@@ -110,7 +110,7 @@ def test_esc_cancels_with_the_scene_untouched(scene, monkeypatch):
 
 
 def test_modal_ticks_to_the_end_and_keys_the_solve(scene, monkeypatch):
-    from facecap.facecap_addon.video_scene import ClipFlowSolving
+    from facecap.facecap_addon.scene.video_scene import ClipFlowSolving
     from facecap.operators import video as video_ops
 
     monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)

@@ -8,7 +8,7 @@ import pytest
 from scene_fixtures import draw_panel
 from test_operators import _import, _solved_values, take  # noqa: F401  (fixture)
 
-from facecap.facecap_addon import anim, take as take_mod
+from facecap.facecap_addon.scene import anim, take as take_mod
 from facecap.solvers.capture.stabilise import stabilise_rigid
 
 
@@ -139,7 +139,7 @@ def test_output_head_keys_the_solved_head_motion_on_the_character(take):
     bpy.context.scene.collection.objects.link(head)
     head.location = (0.0, 0.0, 1.6)
     markers = take_mod.markers_from_collection(s)
-    from facecap.facecap_addon.scene_data import basis_from_object
+    from facecap.facecap_addon.scene.scene_data import basis_from_object
 
     basis = basis_from_object(take["obj"], markers.names)
     settings = dataclasses.replace(take_mod.retarget_settings(s), head_target="CharHead")

@@ -11,11 +11,11 @@ import pytest
 
 from scene_fixtures import LayoutStub, build_character, draw_panel
 
-from facecap.facecap_addon import anim, import_scene, layers
+from facecap.facecap_addon.scene import anim, import_scene, layers
 from facecap.solvers.character.basis import Basis
 from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE, _phone_weights, actor_take, calibration_weights, make_actor
 from facecap.solvers.io.csv import write_markers_csv
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -254,7 +254,7 @@ def test_strategy_settings_are_saved_in_the_blend(scene, tmp_path):
     assert s.strategy == "refine" and s.refine_stiffness == pytest.approx(0.05)
     assert [(p.name, p.first, p.last, p.split) for p in s.calib_poses] == [("jawOpen", 120, 135, False), ("AU12", 200, 215, True)]
     assert [(r.source, r.target, round(r.gain, 6)) for r in s.mapping] == [("AU12", "mouthSmileLeft", 0.7)]
-    from facecap.facecap_addon.take import retarget_settings
+    from facecap.facecap_addon.scene.take import retarget_settings
 
     settings = retarget_settings(s)
     assert settings.calibration.pose_table() == {"jawOpen": [[120, 135]], "AU12": [[200, 215]]}

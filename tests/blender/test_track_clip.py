@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from facecap.facecap_addon import take
+from facecap.facecap_addon.scene import take
 from facecap.solvers.video.synthetic import write_synthetic_clip
 from scene_fixtures import modal_driver
 
@@ -48,7 +48,7 @@ def test_clip_without_markers_needs_a_region(clip):
 
 def test_cancelling_after_a_chunk_leaves_the_scene_untouched(clip):
     """The modal operator's steps, driven directly: track a chunk, cancel, nothing written."""
-    from facecap.facecap_addon.video_scene import ClipTracking
+    from facecap.facecap_addon.scene.video_scene import ClipTracking
     from facecap.solvers.video import Cancelled
 
     clip, _ = clip
@@ -69,7 +69,7 @@ def test_cancelling_after_a_chunk_leaves_the_scene_untouched(clip):
 
 
 def test_stepping_to_the_end_gives_the_same_tracks_as_one_run(clip):
-    from facecap.facecap_addon.video_scene import ClipTracking
+    from facecap.facecap_addon.scene.video_scene import ClipTracking
 
     clip, _ = clip
     scene = bpy.context.scene
@@ -96,7 +96,7 @@ def scene_state(scene):
 
 
 def test_modal_timer_ticks_then_esc_cancels_with_nothing_written(clip, monkeypatch):
-    from facecap.facecap_addon.video_scene import ClipTracking
+    from facecap.facecap_addon.scene.video_scene import ClipTracking
     from facecap.operators import video as video_ops
 
     monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)  # one frame per tick
@@ -114,7 +114,7 @@ def test_modal_timer_ticks_then_esc_cancels_with_nothing_written(clip, monkeypat
 
 
 def test_modal_timer_ticks_to_the_end_and_adds_the_take(clip, monkeypatch):
-    from facecap.facecap_addon.video_scene import ClipTracking
+    from facecap.facecap_addon.scene.video_scene import ClipTracking
     from facecap.operators import video as video_ops
 
     monkeypatch.setattr(video_ops, "STEP_SECONDS", 0.0)

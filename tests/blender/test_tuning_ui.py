@@ -14,11 +14,11 @@ import pytest
 
 from scene_fixtures import LayoutStub, build_character
 
-from facecap.facecap_addon import anim, layers, tuning_scene
+from facecap.facecap_addon.scene import anim, layers, tuning_scene
 from facecap.solvers.character.basis import Basis
 from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE
 from facecap.solvers.io.csv import write_markers_csv
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 WEAK = ("jawOpen", "mouthSmileLeft", "browInnerUp", "eyeBlinkLeft")
 N_FRAMES = 480

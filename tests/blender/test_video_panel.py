@@ -6,8 +6,8 @@ import bpy
 import pytest
 from scene_fixtures import LayoutStub
 
-from facecap.facecap_addon import panels_video, properties_video
-from facecap.facecap_addon.scene_camera import projection_for
+from facecap.facecap_addon.ui import panels_video, properties_video
+from facecap.facecap_addon.scene.scene_camera import projection_for
 from facecap.solvers.character.camera import Camera
 
 

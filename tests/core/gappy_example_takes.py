@@ -14,7 +14,7 @@ def example_takes(frames=600, n_examples=30):
     from facecap.solvers.tools.compare import SAMPLE_BASIS, actor_take, make_actor
     from facecap.solvers.strategies.options import ExamplePairs, StrategyInputs
     from facecap.solvers.strategies.pca import farthest_frames
-    from facecap.solvers.tools.synth import performance_weights
+    from facecap.solvers.tools.synthetic.synth import performance_weights
 
     character = Basis.load_npz(SAMPLE_BASIS)
     actor = make_actor(character, seed=0)

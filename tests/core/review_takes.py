@@ -13,7 +13,7 @@ from facecap.solvers.capture.stabilise import StabiliseResult
 from facecap.solvers.character.basis import Basis
 from facecap.solvers.markers import MarkerSet
 from facecap.solvers.pipeline.result import RetargetResult
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "sample_blends"

@@ -1,6 +1,6 @@
 """Issue 21: right on takes nobody tuned for. Auto stable markers and LK tracking judged on the median
-and the worst case over many seeded random draws (solvers.tools.scenarios*), side by side with the true
-rigid set and with a plain pyramidal LK (solvers/tools/reference_trackers.py)."""
+and the worst case over many seeded random draws (solvers.tools.synthetic.scenarios*), side by side with the true
+rigid set and with a plain pyramidal LK (solvers/tools/bench/reference_trackers.py)."""
 
 import numpy as np
 import pytest
@@ -8,8 +8,8 @@ import pytest
 from facecap.solvers import FacecapError
 from facecap.solvers.capture.stable_markers import suggest_stable_markers
 from facecap.solvers.pipeline import RetargetSettings, retarget
-from facecap.solvers.tools.accuracy_bench import stable_rows, summary
-from facecap.solvers.tools.scenarios import marker_scenario
+from facecap.solvers.tools.bench.accuracy_bench import stable_rows, summary
+from facecap.solvers.tools.synthetic.scenarios import marker_scenario
 
 DRAWS = range(30)
 
@@ -68,7 +68,7 @@ def kinds_here():
     second Python do not (the core never needs Blender)."""
     import importlib.util
 
-    from facecap.solvers.tools.scenarios_footage import KINDS, photograph_files
+    from facecap.solvers.tools.synthetic.scenarios_footage import KINDS, photograph_files
 
     try:
         photograph_files()
@@ -82,7 +82,7 @@ def kinds_here():
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
     pytest.importorskip("cv2")
-    from facecap.solvers.tools.scenarios_footage import footage_scenario
+    from facecap.solvers.tools.synthetic.scenarios_footage import footage_scenario
 
     d = tmp_path_factory.mktemp("kinds")
     # every kind x 3 draws, small so the suite stays quick (the benchmark has 480p-1080p)
@@ -92,13 +92,13 @@ def clips(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tracks(clips):
-    from facecap.solvers.tools.accuracy_bench import track_row
+    from facecap.solvers.tools.bench.accuracy_bench import track_row
 
     return [track_row(sc, max_points=32) for sc in clips]  # against the textbook LK (reference_trackers)
 
 
 def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
-    from facecap.solvers.tools.scenarios_footage import UNTUNED
+    from facecap.solvers.tools.synthetic.scenarios_footage import UNTUNED
 
     kinds = kinds_here()
     assert len(tracks) >= 3 * len(kinds)
@@ -121,7 +121,7 @@ def test_tracker_matches_or_beats_plain_lk_on_every_footage_kind(tracks):
 
 
 def test_dense_flow_matches_or_beats_plain_dis_on_every_footage_kind(clips):
-    from facecap.solvers.tools.accuracy_bench import flow_row
+    from facecap.solvers.tools.bench.accuracy_bench import flow_row
 
     rows = [flow_row(sc, grid_step=4) for sc in clips if sc.seed == 0]  # one per kind: time
     for kind in kinds_here():

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from facecap.facecap_addon.batch_progress import Progress
+from facecap.facecap_addon.batch.batch_progress import Progress
 from facecap.solvers.config.batch import BatchTake
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.tools.batch_summary import CSV_COLUMNS, Summary, new_record, read_previous, table

@@ -4,7 +4,7 @@ import os
 
 import numpy as np
 
-from facecap.facecap_addon.batch_worker import CharacterCache
+from facecap.facecap_addon.batch.batch_worker import CharacterCache
 from facecap.solvers.character.basis import Basis
 
 

@@ -11,7 +11,6 @@ from sample_geometry import geometry_module
 from facecap.solvers.character.alignment import rodrigues
 from facecap.solvers.character.binding import bind_map, bind_nearest, parse_target, sample_basis
 from facecap.solvers.character.surface import (
-    NearCache,
     closest_on_triangles,
     closest_points,
     make_surface,
@@ -219,20 +218,20 @@ def test_real_facial_capture_binds_to_the_sample_character(face):
 
 
 
-def test_kept_candidates_are_those_a_fresh_search_finds(face):
-    """NearCache (ICP iterations): the k nearest centroids of points that move a little each call, as
-    a fresh search finds them, while searching again only for the points that moved far."""
+def test_closest_points_are_those_of_every_triangle_tested(face):
+    """The k-d tree's queries against testing every triangle: the exact query finds the same closest point
+    for points on, near and far from the face; the k nearest centroids are the k a full search finds."""
     vertices, tris, _, truth, _, _ = face
     surface = make_surface(vertices, tris)
     rng = np.random.default_rng(0)
-    points = truth + rng.normal(size=truth.shape) * 0.003
-    cache, searched = NearCache(surface, 16), 0
-    for step in range(40):
-        points = points + rng.normal(size=points.shape) * (0.003 if step % 10 == 0 else 0.0003)
-        before = cache.anchor.copy() if cache.anchor is not None else None
-        kept = cache(points)
-        if before is not None:
-            searched += int(np.sum(~np.all(cache.anchor == before, axis=1)))
-        fresh = nearest_triangles(surface, points, 16)
-        assert all(set(a) == set(b) for a, b in zip(kept, fresh))
-    assert searched < 0.5 * 39 * len(points)  # most calls reuse the kept candidates
+    points = np.concatenate([truth + rng.normal(size=truth.shape) * s for s in (0.0005, 0.005, 0.05, 0.5)])
+    T = surface.n_triangles
+    a, b, c = surface.corners(np.tile(np.arange(T), len(points)))
+    q, _ = closest_on_triangles(np.repeat(points, T, axis=0), a, b, c)
+    every = np.linalg.norm(np.repeat(points, T, axis=0) - q, axis=1).reshape(len(points), T).min(axis=1)
+    _, _, _, dist = closest_points(surface, points)
+    assert np.allclose(dist, every, rtol=0, atol=1e-12)
+    d2 = np.sum((points[:, None] - surface.centroids[None]) ** 2, axis=-1)
+    brute = np.argsort(d2, axis=1)[:, :16]
+    near = nearest_triangles(surface, points, 16)
+    assert all(set(x) == set(y) for x, y in zip(near, brute))

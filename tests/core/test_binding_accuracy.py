@@ -23,7 +23,7 @@ from facecap.solvers.character.surface import triangulate
 from facecap.solvers.markers import MarkerSet
 from facecap.solvers.pipeline import RetargetSettings, retarget
 from facecap.solvers.pipeline.binding import bind_character
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 SEEDS = (0, 1, 2)
 N_FRAMES = 480

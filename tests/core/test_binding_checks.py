@@ -16,11 +16,11 @@ from facecap.solvers.character.face_model import load_ict
 from facecap.solvers.character.surface import make_surface, triangulate
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.pipeline.binding import bind_character, explained_share, motion_judge
-from facecap.solvers.tools.realism.actors import Perturbation
-from facecap.solvers.tools.realism.methods import base_settings
-from facecap.solvers.tools.realism.scenario import make_draw
-from facecap.solvers.tools.realism.takes import REST, load_performances
-from facecap.solvers.tools.realism.targets import make_target
+from facecap.solvers.tools.synthetic.realism.actors import Perturbation
+from facecap.solvers.tools.synthetic.realism.methods import base_settings
+from facecap.solvers.tools.synthetic.realism.scenario import make_draw
+from facecap.solvers.tools.synthetic.realism.takes import REST, load_performances
+from facecap.solvers.tools.synthetic.realism.targets import make_target
 from facecap.solvers.transforms import Similarity
 
 

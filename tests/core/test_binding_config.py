@@ -13,7 +13,7 @@ from facecap.solvers.errors import FacecapError
 from facecap.solvers.markers import MarkerSet
 from facecap.solvers.pipeline import RetargetSettings, retarget
 from facecap.solvers.pipeline.binding import bind_character, binding_record, from_record
-from facecap.solvers.tools.synth import synthesize_take
+from facecap.solvers.tools.synthetic.synth import synthesize_take
 
 BASE = """
 [target]

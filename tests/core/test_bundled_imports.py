@@ -83,11 +83,11 @@ def test_optional_packages_are_absent_safe(monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_optional)
     import importlib
 
-    import facecap.facecap_addon.batch_progress as progress
+    import facecap.facecap_addon.batch.batch_progress as progress
 
     progress = importlib.reload(progress)
     assert progress.tqdm is None
-    from facecap.facecap_addon.batch_farm import FarmPool
+    from facecap.facecap_addon.batch.batch_farm import FarmPool
     from facecap.solvers.errors import FacecapError
 
     with pytest.raises(FacecapError, match=r'Dask distributed, which is not installed: pip install "facecap\[farm\]"'):

@@ -10,7 +10,7 @@ import pytest
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings
 from facecap.solvers.character.camera import Camera, look_at
 from facecap.solvers.pipeline import retarget
-from facecap.solvers.tools.synth import performance_weights
+from facecap.solvers.tools.synthetic.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 CENTRE = np.array([0.0, -0.06, 0.0])  # middle of the sample character's bound points

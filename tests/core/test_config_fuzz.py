@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecap.facecap_addon.headless import preflight, read_take
+from facecap.facecap_addon.headless.headless import preflight, read_take
 from facecap.solvers.character.basis import Basis
 from facecap.solvers.config import load_take_config
 from facecap.solvers.config.checks import check_against_take

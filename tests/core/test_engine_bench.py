@@ -1,6 +1,6 @@
 """The benchmark module runs (a smoke test on a short take; timings are printed, never asserted)."""
 
-from facecap.solvers.tools.bench import main, make_take, run_benchmarks
+from facecap.solvers.tools.bench.bench import main, make_take, run_benchmarks
 
 
 def test_bench_quick_per_frame_case(capsys):

@@ -5,7 +5,8 @@ import sys
 
 
 def test_import_solvers_does_not_import_bpy():
-    code = "import sys, facecap.solvers, facecap.solvers.tools.synth; print(sorted(m for m in ('bpy', 'mathutils', 'bmesh') if m in sys.modules))"
+    code = ("import sys, facecap.solvers, facecap.solvers.tools.synthetic.synth; "
+            "print(sorted(m for m in ('bpy', 'mathutils', 'bmesh') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from facecap.facecap_addon.headless import preflight
+from facecap.facecap_addon.headless.headless import preflight
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import ConfigError
 from facecap.solvers.io.files import (STALE_AGE, TMP_MARK, machine_tag, remove_stale_temporaries, umask,

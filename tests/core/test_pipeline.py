@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 from synthetic_face import make_basis
 
 from facecap.solvers import FacecapError, RetargetSettings, retarget
-from facecap.solvers.tools.synth import synthesize_take
+from facecap.solvers.tools.synthetic.synth import synthesize_take
 from facecap.solvers.transforms import rotation_angle_deg
 
 # No priors and no smoothing: exact data must give exact weights.

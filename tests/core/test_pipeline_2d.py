@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings, retarget
-from facecap.solvers.tools.synth import performance_weights
+from facecap.solvers.tools.synthetic.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from shared_data import SHARED, require
 
-from facecap.solvers.tools.realism.bench import run, summarise
-from facecap.solvers.tools.realism.metrics import REGIONS
+from facecap.solvers.tools.synthetic.realism.bench import run, summarise
+from facecap.solvers.tools.synthetic.realism.metrics import REGIONS
 
 METHODS = ("zero", "geometric", "nothing", "template", "calibration")
 

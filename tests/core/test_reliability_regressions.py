@@ -15,8 +15,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from facecap.facecap_addon.batch import run_batch
-from facecap.facecap_addon.headless import preflight
+from facecap.facecap_addon.batch.batch import run_batch
+from facecap.facecap_addon.headless.headless import preflight
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import ConfigError, FacecapError, InputFileError
 from facecap.solvers.io import import_markers, read_weights, write_markers

@@ -4,8 +4,8 @@
 import pytest
 from test_output_safety import SAMPLES, refused, write_config
 
-from facecap.facecap_addon.headless import preflight
-from facecap.facecap_addon.review import read_review_truth, review_flags
+from facecap.facecap_addon.headless.headless import preflight
+from facecap.facecap_addon.render.review import read_review_truth, review_flags
 from facecap.solvers.config import load_take_config
 from facecap.solvers.errors import ConfigError, InputFileError
 

@@ -261,7 +261,7 @@ def test_a_2d_tracks_page_plots_the_in_plane_head_motion():
     from test_pipeline_2d import tracks_2d
 
     from facecap.solvers import RetargetSettings, retarget
-    from facecap.solvers.tools.synth import performance_weights
+    from facecap.solvers.tools.synthetic.synth import performance_weights
 
     basis = sample_basis()
     truth = performance_weights(basis.shape_names, 240, seed=0)

@@ -14,7 +14,7 @@ from facecap.solvers.pipeline import RetargetSettings
 from facecap.solvers.rig import PoseLibrary, RigModel, RigTarget, fit_model, probe_rig, solve_nonlinear
 from facecap.solvers.rig.model import features
 from facecap.solvers.solve import SolveRequest, solve
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 ROOT = Path(__file__).resolve().parents[2]
 STABLE = ("head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",

@@ -13,7 +13,7 @@ from facecap.solvers.pipeline.plausibility import check, marker_noise
 from facecap.solvers.strategies.options import ActorSettings, CalibrationSettings, StrategyInputs
 from facecap.solvers.strategies.semantic import exclusive_locks, opposing_pairs
 from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE, calibration_weights, make_actor
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 N = 480
 

@@ -6,7 +6,7 @@ from synthetic_face import make_basis
 
 from facecap.solvers import FacecapError, RetargetSettings, retarget
 from facecap.solvers.character.shape_options import Region, resolve_bounds, resolve_locks, resolve_regions
-from facecap.solvers.tools.synth import synthesize_take
+from facecap.solvers.tools.synthetic.synth import synthesize_take
 
 EXACT = dict(regularisation=0.0, sparsity=0.0, symmetry=0.0, head_smoothing=0.0, smoothing=(0.0, 0.0))
 

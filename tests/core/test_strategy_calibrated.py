@@ -11,7 +11,7 @@ from facecap.solvers.strategies import STRATEGY_NAMES, make_strategy
 from facecap.solvers.strategies.calibrated import CalibratedStrategy, actor_basis_from_poses
 from facecap.solvers.strategies.mapping import Mapping
 from facecap.solvers.strategies.refine import RefineStrategy
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 from facecap.solvers.transforms import fit_similarity
 
 

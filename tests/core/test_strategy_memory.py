@@ -15,7 +15,7 @@ from facecap.solvers.engine import split as engine_split
 from facecap.solvers.strategies import geometric
 from facecap.solvers.strategies.geometric import GeometricStrategy
 from facecap.solvers.strategies.sources import as_deltas
-from facecap.solvers.tools.synth import synthesize_take
+from facecap.solvers.tools.synthetic.synth import synthesize_take
 from facecap.solvers.transforms import Similarity
 
 

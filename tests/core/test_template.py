@@ -8,8 +8,8 @@ from shared_data import ICT_FACEKIT, require
 from facecap.solvers.character.face_model import from_ict_arrays, load_ict
 from facecap.solvers.character.template import TEMPLATE_DIGEST, HumanTemplate, convert, template_path
 from facecap.solvers.errors import FacecapError
-from facecap.solvers.tools.realism.actors import Perturbation, make_actor
-from facecap.solvers.tools.realism.layouts import layout
+from facecap.solvers.tools.synthetic.realism.actors import Perturbation, make_actor
+from facecap.solvers.tools.synthetic.realism.layouts import layout
 
 
 @pytest.fixture(scope="module")

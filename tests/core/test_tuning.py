@@ -13,7 +13,7 @@ from numpy.testing import assert_array_equal
 from facecap.solvers.character.basis import Basis
 from facecap.solvers.tools.compare import SAMPLE_BASIS, make_actor
 from facecap.solvers.errors import FacecapError
-from facecap.solvers.tools.synth import performance_weights
+from facecap.solvers.tools.synthetic.synth import performance_weights
 from facecap.solvers.tuning.retune import (apply_gain_offset, closed_form_update, default_solver, fit_gain_offset,
                                     retune, spread_frames)
 
@@ -223,7 +223,7 @@ def test_through_the_calibrated_strategy():
     from facecap.solvers.tools.compare import STABLE, actor_take, calibration_weights
     from facecap.solvers.strategies.sources import align_to, reorder
     from facecap.solvers.strategies.calibrated import CalibratedStrategy
-    from facecap.solvers.tools.synth import synthesize_take
+    from facecap.solvers.tools.synthetic.synth import synthesize_take
 
     character = Basis.load_npz(SAMPLE_BASIS)
     actor = make_actor(character, seed=0)

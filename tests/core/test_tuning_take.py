@@ -18,7 +18,7 @@ from facecap.solvers.errors import FacecapError
 from facecap.solvers.pipeline import RetargetSettings, retarget
 from facecap.solvers.strategies.options import CalibrationSettings, ExamplePairs, MappingSettings, StrategyInputs
 from facecap.solvers.strategies.pca import farthest_frames
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 from facecap.solvers.tuning.take import LibraryVersion, apply_version, original_version, retune_take
 from test_tuning import WEAK, _worst_frames
 

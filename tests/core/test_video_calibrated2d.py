@@ -9,7 +9,7 @@ import pytest
 from facecap.solvers import Basis, FacecapError, MarkerSet, RetargetSettings
 from facecap.solvers.pipeline import retarget
 from facecap.solvers.strategies.options import CalibrationSettings, StrategyInputs
-from facecap.solvers.tools.synth import performance_weights
+from facecap.solvers.tools.synthetic.synth import performance_weights
 
 SAMPLES = Path(__file__).resolve().parents[2] / "sample_blends"
 HOLD, GAP, NEUTRAL = 8, 3, 20  # calibration: frames each pose is held, relaxed frames between, neutral frames

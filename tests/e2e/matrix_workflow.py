@@ -50,7 +50,7 @@ class Workflow:
         return importlib.import_module(f"{ADDON}.{module}")
 
     def solved(self, names):
-        anim, layers = self.addon("facecap_addon.anim"), self.addon("facecap_addon.layers")
+        anim, layers = self.addon("facecap_addon.scene.anim"), self.addon("facecap_addon.scene.layers")
         key = bpy.data.objects["Face"].data.shape_keys
         frames, values = anim.read_curves(key, [(layers.shape_path(n), 0) for n in names],
                                           action=layers.solved_action(key))
@@ -192,14 +192,14 @@ class Workflow:
             track = clip.tracking.tracks.new(name=f"p{i}", frame=1)
             track.markers.insert_frame(1, co=(x / width, 1.0 - y / height))
         r = bpy.ops.facecap.track_clip()
-        markers = self.addon("facecap_addon.take").markers_from_collection(scene.facecap)
+        markers = self.addon("facecap_addon.scene.take").markers_from_collection(scene.facecap)
         order = [markers.names.index(f"p{i}") for i in range(len(self.inp["track_seeds"]))]
         return {"result": sorted(r), "size": [width, height], "dim": markers.dim, "units": markers.units,
                 "positions": np.nan_to_num(markers.positions[:, order], nan=1e9).tolist()}
 
     def solve_clip_flow(self):
         scene, s = bpy.context.scene, bpy.context.scene.facecap
-        anim, flow = self.addon("facecap_addon.anim"), self.inp["flow"]
+        anim, flow = self.addon("facecap_addon.scene.anim"), self.inp["flow"]
         key = bpy.data.objects["Face"].data.shape_keys
         posed = np.asarray(flow["posed"])
         posed_action = anim.new_action_with_curves(
@@ -261,7 +261,8 @@ class Workflow:
     def bind_by_position(self):
         """The sample take with its markers renamed (no vertex group matches): bound by position to the
         sample character (nearest surface point after an automatic alignment), then solved."""
-        scene_data, scene_binding = self.addon("facecap_addon.scene_data"), self.addon("facecap_addon.scene_binding")
+        scene_data = self.addon("facecap_addon.scene.scene_data")
+        scene_binding = self.addon("facecap_addon.scene.scene_binding")
         bpy.ops.wm.open_mainfile(filepath=self.inp["blend"])
         obj = bpy.data.objects["Face"]
         rename = self.inp["rename"]

@@ -193,7 +193,7 @@ def test_retarget_2d_tracks_from_the_command_line(tmp_path):
 
     from facecap.solvers import Basis
     from facecap.solvers.io.csv import write_markers_csv
-    from facecap.solvers.tools.synth import performance_weights
+    from facecap.solvers.tools.synthetic.synth import performance_weights
 
     basis = Basis.load_npz(SAMPLES / "character_basis.npz")
     layout = json.loads((SAMPLES / "marker_layout.json").read_text())

@@ -17,7 +17,7 @@ from facecap.solvers.character.basis import Basis
 from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE, _phone_weights, actor_take, calibration_weights, make_actor
 from facecap.solvers.io.csv import read_weights_csv, write_markers_csv, write_weights_csv
 from facecap.solvers.strategies.pca import farthest_frames
-from facecap.solvers.tools.synth import performance_weights, synthesize_take
+from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
 ROOT = Path(__file__).resolve().parents[2]
 BLEND = ROOT / "sample_blends" / "character.blend"

@@ -15,7 +15,7 @@ import pytest
 from matrix_env import missing_prerequisite
 from shared_data import BUGS
 
-from facecap.facecap_addon.batch import done_name
+from facecap.facecap_addon.batch.batch import done_name
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "sample_blends"

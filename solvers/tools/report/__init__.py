@@ -1,5 +1,5 @@
 """The review report: an interactive HTML page of one solve (``[output] html``), and the index page
-of a batch's reports. Blender-free; the contact sheet's renders come from ``facecap_addon.review``.
+of a batch's reports. Blender-free; the contact sheet's renders come from ``facecap_addon.render.review``.
 
 See ``docs/review.md`` for what the page shows and how to read it.
 """

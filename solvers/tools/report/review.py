@@ -1,7 +1,7 @@
 """What a review page shows, computed from a ``RetargetResult`` without Blender: the frames worth a
 picture, the removed head motion, and the markers carried onto the character.
 
-The Blender layer (``facecap_addon/review.py``) renders the character at the frames ``pick_frames``
+The Blender layer (``facecap_addon/render/review.py``) renders the character at the frames ``pick_frames``
 chooses and projects ``MarkerGeometry``'s points into the same camera; ``page.write_review_page``
 turns a ``Review`` into the HTML page.
 """
@@ -227,7 +227,7 @@ class MarkerGeometry:
 
 def marker_geometry(result, basis, settings):
     """The ``MarkerGeometry`` of a 3D marker take on a character ``basis`` (its shape keys at the bound
-    points, as ``facecap_addon.scene_data.basis_from_object`` reads them), or (None, why not)."""
+    points, as ``facecap_addon.scene.scene_data.basis_from_object`` reads them), or (None, why not)."""
     stab = result.stabilise
     if stab is None:
         return None, "this take has no markers (the strategy maps solved weights)"

@@ -1,0 +1,1 @@
+"""Blender-side benchmarks and the test rigs they use (``python -m facecap bench``, ``rig-bench``)."""

@@ -1,0 +1,31 @@
+"""What a headless take writes about the actor, beside the .blend and the weights: the actor library a
+calibrated or refine solve used (``[output] actor_basis``) and the performer profile a semantic solve measured
+(``[output] profile``, read back by a later take's ``[actor] profile``)."""
+
+from ...solvers.errors import ConfigError
+from ...solvers.strategies.actor_model import profile_of
+
+
+def write_actor_basis(config, result, outputs):
+    """``[output] actor_basis``: the library the strategy solved with (refine: refined)."""
+    actor_basis = getattr(result.fitted, "actor_basis", None)
+    if actor_basis is None:
+        raise ConfigError(f"strategy '{result.strategy}' has no actor basis to store (calibrated and refine do)",
+                          path=config.path, key="output.actor_basis")
+    config.output_actor_basis.parent.mkdir(parents=True, exist_ok=True)
+    actor_basis.save_npz(config.output_actor_basis)
+    outputs["actor_basis"] = str(config.output_actor_basis)
+
+
+def write_profile(config, result, outputs):
+    """``[output] profile``: the semantic solve's measured shapes of the actor (the config check makes sure
+    there are poses; a solve that measured none is refused here too)."""
+    model = getattr(result.fitted, "model", None)
+    profile = None if model is None else profile_of(model)
+    if profile is None:
+        raise ConfigError("a performer profile holds measured calibration poses: give [calibration] poses (and "
+                          "markers, or frames of this take) with the semantic strategy", path=config.path,
+                          key="output.profile")
+    config.output_profile.parent.mkdir(parents=True, exist_ok=True)
+    profile.save_npz(config.output_profile)
+    outputs["profile"] = str(config.output_profile)

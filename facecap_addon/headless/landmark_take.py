@@ -1,0 +1,36 @@
+"""The headless side of a landmark take (``[tracking] method = "landmarks"``): the footage's face landmarks
+as a marker take in metres, and the character's eye-look shapes held at the irises' gaze through the solve."""
+
+import dataclasses
+
+from ...solvers.video.cli import run_showing_progress
+from ...solvers.video.gaze import gaze_locks
+from ...solvers.video.landmarks import metric_take, track_landmarks_job
+from ...solvers.video.reading import Footage
+from . import console
+
+
+def read_landmarks(video, inputs, say, *, quiet=False):
+    """(markers in metres without the irises, source fields for the report, notes, the LandmarkResult) of
+    the ``LandmarkTake`` ``video``; Ctrl-C stops between two frames (``Cancelled``: nothing written)."""
+    footage = Footage(video.path, **video.footage, color=True)
+    job = track_landmarks_job(footage, smoothing=video.smoothing, iris=video.iris, models=video.models)
+    found = run_showing_progress(job, "landmarks", quiet=quiet or console.quiet())
+    say(found.summary())
+    info = footage.info
+    source = {"format": "video landmarks", "units": "m", "kind": info.kind, "fps": info.fps, "width": info.width,
+              "height": info.height, "scale": info.scale, "landmarks": found.report()}
+    notes = tuple(inputs.notes)
+    if not found.found.all():
+        notes += (f"{int((~found.found).sum())} frame(s) without a face are gaps",)
+    return metric_take(found, iris=False), source, notes, found
+
+
+def hold_gaze(request, shape_names, found):
+    """``request`` with the character's eye-look shapes locked, frame by frame, at the irises' gaze of
+    ``found`` (a LandmarkResult); returns (request, a note naming the shapes, or None)."""
+    gazed = gaze_locks(shape_names, found.markers.positions)
+    if not gazed:
+        return request, None
+    settings = dataclasses.replace(request.settings, locks=tuple(request.settings.locks) + gazed)
+    return dataclasses.replace(request, settings=settings), f"gaze from the irises: {', '.join(n for n, _ in gazed)}"

@@ -1,0 +1,189 @@
+"""The sidebar's side of the one solve path (``solvers.solve``): a ``SolveRequest`` from the scene
+and the solve layer it keys.
+
+*Solve and Key*, *Retune*, *Fit Gain and Offset* and *Solve from Clip Flow* all build their request
+here (``request_from_scene``): the take and the character read from the scene, the active library
+version, the animator's locks and the per-shape controls. *Solve and Key* solves on a worker thread
+(``SolveInBackground``) so the sidebar shows its progress and Esc cancels it.
+"""
+
+import glob
+import threading
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ...solvers.config.rig import RigSettings
+from ...solvers.errors import FacecapError
+from ...solvers.pipeline import SAMPLES_CHARACTER
+from ...solvers.solve import SolveRequest, solve
+from . import anim, layers, take
+from ..rig.rig_solve import build_rig_target, key_rig, rig_binding
+from .scene_camera import projection_from_sidebar
+from .scene_binding import binding_from_sidebar, geometric_character, show_markers
+from .tuning_scene import load_version, shape_controls
+
+
+def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=None, mu=None):
+    """A SolveRequest for the sidebar's take and strategy.
+
+    ``footage`` (with ``flow``): a video take solved from flow features instead of the imported
+    markers; ``corrections`` ({frame: {shape: value}}) and ``mu``: retune from them and re-solve.
+    """
+
+    strategy = settings.strategy if footage is None else settings.video.flow_strategy
+    markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
+    rsettings = replace(take.retarget_settings(settings), strategy=strategy)
+    if settings.rig_preset != "NONE" and footage is None:
+        return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu)
+    if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
+        bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
+        show_markers(settings, bound)
+        character = bound.basis
+    else:
+        character = take.character_target(settings.target)
+    inputs = take.strategy_inputs(settings, strategy)
+    if markers is not None:
+        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames))
+        if markers.dim == 2:
+            rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
+    # library versions are learned from the marker take: a footage solve does not use them
+    version = load_version(scene, settings.library_active) if settings.library_active and footage is None else None
+    return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
+                        flow=flow, version=version, corrections=corrections, mu=mu,
+                        parent=settings.library_active or "", controls=shape_controls(settings), fps=settings.fps)
+
+
+def rig_settings(settings):
+    """``RigSettings`` of the Solve panel's rig target (None: the shape keys)."""
+    if settings.rig_preset == "NONE":
+        return None
+    return RigSettings(preset=settings.rig_preset, object=settings.rig_object.name if settings.rig_object else None,
+                       method=settings.rig_method, poses=settings.rig_poses.name if settings.rig_poses else None,
+                       nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
+
+
+def _rig_request(settings, markers, rsettings, *, corrections, mu):
+    if markers is None:
+        raise FacecapError("a rig's controls are solved from a marker take")
+    if settings.rig_method == "probed":  # its model stands for the character's shapes: the geometric solve
+        if rsettings.strategy not in SAMPLES_CHARACTER:
+            raise FacecapError("a probed rig is solved with the geometric strategy; use a pose library for the others")
+        rsettings = replace(rsettings, strategy="geometric")
+    rig = rig_settings(settings)
+    sampling = rig_binding(settings.target, markers, rsettings, binding_from_sidebar(settings))
+    target, _ = build_rig_target(settings.target, markers.names, rig, binding=sampling, n_frames=markers.n_frames)
+    return SolveRequest(character=None, settings=rsettings, markers=markers, corrections=corrections, mu=mu,
+                        controls=shape_controls(settings), fps=settings.fps, rig=target)
+
+
+def solve_take(settings, scene, **kwargs):
+    """Solve the sidebar's take (controls applied); returns RetargetResult."""
+    return solve(request_from_scene(settings, scene, **kwargs))
+
+
+def _layered_locks(settings, frames):
+    """{shape: (F,) value the animator sees} for locked shapes that have a solve layer or keys."""
+    key = settings.target.data.shape_keys
+    if key is None or key.animation_data is None:
+        return {}
+    locked = [s.name for s in settings.shapes if s.lock and s.name in key.key_blocks]
+    has_solve = layers.solved_action(key) is not None
+    keyed = {n for n in locked if layers.edit_key_frames(key, [n]).size}
+    names = [n for n in locked if has_solve or n in keyed]
+    if not names:
+        return {}
+    _, final = layers.layer_values(key, names, frames)
+    return dict(zip(names, final.T))
+
+
+def animator_locks(settings, frames):
+    """Solve locks: a locked shape is held at what the animator sees on every frame (the solve
+    layer plus their keys) when there is such a layer, else at its lock value."""
+    layered = _layered_locks(settings, np.asarray(frames, dtype=np.float64))
+    return tuple((glob.escape(s.name), layered.get(s.name, s.lock_value)) for s in settings.shapes if s.lock)
+
+
+def key_solve(settings, result):
+    """Key ``result`` as the target's new solve layer; returns the action.
+
+    A locked shape keeps its previous solve-layer curve: the solve held it at what the animator saw
+    (solve layer + their keys), so re-keying that value under their keys would count them twice.
+    """
+    actor = result.info.get("actor_model")  # what a semantic solve knew of the actor: shown in the Solve panel
+    settings.actor_tier = f"{actor['tier']}: {actor['statement']}" if actor else ""
+    name = settings.take_name or "FaceCap"
+    rig = rig_settings(settings)
+    if rig is not None:
+        action = key_rig(rig, settings.target, result, anim.unique_action_name(name), take_name=name)
+        settings.last_action = action.name
+        return action
+    key = settings.target.data.shape_keys
+    locked = [n for n in result.shape_names if n in {s.name for s in settings.shapes if s.lock}]
+    if locked and key is not None and layers.solved_action(key) is not None:
+        previous, _ = layers.layer_values(key, locked, result.frames)
+        weights = result.weights.copy()
+        for j, n in enumerate(locked):
+            if not np.isnan(previous[:, j]).all():
+                weights[:, result.shape_names.index(n)] = previous[:, j]
+        result = replace(result, weights=weights)
+    action = take.key_weights(settings.target, result, anim.unique_action_name(name), take_name=name)
+    settings.last_action = action.name
+    return action
+
+
+class SolveInBackground:
+    """*Solve and Key* in the sidebar: the request is built here (it reads the scene), the solve runs on a
+    worker thread (numpy and scipy only: no Blender data is touched there) so the interface stays live
+    and Esc answers at once; nothing in the scene changes until the operator keys the finished result.
+    A cancelled solve cannot be stopped inside numpy: it finishes on its thread and is dropped."""
+
+    what = "Solve and Key"
+
+    def __init__(self, settings, scene):
+        self.settings = settings
+        self.request = request_from_scene(settings, scene)
+        self.size = _describe(self.request)
+        self.result = self.error = None
+        self.cancelled = False
+        self.started = time.monotonic()
+        self.thread = threading.Thread(target=self._run, name="facecap solve", daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        try:
+            self.result = solve(self.request)
+        except Exception as exc:  # handed to the main thread: FacecapError reported, anything else raised
+            self.error = exc
+        finally:
+            self.request = None  # the take's arrays are not kept once solved
+
+    @property
+    def finished(self):
+        return not self.thread.is_alive()
+
+    def seconds(self):
+        return time.monotonic() - self.started
+
+    def status(self):
+        return f"{self.what}: solving {self.size} ({self.settings.strategy}), {self.seconds():.0f} s; Esc cancels"
+
+    def wait(self):
+        """The result (scripts and tests: as the modal operator would get it); FacecapError as raised."""
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
+        return self.result
+
+    def cancel(self):
+        self.cancelled = True
+
+
+def _describe(request):
+    shapes = getattr(request.character, "shape_names", None) or getattr(request.character, "names", ())
+    if request.markers is not None:
+        return f"{request.markers.n_frames} frames from {request.markers.n_markers} markers x {len(shapes)} shapes"
+    weights = getattr(request.inputs, "weights", None)
+    frames = len(weights.frames) if weights is not None else 0
+    return f"{frames} frames of solved weights x {len(shapes)} shapes"

@@ -1,0 +1,1 @@
+"""The sidebar: the FaceCap tab's panels and the settings they show (``Scene.facecap``)."""

@@ -1,0 +1,1 @@
+"""Blender-free benchmarks (``python -m facecap bench``) and the plain reference methods they compare with."""
