@@ -323,6 +323,17 @@ MOTION_FIT_FACTOR = 2.0
 MOTION_MIN = 0.25
 MOTION_MARGIN = 0.15
 SAME_POSE_DEG = 45.0
+#: A pose is upside down when it turns the capture's +Z or +Y (a file is Z up, or Y up when it was not
+#: converted) this close to the character's down (cosine). An actor's neutral is upright in the capture
+#: volume, so such a pose is the face turned over, which the motion test cannot always tell: upside down,
+#: a jaw that drops looks like brows that rise.
+UPSIDE_DOWN_COS = 0.5
+
+
+def upside_down(rotation):
+    """Whether a pose (its rotation from the capture's axes to the character's) turns the capture's +Z or +Y
+    towards the character's down (-Z)."""
+    return bool(min(rotation[2, 2], rotation[2, 1]) < -UPSIDE_DOWN_COS)
 
 
 def choose_by_motion(poses, starts, bind_at, motion):
@@ -351,6 +362,14 @@ def choose_by_motion(poses, starts, bind_at, motion):
     if not tried:
         return None
     tried.sort(key=lambda x: -x[0])
+    upright = [t for t in tried if not upside_down(t[2].similarity.rotation)]
+    turned = len(tried) - len(upright)
+    if turned and tried[0][0] >= MOTION_MIN and (not upright or upright[0][0] < MOTION_MIN):
+        raise FacecapError(
+            f"automatic binding found only poses that turn the capture upside down ({100 * tried[0][0]:.0f}% of the "
+            f"take's motion explained with its +Z or +Y pointing down on the character); if the file is Y up or "
+            f"Z up as it says, {LANDMARK_ADVICE}")
+    tried = upright or tried
     share, fit, binding = tried[0]
     if share < MOTION_MIN:
         raise FacecapError(
@@ -365,9 +384,10 @@ def choose_by_motion(poses, starts, bind_at, motion):
             f"automatic binding is ambiguous: two poses {angle:.0f} deg apart explain the take's motion almost "
             f"equally ({100 * share:.0f}% and {100 * rival[0]:.0f}%); {LANDMARK_ADVICE}")
     others = ", ".join(f"{100 * s:.0f}%" for s, _, _ in tried[1:])
-    note = (f"automatic alignment: {starts} starting rotations, {len(tried)} pose(s) fit the neutral (trimmed RMS "
-            f"{best_fit:.2f}-{max(f for _, f, _ in tried):.2f} mm); the chosen one ({fit:.2f} mm) explains "
-            f"{100 * share:.0f}% of the take's motion" + (f" (the others {others})" if others else ""))
+    note = (f"automatic alignment: {starts} starting rotations, {len(tried) + turned} pose(s) fit the neutral "
+            f"(trimmed RMS {best_fit:.2f}-{max(f for _, f, _ in tried):.2f} mm); the chosen one ({fit:.2f} mm) "
+            f"explains {100 * share:.0f}% of the take's motion" + (f" (the others {others})" if others else "")
+            + (f"; {turned} upside down (the capture's +Z or +Y down) left out" if turned else ""))
     return binding, note
 
 
