@@ -10,7 +10,7 @@ import pytest
 from sample_geometry import geometry_module
 from shared_data import ICT_FACEKIT, REALDATA, require
 
-from facecap.solvers.character.binding import bind_nearest, check_automatic_pose
+from facecap.solvers.character.binding import bind_nearest, check_automatic_pose, choose_by_motion, upside_down
 from facecap.solvers.character.binding_map import BindingSettings
 from facecap.solvers.character.face_model import load_ict
 from facecap.solvers.character.surface import make_surface, triangulate
@@ -107,25 +107,47 @@ def test_68_landmarks_on_a_stylised_face_bind_upright_by_the_motion_or_ask_for_l
     assert re.search(r"pose\(s\) fit the neutral .* explains \d+% of the take's motion", " ".join(bound.notes))
 
 
-@pytest.fixture(scope="module")
-def ict_face(realism):
-    model, _, _ = realism
-    return make_target("ict", model)
+def _choose(shares):
+    """choose_by_motion over poses given as {name: (rotation, share)}, each fitting the neutral alike."""
+    from types import SimpleNamespace
+
+    poses = [(1.0 + 0.01 * k, Similarity(1e-3, R, np.zeros(3))) for k, (R, _) in enumerate(shares.values())]
+    share_of = {id(sim): share for (_, sim), (_, share) in zip(poses, shares.values())}
+    name_of = {id(sim): name for (_, sim), name in zip(poses, shares)}
+    binding, note = choose_by_motion(poses, 768, lambda sim: SimpleNamespace(similarity=sim),
+                                     lambda b: share_of[id(b.similarity)])
+    return name_of[id(binding.similarity)], note
 
 
-def test_a_pose_that_turns_the_capture_upside_down_is_left_out(realism, ict_face):
-    """An actor's neutral is upright in the capture volume (the file's +Z or +Y up). Onto another person of
-    the same face model a pose turned over explains the motion too (a jaw that drops looks like brows that
-    rise): it is left out, and said so; with the capture itself turned over, binding stops."""
+UPRIGHT, TURNED = np.eye(3), np.diag([-1.0, 1.0, -1.0])  # the second turns the capture's +Z down
+
+
+def test_a_face_turned_over_against_the_capture_yields_to_an_upright_pose_that_explains_nearly_as_much():
+    """Upside down a dropping jaw looks like rising brows: on the realism benchmark with its actors rolled at
+    random, a face turned over explained 92% of a take's motion and the upright one 72%. An actor's neutral
+    is upright in its capture volume, so the upright pose is kept and the note says so; a turned pose that
+    explains far more (a head-mounted camera's frame can have any orientation) is kept."""
+    kept, note = _choose({"turned": (TURNED, 0.92), "upright": (UPRIGHT, 0.72)})
+    assert kept == "upright" and "the pose that explains 92% turns the capture's +Z or +Y down" in note
+    kept, note = _choose({"turned": (TURNED, 0.99), "upright": (UPRIGHT, 0.60)})
+    assert kept == "turned" and "turns the capture" not in note
+    kept, _ = _choose({"turned": (TURNED, 0.92), "upright": (UPRIGHT, 0.20)})  # below what a binding explains
+    assert kept == "turned"
+    assert upside_down(TURNED) and not upside_down(UPRIGHT)
+
+
+def test_a_capture_in_any_orientation_still_binds_the_face_the_right_way_round(realism):
+    """The same take turned over in its volume (about the volume's Z): the face is bound as before, each
+    marker near its own vertex of another person of the face model (the truth for this target)."""
     model, performances, _ = realism
+    ict = make_target("ict", model)
     draw = make_draw(model, performances, 1, layout="dense", frames=600, perturbation=Perturbation())
-    bound = bind_character(ict_face, draw.markers, base_settings(draw), BindingSettings(mode="nearest"))
-    notes = " ".join(bound.notes)
-    assert re.search(r"1 upside down \(the capture's \+Z or \+Y down\) left out", notes)  # it explained 24%
-    flipped = draw.markers.positions * np.array([-1.0, -1.0, 1.0])  # turned over about the volume's Z
-    over = replace(draw.markers, positions=flipped)
-    with pytest.raises(FacecapError, match=r"only poses that turn the capture upside down .*nose tip"):
-        bind_character(ict_face, over, base_settings(draw), BindingSettings(mode="nearest"))
+    over = replace(draw.markers, positions=draw.markers.positions * np.array([-1.0, -1.0, 1.0]))
+    for markers in (draw.markers, over):
+        bound = bind_character(ict, markers, base_settings(draw), BindingSettings(mode="nearest"))
+        own = dict(zip(draw.layout.names, draw.layout.vertices))
+        truth = np.asarray(ict.vertices)[[own[n] for n in bound.basis.marker_names]]
+        assert np.median(np.linalg.norm(bound.basis.neutral - truth, axis=1)) * 1e3 < 15.0  # measured 10.9 mm upright, 12.3 mm turned over
 
 
 def test_a_still_take_is_bound_by_the_fit_alone(realism):
