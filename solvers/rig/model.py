@@ -114,7 +114,7 @@ class RigModel:
         """(3C + Q, M * D): every fixed vector a column of the Jacobian is a combination of."""
         C = self.n_controls
         return np.vstack([self.linear.reshape(C, -1), self.square.reshape(C, -1), self.cube.reshape(C, -1),
-                          self.pair_deltas.reshape(len(self.pairs), -1)])
+                          self.pair_deltas.reshape(len(self.pairs), self.linear[0].size)])
 
     def jacobian_t(self, u, dtype=np.float64):
         """The Jacobian control-major, (C, F, M * D) in ``dtype``: column c of frame f is

@@ -106,9 +106,8 @@ def _band(H, temporal, free, damping, ridge):
     diag, off1, off2 = temporal
     width = 2 * C if F > 2 else C
     ab = np.zeros((width + 1, F * C))
-    for k in range(C):  # within a frame: column j couples with row j - k
-        idx = np.arange(k, C)
-        ab[width - k].reshape(F, C)[:, k:] = H[:, idx - k, idx]
+    for k in range(C):  # within a frame: column j couples with row j - k (the k-th diagonal of each block)
+        ab[width - k].reshape(F, C)[:, k:] = np.diagonal(H, offset=k, axis1=1, axis2=2)
     main = ab[width].reshape(F, C)
     main += diag[:, None] + ridge
     main += damping * np.maximum(np.einsum("fii->fi", H), 1e-12 * (np.einsum("fii->", H) / max(F * C, 1)) + 1e-300)
@@ -116,10 +115,12 @@ def _band(H, temporal, free, damping, ridge):
         ab[width - C].reshape(F, C)[1:] += off1[:, None]
     if F > 2:
         ab[width - 2 * C].reshape(F, C)[2:] += off2[:, None]
-    flat = free.reshape(-1)
+    held = np.flatnonzero(~free.reshape(-1))  # usually few: their rows and columns are cleared one by one
+    n = F * C
     for k in range(1, width + 1):
-        ab[width - k, k:] *= flat[k:] & flat[:-k]
-    ab[width, ~flat] = 1.0
+        ab[width - k, held[held >= k]] = 0.0  # column j, row j - k
+        ab[width - k, (held + k)[held + k < n]] = 0.0  # row j, column j + k
+    ab[width, held] = 1.0
     return ab
 
 
