@@ -379,7 +379,8 @@ def _run(request, *, quiet):
 
     job = solve_job(request)
     if request.rig is not None:  # Gauss-Newton steps (and refinement through the rig): progress, Ctrl-C stops
-        return run_showing_progress(job, "rig solve", quiet=quiet or console.quiet(), unit="step")
+        with showing_progress("rig solve", "step", quiet=quiet) as progress:
+            return job.run(progress)
     if request.footage is None:
         return job.run()
     return run_showing_progress(job, f"flow ({request.flow.method})", quiet=quiet or console.quiet())
