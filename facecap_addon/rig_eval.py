@@ -182,8 +182,15 @@ class RigEvaluator:
         W = self.skin_normalised * self.skinned[:, None]  # (V, B)
         free = self.sample * (~self.skinned)[None]  # (M, V): the vertices no bone moves
 
+        V = len(self.vertices)
+        group = max(1, int(4e6 // (3 * V)))  # bones per product: a (V, group, 3) temporary at most
+
         def per_bone(c):  # sum_v sample[m, v] W[v, b] c[v, :] -> (M, B, 3)
-            return (self.sample @ (W[:, :, None] * c[:, None, :]).reshape(len(c), -1)).reshape(M, B, 3)
+            out = np.empty((M, B, 3))
+            for a in range(0, B, group):
+                part = W[:, a:a + group, None] * c[:, None, :]
+                out[:, a:a + group] = (self.sample @ part.reshape(V, -1)).reshape(M, -1, 3)
+            return out
 
         fold["weights"] = self.sample @ W  # (M, B): what the bones' translations carry
         fold["rest"], fold["free"] = per_bone(co), free @ co
