@@ -156,10 +156,9 @@ class RigEvaluator:
     # -- the folded skin: per-bone sums of the sampled vertices --------------------------------------
     def _live_blocks(self):
         """Indices of the shape keys whose value can change while evaluating: a control's or driven."""
-        from .rig_target import driven_paths
-
-        moved = (driven_paths(self.key) if self.key is not None else set()) | {c.path for c in self.controls
-                                                                               if c.owner == self.key}
+        ad = self.key.animation_data if self.key is not None else None
+        moved = {d.data_path for d in ad.drivers} if ad is not None else set()
+        moved |= {c.path for c in self.controls if c.owner == self.key}
         return [k for k, b in enumerate(self.blocks) if b.path_from_id("value") in moved]
 
     def _fold(self):
