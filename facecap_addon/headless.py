@@ -32,7 +32,7 @@ from ..solvers.solve import SolveRequest, solve_job
 from ..solvers.tuning.store import load_version, save_version
 from ..solvers.video.cli import FrameProgress, run_showing_progress, sigint_cancels
 from ..solvers.video.flow_config import LandmarkTake, check_against_footage
-from ..solvers.video.reading import Footage
+from ..solvers.video.reading import Cancelled, Footage
 from . import console
 from .actor_outputs import write_actor_basis, write_profile
 from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, stamp_target, start_blender,
@@ -380,7 +380,10 @@ def _run(request, *, quiet):
     job = solve_job(request)
     if request.rig is not None:  # Gauss-Newton steps (and refinement through the rig): progress, Ctrl-C stops
         with showing_progress("rig solve", "step", quiet=quiet) as progress:
-            return job.run(progress)
+            try:
+                return job.run(progress)
+            except Cancelled:
+                raise Cancelled(f"rig solve cancelled after {job.done} of at most {job.total} steps") from None
     if request.footage is None:
         return job.run()
     return run_showing_progress(job, f"flow ({request.flow.method})", quiet=quiet or console.quiet())
