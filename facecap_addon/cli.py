@@ -205,7 +205,7 @@ def _cmd_rig_bench(args):
     from .bench.rig_bench import rig_bench  # imports bpy at once: only for this command
 
     figures = rig_bench(capture=args.capture, frames=args.frames, sample_frames=args.sample_frames, docs=args.docs,
-                        say=progress_line)
+                        repeat=args.repeat, reference=args.reference, long_only=args.long_only, say=progress_line)
     print(json.dumps(figures, indent=2), file=console.stdout())
     return 0
 
@@ -403,6 +403,9 @@ def build_parser():
     p.add_argument("--frames", type=int, default=3600, help="frames of the long Rigify take (default 3600)")
     p.add_argument("--sample-frames", type=int, default=600, help="frames of the control-rig takes (default 600)")
     p.add_argument("--docs", type=Path, help="also render the Rigify face from the capture to DIR/rigify_face.png")
+    p.add_argument("--repeat", type=int, default=1, help="solve the long Rigify take N times: median times (default 1)")
+    p.add_argument("--reference", action="store_true", help="also the slow reference path: speed-up, both accuracies")
+    p.add_argument("--long-only", action="store_true", help="only the long Rigify take (no control rigs, no capture)")
     p = command("docs-images", _cmd_docs_images)
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
     p.add_argument("--size", type=int, default=280, help="tile height in pixels (default: 280)")

@@ -9,10 +9,11 @@ from .video import ClipJobOperator  # its cancel and _stop: Blender ending the o
 
 
 TICK_SECONDS = 0.1  # how often the sidebar looks at a running solve
+STEP_SECONDS = 0.1  # a rig solve's work per tick (on the main thread): the interface stays live between
 
 
 class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
-    """Solve shape-key weights for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept). The status bar shows what is solving and for how long; Esc cancels with the scene untouched"""
+    """Solve shape-key weights (or a rig's controls) for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept). The status bar shows what is solving, how far and for how long; Esc cancels with the scene untouched"""
 
     bl_idname = "facecap.solve"
     bl_label = "Solve and Key"
@@ -26,7 +27,7 @@ class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
     def execute(self, context):
         """Solve and key at once (bpy.ops from scripts and background mode)."""
         try:
-            session = scene_solve.SolveInBackground(context.scene.facecap, context.scene)
+            session = scene_solve.start_session(context.scene.facecap, context.scene)
             session.wait()
             return self._write(context, session)
         except FacecapError as exc:
@@ -37,13 +38,14 @@ class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
         if bpy.app.background or context.window is None:
             return self.execute(context)
         try:
-            self._session = scene_solve.SolveInBackground(context.scene.facecap, context.scene)
+            self._session = scene_solve.start_session(context.scene.facecap, context.scene)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         wm = context.window_manager
         self._timer = wm.event_timer_add(TICK_SECONDS, window=context.window)
         wm.modal_handler_add(self)
+        wm.progress_begin(0, 100)
         context.workspace.status_text_set(self._session.status())
         return {"RUNNING_MODAL"}
 
@@ -55,6 +57,14 @@ class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
             return {"CANCELLED"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
+        if hasattr(session, "step"):  # a rig: its steps run here, on the main thread (Blender evaluates it)
+            try:
+                session.step(STEP_SECONDS)
+            except FacecapError as exc:
+                self._stop(context)
+                self.report({"ERROR"}, str(exc))
+                return {"CANCELLED"}
+            context.window_manager.progress_update(int(100 * session.fraction))
         if not session.finished:  # the status bar says what is solving and for how long
             context.workspace.status_text_set(session.status())
             return {"RUNNING_MODAL"}

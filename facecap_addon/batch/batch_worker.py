@@ -27,6 +27,7 @@ from ...solvers.errors import FacecapError
 from ...solvers.io.files import write_json_atomic
 from ...solvers.tools.batch_summary import iso_time, one_line, result_fields
 from ...solvers.tools.report.page import shared_plotly_js
+from ...solvers.video.reading import Cancelled
 from ..headless.blend_files import start_blender
 from ..headless.headless import run_take
 from ..render.review import ReviewOptions
@@ -76,7 +77,8 @@ def run_one(spec, characters=None):
     one-line error). ``spec``: {"config", "data", "replace", "overwrite", "record", "done"} (``batch.to_run``;
     ``done``: where its completion is recorded the moment it finishes).
     KeyboardInterrupt (the batch cancelled) is not caught: outputs are atomic, so nothing
-    half-written is left."""
+    half-written is left; a take that saw the SIGINT between two of its steps (``Cancelled``) is
+    stopped the same way."""
     record = dict(spec["record"])
     warnings = []
 
@@ -93,6 +95,8 @@ def run_one(spec, characters=None):
             ReviewOptions(plotly_js=shared_plotly_js(config.output_html.parent))
         result, outputs = run_take(config, replace=spec.get("replace", False), overwrite=spec.get("overwrite", False),
                                    say=say, characters=characters, review=review)
+    except Cancelled as exc:  # SIGINT seen between two steps of a video or rig take: the batch cancelled
+        raise KeyboardInterrupt(str(exc)) from exc
     except FacecapError as exc:
         record.update(status="failed", error=one_line(exc))
     except Exception as exc:  # a bug or a broken file deep inside one take must not stop the others

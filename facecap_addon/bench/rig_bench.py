@@ -4,13 +4,17 @@
   with correctives firing, the nonlinear solve against a linear one;
 * the Rigify face: a real capture (c3dorg_29_Facial-Sing, bound by position) solved onto the Rigify
   face and onto the shape keys (mean marker residual of each), and a long take of known control
-  curves (the time of the whole solve, probing included);
+  curves: the time of the whole solve, probing included (wall and CPU, the median of ``repeat``
+  runs), its controls RMSE and mean marker residual, and the ratios against the before-state
+  (``BEFORE``: the same take solved by the code before the fast path) and, with ``reference``,
+  against the slow reference path run here on the same take;
 * ``--docs DIR``: frames of the Rigify face animated from the capture, rendered (Workbench) to
   ``DIR/rigify_face.png``.
 Every take goes through a take config and ``headless.run_take``, as on the command line.
 """
 
 import json
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -27,6 +31,7 @@ from ..rig import rig_target
 from ..render.docs_images import compose
 from ..headless.headless import run_take
 from ..render.render_state import mark_rendered
+from ..rig import rig_solve
 from ..rig.rig_eval import RigEvaluator
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -34,6 +39,11 @@ CHARACTER = ROOT / "sample_blends" / "character.blend"
 STABLE = ["head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",
           "head_nose_bridge_C", "head_side_L", "head_side_R"]
 FACIAL_SING_STABLE = ["root-1", "root-2", "root-3", "root-4", "root-5", "root-6"]
+#: The 3,600-frame Rigify take (``control_curves(seed=3)``) solved by the code before the fast path
+#: (commit eb369c7): medians of 3 runs (181.5 / 194.5 / 314.8 s wall) on the 2-core development
+#: machine, shared with other test runs. Machine-dependent: ``--reference`` measures here instead.
+BEFORE = {"frames": 3600, "seconds": 194.5, "cpu_seconds": 171.3, "controls_rmse": 0.0004272,
+          "mean_residual_mm": 0.47925}
 
 
 def open_character():
@@ -123,8 +133,25 @@ def control_rig_figures(folder, frames, say):
     return out
 
 
-def rigify_figures(folder, capture, frames, say, docs=None):
-    """The Rigify face: a real capture against the shape keys, and a long take of known curves (time)."""
+def _timed_solves(folder, face_name, rig_section, controls, truth, repeat, name="long"):
+    """The long take solved ``repeat`` times: median wall and CPU seconds, accuracy of the last."""
+    walls, cpus = [], []
+    for _ in range(max(1, repeat)):
+        t0, c0 = time.perf_counter(), time.process_time()
+        solved = run_take(take_config(folder, name, face_name, rig=rig_section), quiet=True, overwrite=True)[0]
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    got = columns(solved, [c.name for c in controls])
+    return {"frames": int(solved.frames.size), "seconds": statistics.median(walls),
+            "cpu_seconds": statistics.median(cpus), "runs_seconds": walls,
+            "probing_seconds": solved.info["rig"]["seconds"], "probes": solved.info["rig"]["probes"],
+            "refined_frames": solved.info["rig"].get("refined_frames"), "controls_rmse": rmse(got, truth),
+            "mean_residual_mm": float(np.nanmean(solved.residual_rms) * 1e3)}
+
+
+def rigify_figures(folder, capture, frames, say, docs=None, *, repeat=1, reference=False, long_only=False):
+    """The Rigify face: a long take of known curves (time, accuracy; ``repeat`` runs, the medians;
+    ``reference``: also the slow reference path) and a real capture against the shape keys."""
     out = {}
     mesh = open_character()
     t0 = time.perf_counter()
@@ -135,13 +162,29 @@ def rigify_figures(folder, capture, frames, say, docs=None):
     write_take(folder, face, controls, long_take)
     bpy.ops.wm.save_as_mainfile(filepath=str(Path(folder) / "rig.blend"))
     rig_section = '[rig]\npreset = "rigify_face"\nobject = "rig"\n'
-    t0 = time.perf_counter()
-    solved = run_take(take_config(folder, "long", face_name, rig=rig_section), quiet=True)[0]
-    out["long_take"] = {"frames": frames, "seconds": time.perf_counter() - t0,
-                        "probing_seconds": solved.info["rig"]["seconds"], "probes": solved.info["rig"]["probes"],
-                        "mean_residual_mm": float(np.nanmean(solved.residual_rms) * 1e3)}
-    say(f"rigify: {frames} frames solved in {out['long_take']['seconds']:.1f} s "
-        f"(probing {out['long_take']['probing_seconds']:.1f} s, {out['long_take']['probes']} probes)")
+    out["long_take"] = long = _timed_solves(folder, face_name, rig_section, controls, long_take, repeat)
+    say(f"rigify: {frames} frames solved in {long['seconds']:.1f} s wall, {long['cpu_seconds']:.1f} s CPU "
+        f"(median of {repeat}; probing {long['probing_seconds']:.1f} s, {long['probes']} probes); controls RMSE "
+        f"{long['controls_rmse']:.6f}, mean residual {long['mean_residual_mm']:.4f} mm")
+    if frames == BEFORE["frames"] and BEFORE["seconds"]:
+        long["before_state"] = {**BEFORE, "speedup_wall": BEFORE["seconds"] / long["seconds"],
+                                "speedup_cpu": BEFORE["cpu_seconds"] / long["cpu_seconds"]}
+        say(f"rigify: {long['before_state']['speedup_wall']:.1f}x faster than the before-state "
+            f"({BEFORE['seconds']:.1f} s wall, {BEFORE['cpu_seconds']:.1f} s CPU, controls RMSE "
+            f"{BEFORE['controls_rmse']:.6f}, residual {BEFORE['mean_residual_mm']:.4f} mm)")
+    if reference:
+        rig_solve.REFERENCE = True
+        try:
+            ref = _timed_solves(folder, face_name, rig_section, controls, long_take, 1, name="reference")
+        finally:
+            rig_solve.REFERENCE = False
+        long["reference"] = {**ref, "speedup_wall": ref["seconds"] / long["seconds"],
+                             "speedup_cpu": ref["cpu_seconds"] / long["cpu_seconds"]}
+        say(f"rigify: the reference path {ref['seconds']:.1f} s wall, {ref['cpu_seconds']:.1f} s CPU "
+            f"({long['reference']['speedup_wall']:.1f}x / {long['reference']['speedup_cpu']:.1f}x the fast path's "
+            f"time); controls RMSE {ref['controls_rmse']:.6f}, residual {ref['mean_residual_mm']:.4f} mm")
+    if long_only:
+        return out
     if capture is not None:
         sing = dict(markers=str(capture), source="", stable=FACIAL_SING_STABLE, neutral=(1, 100),
                     extra='[binding]\nmode = "nearest"\n')
@@ -203,11 +246,14 @@ def render_rigify(blend, face_name, result, path, *, count=5, size=(190, 216)):
     return path
 
 
-def rig_bench(*, capture=None, frames=3600, sample_frames=600, docs=None, say=print):
-    """The figures of every test rig (a dict, also printed through ``say``)."""
+def rig_bench(*, capture=None, frames=3600, sample_frames=600, docs=None, repeat=1, reference=False, long_only=False,
+              say=print):
+    """The figures of every test rig (a dict, also printed through ``say``); ``long_only``: only the
+    long Rigify take (time and accuracy)."""
     with tempfile.TemporaryDirectory(prefix="facecap-rig-bench-") as tmp:
-        figures = control_rig_figures(tmp, sample_frames, say)
+        figures = {} if long_only else control_rig_figures(tmp, sample_frames, say)
         rigify = Path(tmp) / "rigify"
         rigify.mkdir()
-        figures["rigify"] = rigify_figures(rigify, capture, frames, say, docs)
+        figures["rigify"] = rigify_figures(rigify, None if long_only else capture, frames, say, docs, repeat=repeat,
+                                           reference=reference, long_only=long_only)
     return figures

@@ -30,9 +30,9 @@ from ...solvers.markers import UNIT_SCALE
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve_job
 from ...solvers.tuning.store import load_version, save_version
-from ...solvers.video.cli import run_showing_progress
+from ...solvers.video.cli import FrameProgress, run_showing_progress, sigint_cancels
 from ...solvers.video.flow_config import LandmarkTake, check_against_footage
-from ...solvers.video.reading import Footage
+from ...solvers.video.reading import Cancelled, Footage
 from . import console
 from .actor_outputs import write_actor_basis, write_profile
 from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, stamp_target, start_blender,
@@ -94,7 +94,7 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
     if changed:
         take.notes = tuple(take.notes) + (changed,)
     t1 = time.perf_counter()
-    request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base)
+    request, source_info = _request(config, obj, take, tune=tune, characters=characters, base=base, quiet=quiet)
     timings["load_character"] = time.perf_counter() - t1 + t_open
     columns = request.rig.control_names if request.rig is not None else shape_names(request.character)
     base_size = base.path.stat().st_size if base.path is not None and base.path.is_file() else 0
@@ -299,14 +299,33 @@ def open_target(config, say, base=None):
     return obj
 
 
-def _request(config, obj, take, *, tune, characters=None, base=None):
+@contextlib.contextmanager
+def showing_progress(label, unit, *, quiet=False):
+    """A ``progress(done, total) -> bool`` for long work in steps: shown on stderr (unless ``quiet``),
+    False once Ctrl-C was pressed (the work stops at its next step: ``Cancelled``, nothing written)."""
+    shown = None if quiet or console.quiet() else FrameProgress(label, unit=unit)
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            yield progress
+        finally:
+            if shown is not None:
+                shown.close()
+
+
+def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False):
     """The SolveRequest of a take config, and the report's source fields."""
     from ..scene.scene_binding import geometric_character  # loads bpy
     from ..scene.take import character_target  # loads bpy
 
     settings = config.settings
-    if config.rig is not None:
-        return rig_request(config, obj, take, tune=tune, say=progress_line)
+    if config.rig is not None:  # probing a rig: a pose at a time in Blender, with progress, Ctrl-C stops it
+        with showing_progress("rig probing", "pose", quiet=quiet) as progress:
+            return rig_request(config, obj, take, tune=tune, say=progress_line, progress=progress)
     binding = config.binding or BindingSettings()
     # Only geometric samples the character at bound points; the others need its shape names and ranges.
     # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
@@ -355,10 +374,16 @@ def _request(config, obj, take, *, tune, characters=None, base=None):
 
 
 def _run(request, *, quiet):
-    """Run the request; footage shows progress on stderr and Ctrl-C stops it between two frames with
-    ``Cancelled`` (nothing written; the CLI exits 130)."""
+    """Run the request; footage and rig solves show progress on stderr and Ctrl-C stops them between
+    two frames (steps) with ``Cancelled`` (nothing written; the CLI exits 130)."""
 
     job = solve_job(request)
+    if request.rig is not None:  # Gauss-Newton steps (and refinement through the rig): progress, Ctrl-C stops
+        with showing_progress("rig solve", "step", quiet=quiet) as progress:
+            try:
+                return job.run(progress)
+            except Cancelled:
+                raise Cancelled(f"rig solve cancelled after {job.done} of at most {job.total} steps") from None
     if request.footage is None:
         return job.run()
     return run_showing_progress(job, f"flow ({request.flow.method})", quiet=quiet or console.quiet())

@@ -7,11 +7,12 @@ from ...solvers.tuning.store import load_version, read_corrections_csv
 from ...solvers.video.flow_config import LandmarkTake
 
 
-def rig_request(config, obj, take, *, tune, say):
-    """The SolveRequest of a take whose target is a rig (``[rig]``): its controls are the shapes."""
+def rig_request(config, obj, take, *, tune, say, progress=None):
+    """The SolveRequest of a take whose target is a rig (``[rig]``): its controls are the shapes;
+    ``progress(done, total) -> bool`` sees the probes (False cancels)."""
     from ..rig.rig_solve import rig_target_for_take  # loads bpy
 
-    target, fields = rig_target_for_take(config, obj, take.markers, say=say)
+    target, fields = rig_target_for_take(config, obj, take.markers, say=say, progress=progress)
     tuning, version = config.tuning, None
     if tuning is not None and tuning.library is not None:
         version = load_version(tuning.library)

@@ -6,6 +6,12 @@ was read: the bound vertices' shape keys at the driven values, then linear-blend
 deforming bones of the mesh's Armature modifier. ``RigEvaluator`` checks that path against
 Blender's own evaluated mesh on a few poses when it is built and evaluates the whole mesh instead
 (slower, same result) if they differ, e.g. for a modifier it does not model.
+
+Skinning is linear in the vertices, so the bound points are folded once per evaluator: for each
+deforming bone b the sampled, weighted rest vertices K_b (and one K_b per shape key that a driver or
+a control moves). A pose then costs O(markers x bones): points = sum_b R_b K_b + t_b k_b, where R_b,
+t_b is the bone's skinning matrix. While evaluating, the mesh itself is hidden from the depsgraph so
+Blender does not deform the whole mesh for nothing (numpy mode only; restored afterwards).
 """
 
 import numpy as np
@@ -27,16 +33,17 @@ class RigEvaluator:
 
     ``controls`` are ``rig_target.Control`` objects (owner ID, setter, rest, limits). Call
     ``evaluate(values (N, C)) -> (N, M, 3)`` (mesh local space); the scene's controls are put back
-    to what they were afterwards.
+    to what they were afterwards. ``reference``: the slow path, every bound vertex skinned per pose
+    and the mesh evaluated by Blender too (what the fast path is checked against).
     """
 
-    def __init__(self, mesh, controls, marker_names, *, binding=None):
+    def __init__(self, mesh, controls, marker_names, *, binding=None, reference=False):
         import bpy  # Blender: this module is only used inside it
 
         self.bpy = bpy
         if mesh is None or mesh.type != "MESH":
             raise FacecapError(f"'{getattr(mesh, 'name', mesh)}' is not a mesh object")
-        self.mesh, self.controls = mesh, list(controls)
+        self.mesh, self.controls, self.reference = mesh, list(controls), reference
         bindings = binding if binding is not None else vertex_group_bindings(mesh, marker_names)
         self.marker_names = tuple(n for n in marker_names if n in bindings)
         if len(self.marker_names) < 3:
@@ -51,6 +58,8 @@ class RigEvaluator:
                 self.sample[m, pos[v]] += wt
         self._read_shape_keys()
         self._read_skin()
+        self._setters = [c.set if reference else c.setter() for c in self.controls]
+        self.folded = None if reference else self._fold()
         self.mode = "numpy"
         self.evaluations = 0
         saved = self.current()
@@ -140,9 +149,80 @@ class RigEvaluator:
 
     def apply(self, values, previous=None):
         """Set the controls to ``values``; with ``previous`` (what they hold now) only those that change."""
-        for i, (c, v) in enumerate(zip(self.controls, values)):
+        for i, (put, v) in enumerate(zip(self._setters, values)):
             if previous is None or v != previous[i]:
-                c.set(float(v))
+                put(float(v))
+
+    # -- the folded skin: per-bone sums of the sampled vertices --------------------------------------
+    def _live_blocks(self):
+        """Indices of the shape keys whose value can change while evaluating: a control's or driven."""
+        ad = self.key.animation_data if self.key is not None else None
+        moved = {d.data_path for d in ad.drivers} if ad is not None else set()
+        moved |= {c.path for c in self.controls if c.owner == self.key}
+        return [k for k, b in enumerate(self.blocks) if b.path_from_id("value") in moved]
+
+    def _fold(self):
+        """The per-pose constants of ``_points_folded``; None when folding would not pay (too large)."""
+        vals = np.array([b.value for b in self.blocks])
+        live = self._live_blocks() if self.blocks else []
+        still = np.setdiff1d(np.arange(len(self.blocks)), live)
+        co = self.base
+        if still.size:
+            co = co + (vals[still] @ self.block_deltas[still].reshape(len(still), -1)).reshape(co.shape)
+        M, B = len(self.marker_names), (len(self.bones) if self.armature is not None else 0)
+        if (1 + len(live)) * M * max(B, 1) * 3 > 2e7:  # a huge rig with many driven keys: per vertex instead
+            return None
+        fold = {"live": np.asarray(live, dtype=np.intp), "still": still, "still_values": vals[still]}
+        deltas = [self.block_deltas[k] for k in live]
+        if B == 0:
+            fold["rest"] = self.sample @ co
+            fold["keys"] = np.array([self.sample @ d for d in deltas]).reshape(len(live), M, 3)
+            return fold
+        W = self.skin_normalised * self.skinned[:, None]  # (V, B)
+        free = self.sample * (~self.skinned)[None]  # (M, V): the vertices no bone moves
+
+        V = len(self.vertices)
+        group = max(1, int(4e6 // (3 * V)))  # bones per product: a (V, group, 3) temporary at most
+
+        def per_bone(c):  # sum_v sample[m, v] W[v, b] c[v, :] -> (M, B, 3)
+            out = np.empty((M, B, 3))
+            for a in range(0, B, group):
+                part = W[:, a:a + group, None] * c[:, None, :]
+                out[:, a:a + group] = (self.sample @ part.reshape(V, -1)).reshape(M, -1, 3)
+            return out
+
+        fold["weights"] = self.sample @ W  # (M, B): what the bones' translations carry
+        fold["rest"], fold["free"] = per_bone(co), free @ co
+        fold["keys"] = np.array([per_bone(d) for d in deltas]).reshape(len(live), M, B, 3)
+        fold["keys_free"] = np.array([free @ d for d in deltas]).reshape(len(live), M, 3)
+        return fold
+
+    def _skin_matrices(self):
+        """(B, 4, 4) the deforming bones' skinning matrices in the mesh's space."""
+        n = len(self.armature.pose.bones)
+        buf = np.empty(n * 16, dtype=np.float32)
+        self.armature.pose.bones.foreach_get("matrix", buf)
+        pose = buf.reshape(n, 4, 4).transpose(0, 2, 1).astype(np.float64)[self.bone_index]
+        to_arm = np.linalg.inv(_matrix(self.armature.matrix_world)) @ _matrix(self.mesh.matrix_world)
+        return np.linalg.inv(to_arm) @ (pose @ self.rest_inv) @ to_arm
+
+    def _points_folded(self):
+        fold = self.folded
+        vals = np.array([b.value for b in self.blocks]) if self.blocks else np.zeros(0)
+        if fold["still"].size and not np.array_equal(vals[fold["still"]], fold["still_values"]):
+            return self._points_numpy()  # a key nothing was known to move has moved: the full path
+        live = vals[fold["live"]] if fold["live"].size else np.zeros(0)
+        on = np.flatnonzero(live)
+        if "weights" not in fold:
+            return fold["rest"] + np.tensordot(live[on], fold["keys"][on], axes=1)
+        K, free = fold["rest"], fold["free"]
+        if on.size:
+            K = K + np.tensordot(live[on], fold["keys"][on], axes=1)
+            free = free + np.tensordot(live[on], fold["keys_free"][on], axes=1)
+        skin = self._skin_matrices()
+        M, B = fold["weights"].shape
+        rotated = K.reshape(M, B * 3) @ skin[:, :3, :3].transpose(0, 2, 1).reshape(B * 3, 3)
+        return rotated + fold["weights"] @ skin[:, :3, 3] + free
 
     # -- evaluation --------------------------------------------------------------------------------
     def _points_numpy(self):
@@ -151,12 +231,7 @@ class RigEvaluator:
             vals = np.array([b.value for b in self.blocks])
             co = co + (vals @ self.block_deltas.reshape(len(vals), -1)).reshape(co.shape)
         if self.armature is not None and self.bones:
-            n = len(self.armature.pose.bones)
-            buf = np.empty(n * 16, dtype=np.float32)
-            self.armature.pose.bones.foreach_get("matrix", buf)
-            pose = buf.reshape(n, 4, 4).transpose(0, 2, 1).astype(np.float64)[self.bone_index]
-            to_arm = np.linalg.inv(_matrix(self.armature.matrix_world)) @ _matrix(self.mesh.matrix_world)
-            skin = np.linalg.inv(to_arm) @ (pose @ self.rest_inv) @ to_arm  # (B, 4, 4), mesh space
+            skin = self._skin_matrices()
             per_vertex = (self.skin_normalised @ skin.reshape(len(skin), 16)).reshape(-1, 4, 4)
             moved = (per_vertex[:, :3, :3] @ co[:, :, None])[:, :, 0] + per_vertex[:, :3, 3]
             co = np.where(self.skinned[:, None], moved, co)
@@ -179,18 +254,37 @@ class RigEvaluator:
             ev.to_mesh_clear()
         return self.sample @ co.reshape(n, 3)[self.vertices]
 
+    def _points(self):
+        return self._points_numpy() if self.folded is None else self._points_folded()
+
     def _numpy_matches(self, saved):
         if self.other_modifiers:
             return False
         rng = np.random.default_rng(0)
         lo = np.array([c.lower for c in self.controls])
         hi = np.array([c.upper for c in self.controls])
-        for trial in range(3):
-            values = self.rest() if trial == 0 else rng.uniform(lo, hi)
-            exact = self._points_blender(values)
-            if np.abs(self._points_numpy() - exact).max() > CHECK_TOLERANCE:
+        trials = [self.rest()] + [rng.uniform(lo, hi) for _ in range(2)]
+        exact = []
+        for values in trials:
+            exact.append(self._points_blender(values))
+            if np.abs(self._points_numpy() - exact[-1]).max() > CHECK_TOLERANCE:
                 return False
+        # the fast path as it runs (folded skin, mesh hidden), on the same poses
+        if self.folded is not None:
+            fast = self.evaluate(np.array(trials[::-1]))[::-1]
+            self.evaluations -= len(trials)
+            if np.abs(fast - np.array(exact)).max() > CHECK_TOLERANCE:
+                self.folded = None  # the per-vertex path, checked above
         return True
+
+    def _hide_mesh(self):
+        """Keep Blender from deforming the whole mesh on every pose (fast numpy path only: the
+        points are computed here; a driven shape key needs its mesh evaluated, so then not).
+        Returns the setting to put back, or None."""
+        if self.reference or self.folded is None or self.folded["live"].size or self.mesh.hide_viewport:
+            return None
+        self.mesh.hide_viewport = True
+        return False
 
     def evaluate(self, values, progress=None):
         """Bound points (N, M, 3) of the rig at control values (N, C); ``progress(done, total)``."""
@@ -199,6 +293,7 @@ class RigEvaluator:
         out = np.empty((len(values), len(self.marker_names), 3))
         update = self.bpy.context.view_layer.update
         held = saved
+        hidden = self._hide_mesh() if self.mode == "numpy" else None
         try:
             with single_blas_thread():  # tiny products per pose: BLAS threads only contend
                 for i, row in enumerate(values):
@@ -206,13 +301,15 @@ class RigEvaluator:
                         self.apply(row, held)
                         held = row
                         update()
-                        out[i] = self._points_numpy()
+                        out[i] = self._points()
                     else:
                         out[i] = self._points_blender(row)
                     if progress is not None and i % 64 == 63 and progress(i + 1, len(values)) is False:
                         raise FacecapError("rig evaluation cancelled")
         finally:
             self.apply(saved)
+            if hidden is not None:
+                self.mesh.hide_viewport = hidden
             update()
         self.evaluations += len(values)
         return out

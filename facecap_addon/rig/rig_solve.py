@@ -14,7 +14,8 @@ import numpy as np
 
 from ...solvers.errors import ConfigError, FacecapError
 from ...solvers.pipeline.binding import from_record
-from ...solvers.rig import PoseLibrary, RigTarget, probe_rig
+from ...solvers.rig import PoseLibrary, RigTarget, probe_rig_steps
+from ...solvers.video.reading import Cancelled
 from ..scene import anim
 from .rig_eval import RigEvaluator
 from .rig_keying import key_controls
@@ -95,14 +96,38 @@ def rig_binding(mesh, markers, settings, binding):
     return {n: (np.asarray(c, dtype=np.intp), np.asarray(w, dtype=np.float64)) for n, (c, w) in sampling.items()}
 
 
-def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=None, binding=None, n_frames=None):
+#: Poses evaluated between two of the sidebar's steps (Esc is seen between two; the command line reports
+#: every four).
+PROBE_CHUNK = 64
+
+
+def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=None, binding=None, n_frames=None,
+                     reference=False):
     """(RigTarget, controls) of ``mesh``'s rig at the markers ``marker_names``; ``say`` gets a line
-    on what was probed, ``progress(done, total) -> bool`` sees the probes (False cancels);
-    ``binding``: {marker: (vertices, weights)} (default: vertex groups named after the markers);
-    ``n_frames``: the take's length (long takes are refined through the rig on every n-th frame)."""
+    on what was probed, ``progress(done, total) -> bool`` sees the probes (False cancels:
+    ``Cancelled``, with the rig's controls as they were); ``binding``: {marker: (vertices, weights)}
+    (default: vertex groups named after the markers); ``n_frames``: the take's length (long takes are
+    refined through the rig on every n-th frame); ``reference``: the slow path (``RigTarget``)."""
+    steps = build_rig_target_steps(mesh, marker_names, rig_settings, say=say, binding=binding, n_frames=n_frames,
+                                   chunk=4 * PROBE_CHUNK if progress is not None else None, reference=reference)
+    while True:
+        try:
+            done, planned = next(steps)
+        except StopIteration as stop:
+            return stop.value
+        if progress is not None and progress(done, planned) is False:
+            steps.close()
+            raise Cancelled(f"rig probing cancelled after {done} of {planned} poses")
+
+
+def build_rig_target_steps(mesh, marker_names, rig_settings, *, say=None, binding=None, n_frames=None, chunk=None,
+                           reference=False):
+    """``build_rig_target`` as a generator: yields (poses probed, poses planned) after every
+    ``chunk`` poses; returns (RigTarget, controls). Between two yields the rig's controls are as the
+    user left them, so closing it there leaves the scene untouched."""
     t0 = time.perf_counter()
     controls = rig_controls(rig_settings, mesh)
-    evaluator = RigEvaluator(mesh, controls, marker_names, binding=binding)
+    evaluator = RigEvaluator(mesh, controls, marker_names, binding=binding, reference=reference)
     names = tuple(c.name for c in controls)
     rest = evaluator.rest()
     lower = np.array([c.lower for c in controls])
@@ -119,9 +144,9 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
         return RigTarget("poses", library=library, library_basis=basis, info=info), controls
     bones = any(isinstance(c.owner, bpy.types.Object) and c.owner.type == "ARMATURE" for c in controls)
     pairs = driver_pairs(controls, _driver_ids(mesh, controls))
-    model, report = probe_rig(evaluator.deltas, names, evaluator.marker_names, evaluator.neutral, rest=rest,
-                              lower=lower, upper=upper, pairs=pairs, find_pairs=bones, n_random=rig_settings.probes,
-                              progress=progress)
+    model, report = yield from probe_rig_steps(evaluator.deltas, names, evaluator.marker_names, evaluator.neutral,
+                                               rest=rest, lower=lower, upper=upper, pairs=pairs, find_pairs=bones,
+                                               n_random=rig_settings.probes, chunk=chunk)
     info.update(report.as_dict())
     info["seconds"] = round(time.perf_counter() - t0, 3)
     if say is not None:
@@ -130,7 +155,7 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
     evaluate = evaluator.deltas if rig_settings.refine else None
     stride = max(1, -(-int(n_frames or 0) // REFINE_EVALUATIONS))
     target = RigTarget("probed", model=model, nonlinear=rig_settings.nonlinear, evaluate=evaluate,
-                       refine_stride=stride, info=info)
+                       refine_stride=stride, info=info, reference=reference)
     return target, controls
 
 
@@ -140,13 +165,19 @@ def key_rig(rig_settings, mesh, result, action_name, *, take_name=""):
     return key_controls(rig_controls(rig_settings, mesh), result, action_name, take_name=take_name)[0]
 
 
-def rig_target_for_take(config, mesh, markers, *, say=None):
-    """(RigTarget, report fields) of a take config's ``[rig]``: bound as ``[binding]`` says."""
+#: The slow reference path for every rig solve of this process (``rig-bench --reference``, tests).
+REFERENCE = False
+
+
+def rig_target_for_take(config, mesh, markers, *, say=None, progress=None):
+    """(RigTarget, report fields) of a take config's ``[rig]``: bound as ``[binding]`` says;
+    ``progress(done, total) -> bool`` sees the probes (False cancels)."""
     rig = config.rig
     if markers is None or (config.settings.strategy != "geometric" and rig.method == "probed"):
         raise ConfigError("a rig's controls are solved from a marker take with the geometric strategy, or through a "
                           "pose library (method = \"poses\") with any strategy", path=config.path, key="rig.method")
     sampling = rig_binding(mesh, markers, config.settings, config.binding)
-    target, controls = build_rig_target(mesh, markers.names, rig, say=say, binding=sampling, n_frames=markers.n_frames)
+    target, controls = build_rig_target(mesh, markers.names, rig, say=say, binding=sampling, n_frames=markers.n_frames,
+                                        progress=progress, reference=REFERENCE)
     fields = {"method": rig.method, "preset": rig.preset, "object": rig.object, "controls": [c.name for c in controls]}
     return target, fields

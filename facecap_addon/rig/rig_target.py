@@ -78,6 +78,19 @@ class Control:
             xyz = [arr[i] for i in (1, 2, 3)]
             arr[0] = math.sqrt(max(0.0, 1.0 - sum(v * v for v in xyz)))
 
+    def setter(self):
+        """``set`` with the data path resolved once (a pose is thousands of sets while probing)."""
+        obj, attr = self._target()
+        if obj is None or attr == "rotation_quaternion":
+            return self.set
+        if self.index < 0:
+            return lambda value: setattr(obj, attr, value)
+        arr, i = getattr(obj, attr), self.index
+
+        def put(value):
+            arr[i] = value
+        return put
+
     @property
     def curve(self):
         """(data_path, index) of the F-curve keyed on ``owner``."""

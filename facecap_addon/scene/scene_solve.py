@@ -4,7 +4,8 @@ and the solve layer it keys.
 *Solve and Key*, *Retune*, *Fit Gain and Offset* and *Solve from Clip Flow* all build their request
 here (``request_from_scene``): the take and the character read from the scene, the active library
 version, the animator's locks and the per-shape controls. *Solve and Key* solves on a worker thread
-(``SolveInBackground``) so the sidebar shows its progress and Esc cancels it.
+(``SolveInBackground``) so the sidebar shows its progress and Esc cancels it; onto a rig it runs in
+short steps on the main thread instead (``RigSolveSession``: Blender evaluates the rig).
 """
 
 import glob
@@ -17,9 +18,10 @@ import numpy as np
 from ...solvers.config.rig import RigSettings
 from ...solvers.errors import FacecapError
 from ...solvers.pipeline import SAMPLES_CHARACTER
-from ...solvers.solve import SolveRequest, solve
+from ...solvers.solve import SolveRequest, solve, solve_job
+from ...solvers.video.reading import Cancelled
 from . import anim, layers, take
-from ..rig.rig_solve import build_rig_target, key_rig, rig_binding
+from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -64,18 +66,27 @@ def rig_settings(settings):
                        nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
 
 
-def _rig_request(settings, markers, rsettings, *, corrections, mu):
+def _rig_inputs(settings, markers, rsettings):
+    """(RigSettings, settings, binding) of the sidebar's rig target, checked."""
     if markers is None:
         raise FacecapError("a rig's controls are solved from a marker take")
     if settings.rig_method == "probed":  # its model stands for the character's shapes: the geometric solve
         if rsettings.strategy not in SAMPLES_CHARACTER:
             raise FacecapError("a probed rig is solved with the geometric strategy; use a pose library for the others")
         rsettings = replace(rsettings, strategy="geometric")
-    rig = rig_settings(settings)
     sampling = rig_binding(settings.target, markers, rsettings, binding_from_sidebar(settings))
-    target, _ = build_rig_target(settings.target, markers.names, rig, binding=sampling, n_frames=markers.n_frames)
+    return rig_settings(settings), rsettings, sampling
+
+
+def _rig_solve_request(settings, markers, rsettings, target, *, corrections=None, mu=None):
     return SolveRequest(character=None, settings=rsettings, markers=markers, corrections=corrections, mu=mu,
                         controls=shape_controls(settings), fps=settings.fps, rig=target)
+
+
+def _rig_request(settings, markers, rsettings, *, corrections, mu):
+    rig, rsettings, sampling = _rig_inputs(settings, markers, rsettings)
+    target, _ = build_rig_target(settings.target, markers.names, rig, binding=sampling, n_frames=markers.n_frames)
+    return _rig_solve_request(settings, markers, rsettings, target, corrections=corrections, mu=mu)
 
 
 def solve_take(settings, scene, **kwargs):
@@ -178,6 +189,105 @@ class SolveInBackground:
 
     def cancel(self):
         self.cancelled = True
+
+
+class RigSolveSession:
+    """*Solve and Key* onto a rig in the sidebar. Blender evaluates the rig (probing, refinement), so
+    the work runs on the main thread in short steps that the modal operator drives from its timer
+    (``step``): the rig probed ``PROBE_CHUNK`` poses at a time, then the solve a Gauss-Newton
+    iteration at a time. The status bar says which and how far; Esc (``cancel``) stops between two
+    steps, where the rig's controls are as the user left them and nothing is keyed yet."""
+
+    what = "Solve and Key"
+
+    def __init__(self, settings, scene):
+        self.settings = settings
+        markers = take.markers_from_collection(settings)
+        rsettings = replace(take.retarget_settings(settings), strategy=settings.strategy)
+        rig, rsettings, sampling = _rig_inputs(settings, markers, rsettings)
+        self.frames = markers.n_frames
+        self.stage, self.done, self.total = "probing the rig", 0, 1
+        self.result = self.error = None
+        self.cancelled = False
+        self.started = time.monotonic()
+        self._steps = self._run(settings, markers, rsettings, rig, sampling)
+
+    def _run(self, settings, markers, rsettings, rig, sampling):
+        target, _ = yield from build_rig_target_steps(settings.target, markers.names, rig, binding=sampling,
+                                                      n_frames=markers.n_frames, chunk=PROBE_CHUNK)
+        job = solve_job(_rig_solve_request(settings, markers, rsettings, target))
+        self.stage = "solving"
+        try:
+            while not job.step():
+                yield job.done, job.total
+        finally:
+            if job.result is None:
+                job.cancel()
+        return job.result
+
+    @property
+    def finished(self):
+        return self.result is not None or self.error is not None
+
+    @property
+    def fraction(self):
+        """Of the whole solve: probing counts for the first half."""
+        part = min(self.done / max(self.total, 1), 1.0)
+        return 0.5 * part if self.stage == "probing the rig" else 0.5 + 0.5 * part
+
+    def step(self, seconds=0.1):
+        """Work for about ``seconds``; True when finished (FacecapError of the solve raised here)."""
+        if self.finished:
+            return True
+        if self.cancelled:
+            raise Cancelled(f"{self.what} cancelled")
+        end = time.perf_counter() + seconds
+        while not self.finished:
+            try:
+                self.done, self.total = next(self._steps)
+            except StopIteration as stop:
+                self.result = stop.value
+            except Exception as exc:
+                self.error = exc
+                raise
+            if time.perf_counter() >= end:
+                break
+        return self.finished
+
+    def run(self, progress=None):
+        """To the end; ``progress(fraction) -> bool`` returning False cancels (``Cancelled``)."""
+        while not self.step(0.0):
+            if progress is not None and progress(self.fraction) is False:
+                self.cancel()
+                raise Cancelled(f"{self.what} cancelled while {self.stage}")
+        return self.result
+
+    def wait(self):
+        if self.error is not None:
+            raise self.error
+        return self.run()
+
+    def seconds(self):
+        return time.monotonic() - self.started
+
+    def status(self):
+        unit = "poses" if self.stage == "probing the rig" else "steps"
+        return (f"{self.what}: {self.stage} ({self.done}/{self.total} {unit}) for {self.frames} frames, "
+                f"{self.seconds():.0f} s; Esc cancels")
+
+    def cancel(self):
+        """Stop between two steps: the generator is closed (the rig's controls are put back by each
+        evaluation already); nothing was keyed. Safe to call twice."""
+        if not self.cancelled and not self.finished:
+            self.cancelled = True
+            self._steps.close()
+
+
+def start_session(settings, scene):
+    """The *Solve and Key* session for the sidebar's target: on a thread, or in steps onto a rig."""
+    if settings.rig_preset != "NONE":
+        return RigSolveSession(settings, scene)
+    return SolveInBackground(settings, scene)
 
 
 def _describe(request):

@@ -13,6 +13,7 @@ shape keys and their corrective drivers. ``solvers.rig.nonlinear`` solves it; it
 """
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -106,28 +107,47 @@ class RigModel:
 
     def jacobian(self, u):
         """d deltas / d u at ``u`` (F, C): shape (F, M * D, C)."""
+        return self.jacobian_t(u).transpose(1, 2, 0)
+
+    @cached_property
+    def _terms(self):
+        """(3C + Q, M * D): every fixed vector a column of the Jacobian is a combination of."""
+        C = self.n_controls
+        return np.vstack([self.linear.reshape(C, -1), self.square.reshape(C, -1), self.cube.reshape(C, -1),
+                          self.pair_deltas.reshape(len(self.pairs), self.linear[0].size)])
+
+    def jacobian_t(self, u, dtype=np.float64):
+        """The Jacobian control-major, (C, F, M * D) in ``dtype``: column c of frame f is
+        L_c + 2 u_c S_c + 3 u_c^2 T_c + sum over c's pairs of the other offset times P_q."""
         u = np.atleast_2d(np.asarray(u, dtype=np.float64))
         C, M, D = self.linear.shape
         F = u.shape[0]
-        J = np.empty((F, M * D, C))
-        J[:] = self.linear.reshape(C, -1).T
-        tmp = np.empty_like(J)
-        for k, coef in ((2.0, self.square), (3.0, self.cube)):
-            live = np.flatnonzero(np.abs(coef).reshape(C, -1).max(axis=1) > 0)
-            if not live.size:
-                continue
-            power = u[:, live] if k == 2.0 else u[:, live] ** 2
-            part = tmp[:, :, : live.size]
-            np.multiply(power[:, None, :], (k * coef[live].reshape(live.size, -1).T)[None], out=part)
-            J[:, :, live] += part
+        coef = np.stack([np.ones_like(u), 2.0 * u, 3.0 * u * u], axis=2).transpose(1, 0, 2).astype(dtype)  # (C, F, 3)
+        terms = self._terms.astype(dtype, copy=False)
+        own = terms[: 3 * C].reshape(3, C, -1).transpose(1, 0, 2)  # (C, 3, P)
+        Jt = np.matmul(coef, own)  # (C, F, P): one small product per control, contiguous per control
         if len(self.pairs):
-            P = self.pair_deltas.reshape(len(self.pairs), -1)
+            P = terms[3 * C:]
+            ut = u.astype(dtype, copy=False)
             for c in np.unique(self.pairs):  # d(u_a u_b)/du_c = the other one: a (F, k) @ (k, P) product per control
                 rows_a = np.flatnonzero(self.pairs[:, 0] == c)
                 rows_b = np.flatnonzero(self.pairs[:, 1] == c)
                 other = np.concatenate([self.pairs[rows_a, 1], self.pairs[rows_b, 0]])
-                J[:, :, c] += u[:, other] @ P[np.concatenate([rows_a, rows_b])]
-        return J
+                Jt[c] += ut[:, other] @ P[np.concatenate([rows_a, rows_b])]
+        return Jt
+
+    def jacobian_t_dot(self, u, v):
+        """J(u_f)' v_f for every frame: (F, C), exact in float64 without forming the Jacobian."""
+        u = np.atleast_2d(np.asarray(u, dtype=np.float64))
+        C = self.n_controls
+        y = np.asarray(v, dtype=np.float64) @ self._terms.T  # (F, 3C + Q)
+        out = y[:, :C] + 2.0 * u * y[:, C:2 * C] + 3.0 * u * u * y[:, 2 * C:3 * C]
+        if len(self.pairs):
+            a, b = self.pairs[:, 0], self.pairs[:, 1]
+            yp = y[:, 3 * C:]
+            np.add.at(out.T, a, (u[:, b] * yp).T)
+            np.add.at(out.T, b, (u[:, a] * yp).T)
+        return out
 
     def secant(self):
         """(C, M, D): each control's displacement at full span (towards its farther limit) / span."""

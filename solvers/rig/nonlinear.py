@@ -44,8 +44,11 @@ class NonlinearResult:
 
 
 class _Problem:
-    def __init__(self, model, deltas, confidence, defect, ridge, l1, temporal, lower, upper):
+    def __init__(self, model, deltas, confidence, defect, ridge, l1, temporal, lower, upper, *, hessian=np.float64,
+                 reuse=0.0):
         self.model, self.ridge, self.l1, self.temporal = model, ridge, l1, temporal
+        self.hessian, self.reuse = hessian, reuse * model.span
+        self.H = self.u_at_H = None
         F, M, D = deltas.shape
         seen = np.isfinite(deltas).all(axis=2)
         c = seen.astype(np.float64) if confidence is None else np.where(seen, np.nan_to_num(confidence), 0.0)
@@ -75,18 +78,25 @@ class _Problem:
         return out
 
     def normal(self, u, r):
-        """Per-frame Gauss-Newton blocks H (F, C, C) and the full gradient (F, C)."""
+        """Per-frame Gauss-Newton blocks H (F, C, C) and the full gradient (F, C).
+
+        The gradient is exact (float64, without forming the Jacobian). H only steers the step (the
+        line search checks the true objective), so it may be formed in float32 and kept for frames
+        whose controls moved less than ``reuse`` (of each control's span) since it was formed."""
         F, C = u.shape
-        H = np.empty((F, C, C))
-        g = np.empty((F, C))
-        for a in range(0, F, BLOCK):
-            s = slice(a, a + BLOCK)
-            J = self.model.jacobian(u[s])
-            cJt = (J * self.c[s, :, None]).transpose(0, 2, 1)
-            H[s] = cJt @ J  # batched BLAS: 10x einsum's time on (512, P, C) blocks
-            g[s] = (cJt @ r[s][:, :, None])[:, :, 0]
-        g += self.ridge * u + self.temporal_mul(u) + self.l1
-        return H, g
+        g = self.model.jacobian_t_dot(u, self.c * r) + self.ridge * u + self.temporal_mul(u) + self.l1
+        if self.H is None:
+            self.H, self.u_at_H = np.empty((F, C, C)), u.copy()
+            stale = np.arange(F)
+        else:
+            stale = np.flatnonzero((np.abs(u - self.u_at_H) > self.reuse).any(axis=1))
+        for a in range(0, stale.size, BLOCK):
+            rows = stale[a:a + BLOCK]
+            J = self.model.jacobian_t(u[rows], self.hessian).transpose(1, 0, 2)  # (n, C, P)
+            cJ = J * self.c[rows, None, :].astype(self.hessian)
+            self.H[rows] = np.matmul(cJ, J.transpose(0, 2, 1))  # batched BLAS, one (C, P) x (P, C) per frame
+            self.u_at_H[rows] = u[rows]
+        return self.H, g
 
 
 def _band(H, temporal, free, damping, ridge):
@@ -96,9 +106,8 @@ def _band(H, temporal, free, damping, ridge):
     diag, off1, off2 = temporal
     width = 2 * C if F > 2 else C
     ab = np.zeros((width + 1, F * C))
-    for k in range(C):  # within a frame: column j couples with row j - k
-        idx = np.arange(k, C)
-        ab[width - k].reshape(F, C)[:, k:] = H[:, idx - k, idx]
+    for k in range(C):  # within a frame: column j couples with row j - k (the k-th diagonal of each block)
+        ab[width - k].reshape(F, C)[:, k:] = np.diagonal(H, offset=k, axis1=1, axis2=2)
     main = ab[width].reshape(F, C)
     main += diag[:, None] + ridge
     main += damping * np.maximum(np.einsum("fii->fi", H), 1e-12 * (np.einsum("fii->", H) / max(F * C, 1)) + 1e-300)
@@ -106,10 +115,12 @@ def _band(H, temporal, free, damping, ridge):
         ab[width - C].reshape(F, C)[1:] += off1[:, None]
     if F > 2:
         ab[width - 2 * C].reshape(F, C)[2:] += off2[:, None]
-    flat = free.reshape(-1)
+    held = np.flatnonzero(~free.reshape(-1))  # usually few: their rows and columns are cleared one by one
+    n = F * C
     for k in range(1, width + 1):
-        ab[width - k, k:] *= flat[k:] & flat[:-k]
-    ab[width, ~flat] = 1.0
+        ab[width - k, held[held >= k]] = 0.0  # column j, row j - k
+        ab[width - k, (held + k)[held + k < n]] = 0.0  # row j, column j + k
+    ab[width, held] = 1.0
     return ab
 
 
@@ -125,7 +136,7 @@ def solve_nonlinear(model, deltas, **options):
 
 
 def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks=None, regularisation=1e-3,
-                      sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-5):
+                      sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-5, hessian=np.float64, reuse=0.0):
     """``solve_nonlinear`` as a generator that yields the iteration number after each Gauss-Newton
     step (so a job can report progress and stop between steps) and returns the NonlinearResult.
 
@@ -139,6 +150,9 @@ def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, loc
     regularisation, sparsity, smoothing : the ``[solve]`` priors, relative to the basis scale
     max_iter, tol : Gauss-Newton iterations at most; stop when the objective falls by less than
         ``tol`` of itself
+    hessian, reuse : the dtype the Gauss-Newton blocks are formed in, and how far (share of each
+        control's span) a frame's controls may move before its block is formed again (0: every
+        iteration). The gradient and the objective stay exact float64 either way.
 
     Returns (from the generator)
     -------
@@ -162,7 +176,7 @@ def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, loc
     mu1, mu2 = (float(v) * unit for v in smoothing)
     temporal = temporal_operator(F, mu1, mu2)
     prob = _Problem(model, deltas, confidence, defect, float(regularisation) * unit + 1e-12 * unit, l1, temporal,
-                    lower, upper)
+                    lower, upper, hessian=hessian, reuse=reuse)
     held = np.zeros((F, C), dtype=bool)
     lock_values = np.zeros((F, C))
     if locks is not None:

@@ -60,8 +60,7 @@ def _axis_offsets(lower, upper):
     return np.array(rows).reshape(-1, len(lower)), which
 
 
-def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, upper, pairs=(), find_pairs=True,
-              n_random=1000, active=4, seed=0, pair_tol=0.02, step_tol=0.02, progress=None):
+def probe_rig(evaluate, control_names, marker_names, neutral, *, progress=None, **options):
     """Probe a rig through ``evaluate`` and fit its ``RigModel``.
 
     Parameters
@@ -72,11 +71,28 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, up
     find_pairs : also test every two controls that move a common bound point
     n_random, active : random poses and how many controls each moves at once
     progress : callable(done, total) -> bool, False cancels (FacecapError "cancelled")
+    the other options: those of ``probe_rig_steps``
 
     Returns
     -------
     (RigModel, ProbeReport)
     """
+    steps = probe_rig_steps(evaluate, control_names, marker_names, neutral, **options)
+    while True:
+        try:
+            done, planned = next(steps)
+        except StopIteration as stop:
+            return stop.value
+        if progress is not None and progress(done, planned) is False:
+            steps.close()
+            raise FacecapError("rig probing cancelled")
+
+
+def probe_rig_steps(evaluate, control_names, marker_names, neutral, *, rest, lower, upper, pairs=(),
+                    find_pairs=True, n_random=1000, active=4, seed=0, pair_tol=0.02, step_tol=0.02, chunk=None):
+    """``probe_rig`` as a generator: yields (probes done, probes planned) after every ``chunk``
+    poses evaluated (default: each batch at once), so a caller can show progress and stop between
+    two chunks (``close()``); returns (RigModel, ProbeReport)."""
     rest, lower, upper = (np.asarray(a, dtype=np.float64) for a in (rest, lower, upper))
     C = len(control_names)
     lo, hi = lower - rest, upper - rest
@@ -87,15 +103,17 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, up
     total = [0]
 
     def run(offsets):
-        out = evaluate(offsets)
-        total[0] += len(offsets)
-        if progress is not None and progress(total[0], planned) is False:
-            raise FacecapError("rig probing cancelled")
-        return out
+        size = chunk or max(len(offsets), 1)
+        parts = []
+        for a in range(0, len(offsets), size):
+            parts.append(evaluate(offsets[a:a + size]))
+            total[0] += len(parts[-1])
+            yield total[0], planned
+        return np.concatenate(parts) if parts else evaluate(offsets)
 
     axis, which = _axis_offsets(lo, hi)
     planned = len(axis) + n_random + C * 4
-    axis_d = run(axis)
+    axis_d = yield from run(axis)
     size = np.linalg.norm(axis_d, axis=2)  # (N, M)
     reach = np.zeros((C, len(marker_names)))
     for row, (i, _) in enumerate(which):
@@ -123,7 +141,7 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, up
                 singles[i] = axis_d[row]
         for q, (a, b) in enumerate(candidates):
             corner[q, a], corner[q, b] = far[a], far[b]
-        corner_d = run(corner)
+        corner_d = yield from run(corner)
         for q, (a, b) in enumerate(candidates):
             mixed = np.abs(corner_d[q] - singles[a] - singles[b]).max()
             alone = max(np.abs(singles[a]).max(), np.abs(singles[b]).max(), 1e-300)
@@ -136,7 +154,7 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, rest, lower, up
     for row in rand:
         on = rng.choice(C, size=min(active, C), replace=False)
         row[on] = rng.uniform(lo[on], hi[on])
-    rand_d = run(rand) if n_random else np.zeros((0,) + axis_d.shape[1:])
+    rand_d = (yield from run(rand)) if n_random else np.zeros((0,) + axis_d.shape[1:])
     held = np.zeros(n_random, dtype=bool)
     held[: n_random // 5] = True
     fit_u = np.vstack([axis, corner, rand[~held]])

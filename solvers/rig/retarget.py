@@ -21,6 +21,10 @@ from .nonlinear import iterate_nonlinear
 from .poses import PoseLibrary
 
 METHODS = ("probed", "poses")
+#: A frame's Gauss-Newton block is formed again once a control moved this share of its span.
+HESSIAN_REUSE = 0.02
+#: Frames each side of a refined frame that are solved again with it.
+REFINE_PAD = 8
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +42,10 @@ class RigTarget:
     refine_stride : the rig is evaluated on every n-th frame of a refinement round (1: every frame)
     max_iter : Gauss-Newton iterations per solve
     info : what building the target found (probing report), carried into ``info["rig"]``
+    reference : the slow path the fast one is checked against: Gauss-Newton blocks formed in float64
+        on every frame at every iteration, and each refinement round a solve of the whole take (the
+        fast path forms them in float32, keeps a frame's block while its controls barely move, and
+        re-solves only windows around the frames the rig refines, their neighbours held)
     """
 
     method: str
@@ -51,6 +59,7 @@ class RigTarget:
     refine_stride: int = 1
     max_iter: int = 20
     info: dict = field(default_factory=dict)
+    reference: bool = False
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -118,20 +127,34 @@ class RigTarget:
         locks = None if np.isnan(locks).all() else locks
         priors = dict(regularisation=settings.regularisation, sparsity=settings.sparsity, smoothing=settings.smoothing,
                       locks=locks, max_iter=self.max_iter)
-        nl = yield from iterate_nonlinear(model, deltas, start=start, **priors)
+        fast = {} if self.reference else {"hessian": np.float32, "reuse": HESSIAN_REUSE}
+        nl = yield from iterate_nonlinear(model, deltas, start=start, **priors, **fast)
         info = {"nonlinear": True, "iterations": nl.iterations, "converged": nl.converged,
                 "linear_residual_mm": _mean_mm(result.residual_rms[solved]),
                 "model_residual_mm": _mean_mm(nl.residual_rms[solved])}
-        u, rms, refined = nl.offsets, nl.residual_rms, 0
-        evaluate = self.evaluate
+        u, rms, refined = nl.offsets, nl.residual_rms.copy(), 0
+        evaluate, changed = self.evaluate, None
         for _ in range(self.refine_rounds if evaluate is not None else 0):
             defect, bad = rig_defect(evaluate, model, u, self.model.marker_names, result.marker_names, self.refine_mm,
-                                     self.refine_stride)
+                                     self.refine_stride, frames=changed)
             if not bad.any():
                 break
             refined = max(refined, int(bad.sum()))
-            nl = yield from iterate_nonlinear(model, deltas, start=u, defect=defect, **priors)
-            u, rms = nl.offsets, nl.residual_rms
+            if self.reference:
+                nl = yield from iterate_nonlinear(model, deltas, start=u, defect=defect, **priors)
+                u, rms = nl.offsets, nl.residual_rms
+                continue
+            # only windows around the refined frames are solved again; their edges are held, which
+            # decouples them exactly (the temporal term reaches two frames)
+            window, held = refine_windows(bad, REFINE_PAD)
+            idx = np.flatnonzero(window)
+            sub_locks = np.full((idx.size, model.n_controls), np.nan)
+            if locks is not None:
+                sub_locks[:] = np.broadcast_to(locks, (F, model.n_controls))[idx]
+            sub_locks[held[idx]] = u[idx][held[idx]]
+            nl = yield from iterate_nonlinear(model, deltas[idx], start=u[idx], defect=defect[idx],
+                                              **{**priors, "locks": sub_locks}, **fast)
+            u[idx], rms[idx], changed = nl.offsets, nl.residual_rms, window
         if evaluate is not None:
             info["refined_frames"] = refined
         u[~solved] = np.nan
@@ -149,28 +172,43 @@ def _mean_mm(values):
     return round(float(values.mean() * 1e3), 6) if values.size else None
 
 
-def rig_defect(evaluate, model, u, all_markers, used, refine_mm, stride=1):
+def rig_defect(evaluate, model, u, all_markers, used, refine_mm, stride=1, frames=None):
     """What the real rig adds to ``model`` at offsets ``u`` (F, C), on the frames where it matters:
     (defect (F, M, D) zero elsewhere, those frames (F,) bool). The rig is evaluated on every
     ``stride``-th frame (and the last) and the defect interpolated between them: the controls move
-    smoothly, and so does what the model misses."""
+    smoothly, and so does what the model misses. ``frames`` (F,) bool: only these (the rest
+    is taken as under the threshold), sampled on the same grid plus the ends of each run."""
     idx = [list(all_markers).index(n) for n in used]
     F = u.shape[0]
     at = np.unique(np.r_[np.arange(0, F, max(int(stride), 1)), F - 1])
+    if frames is not None:
+        edges = np.flatnonzero(np.diff(np.r_[0, frames.astype(np.int8), 0]))  # run starts, ends + 1
+        at = np.union1d(at[frames[at]], np.r_[edges[0::2], edges[1::2] - 1]).astype(np.intp)
     real = evaluate(u[at])[:, idx]
-    sampled = real - model.deltas(u[at])
-    if len(at) == F:
-        defect = sampled
-    else:
-        flat = sampled.reshape(len(at), -1)
-        defect = np.empty((F, flat.shape[1]))
-        for j in range(flat.shape[1]):
-            defect[:, j] = np.interp(np.arange(F), at, flat[:, j])
-        defect = defect.reshape((F,) + sampled.shape[1:])
+    sampled = (real - model.deltas(u[at])).reshape(len(at), -1)
+    # linear interpolation between the sampled frames, all columns at once
+    right = np.clip(np.searchsorted(at, np.arange(F)), 1, max(len(at) - 1, 1)) if len(at) > 1 else np.zeros(F, int)
+    left = np.maximum(right - 1, 0)
+    span = np.maximum(at[right] - at[left], 1)
+    w = np.clip((np.arange(F) - at[left]) / span, 0.0, 1.0)[:, None]
+    defect = ((1.0 - w) * sampled[left] + w * sampled[right]).reshape((F,) + real.shape[1:])
     size = np.sqrt((defect ** 2).sum(axis=2).mean(axis=1))
     bad = size > refine_mm * 1e-3
+    if frames is not None:
+        bad &= frames
     defect[~bad] = 0.0
     return defect, bad
+
+
+def refine_windows(bad, pad, edge=2):
+    """(window, held) (F,) bool: the frames within ``pad`` of a refined frame plus ``edge`` frames
+    each side, and those edge frames (held: the temporal term couples a frame with two each side)."""
+    def grow(mask, n):
+        return np.convolve(mask.astype(np.int32), np.ones(2 * n + 1, dtype=np.int32), mode="same") > 0
+
+    core = grow(bad, pad)
+    window = grow(core, edge)
+    return window, window & ~core
 
 
 def character_deltas(result, settings):

@@ -202,31 +202,33 @@ TRACK_OUTPUTS = (("markers", "markers_csv"), ("confidence", "weights_csv"), ("re
 
 class FrameProgress:
     """Frames done of a long job: a tqdm bar (rate, ETA) on a terminal; elsewhere (a log file, CI) a plain
-    ``label: done/total frames`` line after the first frame, at most every ``every`` seconds and at the
+    ``label: done/total frames`` line after the first report, at most every ``every`` seconds and at the
     end, through :mod:`logging` (``--quiet`` hides them).
 
     tqdm is a dependency of the pip package; a Blender without it (the extension zip) gets the plain lines.
     """
 
-    def __init__(self, label, *, stream=None, every=10.0):
-        self.label, self.every = label, every
+    def __init__(self, label, *, stream=None, every=10.0, unit="frame"):
+        self.label, self.every, self.unit = label, every, unit
         self.stream = stream if stream is not None else sys.stderr
         self.last, self.start = time.monotonic(), time.monotonic()
-        self.bar = None
+        self.bar, self.first = None, True
         self.use_bar = tqdm is not None and getattr(self.stream, "isatty", lambda: False)()
 
     def __call__(self, done, total):
         if self.use_bar:
             if self.bar is None:
-                self.bar = tqdm(total=total, desc=self.label, unit="frame", file=self.stream, dynamic_ncols=True,
+                self.bar = tqdm(total=total, desc=self.label, unit=self.unit, file=self.stream, dynamic_ncols=True,
                                 leave=True)
+            if total != self.bar.total:  # a plan that grew on the way (a rig's probes)
+                self.bar.total = total
             self.bar.update(done - self.bar.n)
             return True
         now = time.monotonic()
-        if done in (1, total) or now - self.last >= self.every:
-            self.last = now
+        if self.first or done == total or now - self.last >= self.every:
+            self.first, self.last = False, now
             rate = done / max(now - self.start, 1e-9)
-            log.info(f"{self.label}: {done}/{total} frames ({rate:.0f} frames/s)")
+            log.info(f"{self.label}: {done}/{total} {self.unit}s ({rate:.0f} {self.unit}s/s)")
         return True
 
     def close(self):
@@ -310,10 +312,10 @@ def sigint_cancels():
             signal.signal(signal.SIGINT, restore)
 
 
-def run_showing_progress(job, label, *, quiet=False):
+def run_showing_progress(job, label, *, quiet=False, unit="frame"):
     """Run a :class:`~.reading.Job` with its progress shown (:class:`FrameProgress`, unless ``quiet``);
     Ctrl-C stops it between two frames with :class:`~.reading.Cancelled` (nothing written)."""
-    shown = None if quiet else FrameProgress(label)
+    shown = None if quiet else FrameProgress(label, unit=unit)
     with sigint_cancels() as stop:
         def progress(done, total):
             if shown is not None:

@@ -219,3 +219,82 @@ def test_rig_section_reads_presets_and_controls(tmp_path):
         ("rigify_face", "rig", "probed", 50, False, True)
     assert rig.controls == ({"object": "rig", "path": 'pose.bones["jaw"].rotation', "axes": [0]},)
     assert load_take_config(write(tmp_path, 'preset = "shape_keys"\n')).rig.preset == "shape_keys"
+
+
+def test_gradient_without_the_jacobian_is_the_jacobian_product():
+    """The fast path's gradient (J' v from the model's terms) against the formed Jacobian."""
+    model = random_model()
+    rng = np.random.default_rng(2)
+    u = rng.uniform(-0.8, 0.8, size=(5, model.n_controls))
+    v = rng.normal(size=(5, 8 * 3))
+    expected = np.einsum("fpc,fp->fc", model.jacobian(u), v)
+    np.testing.assert_allclose(model.jacobian_t_dot(u, v), expected, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(model.jacobian_t(u, np.float32), model.jacobian(u).transpose(2, 0, 1), rtol=1e-5,
+                               atol=1e-9)
+
+
+def test_fast_gauss_newton_gives_the_reference_solution(corrective_rig):
+    """float32 blocks kept while a frame's controls barely move: the same offsets as float64 blocks
+    formed every iteration, within 1 % of each control's range, and the same final objective."""
+    model = corrective_rig
+    weights = performance_weights(model.control_names, 300, seed=4)
+    data = model.deltas(weights) + np.random.default_rng(7).normal(size=(300,) + model.neutral.shape) * 3e-4
+    start = np.clip(weights + 0.1, model.lower, model.upper)
+    ref = solve_nonlinear(model, data, start=start)
+    fast = solve_nonlinear(model, data, start=start, hessian=np.float32, reuse=0.02)
+    assert ref.converged and fast.converged
+    span = model.upper - model.lower
+    assert np.abs((fast.offsets - ref.offsets) / span).max() < 0.01
+    assert fast.cost_end <= ref.cost_end * 1.001
+
+
+def test_refinement_windows_hold_two_frames_each_side_and_defect_only_where_asked():
+    from facecap.solvers.rig.retarget import refine_windows, rig_defect
+
+    bad = np.zeros(40, dtype=bool)
+    bad[[10, 11, 30]] = True
+    window, held = refine_windows(bad, pad=3)
+    assert np.flatnonzero(window).tolist() == list(range(5, 17)) + list(range(25, 36))
+    assert np.flatnonzero(held).tolist() == [5, 6, 15, 16, 25, 26, 34, 35]
+    model = random_model()
+    u = np.random.default_rng(3).uniform(-0.5, 0.5, size=(40, model.n_controls))
+    asked = []
+
+    def evaluate(offsets):  # the "real rig": the model plus 1 mm on every point
+        asked.append(len(offsets))
+        return model.deltas(offsets) + 1e-3
+
+    frames = np.zeros(40, dtype=bool)
+    frames[12:20] = True
+    defect, flagged = rig_defect(evaluate, model, u, model.marker_names, model.marker_names, 0.05, stride=5,
+                                 frames=frames)
+    assert asked == [3]  # grid frame 15 and the run's ends 12 and 19; the grid outside it is not evaluated
+    np.testing.assert_array_equal(flagged, frames)
+    np.testing.assert_allclose(defect[frames], 1e-3)
+    assert not defect[~frames].any()
+
+
+def test_probing_steps_report_progress_and_stop_when_closed():
+    from facecap.solvers.rig import probe_rig_steps
+
+    model = random_model()
+    calls = []
+
+    def evaluate(offsets):
+        calls.append(len(offsets))
+        return model.deltas(offsets)
+
+    steps = probe_rig_steps(evaluate, model.control_names, model.marker_names, model.neutral, rest=np.zeros(6),
+                            lower=model.lower, upper=model.upper, n_random=50, chunk=16)
+    seen = [next(steps) for _ in range(3)]
+    assert [d for d, _ in seen] == [16, 32, 48] and all(total >= 48 + 50 for _, total in seen)
+    steps.close()  # as Esc does: nothing more is evaluated
+    assert calls == [16, 16, 16]
+    model_all, report = probe_rig(model.deltas, model.control_names, model.marker_names, model.neutral,
+                                  rest=np.zeros(6), lower=model.lower, upper=model.upper, n_random=50)
+    done = []
+    chunked, chunked_report = probe_rig(model.deltas, model.control_names, model.marker_names, model.neutral,
+                                        rest=np.zeros(6), lower=model.lower, upper=model.upper, n_random=50,
+                                        chunk=7, progress=lambda d, t: done.append((d, t)) or True)
+    assert done[-1][0] == report.probes == chunked_report.probes and len(done) > 5
+    np.testing.assert_allclose(chunked.linear, model_all.linear, atol=1e-15)
