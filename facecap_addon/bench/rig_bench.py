@@ -39,6 +39,18 @@ CHARACTER = ROOT / "sample_blends" / "character.blend"
 STABLE = ["head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_L", "head_temple_R",
           "head_nose_bridge_C", "head_side_L", "head_side_R"]
 FACIAL_SING_STABLE = ["root-1", "root-2", "root-3", "root-4", "root-5", "root-6"]
+#: Facial-Sing bound by position with six landmarks (docs/binding.md): the Rigify face has no shape keys
+#: for the automatic binding's motion test to judge its poses by, and the fit alone is ambiguous there.
+FACIAL_SING_BINDING = """[binding]
+mode = "nearest"
+[binding.landmarks]
+section7-2 = "nose_tip_C"
+section14-2 = "chin_C"
+section11-1 = "mouth_corner_L"
+section12-1 = "mouth_corner_R"
+section1-1 = "brow_inner_L"
+section2-1 = "brow_inner_R"
+"""
 #: The 3,600-frame Rigify take (``control_curves(seed=3)``) solved by the code before the fast path
 #: (commit eb369c7): medians of 3 runs (181.5 / 194.5 / 314.8 s wall) on the 2-core development
 #: machine, shared with other test runs. Machine-dependent: ``--reference`` measures here instead.
@@ -187,7 +199,7 @@ def rigify_figures(folder, capture, frames, say, docs=None, *, repeat=1, referen
         return out
     if capture is not None:
         sing = dict(markers=str(capture), source="", stable=FACIAL_SING_STABLE, neutral=(1, 100),
-                    extra='[binding]\nmode = "nearest"\n')
+                    extra=FACIAL_SING_BINDING)
         res = {}
         for name, obj, rig_text in (("keys", "Face", ""), ("rigify", face_name, rig_section)):
             res[name] = run_take(take_config(folder, f"sing_{name}", obj, rig=rig_text, **sing,

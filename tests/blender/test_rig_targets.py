@@ -217,7 +217,7 @@ def test_rigify_fast_solve_gives_the_reference_controls(rigify_face, monkeypatch
     windows) against the reference path on the same 300-frame take: the same controls within 5 % of
     their range (RMS 0.5 %), the same residual within 1 %, the same error against the known curves
     within 3 %."""
-    from facecap.facecap_addon import rig_solve
+    from facecap.facecap_addon.rig import rig_solve
 
     folder, face_name, names, truth, *_, fast = rigify_face
     monkeypatch.setattr(rig_solve, "REFERENCE", True)
@@ -264,7 +264,7 @@ class _CtrlC:
 def test_ctrl_c_stops_a_rig_solve_with_nothing_written(control_rig, monkeypatch, stage, unit):
     """Headless: probing and the solve report progress; Ctrl-C stops either between two steps with
     ``Cancelled`` and no output written (the output .blend, the weights CSV)."""
-    from facecap.facecap_addon import console, headless
+    from facecap.facecap_addon.headless import console, headless
     from facecap.solvers.video.reading import Cancelled
 
     folder = control_rig[0]
@@ -289,7 +289,7 @@ def test_sidebar_rig_solve_shows_progress_and_esc_leaves_the_animation_untouched
     the controls exactly as they were; left to finish, the new solve layer replaces the old one."""
     from types import SimpleNamespace
 
-    from facecap.facecap_addon import layers, scene_solve
+    from facecap.facecap_addon.scene import layers, scene_solve
     from facecap.operators.solve import FACECAP_OT_solve
     from tests.blender.scene_fixtures import modal_driver
 
