@@ -15,6 +15,7 @@ changed since (the run adds to the output's own copy of it; ``--replace`` starts
 
 import contextlib
 import os
+import select
 import signal
 import sys
 import threading
@@ -25,9 +26,14 @@ from ...solvers.errors import InputFileError
 from ...solvers.io.blend_file import check_blend_structure
 from ...solvers.io.files import atomic_path, file_sha256
 from ...solvers.io.outputs import write_error
+from . import console
 
 #: Seconds the forked child may take to open a file before the run gives up on it.
 PROBE_TIMEOUT = 600.0
+#: Seconds a forked child may sleep without using any CPU before it counts as stuck: a child forked after
+#: Blender's thread pool (TBB) started can wait forever for workers it does not have. The file is then
+#: opened in this process, as where no child can be forked.
+PROBE_STUCK = 10.0
 #: The scene property holding the character an output .blend was made from
 TARGET_STAMP = "facecap_target_blend"
 #: Files this process opened successfully already (path, size, mtime): not probed again (a batch worker
@@ -121,10 +127,12 @@ def _probe(path):
         os._exit(status)
     os.close(write_end)
     try:
-        message = _read_all(read_end)
-        status = _wait(pid)
+        message, status = _child_answer(pid, read_end)
     finally:
         os.close(read_end)
+    if status is None:  # stuck, not crashed: no answer about the file
+        console.log.debug(f"the child opening {path} made no progress for {PROBE_STUCK:g} s; opened here")
+        return None
     if status == 0:
         _PROBED.add(key)
         return None
@@ -139,31 +147,67 @@ def _probe(path):
     return message or "Blender failed reading it"
 
 
-def _read_all(fd):
-    chunks = []
-    while True:
-        chunk = os.read(fd, 4096)
-        if not chunk:
-            return b"".join(chunks).decode("utf-8", "replace").strip()
-        chunks.append(chunk)
-
-
-def _wait(pid):
-    """The child's exit status (negative: the signal that ended it); killed after ``PROBE_TIMEOUT``."""
+def _child_answer(pid, fd):
+    """(the child's message, its exit status: negative for the signal that ended it, None when it was stuck
+    (asleep without using any CPU for ``PROBE_STUCK`` seconds) and was killed); killed too after
+    ``PROBE_TIMEOUT``."""
+    chunks, open_pipe = [], True
     deadline = time.monotonic() + PROBE_TIMEOUT
+    cpu, still_since = _cpu_ticks(pid), time.monotonic()
     try:
         while True:
+            if open_pipe and select.select([fd], [], [], 0.05)[0]:
+                chunk = os.read(fd, 4096)
+                chunks.append(chunk)
+                open_pipe = bool(chunk)
             done, status = os.waitpid(pid, os.WNOHANG)
             if done:
-                return os.waitstatus_to_exitcode(status)
-            if time.monotonic() > deadline:
+                while open_pipe and (chunk := os.read(fd, 4096)):
+                    chunks.append(chunk)
+                message = b"".join(chunks).decode("utf-8", "replace").strip()
+                return message, os.waitstatus_to_exitcode(status)
+            now, used = time.monotonic(), _cpu_ticks(pid)
+            if used != cpu or used is None or _state(pid) != "S":  # working, waiting for the disk or a core
+                cpu, still_since = used, now
+            if now - still_since > PROBE_STUCK:
+                _kill(pid)
+                return "", None
+            if now > deadline:
                 os.kill(pid, signal.SIGKILL)
-            time.sleep(0.01)
+            if not open_pipe:
+                time.sleep(0.01)
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
+        _kill(pid)
         raise
+
+
+def _stat(pid):
+    """The fields of /proc/<pid>/stat after the command name (Linux; None elsewhere)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
+def _cpu_ticks(pid):
+    """User + system CPU clock ticks of process ``pid`` so far (None where /proc cannot tell)."""
+    fields = _stat(pid)
+    try:
+        return int(fields[11]) + int(fields[12])
+    except (TypeError, IndexError, ValueError):
+        return None
+
+
+def _state(pid):
+    """The process state letter: S sleeping, R running or runnable, D waiting for the disk, ..."""
+    fields = _stat(pid)
+    return fields[0] if fields else None
+
+
+def _kill(pid):
+    with contextlib.suppress(OSError):
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
 
 
 def save_blend_atomic(path):
