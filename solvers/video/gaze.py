@@ -25,10 +25,16 @@ CLOSED = 0.5
 SHAPES = tuple(f"eyeLook{d}{side}" for side in ("Left", "Right") for d in ("Up", "Down", "In", "Out"))
 
 
-def eye_angles(positions):
+def eye_angles(positions, neutral=None):
     """{side: (yaw towards the subject's left, pitch downwards) in degrees, each (F,)} from landmark
-    pixels (F, 478, >=2), relative to the eye's median pose (looking ahead most of the time). While the
-    lids are closed (a blink hides the iris) the angles are carried over from the open frames around."""
+    pixels (F, 478, >=2), relative to the irises' place in the ``neutral`` frames (indices or a mask:
+    the take's rest looks ahead; the camera's angle and the detector's bias cancel), else in the median
+    frame. While the lids are closed (a blink hides the iris) the angles are carried over from the open
+    frames around."""
+    rest = np.ones(len(positions), bool)
+    if neutral is not None and np.size(neutral):
+        rest = np.zeros(len(positions), bool)
+        rest[np.asarray(neutral)] = True
     out = {}
     for iris, outer, inner, upper, lower, side in EYES:
         p = positions[..., :2]
@@ -39,9 +45,11 @@ def eye_angles(positions):
         y = np.stack([-x[:, 1], x[:, 0]], axis=1)  # image down
         d = p[:, iris] - 0.5 * (a + b)
         u, v = np.sum(d * x, axis=1) / width, np.sum(d * y, axis=1) / width
-        u, v = u - np.nanmedian(u), v - np.nanmedian(v)
         lids = np.linalg.norm(p[:, upper] - p[:, lower], axis=1) / width
         shut = ~(lids >= CLOSED * np.nanmedian(lids))  # NaN (no face) counts as shut
+        ref = rest & ~shut if (rest & ~shut).any() else ~shut
+        if ref.any():
+            u, v = u - np.nanmedian(u[ref]), v - np.nanmedian(v[ref])
         if shut.any() and (~shut).any():
             frames = np.arange(len(u))
             u = np.interp(frames, frames[~shut], u[~shut])
@@ -51,10 +59,11 @@ def eye_angles(positions):
     return out
 
 
-def gaze_weights(positions):
-    """{ARKit eye-look shape: (F,) weight in [0, 1]} (:data:`SHAPES`) from landmark pixels (F, 478, >=2)."""
+def gaze_weights(positions, neutral=None):
+    """{ARKit eye-look shape: (F,) weight in [0, 1]} (:data:`SHAPES`) from landmark pixels (F, 478, >=2),
+    zero in the ``neutral`` frames (see :func:`eye_angles`)."""
     weights = {}
-    for side, (yaw, pitch) in eye_angles(positions).items():
+    for side, (yaw, pitch) in eye_angles(positions, neutral).items():
         outward = yaw if side == "Left" else -yaw  # out = away from the nose
         weights[f"eyeLookOut{side}"] = np.clip(outward / YAW_FULL, 0, 1)
         weights[f"eyeLookIn{side}"] = np.clip(-outward / YAW_FULL, 0, 1)
@@ -63,10 +72,11 @@ def gaze_weights(positions):
     return weights
 
 
-def gaze_locks(shape_names, positions):
+def gaze_locks(shape_names, positions, neutral=None):
     """Per-frame locks ``((shape name, (F,) weights), ...)`` holding the character's eye-look shapes
-    (:data:`SHAPES` matched by name or alias) at the irises' gaze: the solve then explains the lids'
-    motion by what is left (blinks, squints) instead of by a look it cannot see."""
+    (:data:`SHAPES` matched by name or alias) at the irises' gaze, relative to the ``neutral`` frames:
+    the solve then explains the lids' motion by what is left (blinks, squints) instead of by a look it
+    cannot see."""
     pairs, _, _ = match_names(SHAPES, shape_names)
-    gaze = gaze_weights(positions)
+    gaze = gaze_weights(positions, neutral)
     return tuple((shape_names[j], gaze[SHAPES[i]]) for i, j in pairs)
