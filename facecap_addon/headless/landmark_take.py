@@ -1,5 +1,6 @@
 """The headless side of a landmark take (``[tracking] method = "landmarks"``): the footage's face landmarks
-as a marker take in metres, and the character's eye-look shapes held at the irises' gaze through the solve."""
+as a marker take in metres, and the character's eye-look shapes held at the irises' gaze, its blink and
+wide shapes at the lids' gap, through the solve."""
 
 import dataclasses
 
@@ -47,11 +48,12 @@ def neutral_indices(settings, markers):
 
 def hold_gaze(request, shape_names, found):
     """``request`` with the character's eye-look shapes locked, frame by frame, at the irises' gaze of
-    ``found`` (a LandmarkResult), measured from their look in the take's neutral frames; returns
-    (request, a note naming the shapes, or None)."""
+    ``found`` (a LandmarkResult) and its blink and wide shapes at the lids' gap, both measured from the
+    take's neutral frames; returns (request, a note naming the shapes, or None)."""
     neutral = neutral_indices(request.settings, request.markers)
     gazed = gaze_locks(shape_names, found.markers.positions, neutral)
     if not gazed:
         return request, None
     settings = dataclasses.replace(request.settings, locks=tuple(request.settings.locks) + gazed)
-    return dataclasses.replace(request, settings=settings), f"gaze from the irises: {', '.join(n for n, _ in gazed)}"
+    note = f"eyes from the irises and lids: {', '.join(n for n, _ in gazed)}"
+    return dataclasses.replace(request, settings=settings), note
