@@ -169,8 +169,8 @@ def metric_take(result, *, eye_corners_m=EYE_CORNERS_M, iris=True):
     """The landmarks as a 3D take in metres, in the characters' convention (Z up, the face looking down
     -Y, +X the subject's left: image x, the model's depth, image y up), each frame scaled so the
     :data:`SPREAD` points keep their typical spread (the face's distance to the camera taken out) and
-    the whole take so the outer eye corners are ``eye_corners_m`` apart. ``iris=False`` leaves the iris points out (they
-    sit on the eyeballs, not on the skin a solve binds to)."""
+    the whole take so the outer eye corners are ``eye_corners_m`` apart. ``iris=False`` leaves the iris
+    points out (they sit on the eyeballs, not on the skin a solve binds to)."""
     markers = result.markers if isinstance(result, LandmarkResult) else result
     if not iris:
         markers = markers.subset(NAMES[:N_MESH])
