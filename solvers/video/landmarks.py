@@ -33,13 +33,9 @@ def _names(indices):
     return tuple(NAMES[i] for i in indices)
 
 
-#: Points that move with the skull, not with expressions: the bridge and back of the nose, the temples
-#: and the sides of the face at the ears (the default stabilisation set). Not the forehead: its skin
-#: rises with the brows, and holding it still took brow raises out as head motion.
-RIGID = _names((168, 6, 197, 195, 5, 127, 356, 234, 454, 162, 389))
-#: The points whose spread gives a frame's scale in :func:`metric_take`: the rigid ones and the upper
-#: forehead (a wider spread; a brow raise barely changes it).
-SPREAD = RIGID + _names((10, 109, 338, 67, 297))
+#: Points that move with the skull, not with expressions: upper forehead, the bridge and back of the
+#: nose, the temples and the sides of the face at the ears (the default stabilisation set).
+RIGID = _names((10, 109, 338, 67, 297, 168, 6, 197, 195, 5, 127, 356, 234, 454, 162, 389))
 #: Which points follow which part of the face (documentation and per-region diagnostics).
 REGIONS = {
     "brows": _names((70, 63, 105, 66, 107, 55, 65, 52, 53, 46, 300, 293, 334, 296, 336, 285, 295, 282, 283, 276)),
@@ -167,15 +163,15 @@ def _landmark_steps(footage, mesh, smoothing):
 
 def metric_take(result, *, eye_corners_m=EYE_CORNERS_M, iris=True):
     """The landmarks as a 3D take in metres, in the characters' convention (Z up, the face looking down
-    -Y, +X the subject's left: image x, the model's depth, image y up), each frame scaled so the
-    :data:`SPREAD` points keep their typical spread (the face's distance to the camera taken out) and
-    the whole take so the outer eye corners are ``eye_corners_m`` apart. ``iris=False`` leaves the iris
-    points out (they sit on the eyeballs, not on the skin a solve binds to)."""
+    -Y, +X the subject's left: image x, the model's depth, image y up), each frame scaled so the rigid
+    points keep their typical spread (the face's distance to the camera taken out) and the whole take so
+    the outer eye corners are ``eye_corners_m`` apart. ``iris=False`` leaves the iris points out (they
+    sit on the eyeballs, not on the skin a solve binds to)."""
     markers = result.markers if isinstance(result, LandmarkResult) else result
     if not iris:
         markers = markers.subset(NAMES[:N_MESH])
     p = markers.positions[..., [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
-    rigid = [markers.names.index(n) for n in SPREAD]
+    rigid = [markers.names.index(n) for n in RIGID]
     core = p[:, rigid]
     spread = np.sqrt(np.nanmean(np.sum((core - np.nanmean(core, axis=1, keepdims=True)) ** 2, axis=2), axis=1))
     typical = np.nanmedian(spread)
