@@ -216,7 +216,7 @@ def _cmd_convert(args):
 
 def _cmd_bench(args):
     if args.realism is not None:  # the cross-character benchmark (solvers/tools/synthetic/realism/): own options
-        from ..solvers.tools.synthetic.realism.bench import main as realism_main  # scipy: loaded when it runs
+        from ..solvers.tools.bench.realism_bench import main as realism_main  # scipy: loaded when it runs
 
         return realism_main(args.realism)
     if args.landmarks:  # renders a real face performing a recording, then retargets the footage (minutes)

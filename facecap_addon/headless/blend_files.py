@@ -77,7 +77,10 @@ def open_blend(path, what):
     if why is not None:
         raise InputFileError(path, f"Blender cannot read this .blend ({what}): {why}")
     try:
-        bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+        # Held back while it loads: Ctrl-C inside a load handler (Cycles' version update) would print that
+        # handler's traceback; it is raised once the file is open.
+        with interrupts_deferred():
+            bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
     except RuntimeError as exc:
         raise InputFileError(path, f"Blender cannot read this .blend ({what}): {_first_line(exc)}") from None
 

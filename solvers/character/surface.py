@@ -187,6 +187,13 @@ def closest_points(surface, points, *, candidates=None):
     distance : ndarray (N,)
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.all():  # a point without a position has no closest point: -1 and NaN
+        out = (np.full(len(points), -1), np.full((len(points), 3), np.nan), np.full((len(points), 3), np.nan),
+               np.full(len(points), np.nan))
+        for whole, part in zip(out, closest_points(surface, points[finite], candidates=candidates)):
+            whole[finite] = part
+        return out
     tri = nearest_triangles(surface, points, candidates or EXACT_START)
     if candidates is not None:
         return _best_of(surface, points, tri)

@@ -171,7 +171,7 @@ class ReferenceFlow:
     reference, started from the continuous estimate) or "none" (pure concatenation of
     frame-to-frame flows; drifts). ``error_sigma`` blurs the reconstruction errors used as weights.
 
-    Every frame costs two flows plus the fusion: at 640x480 (``solvers.video.bench``, medians on 2
+    Every frame costs two flows plus the fusion: at 640x480 (``solvers.tools.bench.video_bench``, medians on 2
     shared cores) DIS "balanced" runs ~23 frames/s at 0.06 px end-point error after 40 frames,
     ``preset="fast"`` ~46 frames/s at 0.13 px (the direct registration bounds its error too).
     """

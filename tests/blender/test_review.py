@@ -55,7 +55,7 @@ def _counts():
 FRESH_PROCESS_REVIEW = """
 import dataclasses, json, sys
 import bpy
-from facecap.facecap_addon import review as rv
+from facecap.facecap_addon.render import review as rv
 from facecap.facecap_addon.headless.demo import SAMPLE_CONFIG
 from facecap.facecap_addon.headless.headless import run_take
 from facecap.solvers.config import load_take_config

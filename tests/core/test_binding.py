@@ -235,3 +235,5 @@ def test_closest_points_are_those_of_every_triangle_tested(face):
     brute = np.argsort(d2, axis=1)[:, :16]
     near = nearest_triangles(surface, points, 16)
     assert all(set(x) == set(y) for x, y in zip(near, brute))
+    tri, _, _, dist = closest_points(surface, np.vstack([points[:1], [np.nan, 0.0, 0.0]]))
+    assert tri[1] == -1 and np.isnan(dist[1]) and dist[0] == pytest.approx(every[0])  # no position: no point

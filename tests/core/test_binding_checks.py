@@ -10,7 +10,7 @@ import pytest
 from sample_geometry import geometry_module
 from shared_data import ICT_FACEKIT, REALDATA, require
 
-from facecap.solvers.character.binding import bind_nearest, check_automatic_pose
+from facecap.solvers.character.binding import bind_nearest, check_automatic_pose, choose_by_motion, upside_down
 from facecap.solvers.character.binding_map import BindingSettings
 from facecap.solvers.character.face_model import load_ict
 from facecap.solvers.character.surface import make_surface, triangulate
@@ -79,33 +79,75 @@ def realism():
     return model, performances, make_target("sample", model)
 
 
-@pytest.mark.parametrize("seed", [0, 2])
+@pytest.mark.parametrize("seed", range(4))
 def test_68_landmarks_on_a_stylised_face_bind_upright_by_the_motion_or_ask_for_landmarks(realism, seed):
-    """68 landmarks of a real face's outline fit the sample character's surface best turned away (seed 0: the
-    only poses that fit; seed 2: the best fit of three, 82 deg off upright, explains 3% of the motion): the
-    pose kept must be upright (chin-to-brow up the character's +Z, the eye corners along X), or binding must
-    stop and ask for landmarks. Before the motion test both bound silently turned away."""
+    """68 landmarks of a real face's outline onto the sample character: the surface alone fits them turned
+    over about as well as upright (before the motion test two of five draws bound upside down, jawOpen moving
+    none of the 68 points). The pose kept must be upright (chin-to-brow up the character's +Z, the eye
+    corners along X), or binding must stop and ask for landmarks."""
     model, performances, mesh = realism
     draw = make_draw(model, performances, seed, layout="landmarks68", frames=600, perturbation=Perturbation())
     settings = base_settings(draw)
     try:
         bound = bind_character(mesh, draw.markers, settings, BindingSettings(mode="nearest"))
     except FacecapError as exc:
-        assert seed == 0 and re.search(r"no pose where the character's shapes move as the markers do: the best of "
-                                       r"\d pose\(s\) that fit the neutral explains \d+% .*nose tip", str(exc))
+        assert re.search(r"(no pose where the character's shapes move as the markers do|is ambiguous: two poses)"
+                         r".*nose tip", str(exc))
         return
-    assert seed == 2
     at = dict(zip(bound.basis.marker_names, bound.basis.neutral))  # where the landmarks sit on the character
     up, across = at["lm27"] - at["lm08"], at["lm45"] - at["lm36"]  # chin to nose bridge, eye corner to corner
-    assert up[2] / np.linalg.norm(up) > np.cos(np.radians(30))  # measured 0.98
-    assert abs(across[0]) / np.linalg.norm(across) > np.cos(np.radians(30))  # measured 1.00
-    # Upright is not always right: this pose may come out too small for the stylised face's proportions, the
-    # scale stopped at its bound and the chin's landmark on the upper lip (jawOpen moves it 0 mm; seen on one
-    # machine, where CI's kept the chin on the chin): then the user must be told, and landmarks settle it.
+    assert up[2] / np.linalg.norm(up) > np.cos(np.radians(30))  # measured 0.96-0.99
+    assert abs(across[0]) / np.linalg.norm(across) > np.cos(np.radians(30))  # measured 0.99-1.00
+    # Upright is not always right: a pose may come out too small for the stylised face's proportions, the
+    # scale stopped at its bound and the chin's landmark on the upper lip (jawOpen moving it 0 mm): then the
+    # user must be told, and landmarks settle it.
     chin = np.linalg.norm(bound.basis.deltas[bound.basis.shape_names.index("jawOpen"),
                                              bound.basis.marker_names.index("lm08")])
     assert chin * 1e3 > 20.0 or any("the scale stopped at its bound" in n for n in bound.notes)
     assert re.search(r"pose\(s\) fit the neutral .* explains \d+% of the take's motion", " ".join(bound.notes))
+
+
+def _choose(shares):
+    """choose_by_motion over poses given as {name: (rotation, share)}, each fitting the neutral alike."""
+    from types import SimpleNamespace
+
+    poses = [(1.0 + 0.01 * k, Similarity(1e-3, R, np.zeros(3))) for k, (R, _) in enumerate(shares.values())]
+    share_of = {id(sim): share for (_, sim), (_, share) in zip(poses, shares.values())}
+    name_of = {id(sim): name for (_, sim), name in zip(poses, shares)}
+    binding, note = choose_by_motion(poses, 768, lambda sim: SimpleNamespace(similarity=sim),
+                                     lambda b: share_of[id(b.similarity)])
+    return name_of[id(binding.similarity)], note
+
+
+UPRIGHT, TURNED = np.eye(3), np.diag([-1.0, 1.0, -1.0])  # the second turns the capture's +Z down
+
+
+def test_a_face_turned_over_against_the_capture_yields_to_an_upright_pose_that_explains_nearly_as_much():
+    """Upside down a dropping jaw looks like rising brows: on the realism benchmark with its actors rolled at
+    random, a face turned over explained 92% of a take's motion and the upright one 72%. An actor's neutral
+    is upright in its capture volume, so the upright pose is kept and the note says so; a turned pose that
+    explains far more (a head-mounted camera's frame can have any orientation) is kept."""
+    kept, note = _choose({"turned": (TURNED, 0.92), "upright": (UPRIGHT, 0.72)})
+    assert kept == "upright" and "the pose that explains 92% turns the capture's +Z or +Y down" in note
+    kept, note = _choose({"turned": (TURNED, 0.99), "upright": (UPRIGHT, 0.60)})
+    assert kept == "turned" and "turns the capture" not in note
+    kept, _ = _choose({"turned": (TURNED, 0.92), "upright": (UPRIGHT, 0.20)})  # below what a binding explains
+    assert kept == "turned"
+    assert upside_down(TURNED) and not upside_down(UPRIGHT)
+
+
+def test_a_capture_in_any_orientation_still_binds_the_face_the_right_way_round(realism):
+    """The same take turned over in its volume (about the volume's Z): the face is bound as before, each
+    marker near its own vertex of another person of the face model (the truth for this target)."""
+    model, performances, _ = realism
+    ict = make_target("ict", model)
+    draw = make_draw(model, performances, 1, layout="dense", frames=600, perturbation=Perturbation())
+    over = replace(draw.markers, positions=draw.markers.positions * np.array([-1.0, -1.0, 1.0]))
+    for markers in (draw.markers, over):
+        bound = bind_character(ict, markers, base_settings(draw), BindingSettings(mode="nearest"))
+        own = dict(zip(draw.layout.names, draw.layout.vertices))
+        truth = np.asarray(ict.vertices)[[own[n] for n in bound.basis.marker_names]]
+        assert np.median(np.linalg.norm(bound.basis.neutral - truth, axis=1)) * 1e3 < 15.0  # measured 10.9 mm upright, 12.3 mm turned over
 
 
 def test_a_still_take_is_bound_by_the_fit_alone(realism):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from shared_data import SHARED, require
 
-from facecap.solvers.tools.synthetic.realism.bench import run, summarise
+from facecap.solvers.tools.bench.realism_bench import run, summarise
 from facecap.solvers.tools.synthetic.realism.metrics import REGIONS
 
 METHODS = ("zero", "geometric", "nothing", "template", "calibration")

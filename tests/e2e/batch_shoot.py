@@ -95,7 +95,7 @@ def summary(path):
 
 SOLVE_CURVES = """
 import bpy, sys, numpy as np
-from facecap.facecap_addon import anim, layers
+from facecap.facecap_addon.scene import anim, layers
 out = {}
 for i, path in enumerate(sys.argv[2:]):
     bpy.ops.wm.open_mainfile(filepath=path)

@@ -13,7 +13,7 @@ pytestmark = pytest.mark.slow
 
 READ_BACK = """
 import bpy, json, sys, numpy as np
-from facecap.facecap_addon import anim, layers
+from facecap.facecap_addon.scene import anim, layers
 from facecap.solvers.io.csv import read_weights_csv
 frames, names, weights = read_weights_csv(sys.argv[1])
 out = {}

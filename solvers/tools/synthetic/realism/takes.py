@@ -83,7 +83,9 @@ def capture(actor, weights, rng, *, settings=CaptureSettings(), stable=(), fps=F
     pivot = np.array([0.0, 0.02, -0.1])  # near the top of the neck
     R = Rotation.from_rotvec(rotvec).as_matrix()
     moved = np.einsum("fij,fmj->fmi", R, face - pivot) + pivot + offset[:, None]
-    to_capture = Rotation.from_euler("xz", [-90.0, rng.uniform(-180.0, 180.0)], degrees=True).as_matrix()
+    # The model is Blender's way up (Z up, facing -Y); the capture volume is Y up, the actor facing a random
+    # heading about its vertical (a turn about Z here would roll the actor onto the side or upside down).
+    to_capture = Rotation.from_euler("xy", [-90.0, rng.uniform(-180.0, 180.0)], degrees=True).as_matrix()
     positions = (moved @ to_capture.T + [rng.uniform(-0.5, 0.5), 1.6, rng.uniform(-0.5, 0.5)]) * 1e3
     positions += rng.normal(scale=settings.noise * 1e3, size=positions.shape)
     still = set(stable)

@@ -1,4 +1,4 @@
-"""Video benchmarks: ``python -m facecap.solvers.video.bench [--frames N]``.
+"""Video benchmarks: ``python -m facecap.solvers.tools.bench.video_bench [--frames N]``.
 
 * LK tracking of 100 points on 1280x720 (goal >= 60 frames/s): the tracker alone on decoded
   frames, with and without re-registration, and end to end from an FFV1 video file (decode included).
@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from .flow import FlowEstimator, ReferenceFlow
-from .reading import Footage, opencv, write_video
-from .synthetic import face_texture, make_motion, render
-from .tracking import LKTracker, auto_seeds, track_points
+from ...video.flow import FlowEstimator, ReferenceFlow
+from ...video.reading import Footage, opencv, write_video
+from ...video.synthetic import face_texture, make_motion, render
+from ...video.tracking import LKTracker, auto_seeds, track_points
 
 
 def _frames(n, w, h, seed=0):
@@ -91,7 +91,7 @@ def bench_flow(n_frames=60, width=640, height=480, repeats=3):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m facecap.solvers.video.bench")
+    parser = argparse.ArgumentParser(prog="python -m facecap.solvers.tools.bench.video_bench")
     parser.add_argument("--frames", type=int, default=120, help="frames per tracking run (default 120)")
     parser.add_argument("--repeats", type=int, default=3, help="interleaved runs per row; medians (default 3)")
     args = parser.parse_args(argv)

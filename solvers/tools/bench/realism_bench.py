@@ -14,16 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ....character.face_model import load_ict
-from .actors import Perturbation
-from .layouts import LAYOUTS
-from .methods import METHODS, base_settings, bound_character, load_template, run_method
-from .metrics import REGIONS, compare
-from .real_captures import markdown as real_markdown
-from .real_captures import run_real
-from .scenario import make_draw
-from .takes import load_performances
-from .targets import TARGETS, make_target
+from ...character.face_model import load_ict
+from ..synthetic.realism.actors import Perturbation
+from ..synthetic.realism.layouts import LAYOUTS
+from ..synthetic.realism.methods import METHODS, base_settings, bound_character, load_template, run_method
+from ..synthetic.realism.metrics import REGIONS, compare
+from ..synthetic.realism.real_captures import markdown as real_markdown
+from ..synthetic.realism.real_captures import run_real
+from ..synthetic.realism.scenario import make_draw
+from ..synthetic.realism.takes import load_performances
+from ..synthetic.realism.targets import TARGETS, make_target
 
 #: A benchmark row's key figures, in table order.
 FIGURES = ("rmse", "r", "at_upper", "jitter")
@@ -122,7 +122,7 @@ def markdown(summary):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap bench --realism", description=__doc__.splitlines()[0])
-    parser.add_argument("--shared", default=str(Path(__file__).resolve().parents[5] / "shared"),
+    parser.add_argument("--shared", default=str(Path(__file__).resolve().parents[4] / "shared"),
                         help="the shared data folder holding data/ict-facekit and data/realdata/llf "
                              "(default: shared/ beside the checkout)")
     parser.add_argument("--draws", type=int, default=5)
