@@ -1,11 +1,17 @@
 """The headless side of a landmark take (``[tracking] method = "landmarks"``): the footage's face landmarks
-as a marker take in metres, and the character's eye-look shapes held at the irises' gaze through the solve."""
+as a marker take in metres, and the character's eye-look shapes held at the irises' gaze, its blink and
+wide shapes at the lids' gap, through the solve."""
 
 import dataclasses
 
+import numpy as np
+
+from ...solvers.capture.normalise import detect_neutral_frames
+from ...solvers.capture.stabilise import stabilise_rigid
+from ...solvers.pipeline.stages import neutral_ranges
 from ...solvers.video.cli import run_showing_progress
 from ...solvers.video.gaze import gaze_locks
-from ...solvers.video.landmarks import metric_take, track_landmarks_job
+from ...solvers.video.landmarks import RIGID, metric_take, track_landmarks_job
 from ...solvers.video.reading import Footage
 from . import console
 
@@ -26,11 +32,28 @@ def read_landmarks(video, inputs, say, *, quiet=False):
     return metric_take(found, iris=False), source, notes, found
 
 
+def neutral_indices(settings, markers):
+    """Indices of the take's neutral frames: the ``[neutral] frames`` given, else detected as the solve
+    detects them (on the take held still by its head-rigid points); None when neither applies."""
+    frames = markers.frames
+    ranges = neutral_ranges(settings)
+    if ranges:
+        return np.flatnonzero(np.any([(frames >= a) & (frames <= b) for a, b in ranges], axis=0))
+    if not settings.neutral_detect:
+        return None
+    stable = [n for n in RIGID if n in markers.names]
+    held = stabilise_rigid(markers, stable).markers
+    return np.flatnonzero(np.isin(frames, detect_neutral_frames(held)[0]))
+
+
 def hold_gaze(request, shape_names, found):
     """``request`` with the character's eye-look shapes locked, frame by frame, at the irises' gaze of
-    ``found`` (a LandmarkResult); returns (request, a note naming the shapes, or None)."""
-    gazed = gaze_locks(shape_names, found.markers.positions)
+    ``found`` (a LandmarkResult) and its blink and wide shapes at the lids' gap, both measured from the
+    take's neutral frames; returns (request, a note naming the shapes, or None)."""
+    neutral = neutral_indices(request.settings, request.markers)
+    gazed = gaze_locks(shape_names, found.markers.positions, neutral)
     if not gazed:
         return request, None
     settings = dataclasses.replace(request.settings, locks=tuple(request.settings.locks) + gazed)
-    return dataclasses.replace(request, settings=settings), f"gaze from the irises: {', '.join(n for n, _ in gazed)}"
+    note = f"eyes from the irises and lids: {', '.join(n for n, _ in gazed)}"
+    return dataclasses.replace(request, settings=settings), note

@@ -111,11 +111,30 @@ def skin_colours(neutral, openings):
         e = neutral[eye]
         c, half = e.mean(axis=0), np.ptp(e[:, 0]) / 2
         bx = (neutral[:, 0] - c[0] - 0.25 * half * np.sign(c[0])) / (2.0 * half)
-        bz = (neutral[:, 2] - (c[2] + 2.1 * half) + 0.35 * half * bx**2) / (0.55 * half)  # an arch
+        bz = (neutral[:, 2] - brow_ridge(neutral, c, half)(bx)) / (0.55 * half)  # on the ridge, as real brows sit
         front = neutral[:, 1] < c[1] + half
         w = np.sqrt(np.clip(1.0 - bx**2 - bz**2, 0, 1)) * front
         cols = cols * (1 - w[:, None]) + brows * w[:, None]
     return cols
+
+
+def brow_ridge(neutral, centre, half):
+    """The height (Z) of the brow ridge above an eye opening (``centre``, half its width) as a function of
+    the brow's across coordinate (-1..1 over twice the width, outer end first on the subject's right):
+    per column, the most forward skin between 0.5 and 3.5 half-widths above the eye; a quadratic through
+    them (single vertices are noisy)."""
+    across = (neutral[:, 0] - centre[0] - 0.25 * half * np.sign(centre[0])) / (2.0 * half)
+    up = (neutral[:, 2] - centre[2]) / half
+    above = (up > 0.5) & (up < 3.5) & (neutral[:, 1] < centre[1] + half)
+    xs, zs = [], []
+    for x in np.linspace(-1.0, 1.0, 17):
+        col = np.flatnonzero(above & (np.abs(across - x) < 0.08))
+        if col.size:
+            xs.append(x)
+            zs.append(neutral[col[np.argmin(neutral[col, 1])], 2])  # -Y is forward
+    if len(xs) < 3:  # no ridge to find: where brows usually are
+        return lambda b: centre[2] + 2.1 * half - 0.35 * half * b**2
+    return np.poly1d(np.polyfit(xs, zs, 2))
 
 
 def eyeball_geometry(neutral, eye):

@@ -7,6 +7,11 @@ from where it sits in the neutral) turns the eye by ``asin(d / EYEBALL)`` (the e
 0.42 of that width in adults), and ARKit's weights are linear in the angle: look out minus look in = 1 at
 about 35 degrees of yaw, look up minus look down = 1 at about 30 degrees of pitch (measured on Live Link
 Face recordings, which write both: correlation 0.999).
+
+The lids likewise: the solve, given the skin points of the lids, left blinks far from closed (peaks of
+0.3-0.45 where the recording closes the eyes), so ``eyeBlink`` is set from how far the lids have closed
+from their gap in the neutral (ARKit's blink is that closure) and ``eyeWide`` from how far they open
+beyond it (:func:`lid_weights`).
 """
 
 import numpy as np
@@ -23,12 +28,29 @@ EYES = ((468, 33, 133, 159, 145, "Right"), (473, 263, 362, 386, 374, "Left"))
 #: An eye whose lids are closer than this fraction of their usual gap hides its iris: its gaze is held.
 CLOSED = 0.5
 SHAPES = tuple(f"eyeLook{d}{side}" for side in ("Left", "Right") for d in ("Up", "Down", "In", "Out"))
+#: The lid shapes set from the lids' gap.
+LID_SHAPES = ("eyeBlinkLeft", "eyeBlinkRight", "eyeWideLeft", "eyeWideRight")
+#: Lids opened by this share of their neutral gap beyond it read as eyeWide = 1 (an assumption: the
+#: recordings measured have no wide eyes to fit it on).
+WIDE = 0.5
 
 
-def eye_angles(positions):
+def _rest_mask(n, neutral):
+    """(n,) bool: the ``neutral`` frames (indices or a mask), every frame when none are given."""
+    if neutral is None or not np.size(neutral):
+        return np.ones(n, bool)
+    rest = np.zeros(n, bool)
+    rest[np.asarray(neutral)] = True
+    return rest
+
+
+def eye_angles(positions, neutral=None):
     """{side: (yaw towards the subject's left, pitch downwards) in degrees, each (F,)} from landmark
-    pixels (F, 478, >=2), relative to the eye's median pose (looking ahead most of the time). While the
-    lids are closed (a blink hides the iris) the angles are carried over from the open frames around."""
+    pixels (F, 478, >=2), relative to the irises' place in the ``neutral`` frames (indices or a mask:
+    the take's rest looks ahead; the camera's angle and the detector's bias cancel), else in the median
+    frame. While the lids are closed (a blink hides the iris) the angles are carried over from the open
+    frames around."""
+    rest = _rest_mask(len(positions), neutral)
     out = {}
     for iris, outer, inner, upper, lower, side in EYES:
         p = positions[..., :2]
@@ -39,9 +61,11 @@ def eye_angles(positions):
         y = np.stack([-x[:, 1], x[:, 0]], axis=1)  # image down
         d = p[:, iris] - 0.5 * (a + b)
         u, v = np.sum(d * x, axis=1) / width, np.sum(d * y, axis=1) / width
-        u, v = u - np.nanmedian(u), v - np.nanmedian(v)
         lids = np.linalg.norm(p[:, upper] - p[:, lower], axis=1) / width
         shut = ~(lids >= CLOSED * np.nanmedian(lids))  # NaN (no face) counts as shut
+        ref = rest & ~shut if (rest & ~shut).any() else ~shut
+        if ref.any():
+            u, v = u - np.nanmedian(u[ref]), v - np.nanmedian(v[ref])
         if shut.any() and (~shut).any():
             frames = np.arange(len(u))
             u = np.interp(frames, frames[~shut], u[~shut])
@@ -51,10 +75,11 @@ def eye_angles(positions):
     return out
 
 
-def gaze_weights(positions):
-    """{ARKit eye-look shape: (F,) weight in [0, 1]} (:data:`SHAPES`) from landmark pixels (F, 478, >=2)."""
+def gaze_weights(positions, neutral=None):
+    """{ARKit eye-look shape: (F,) weight in [0, 1]} (:data:`SHAPES`) from landmark pixels (F, 478, >=2),
+    zero in the ``neutral`` frames (see :func:`eye_angles`)."""
     weights = {}
-    for side, (yaw, pitch) in eye_angles(positions).items():
+    for side, (yaw, pitch) in eye_angles(positions, neutral).items():
         outward = yaw if side == "Left" else -yaw  # out = away from the nose
         weights[f"eyeLookOut{side}"] = np.clip(outward / YAW_FULL, 0, 1)
         weights[f"eyeLookIn{side}"] = np.clip(-outward / YAW_FULL, 0, 1)
@@ -63,10 +88,29 @@ def gaze_weights(positions):
     return weights
 
 
-def gaze_locks(shape_names, positions):
+def lid_weights(positions, neutral=None):
+    """{eyeBlink/eyeWide Left/Right: (F,) weight in [0, 1]} from landmark pixels (F, 478, >=2): the lids'
+    gap (upper to lower lid over the corner-to-corner width) against its median in the ``neutral``
+    frames (else in the take): closed by a share ``c`` of it is a blink of ``c``, opened by :data:`WIDE`
+    of it is wide open. Frames without a face are 0."""
+    rest = _rest_mask(len(positions), neutral)
+    out = {}
+    for _, outer, inner, upper, lower, side in EYES:
+        p = positions[..., :2]
+        gap = np.linalg.norm(p[:, upper] - p[:, lower], axis=1) / np.linalg.norm(p[:, outer] - p[:, inner], axis=1)
+        ref = gap[rest] if np.isfinite(gap[rest]).any() else gap
+        ratio = gap / np.nanmedian(ref)
+        out[f"eyeBlink{side}"] = np.nan_to_num(np.clip(1.0 - ratio, 0, 1))
+        out[f"eyeWide{side}"] = np.nan_to_num(np.clip((ratio - 1.0) / WIDE, 0, 1))
+    return out
+
+
+def gaze_locks(shape_names, positions, neutral=None):
     """Per-frame locks ``((shape name, (F,) weights), ...)`` holding the character's eye-look shapes
-    (:data:`SHAPES` matched by name or alias) at the irises' gaze: the solve then explains the lids'
-    motion by what is left (blinks, squints) instead of by a look it cannot see."""
-    pairs, _, _ = match_names(SHAPES, shape_names)
-    gaze = gaze_weights(positions)
-    return tuple((shape_names[j], gaze[SHAPES[i]]) for i, j in pairs)
+    (:data:`SHAPES` matched by name or alias) at the irises' gaze and its blink and wide shapes
+    (:data:`LID_SHAPES`) at the lids' gap, both relative to the ``neutral`` frames: the solve then
+    explains the rest of the lids' motion (squints) instead of a blink by a look, or a look by a blink."""
+    shapes = SHAPES + LID_SHAPES
+    pairs, _, _ = match_names(shapes, shape_names)
+    weights = {**gaze_weights(positions, neutral), **lid_weights(positions, neutral)}
+    return tuple((shape_names[j], weights[shapes[i]]) for i, j in pairs)

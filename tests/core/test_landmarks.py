@@ -173,3 +173,50 @@ def test_gaze_weights_follow_the_irises_as_arkit_sets_them():
     p[25, 386, 1] = p[25, 374, 1] = 100.0  # a blink: the iris model's guess behind the lid is not used
     p[25, 473, 0] -= 8.0
     assert gaze_weights(p)["eyeLookOutLeft"][25] == pytest.approx(20 / 35)
+
+
+def _eyes(F):
+    """Landmark pixels (F, 478, 3) of two open eyes 30 px wide, irises centred, lids 10 px apart."""
+    p = np.zeros((F, len(NAMES), 3))
+    p[:, 33, :2], p[:, 133, :2] = [100.0, 100.0], [130.0, 100.0]
+    p[:, 362, :2], p[:, 263, :2] = [170.0, 100.0], [200.0, 100.0]
+    p[:, 468, :2], p[:, 473, :2] = [115.0, 100.0], [185.0, 100.0]
+    p[:, 159, :2], p[:, 145, :2] = [115.0, 95.0], [115.0, 105.0]
+    p[:, 386, :2], p[:, 374, :2] = [185.0, 95.0], [185.0, 105.0]
+    return p
+
+
+def test_gaze_is_measured_from_the_neutral_frames_not_the_median_one():
+    """A take that looks aside most of the time: the median frame looks aside, the neutral looks ahead."""
+    from facecap.solvers.video.gaze import EYEBALL, gaze_weights
+
+    F = 30
+    p = _eyes(F)
+    shift = 30.0 * EYEBALL * np.sin(np.radians(20.0))
+    p[10:, 468, 0] += shift  # 20 of 30 frames look 20 degrees to the subject's left
+    p[10:, 473, 0] += shift
+    by_median = gaze_weights(p)
+    assert np.all(by_median["eyeLookOutLeft"][10:] == 0)  # the look is taken for straight ahead
+    w = gaze_weights(p, np.arange(0, 8))
+    np.testing.assert_allclose(w["eyeLookOutLeft"][10:], 20 / 35, atol=1e-9)
+    np.testing.assert_allclose(w["eyeLookInRight"][10:], 20 / 35, atol=1e-9)
+    assert np.all(w["eyeLookOutLeft"][:10] == 0)
+
+
+def test_lid_weights_are_the_lids_closure_from_the_neutral_gap():
+    from facecap.solvers.video.gaze import WIDE, gaze_locks, lid_weights
+
+    F = 12
+    p = _eyes(F)
+    p[5, 159, 1], p[5, 145, 1] = 99.0, 101.0  # the right eye closed to a fifth of its gap
+    p[6, 386, 1], p[6, 374, 1] = 99.5, 100.5  # the left to a tenth
+    p[8, 386, 1], p[8, 374, 1] = 95.0 - 5.0 * WIDE, 105.0 + 5.0 * WIDE  # the left wide open
+    p[10] = np.nan  # no face: no blink
+    w = lid_weights(p, np.arange(0, 4))
+    assert w["eyeBlinkRight"][5] == pytest.approx(0.8) and w["eyeBlinkLeft"][6] == pytest.approx(0.9)
+    assert w["eyeWideLeft"][8] == pytest.approx(1.0) and w["eyeBlinkLeft"][8] == 0
+    assert w["eyeBlinkRight"][[0, 1, 2, 3, 4, 6, 7, 8, 9, 10]].max() == 0 and w["eyeWideRight"].max() == 0
+    locks = dict(gaze_locks(["eye_blink_L", "eyeBlinkRight", "jawOpen", "eyeLookUpLeft"], p, np.arange(0, 4)))
+    assert set(locks) == {"eye_blink_L", "eyeBlinkRight", "eyeLookUpLeft"}  # matched by name or alias
+    np.testing.assert_allclose(locks["eye_blink_L"], w["eyeBlinkLeft"])
+    np.testing.assert_allclose(locks["eyeBlinkRight"], w["eyeBlinkRight"])
