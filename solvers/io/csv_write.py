@@ -25,7 +25,7 @@ def write_markers_csv(path, markers, *, delimiter=","):
     header = ["frame"] + [f"{n}_{a}" for n in markers.names for a in axes]
     flat = markers.positions.reshape(markers.n_frames, -1)
     labels = segment_labels(markers)
-    _write_table(path, header, markers.frames, flat, delimiter, labels=labels)
+    _write_table(path, header, markers.frames, flat, delimiter, labels=labels, kind="markers_csv")
 
 
 def segment_labels(markers):
@@ -44,7 +44,7 @@ def segment_labels(markers):
 
 def write_weights_csv(path, frames, names, weights, *, delimiter=","):
     """Write ``frame,<shape>,...`` with one row per frame, atomically."""
-    _write_table(path, ["frame", *names], np.asarray(frames), np.asarray(weights), delimiter)
+    _write_table(path, ["frame", *names], np.asarray(frames), np.asarray(weights), delimiter, kind="weights_csv")
 
 
 def _format_frames(frames):
@@ -53,7 +53,7 @@ def _format_frames(frames):
     return [repr(float(f)) for f in frames]
 
 
-def _write_table(path, header, frames, values, delimiter, *, labels=None):
+def _write_table(path, header, frames, values, delimiter, *, labels=None, kind=None):
     if values.ndim != 2 or values.shape != (len(frames), len(header) - 1):
         raise FacecapError(
             f"{path}: values must have shape ({len(frames)}, {len(header) - 1}); got {values.shape}"
@@ -66,7 +66,7 @@ def _write_table(path, header, frames, values, delimiter, *, labels=None):
             raise FacecapError(f"{path}: a CSV segment label cannot begin or end with a space: {edged[:5]}; rename it")
         labels = [_quoted(label, delimiter, path, "segment label") for label in labels]
     head = _text_row(header, delimiter, path)
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+    with atomic_path(path, kind=kind) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
         fh.write(head)
         for text in _data_lines(frame_text, values, delimiter, labels):
             fh.write(text)

@@ -67,14 +67,15 @@ def new_temporary(path, *, suffix=None):
 
 
 @contextlib.contextmanager
-def atomic_path(path, *, suffix=None):
+def atomic_path(path, *, suffix=None, kind=None):
     """Yield a temporary path beside ``path`` (see ``new_temporary``); on success it replaces ``path``
     in one step. Whatever happens, the temporary file is gone afterwards. A write that fails for want of
-    room or permission (in the block or at the rename) is an ``OutputError`` naming ``path``."""
+    room or permission (in the block or at the rename) is an ``OutputError`` naming ``path``. ``kind``
+    (an output kind of ``solvers.io.outputs``) is recorded with facecap's mark where the writer knows it."""
     tmp = new_temporary(path, suffix=suffix)
     try:
         yield tmp
-        mark_output(tmp)  # facecap's own: a later run may replace it (solvers.io.outputs)
+        mark_output(tmp, kind)  # facecap's own: a later run may replace it (solvers.io.outputs)
         os.replace(tmp, path)
     except OSError as exc:
         if exc.errno in WRITE_ERRNOS:

@@ -126,20 +126,22 @@ MARK = "user.facecap.output"
 ADDED_TO = ("blend",)
 
 
-def mark_output(path):
-    """Mark ``path`` as written by facecap (nothing happens where extended attributes are not kept)."""
+def mark_output(path, kind=None):
+    """Mark ``path`` as written by facecap, with its ``kind`` (a KINDS key) where the writer knows it
+    (nothing happens where extended attributes are not kept)."""
     try:
-        os.setxattr(path, MARK, b"1")
+        os.setxattr(path, MARK, kind.encode() if kind in KINDS else b"1")
     except (OSError, AttributeError):  # a file system without user attributes; not Linux
         pass
 
 
 def output_mark(path):
-    """True when ``path`` carries facecap's mark, False when it could but does not, None when the file
-    system (or platform) keeps no extended attributes (then its content alone is judged)."""
+    """The mark of ``path``: the kind its writer recorded, True when it carries facecap's mark without a
+    kind, False when it could carry one but does not, None when the file system (or platform) keeps no
+    extended attributes (then its content alone is judged)."""
     try:
-        os.getxattr(path, MARK)
-        return True
+        value = os.getxattr(path, MARK).decode("ascii", "replace")
+        return value if value in KINDS else True
     except AttributeError:
         return None
     except OSError as exc:
@@ -147,10 +149,15 @@ def output_mark(path):
 
 
 def is_kind(path, kind):
-    """Whether the existing file ``path`` is facecap's own output of ``kind``: its first bytes are of
-    that kind and, where the file system keeps extended attributes, it carries facecap's mark."""
-    if kind not in ADDED_TO and output_mark(path) is False:
+    """Whether the existing file ``path`` is facecap's own output of ``kind``: its mark says so where its
+    writer recorded the kind (a rig's weights CSV whose control columns end in _x/_y/_z reads like a
+    marker CSV), else its first bytes are of that kind and, where the file system keeps extended
+    attributes, it carries facecap's mark."""
+    mark = output_mark(path)
+    if kind not in ADDED_TO and mark is False:
         return False
+    if isinstance(mark, str):
+        return mark == kind
     return KINDS[kind][1](_head(path))
 
 

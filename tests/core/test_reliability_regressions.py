@@ -212,6 +212,22 @@ def test_an_existing_file_is_replaced_only_when_facecap_wrote_it(tmp_path):
         check_outputs([Output("[output.weights]", tmp_path / "copy.csv", "weights_csv")])
 
 
+def test_a_weights_csv_whose_columns_read_like_coordinates_is_still_facecaps_own(tmp_path):
+    """A rig's controls are bone channels (``lip.T.L_x``): its weights CSV reads like a marker CSV. The mark
+    records what facecap wrote, so a re-run replaces its own weights and still refuses to take its
+    markers CSV for weights."""
+    if output_mark(tmp_path) is None:
+        pytest.fail("this file system keeps no extended attributes: the mark cannot be tested here")
+    controls = ["lip.T.L_x", "lip.T.L_y", "jaw_master_x"]
+    write_weights_csv(tmp_path / "w.csv", np.arange(1, 3), controls, np.zeros((2, 3)))
+    assert output_mark(tmp_path / "w.csv") == "weights_csv"
+    check_outputs([Output("[output.weights]", tmp_path / "w.csv", "weights_csv")])
+    m = MarkerSet(("a", "b"), np.arange(1, 3), np.zeros((2, 2, 3)), fps=60, units="mm")
+    write_markers(tmp_path / "m.csv", m)
+    with pytest.raises(OutputError, match="exists and is not a weights CSV"):
+        check_outputs([Output("[output.weights]", tmp_path / "m.csv", "weights_csv")])
+
+
 def test_06_every_writer_gives_hostile_names_back_or_refuses_them_by_name(tmp_path):
     rng = np.random.default_rng(1)
     m = MarkerSet(HOSTILE_NAMES, np.arange(1, 6), rng.normal(size=(5, len(HOSTILE_NAMES), 3)), fps=60, units="mm",
