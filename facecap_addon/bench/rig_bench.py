@@ -25,6 +25,7 @@ import numpy as np
 from ...solvers.config import load_take_config
 from ...solvers.io import write_markers
 from ...solvers.io.images import read_tga, write_png
+from ...solvers.tools.synthetic.realism.real_captures import FACIAL_SING_LANDMARKS, landmarks_toml
 from ...solvers.tools.synthetic.synth import performance_weights, synthesize_points
 from . import rig_samples, rig_samples_rigs
 from ..rig import rig_target
@@ -41,16 +42,7 @@ STABLE = ["head_forehead_C", "head_forehead_L", "head_forehead_R", "head_temple_
 FACIAL_SING_STABLE = ["root-1", "root-2", "root-3", "root-4", "root-5", "root-6"]
 #: Facial-Sing bound by position with six landmarks (docs/binding.md): the Rigify face has no shape keys
 #: for the automatic binding's motion test to judge its poses by, and the fit alone is ambiguous there.
-FACIAL_SING_BINDING = """[binding]
-mode = "nearest"
-[binding.landmarks]
-section7-2 = "nose_tip_C"
-section14-2 = "chin_C"
-section11-1 = "mouth_corner_L"
-section12-1 = "mouth_corner_R"
-section1-1 = "brow_inner_L"
-section2-1 = "brow_inner_R"
-"""
+FACIAL_SING_BINDING = '[binding]\nmode = "nearest"\n' + landmarks_toml(FACIAL_SING_LANDMARKS)
 #: The 3,600-frame Rigify take (``control_curves(seed=3)``) solved by the code before the fast path
 #: (commit eb369c7): medians of 3 runs (181.5 / 194.5 / 314.8 s wall) on the 2-core development
 #: machine, shared with other test runs. Machine-dependent: ``--reference`` measures here instead.

@@ -14,7 +14,7 @@ import numpy as np
 
 from ...solvers.errors import ConfigError, FacecapError
 from ...solvers.pipeline.binding import from_record
-from ...solvers.rig import PoseLibrary, RigTarget, probe_rig_steps
+from ...solvers.rig import PoseLibrary, RigTarget, probe_rig_steps, run_steps
 from ...solvers.video.reading import Cancelled
 from ..scene import anim
 from .rig_eval import RigEvaluator
@@ -110,14 +110,8 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
     refined through the rig on every n-th frame); ``reference``: the slow path (``RigTarget``)."""
     steps = build_rig_target_steps(mesh, marker_names, rig_settings, say=say, binding=binding, n_frames=n_frames,
                                    chunk=4 * PROBE_CHUNK if progress is not None else None, reference=reference)
-    while True:
-        try:
-            done, planned = next(steps)
-        except StopIteration as stop:
-            return stop.value
-        if progress is not None and progress(done, planned) is False:
-            steps.close()
-            raise Cancelled(f"rig probing cancelled after {done} of {planned} poses")
+    return run_steps(steps, progress,
+                     lambda done, planned: Cancelled(f"rig probing cancelled after {done} of {planned} poses"))
 
 
 def build_rig_target_steps(mesh, marker_names, rig_settings, *, say=None, binding=None, n_frames=None, chunk=None,

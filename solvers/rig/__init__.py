@@ -10,9 +10,9 @@ semantic shape, columns of the existing solve). ``RigTarget`` carries either thr
 from .model import RigModel, fit_model
 from .nonlinear import NonlinearResult, iterate_nonlinear, solve_nonlinear
 from .poses import PoseLibrary
-from .probe import ProbeReport, probe_rig, probe_rig_steps
+from .probe import ProbeReport, probe_rig, probe_rig_steps, run_steps
 from .retarget import METHODS, RigTarget, character_deltas
 
 __all__ = ["METHODS", "NonlinearResult", "PoseLibrary", "ProbeReport", "RigModel", "RigTarget", "character_deltas",
-           "fit_model", "iterate_nonlinear", "probe_rig", "probe_rig_steps",
+           "fit_model", "iterate_nonlinear", "probe_rig", "probe_rig_steps", "run_steps",
            "solve_nonlinear"]

@@ -78,6 +78,13 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, progress=None, 
     (RigModel, ProbeReport)
     """
     steps = probe_rig_steps(evaluate, control_names, marker_names, neutral, **options)
+    return run_steps(steps, progress, lambda done, planned: FacecapError("rig probing cancelled"))
+
+
+def run_steps(steps, progress, cancelled):
+    """What the generator ``steps`` (yielding (done, planned), returning its result) returns, with
+    ``progress(done, planned) -> bool`` told after each step: False closes it and raises
+    ``cancelled(done, planned)``."""
     while True:
         try:
             done, planned = next(steps)
@@ -85,7 +92,7 @@ def probe_rig(evaluate, control_names, marker_names, neutral, *, progress=None, 
             return stop.value
         if progress is not None and progress(done, planned) is False:
             steps.close()
-            raise FacecapError("rig probing cancelled")
+            raise cancelled(done, planned)
 
 
 def probe_rig_steps(evaluate, control_names, marker_names, neutral, *, rest, lower, upper, pairs=(),

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from facecap.solvers.io.csv import read_weights_csv
+from facecap.solvers.tools.synthetic.realism import real_captures
 from shared_data import BLENDERFACE, REALDATA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,14 +57,7 @@ frames = [1, 100]
 [binding]
 mode = "nearest"
 """
-FACIAL_SING_LANDMARKS = """[binding.landmarks]
-section7-2 = "nose_tip_C"
-section14-2 = "chin_C"
-section11-1 = "mouth_corner_L"
-section12-1 = "mouth_corner_R"
-section1-1 = "brow_inner_L"
-section2-1 = "brow_inner_R"
-"""
+FACIAL_SING_LANDMARKS = real_captures.landmarks_toml(real_captures.FACIAL_SING_LANDMARKS)
 
 
 @pytest.mark.skipif(not FACIAL_SING.is_file(), reason=f"no real-data corpus at {REALDATA}")

@@ -24,6 +24,17 @@ class Capture:
     binding: BindingSettings
 
 
+#: Facial-Sing's markers on six of the sample character's vertex groups: the landmarks a user gives when
+#: automatic binding asks for them (``[binding.landmarks]``, docs/binding.md).
+FACIAL_SING_LANDMARKS = {"section7-2": "nose_tip_C", "section14-2": "chin_C", "section11-1": "mouth_corner_L",
+                         "section12-1": "mouth_corner_R", "section1-1": "brow_inner_L", "section2-1": "brow_inner_R"}
+
+
+def landmarks_toml(landmarks):
+    """The ``[binding.landmarks]`` table of a take config for {marker: vertex group}."""
+    return "[binding.landmarks]\n" + "".join(f'{marker} = "{group}"\n' for marker, group in landmarks.items())
+
+
 CAPTURES = (
     Capture("Facial-Sing", "data/realdata/c3d/c3dorg_29_Facial-Sing.c3d", {},
             ("root-1", "root-2", "root-3", "root-4", "root-5", "root-6"), (1, 100), BindingSettings(mode="nearest")),
