@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 
 from ..capture.neutral import neutral_from_frames
+from ..capture.noise import POSE_SHRINK, marker_noise, shrink_pose_noise
 from ..capture.stabilise import stabilise_2d, stabilise_rigid
 from ..character.aliases import name_key
 from ..character.basis import Basis
@@ -53,7 +54,8 @@ def _side(marker):
     return 0
 
 
-def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, split=(), min_frames=3):
+def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, split=(), min_frames=3,
+                           shrink=POSE_SHRINK):
     """Build the actor basis from a calibration take.
 
     Parameters
@@ -71,6 +73,9 @@ def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, 
     min_frames : int
         Fewer samples of a marker in a pose's frames than this is a warning; no sample at all
         leaves that marker's delta at 0.
+    shrink : float
+        A marker's delta within this many times its standard error (the take's noise over the pose's and
+        the neutral's samples) is shrunk towards 0 (``capture.noise.shrink_pose_noise``); 0 keeps it.
 
     Returns
     -------
@@ -91,7 +96,9 @@ def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, 
         if stable_markers:
             markers = stabilise_rigid(markers, tuple(stable_markers), reference_frames=(first, last)).markers
     rest = neutral_from_frames(markers, first, last)
-    names, deltas, notes, thin_poses = [], [], [], {}
+    neutral_counts = np.isfinite(markers.positions[markers.frame_range_mask(first, last)][:, :, 0]).sum(axis=0)
+    noise = marker_noise(markers.positions - rest[None])
+    names, deltas, counts, notes, thin_poses = [], [], [], [], {}
     unknown_split = set(split) - set(poses)
     if unknown_split:
         raise FacecapError(f"calibration: `split` names poses that are not in `poses`: {sorted(unknown_split)}")
@@ -118,15 +125,18 @@ def actor_basis_from_poses(calibration, *, poses, neutral, stable_markers=None, 
             left = np.where(side > 0, 1.0, np.where(side == 0, 0.5, 0.0))
             names += [pose + "Left", pose + "Right"]
             deltas += [delta * left[:, None], delta * (1.0 - left)[:, None]]
+            counts += [count, count]
         else:
             names.append(pose)
             deltas.append(delta)
+            counts.append(count)
     if thin_poses:
         notes.append(f"calibration: {len(thin_poses)} pose(s) have markers with fewer than {min_frames} samples "
                      f"(median of what there is; none = delta 0): {thin_poses}")
     if len(set(names)) != len(names):
         raise FacecapError(f"calibration: duplicate pose names {sorted({n for n in names if names.count(n) > 1})}")
-    return Basis(tuple(names), markers.names, rest, np.stack(deltas)), tuple(notes)
+    deltas = shrink_pose_noise(np.stack(deltas), np.stack(counts), neutral_counts, noise, factor=shrink)
+    return Basis(tuple(names), markers.names, rest, deltas), tuple(notes)
 
 
 class CalibratedStrategy:

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 
 from ..capture.align import align_actor
-from ..capture.noise import marker_noise
+from ..capture.noise import marker_noise, shrink_pose_noise
 from ..character.basis import Basis
 from ..errors import FacecapError
 from ..transforms import Similarity
@@ -38,10 +38,11 @@ def character_in_actor_space(character, names, neutral, settings):
     return out, align, tuple(bound)
 
 
-def poses_in_take(take, poses):
+def poses_in_take(take, poses, neutral_frames=None):
     """Poses labelled in the take itself: the median of the take's deltas over each pose's frames (a Basis
-    in the take's own actor space)."""
-    names, deltas = [], []
+    in the take's own actor space), each marker's noise shrunk (``shrink_pose_noise``; the neutral's
+    samples counted over ``neutral_frames`` (first, last) when given)."""
+    names, deltas, counts = [], [], []
     for pose, ranges in poses.items():
         sel = np.zeros(take.frames.size, dtype=bool)
         for first, last in ranges:
@@ -54,7 +55,13 @@ def poses_in_take(take, poses):
             d = np.nanmedian(take.deltas[sel], axis=0)
         names.append(pose)
         deltas.append(np.nan_to_num(d))
-    return Basis(tuple(names), take.names, take.neutral, np.stack(deltas))
+        counts.append(np.isfinite(take.deltas[sel][:, :, 0]).sum(axis=0))
+    rest = np.inf
+    if neutral_frames:
+        first, last = neutral_frames
+        rest = np.isfinite(take.deltas[(take.frames >= first) & (take.frames <= last)][:, :, 0]).sum(axis=0)
+    shrunk = shrink_pose_noise(np.stack(deltas), np.stack(counts), rest, marker_noise(take.deltas))
+    return Basis(tuple(names), take.names, take.neutral, shrunk)
 
 
 def fit_template(template, names, neutral, align):
@@ -88,7 +95,7 @@ def fit_semantic(settings, character, inputs, take, *, priors):
             stable_markers=tuple(cal.stable_markers or settings.stable_markers), split=tuple(cal.split))
         notes.extend(pose_notes)
     elif cal.poses:
-        measured = poses_in_take(take, cal.pose_table())
+        measured = poses_in_take(take, cal.pose_table(), settings.neutral_frames)
     profile = inputs.profile if inputs.profile is not None else inputs.actor_basis
     char_deltas, align, bound = character_in_actor_space(character, take.names, take.neutral, settings)
     template = None

@@ -251,7 +251,7 @@ def test_through_the_calibrated_strategy():
           f"held-out {h0:.4f} -> {h1:.4f} ({(h1 - h0) / h0:+.1%}), {len(r.changed)} poses changed, LOO {r.cv}")
     assert r.corrected_rmse_after <= 0.05 and h1 <= 0.85 * h0
     assert np.allclose(again.source_weights, r.weights, equal_nan=True)
-    assert r.version.startswith("calib+tune8f-") and r.candidate == "gain (all active poses)"
+    assert r.version.startswith("calib+tune8f-") and r.candidate.startswith("gain")
 
 
 def test_spread_frames_picks_the_worst_apart():

@@ -76,8 +76,9 @@ def test_weak_calibration_is_retuned_through_the_pipeline(weak):
     assert r.changed and r.version.kind == "actor_basis" and r.version.strategy == "calibrated"
     assert r.version.parent.startswith("calibrated-") and r.version.name.startswith(r.version.parent + "+tune8f-")
     assert set(WEAK) <= set(r.version.summary["changed_poses"])
-    for name in WEAK:  # 1 / 0.4 = 2.5; the gains found through the pipeline
-        assert 1.5 <= r.version.summary["gains"][name] <= 3.0
+    gains = [r.version.summary["gains"][name] for name in WEAK]
+    # 1 / 0.4 = 2.5; found through the pipeline: 2.59, 2.51, 2.19, 2.99 (1.83-2.53 before the poses' noise was shrunk)
+    assert all(1.5 <= g <= 3.5 for g in gains) and abs(np.mean(gains) - 2.5) <= 0.25
     # the re-solve is exactly a solve with the stored version applied
     c, i, s = apply_version(r.version, Basis.load_npz(SAMPLE_BASIS), inputs, settings)
     again = retarget(markers, c, s, inputs=i)
