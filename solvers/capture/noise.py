@@ -53,5 +53,6 @@ def shrink_pose_noise(deltas, pose_counts, neutral_counts, noise, *, factor=POSE
         var = 1.0 / np.maximum(pose_counts, 1) + 1.0 / np.maximum(np.asarray(neutral_counts)[None], 1)
     tau = factor * MEDIAN_ERROR * noise * np.sqrt(dims * var)
     size = np.linalg.norm(deltas, axis=2)
-    keep = np.clip(1.0 - (tau / np.maximum(size, 1e-300)) ** 4, 0.0, 1.0)
+    ratio = np.minimum(tau / np.maximum(size, 1e-12), 2.0)  # 2: already 0 after the clip, no overflow
+    keep = np.clip(1.0 - ratio**4, 0.0, 1.0)
     return deltas * keep[:, :, None]
