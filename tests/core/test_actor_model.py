@@ -7,6 +7,8 @@ import pytest
 from facecap.solvers.character.basis import Basis
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.strategies.actor_model import (
+    NORMALISE_FULL,
+    RANGE_FROM,
     ActorKnowledge,
     build_actor_model,
     fit_ratio,
@@ -66,14 +68,34 @@ def test_character_tier_when_nothing_is_known_and_its_shapes_explain_the_take():
 def test_character_tier_normalises_when_the_character_does_not_explain_the_actor():
     rng = np.random.default_rng(2)
     char, actor = _basis(rng), _basis(rng)  # unrelated shapes: the character explains little
+    # ... and moves its markers over other ranges than the actor's (a stylised face: 3-10x less or more)
+    spread = np.where(np.arange(len(MARKERS)) % 2 == 0, 5.0, 1.0)
+    actor = type(actor)(actor.shape_names, actor.marker_names, actor.neutral, actor.deltas * spread[None, :, None])
     w = np.clip(rng.normal(0.3, 0.3, size=(300, len(SHAPES))), 0, 1)
     deltas = np.einsum("fk,kmd->fmd", w, actor.deltas) + rng.normal(scale=3e-4, size=(300, len(MARKERS), 3))
     model = build_actor_model(char, MARKERS, char.neutral, ActorKnowledge(), character_deltas=char.deltas,
                               deltas=deltas, noise=3e-4)
-    assert model.fit_ratio > 3.0 and model.mismatch == 1.0
+    assert model.fit_ratio > 3.0 and model.mismatch == 1.0 and model.far >= 0.2
     assert model.gains is not None and np.all((model.gains >= 0.25) & (model.gains <= 4.0))
     assert "follow the character's geometry" in model.statement()
     assert not np.allclose(model.basis.deltas, char.deltas)
+
+
+def test_a_residual_over_the_actors_own_ranges_is_the_captures_error():
+    """A character whose shapes move every marker over the actor's range, though not in its exact pattern (a
+    landmark detector's points slide on the face: their residual is far above their filtered noise), is taken
+    as it is: normalising its ranges would only distort them (rendered footage onto another person)."""
+    rng = np.random.default_rng(2)
+    char = _basis(rng)
+    slid = char.deltas + rng.normal(scale=0.4, size=char.deltas.shape) * np.abs(char.deltas)  # 40 % off, same range
+    w = np.clip(rng.normal(0.3, 0.3, size=(300, len(SHAPES))), 0, 1)
+    deltas = np.einsum("fk,kmd->fmd", w, slid) + rng.normal(scale=3e-4, size=(300, len(MARKERS), 3))
+    model = build_actor_model(char, MARKERS, char.neutral, ActorKnowledge(), character_deltas=char.deltas,
+                              deltas=deltas, noise=3e-4)
+    assert model.fit_ratio > NORMALISE_FULL and model.far <= RANGE_FROM and model.mismatch == 0.0
+    np.testing.assert_allclose(model.basis.deltas, char.deltas)
+    assert "the capture's error" in model.statement()
+    assert model.report()["character_ranges_far_off"] == pytest.approx(model.far, abs=1e-3)
 
 
 def test_normalisation_share_ramps_between_its_limits():

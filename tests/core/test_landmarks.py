@@ -94,7 +94,7 @@ FOUR = ('[target]\nblend = "c.blend"\nobject = "Face"\n[source]\nvideo = "clip.m
         '[tracking]\nmethod = "landmarks"\n[output]\nweights = "w.csv"\n')
 
 
-def test_four_sections_make_a_geometric_take_with_landmark_defaults(tmp_path):
+def test_four_sections_make_a_semantic_take_with_landmark_defaults(tmp_path):
     from facecap.solvers.config import load_take_config
     from facecap.solvers.video.flow_config import LandmarkTake
 
@@ -104,7 +104,7 @@ def test_four_sections_make_a_geometric_take_with_landmark_defaults(tmp_path):
     assert isinstance(config.video, LandmarkTake) and config.video.smoothing and config.video.iris
     assert config.video.path == str(tmp_path / "clip.mp4")
     s = config.settings
-    assert s.strategy == "geometric" and s.stable_markers == RIGID and s.neutral_detect
+    assert s.strategy == "semantic" and s.stable_markers == RIGID and s.neutral_detect
     assert config.binding.mode == "nearest"
 
 
