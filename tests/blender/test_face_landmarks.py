@@ -119,14 +119,15 @@ def test_a_four_section_config_retargets_the_footage_onto_another_person(rendere
         for s in shapes:
             print(f"{s}: truth {value:.2f}, solved {got[s][peak].max():.2f}")
     jaw = got["jawOpen"][25:28].mean()
-    assert abs(jaw - 0.7) <= 0.15, jaw  # measured 0.68-0.72
+    assert abs(jaw - 0.7) <= 0.15, jaw  # measured 0.68-0.74
     smiles = [got[s][35:39].max() for s in ("mouthSmileLeft", "mouthSmileRight")]
     assert min(smiles) >= 0.35, smiles  # measured 0.40-0.63 for 0.8
     rest = slice(2, REST - 2)
     assert max(np.abs(v[rest]).max() for v in got.values()) <= 0.1  # the rest is neutral
-    for start in (14, 50):  # the blinks: eyeBlink held at the lids' gap (measured 0.66-0.87 for 1.0)
+    for start in (14, 50):  # the blinks: eyeBlink held at the lids' gap (measured 1.00 for 1.0; 0.66-0.87 before
+        # the detector's closed-eye gap was taken into account)
         peaks = [got[s][start + 1:start + 6].max() for s in ("eyeBlinkLeft", "eyeBlinkRight")]
-        assert min(peaks) >= 0.55, (start, peaks)
+        assert min(peaks) >= 0.8, (start, peaks)
     # The inner brow raise is seen by the landmarks but not yet solved onto the shape (measured
     # browInnerUp 0.07-0.10 for 0.8): docs/accuracy.md.
 

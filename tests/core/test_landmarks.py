@@ -208,12 +208,14 @@ def test_lid_weights_are_the_lids_closure_from_the_neutral_gap():
 
     F = 12
     p = _eyes(F)
-    p[5, 159, 1], p[5, 145, 1] = 99.0, 101.0  # the right eye closed to a fifth of its gap
-    p[6, 386, 1], p[6, 374, 1] = 99.5, 100.5  # the left to a tenth
+    p[5, 159, 1], p[5, 145, 1] = 97.0, 103.0  # the right eye closed by 0.4 of its gap: a look down, as it is
+    p[6, 386, 1], p[6, 374, 1] = 98.0, 102.0  # the left to 0.4 of it: the detector's closed eye
+    p[7, 386, 1], p[7, 374, 1] = 97.5, 102.5  # half way between
     p[8, 386, 1], p[8, 374, 1] = 95.0 - 5.0 * WIDE, 105.0 + 5.0 * WIDE  # the left wide open
     p[10] = np.nan  # no face: no blink
     w = lid_weights(p, np.arange(0, 4))
-    assert w["eyeBlinkRight"][5] == pytest.approx(0.8) and w["eyeBlinkLeft"][6] == pytest.approx(0.9)
+    assert w["eyeBlinkRight"][5] == pytest.approx(0.4) and w["eyeBlinkLeft"][6] == pytest.approx(1.0)
+    assert w["eyeBlinkLeft"][7] == pytest.approx(0.7)
     assert w["eyeWideLeft"][8] == pytest.approx(1.0) and w["eyeBlinkLeft"][8] == 0
     assert w["eyeBlinkRight"][[0, 1, 2, 3, 4, 6, 7, 8, 9, 10]].max() == 0 and w["eyeWideRight"].max() == 0
     locks = dict(gaze_locks(["eye_blink_L", "eyeBlinkRight", "jawOpen", "eyeLookUpLeft"], p, np.arange(0, 4)))
