@@ -27,7 +27,7 @@ METHODS = {
     "poses12+template": "semantic, 12 calibration poses and the human template",
     "template": "semantic, the human template (no calibration)",
     "calibration": "semantic, one calibration pose per shape",
-    "oracle": "semantic with the actor's true (linear) shapes as its profile: the floor of this benchmark",
+    "oracle": "semantic with the actor's true (linear) shapes as its profile (no user has them)",
 }
 
 
