@@ -95,7 +95,10 @@ def fit_semantic(settings, character, inputs, take, *, priors):
             stable_markers=tuple(cal.stable_markers or settings.stable_markers), split=tuple(cal.split))
         notes.extend(pose_notes)
     elif cal.poses:
-        measured = poses_in_take(take, cal.pose_table(), settings.neutral_frames)
+        # the neutral's own samples count only where it is that frame range (not detected, ranges, a file)
+        plain = not (settings.neutral_detect or settings.neutral_ranges or settings.neutral_file is not None
+                     or settings.master is not None)
+        measured = poses_in_take(take, cal.pose_table(), settings.neutral_frames if plain else None)
     profile = inputs.profile if inputs.profile is not None else inputs.actor_basis
     char_deltas, align, bound = character_in_actor_space(character, take.names, take.neutral, settings)
     template = None

@@ -109,3 +109,24 @@ def test_noise_estimate_and_plausibility_warnings():
     assert "[solve] locks" in warning
     _, held = check(bad, names, upper, np.full(2000, 4e-4), 3e-4, held=("jawOpen", "jawLeft"))
     assert held is None  # held shapes are the user's, not the solve's
+
+
+def test_poses_labelled_in_the_take_are_measured_without_its_noise():
+    """Frames of the take labelled as poses: each pose is the median of its frames, the capture noise on the
+    markers it does not move shrunk away, what it moves kept."""
+    from facecap.solvers.strategies.base import PreparedTake
+    from facecap.solvers.strategies.semantic_wiring import poses_in_take
+
+    rng = np.random.default_rng(5)
+    F, M = 400, 30
+    deltas = rng.normal(scale=3e-4, size=(F, M, 3))  # 0.3 mm noise everywhere
+    moved = np.zeros((M, 3))
+    moved[:6, 1] = 4e-3  # the pose lifts six markers by 4 mm
+    deltas[200:230] += moved
+    deltas[210, 3] = np.nan  # a gap inside the pose
+    take = PreparedTake(deltas, np.zeros((M, 3)), tuple(f"m{i}" for i in range(M)), np.arange(1.0, F + 1), None)
+    basis = poses_in_take(take, {"jawOpen": [(201, 230)]}, (1, 100))
+    got = basis.deltas[0]
+    assert np.abs(got[6:]).max() < 1e-5  # ~0.09 mm of false motion per coordinate before (the hold's median)
+    np.testing.assert_allclose(got[:6], moved[:6], atol=3e-4)
+    assert basis.shape_names == ("jawOpen",)
