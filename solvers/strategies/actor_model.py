@@ -9,8 +9,8 @@ user gives, best first:
 tier            where each shape comes from
 ==============  =====================================================================================
 calibration     a calibration pose per shape (``[calibration]``), measured
-poses           some shapes measured from poses, the others transferred from the template (if there is
-                one) through the measured ones, or the character's normalised per marker to the actor's range
+poses           some shapes measured from poses, the others the template's (if there is one) or the
+                character's normalised per marker to the actor's range
 profile         a stored per-performer profile (an earlier calibration of this actor)
 template        a human face model fitted to the actor's neutral (``[actor] template``)
 character       nothing known: the character's shapes carried into actor space and normalised per
@@ -34,8 +34,6 @@ from .base import as_target
 TIERS = ("calibration", "poses", "profile", "template", "character")
 #: A shape is measured well enough for the "calibration" tier when this share of the seen shapes is posed.
 FULL_SHARE = 0.9
-#: Per-marker transfer maps are pulled towards a uniform scale with this weight (relative to the data).
-TRANSFER_RIDGE = 0.5
 #: Range normalisation gains stay within this factor of 1.
 MAX_GAIN = 4.0
 #: Fit ratios (residual over noise) between which the range normalisation goes from none to all.
@@ -83,7 +81,8 @@ class ActorKnowledge:
 @dataclass(frozen=True, eq=False)
 class ActorModel:
     """The actor's shapes at the markers, ``basis`` (character shape names, actor space), with where each
-    came from (``sources``: measured, profile, template, transferred, character, unseen) and the tier."""
+    came from (``sources``: measured, profile, template, completed (template or character), character, unseen)
+    and the tier."""
 
     basis: Basis
     sources: tuple
@@ -107,7 +106,7 @@ class ActorModel:
                     "error (a landmark detector's points slide on the face)")
         measured = sum(s == "measured" for s in self.sources)
         prior = "human template" if "template" in self.sources or any(
-            s == "transferred (template)" for s in self.sources) else "character's shapes"
+            s == "completed (template)" for s in self.sources) else "character's shapes"
         return STATEMENTS[self.tier].format(measured=measured, prior=prior)
 
     def report(self):
@@ -150,23 +149,6 @@ def into_take_frame(basis, names, neutral):
         if n in basis.marker_names:
             out[:, j] = basis.deltas[:, basis.marker_names.index(n)] @ rot.T
     return out, [n for n in names if n not in set(basis.marker_names)]
-
-
-def transfer(prior, measured, known):
-    """Complete shapes from a ``prior`` (K, M, 3) through the ``measured`` ones: per marker, the 3x3 map that
-    best carries the prior's measured shapes onto the measured deltas (a ridge towards a uniform scale),
-    applied to every shape. ``known`` (K,) bool marks the rows of ``measured`` that hold measurements."""
-    P, A = prior[known], measured[known]  # (S, M, 3)
-    num = float(np.einsum("smd,smd->", P, A))
-    den = float(np.einsum("smd,smd->", P, P)) or 1.0
-    scale = max(num / den, 0.0) or 1.0
-    out = np.empty_like(prior)
-    for m in range(prior.shape[1]):
-        p, a = P[:, m], A[:, m]  # (S, 3)
-        mu = TRANSFER_RIDGE * (float((p**2).sum()) / max(len(p), 1) + 1e-12)
-        G = np.linalg.solve(p.T @ p + mu * np.eye(3), p.T @ a + mu * scale * np.eye(3)).T
-        out[:, m] = prior[:, m] @ G.T
-    return out
 
 
 def range_gains(prior, deltas):
@@ -285,18 +267,17 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
     known = np.array([bool(s) for s in sources])
     gains, share, ratio, far = None, 0.0, float("nan"), float("nan")
     if prior is not None and not known.all():
+        # unposed shapes straight from the prior (the template's fitted shapes; the character's normalised to the
+        # actor's range as far as they fail to explain the markers), not mapped through the measured ones: a 3x3
+        # map per marker through a few poses overfits where those move little (realism benchmark, 12 poses onto the
+        # sample character: 0.163 -> 0.156, mean per-shape r 0.41 -> 0.54, cheekSquint had come out 30x the
+        # actor's; with the template: median 0.073 -> 0.074, r 0.80 -> 0.82, worst draw 0.173 -> 0.126, 68
+        # landmarks 0.089 -> 0.074)
+        filled = prior
         if prior_name == "character" and knowledge.normalise and deltas is not None:
-            # the character's own shapes, normalised per marker to the actor's range as far as they fail to
-            # explain the markers: a per-marker map through the few measured shapes overfits where those move
-            # little (realism benchmark, 12 poses onto the sample character: weights RMSE 0.163 -> 0.156, mean
-            # per-shape r 0.41 -> 0.54; cheekSquint came out 30x the actor's)
             gains, ratio, share, far = character_normalisation(prior, deltas, usable, noise)
-            filled, label = prior / gains[None, :, None], ("transferred (character)" if known.any() else "character")
-        elif known.sum() >= 3:
-            filled = transfer(prior, basis, known)
-            label = f"transferred ({prior_name})"
-        else:
-            filled, label = prior, prior_name
+            filled = prior / gains[None, :, None]
+        label = f"completed ({prior_name})" if known.any() else prior_name
         unfilled = basis.copy()
         for k in np.flatnonzero(~known):
             basis[k], sources[k], unfilled[k] = filled[k], label, prior[k]

@@ -15,7 +15,6 @@ from facecap.solvers.strategies.actor_model import (
     normalisation_share,
     profile_of,
     range_gains,
-    transfer,
 )
 
 SHAPES = ("jawOpen", "mouthSmileLeft", "mouthSmileRight", "browInnerUp", "eyeBlinkLeft", "eyeLookInLeft")
@@ -26,28 +25,6 @@ def _basis(rng, scale=0.005):
     deltas = rng.normal(scale=scale, size=(len(SHAPES), len(MARKERS), 3))
     deltas[SHAPES.index("eyeLookInLeft")] *= 0.05  # moves no marker by more than ~0.5 mm: unseen
     return Basis(SHAPES, MARKERS, rng.normal(scale=0.05, size=(len(MARKERS), 3)), deltas)
-
-
-def test_transfer_recovers_shapes_that_a_per_marker_map_relates():
-    rng = np.random.default_rng(0)
-    prior = rng.normal(size=(8, 5, 3))
-    maps = 1.5 * np.eye(3) + 0.3 * rng.normal(size=(5, 3, 3))  # the actor: 1.5x the prior, turned per marker
-    truth = np.einsum("mij,kmj->kmi", maps, prior)
-    known = np.zeros(8, dtype=bool)
-    known[:6] = True
-    measured = np.where(known[:, None, None], truth, 0.0)
-    got = transfer(prior, measured, known)
-    # the ridge towards the uniform scale costs a little; the unmeasured shapes come out within 10%, where the
-    # prior alone is 40% off
-    err = np.linalg.norm(got[~known] - truth[~known]) / np.linalg.norm(truth[~known])
-    plain = np.linalg.norm(prior[~known] - truth[~known]) / np.linalg.norm(truth[~known])
-    assert err < 0.1 and plain > 0.3, (err, plain)
-    # a marker no measured shape moves keeps the prior, at the measured shapes' overall scale
-    measured[:, 0] = 0.0
-    prior2 = prior.copy()
-    prior2[known, 0] = 0.0
-    got = transfer(prior2, measured, known)
-    np.testing.assert_allclose(got[~known, 0], 1.5 * prior2[~known, 0], rtol=0.15)
 
 
 def test_character_tier_when_nothing_is_known_and_its_shapes_explain_the_take():
@@ -133,8 +110,31 @@ def test_calibration_tier_measured_poses_and_completion():
     few = Basis(SHAPES[:3], MARKERS, actor.neutral, actor.deltas[:3])
     model = build_actor_model(char, MARKERS, actor.neutral, ActorKnowledge(measured=few), character_deltas=char.deltas)
     assert model.tier == "poses"
-    assert model.sources[:3] == ("measured",) * 3 and set(model.sources[3:]) == {"transferred (character)"}
+    assert model.sources[:3] == ("measured",) * 3 and set(model.sources[3:]) == {"completed (character)"}
     assert "3 measured pose(s)" in model.statement() and "character's shapes" in model.statement()
+    np.testing.assert_allclose(model.basis.deltas[:3], actor.deltas[:3], atol=1e-12)
+    # the unposed shapes are the character's, not mapped through the posed ones (without the take's deltas
+    # nothing is normalised)
+    np.testing.assert_allclose(model.basis.deltas[3:], char.deltas[3:], atol=1e-12)
+
+
+def test_few_poses_complete_the_others_from_the_characters_normalised_shapes():
+    """With the take's deltas, the unposed shapes of a character whose ranges are far off the actor's are its
+    shapes normalised to the actor's range, as when nothing is known."""
+    rng = np.random.default_rng(6)
+    char, actor = _basis(rng), _basis(rng)
+    spread = np.where(np.arange(len(MARKERS)) % 2 == 0, 5.0, 1.0)  # the actor moves half its markers 5x more
+    deltas_a = actor.deltas * spread[None, :, None]
+    w = np.clip(rng.normal(0.3, 0.3, size=(300, len(SHAPES))), 0, 1)
+    take = np.einsum("fk,kmd->fmd", w, deltas_a) + rng.normal(scale=3e-4, size=(300, len(MARKERS), 3))
+    few = Basis(SHAPES[:3], MARKERS, actor.neutral, deltas_a[:3])
+    model = build_actor_model(char, MARKERS, actor.neutral, ActorKnowledge(measured=few), character_deltas=char.deltas,
+                              deltas=take, noise=3e-4)
+    nothing = build_actor_model(char, MARKERS, actor.neutral, ActorKnowledge(), character_deltas=char.deltas,
+                                deltas=take, noise=3e-4)
+    assert model.tier == "poses" and nothing.tier == "character" and nothing.mismatch == 1.0
+    np.testing.assert_allclose(model.basis.deltas[3:], nothing.basis.deltas[3:], atol=1e-12)
+    np.testing.assert_allclose(model.basis.deltas[:3], deltas_a[:3], atol=1e-12)
 
 
 def test_measured_poses_in_another_head_frame_are_rotated_onto_the_take():
