@@ -103,7 +103,7 @@ class ActorModel:
             return (f"nothing is known about the actor's face, but the character's shapes move the markers over the "
                     f"actor's ranges ({100 * self.far:.0f}% of the markers {RANGE_FAR:g}x off): they are taken as the "
                     f"actor's; their residual, {self.fit_ratio:.1f}x the markers' noise, is taken as the capture's "
-                    "error (a landmark detector's points slide on the face)")
+                    "error (points that do not follow the skin exactly, as a landmark detector's slide on the face)")
         measured = sum(s == "measured" for s in self.sources)
         prior = "human template" if "template" in self.sources or any(
             s == "completed (template)" for s in self.sources) else "character's shapes"
