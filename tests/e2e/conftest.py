@@ -4,6 +4,7 @@ A prerequisite that cannot be made (no network on a cold cache) skips the tests 
 reason, on a developer's machine; in CI (``FACECAP_CI=1``, set by ``.ci/run``) it fails them.
 """
 
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,12 @@ import pytest
 from matrix_env import missing_prerequisite
 
 from facecap.solvers.tools.build_extension import default_cache_dir
+
+# A suite started in the background (an asynchronous list of a non-interactive shell: `cmd &` in a script)
+# inherits SIGINT ignored, and so would every command these tests start and then interrupt as Ctrl-C does (they
+# would finish instead): the commands get the default back (a handled signal is reset to it across exec).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
