@@ -274,7 +274,7 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
         # actor's; with the template: median 0.073 -> 0.074, r 0.80 -> 0.82, worst draw 0.173 -> 0.126, 68
         # landmarks 0.089 -> 0.074)
         filled = prior
-        if prior_name == "character" and knowledge.normalise and deltas is not None:
+        if prior_name == "character" and knowledge.normalise and deltas is not None and usable.any():
             gains, ratio, share, far = character_normalisation(prior, deltas, usable, noise)
             filled = prior / gains[None, :, None]
         label = f"completed ({prior_name})" if known.any() else prior_name

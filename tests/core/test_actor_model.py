@@ -176,3 +176,17 @@ def test_nothing_to_solve_against_is_an_error():
     unbound = np.full_like(char.deltas, np.nan)
     with pytest.raises(FacecapError, match="no marker of the take is known"):
         build_actor_model(char, MARKERS, char.neutral, ActorKnowledge(), character_deltas=unbound)
+
+
+def test_poses_sharing_no_marker_with_the_characters_binding_are_one_clear_error():
+    """Poses measured on markers the character does not bind, and a binding on markers the poses lack: no
+    marker is known to every shape, said in one message (not a numpy error from the range normalisation)."""
+    rng = np.random.default_rng(7)
+    char = _basis(rng)
+    bound = np.full_like(char.deltas, np.nan)
+    bound[:, 6:] = char.deltas[:, 6:]  # the character binds m6..m11 only
+    few = Basis(SHAPES[:3], MARKERS[:6], char.neutral[:6], char.deltas[:3, :6])  # the poses have m0..m5 only
+    take = rng.normal(scale=3e-4, size=(50, len(MARKERS), 3))
+    with pytest.raises(FacecapError, match="no marker of the take is known to every shape"):
+        build_actor_model(char, MARKERS, char.neutral, ActorKnowledge(measured=few), character_deltas=bound,
+                          deltas=take, noise=3e-4)
