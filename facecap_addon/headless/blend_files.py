@@ -22,6 +22,7 @@ import threading
 import time
 from pathlib import Path
 
+from ...solvers.engine.split import HeldInterrupts
 from ...solvers.errors import InputFileError
 from ...solvers.io.blend_file import check_blend_structure
 from ...solvers.io.files import atomic_path, file_sha256
@@ -110,7 +111,12 @@ def _probe(path):
     if key in _PROBED:
         return None
     read_end, write_end = os.pipe()
-    pid = os.fork()
+    held = HeldInterrupts().hold()  # a Ctrl-C inside the fork's handlers would be printed and lost
+    try:
+        pid = os.fork()
+    except BaseException:
+        held.restore()
+        raise
     if pid == 0:  # the child: open, say how it went, leave without Blender's exit handlers
         os.close(read_end)
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -127,7 +133,7 @@ def _probe(path):
         os._exit(status)
     os.close(write_end)
     try:
-        message, status = _child_answer(pid, read_end)
+        message, status = _child_answer(pid, read_end, held)
     finally:
         os.close(read_end)
     if status is None:  # stuck, not crashed: no answer about the file
@@ -147,7 +153,7 @@ def _probe(path):
     return message or "Blender failed reading it"
 
 
-def _child_answer(pid, fd):
+def _child_answer(pid, fd, held=None):
     """(the child's message, its exit status: negative for the signal that ended it, None when it was stuck
     (asleep without using any CPU for ``PROBE_STUCK`` seconds) and was killed); killed too after
     ``PROBE_TIMEOUT``."""
@@ -155,6 +161,8 @@ def _child_answer(pid, fd):
     deadline = time.monotonic() + PROBE_TIMEOUT
     cpu, still_since = _cpu_ticks(pid), time.monotonic()
     try:
+        if held is not None:
+            held.release()  # a Ctrl-C that came during the fork: raised here, where the child is ended
         while True:
             if open_pipe and select.select([fd], [], [], 0.05)[0]:
                 chunk = os.read(fd, 4096)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...solvers.engine.split import HeldInterrupts
 from ...solvers.errors import ConfigError, FacecapError
 from ...solvers.io.images import encode_png
 from ...solvers.io.outputs import Output, check_outputs, user_path
@@ -259,7 +260,10 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
 
+    held = HeldInterrupts()
+
     def child():
+        held.restore()
         _quiet()
         faulthandler.disable()  # an abort here is expected to be reported by the parent, not dumped
         try:
@@ -268,9 +272,15 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
             send.send(("error", f"{type(exc).__name__}: {exc}"))
 
     proc = ctx.Process(target=child, daemon=True)
-    proc.start()
+    held.hold()  # a Ctrl-C inside the fork's handlers would be printed and lost: raised once it is done
+    try:
+        proc.start()
+    except BaseException:
+        held.restore()
+        raise
     send.close()
     try:
+        held.release()
         if not recv.poll(timeout):
             proc.kill()
             return None, f"rendering took longer than {timeout:.0f} s and was stopped"

@@ -13,7 +13,9 @@ import ctypes
 import multiprocessing as mp
 import os
 import pickle
+import signal
 import sys
+import threading
 
 
 def fork_available():
@@ -24,6 +26,36 @@ def fork_available():
         return False
     bpy = sys.modules.get("bpy")  # read only: solvers never import bpy
     return bpy is None or bool(getattr(getattr(bpy, "app", None), "background", True))
+
+
+class HeldInterrupts:
+    """SIGINT and SIGTERM only noted from ``hold()`` to ``release()``: a fork runs Python's at-fork handlers
+    (logging's lock release among them), and a KeyboardInterrupt raised inside one is printed as a traceback
+    and lost. ``release()`` puts the handlers back and raises KeyboardInterrupt if a signal came; a forked
+    child calls ``restore()`` (the handlers back, nothing raised). Off the main thread it does nothing."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.came, self.previous = [], None
+
+    def hold(self):
+        if threading.current_thread() is threading.main_thread():
+            self.previous = {sig: signal.signal(sig, lambda signum, frame: self.came.append(signum))
+                             for sig in self.SIGNALS}
+        return self
+
+    def restore(self):
+        if self.previous is not None:
+            for sig, handler in self.previous.items():
+                signal.signal(sig, handler)
+            self.previous = None
+
+    def release(self):
+        self.restore()
+        if self.came:
+            self.came.clear()
+            raise KeyboardInterrupt
 
 
 def run_pair(fn, first, second):
@@ -46,7 +78,10 @@ def run_beside(here, there, *, let_finish=False):
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
 
+    held = HeldInterrupts()
+
     def child():
+        held.restore()
         try:
             out = ("ok", there())
         except BaseException as e:  # the parent then runs it itself
@@ -54,16 +89,22 @@ def run_beside(here, there, *, let_finish=False):
         release_freed_memory()  # what ``there`` freed, while the parent takes the result
         _send(send, out)
 
+    held.hold()
     try:
         proc = ctx.Process(target=child, daemon=True)
         proc.start()
     except OSError:
         recv.close()
         send.close()
+        held.release()
         return here(), there()
+    except BaseException:
+        held.restore()
+        raise
     send.close()  # so that recv() ends with EOFError if the child dies without an answer
     done = False
     try:
+        held.release()  # a Ctrl-C that came while the child started: raised here, where the child is ended
         a = here()
         try:
             status, b = _recv(recv)

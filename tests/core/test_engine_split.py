@@ -69,3 +69,24 @@ def test_a_failing_parent_job_kills_or_waits_for_the_child(tmp_path, let_finish)
         engine_split.run_beside(fails, slow_write, let_finish=let_finish)
     time.sleep(0.2 if let_finish else 1.5)  # a killed child would have written by now
     assert out.exists() == let_finish
+
+
+def test_interrupts_held_over_a_fork_are_raised_once_released():
+    """A Ctrl-C (or SIGTERM) that comes while a child is forked is noted, not raised inside the fork's
+    handlers (where it would be printed and lost), and raised as KeyboardInterrupt on release."""
+    import os
+    import signal
+
+    from facecap.solvers.engine.split import HeldInterrupts
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    held = HeldInterrupts().hold()
+    os.kill(os.getpid(), signal.SIGINT)
+    os.kill(os.getpid(), signal.SIGTERM)
+    assert held.came == [signal.SIGINT, signal.SIGTERM]  # noted, nothing raised
+    with pytest.raises(KeyboardInterrupt):
+        held.release()
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+    quiet = HeldInterrupts().hold()
+    quiet.release()  # nothing came: nothing raised, the handlers back
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
