@@ -18,7 +18,6 @@ import os
 import select
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -57,19 +56,13 @@ def start_blender():
 def interrupts_deferred():
     """Within the block SIGINT and SIGTERM only note that they came; after it, KeyboardInterrupt is
     raised if one did. Off the main thread (no signals there) the block just runs."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    came = []
-    previous = {sig: signal.signal(sig, lambda signum, frame: came.append(signum))
-                for sig in (signal.SIGINT, signal.SIGTERM)}
+    held = HeldInterrupts().hold()
     try:
         yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    if came:
-        raise KeyboardInterrupt
+    except BaseException:
+        held.restore()
+        raise
+    held.release()
 
 
 def open_blend(path, what):
