@@ -24,8 +24,9 @@ bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
                               long takes; --landmarks: face landmarks on rendered footage of a real face;
                               --clean: spike removal and gap filling on long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
-template convert PATH         install the optional human template from a copy of ICT-FaceKit (hash-checked);
-                              `template info` says where it is ([actor] template, docs/strategies.md)
+template convert PATH         install the optional human template from ICT-FaceKit as downloaded (its GitHub
+                              zip or folder; hash-checked); `template info` says where it is ([actor] template,
+                              docs/strategies.md)
 rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
                               and platform, with the locked scipy/OpenCV wheels (docs/install.md)

@@ -356,7 +356,9 @@ def _draw_actor(layout, s):
     for i, line in enumerate(_wrapped(s.actor_tier, 60)):
         box.label(text=line, icon="INFO" if i == 0 else "NONE")
     box.prop(s, "actor_profile")
-    box.prop(s, "actor_template")
+    row = box.row(align=True)
+    row.prop(s, "actor_template")
+    row.operator("facecap.install_template", text="", icon="IMPORT")  # from the ICT-FaceKit download
     row = box.row(align=True)
     row.prop(s, "unseen_shapes")
     row.prop(s, "exclusive", text="Exclusive")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FacecapError
+from .ict_release import FOLDER, is_release, read_release
 
 #: ICT (Y up, the face looking along +Z, centimetres) -> facecap (Z up, looking down -Y, metres).
 ICT_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -108,12 +109,17 @@ def from_ict_arrays(arrays, *, source=""):
         digest=source_digest(arrays))
 
 
-def load_ict(path):
-    """The ICT-FaceKit face region from ``path`` (the folder holding ``ict_face.npz``, or that file)."""
+def load_ict(path, *, progress=None):
+    """The ICT-FaceKit face region from ``path``: the reduced face file ``ict_face.npz`` (or the folder holding
+    it), or the release as its authors publish it (the GitHub zip, the repository folder or its ``FaceXModel``
+    folder; ``ict_release``, ``progress(done, total)`` per OBJ file read)."""
     path = Path(path)
-    if path.is_dir():
+    if path.is_dir() and (path / ICT_FILE).is_file():
         path = path / ICT_FILE
+    if path.suffix != ".npz" and path.exists() and is_release(path):
+        return from_ict_arrays(read_release(path, progress=progress), source=str(path))
     if not path.is_file():
-        raise FacecapError(f"{path}: no ICT-FaceKit face file here (expected {ICT_FILE})")
+        raise FacecapError(f"{path}: no ICT-FaceKit here (expected its download: the zip, the repository folder "
+                           f"or {FOLDER}/ with the OBJ files; or a reduced {ICT_FILE})")
     with np.load(path, allow_pickle=False) as data:
         return from_ict_arrays({k: data[k] for k in data.files}, source=str(path))

@@ -2,7 +2,8 @@
 markers, giving the actor's own expression shapes at the markers without a calibration session.
 
 The template is not shipped with facecap. A user who has a copy of the ICT-FaceKit model (MIT) converts it
-once (``python -m facecap template convert <folder>``, hash-checked: ``TEMPLATE_DIGEST``); facecap then finds
+once (``python -m facecap template convert <the download>``: the GitHub zip as downloaded, the repository
+folder or its ``FaceXModel`` folder, ``ict_release``; hash-checked: ``TEMPLATE_DIGEST``); facecap then finds
 it in its data folder (``template_path``) or at the path ``[actor] template`` names.
 
 Fitting (``HumanTemplate.fit``): the markers (in the character's frame: upright, looking down -Y, metres)
@@ -24,6 +25,7 @@ from ..io.files import atomic_path
 from ..transforms import Similarity, fit_similarity
 from .alignment import align_automatic, refine
 from .face_model import FaceModel, load_ict
+from .ict_release import RELEASE_URL
 from .surface import closest_points, interpolate, make_surface
 
 TEMPLATE_NAME = "ict-facekit.npz"
@@ -56,14 +58,16 @@ def template_path():
     return data_folder() / "templates" / TEMPLATE_NAME
 
 
-def convert(source, out=None, *, check_digest=True):
-    """Convert a copy of ICT-FaceKit (the reduced face file ``ict_face.npz`` or a folder holding it) into
-    facecap's template at ``out`` (default ``template_path()``), written atomically. Returns the path."""
-    model = load_ict(source)
+def convert(source, out=None, *, check_digest=True, progress=None):
+    """Convert a copy of ICT-FaceKit (its download as published: the zip, the repository folder or
+    ``FaceXModel``; or the reduced face file ``ict_face.npz``) into facecap's template at ``out`` (default
+    ``template_path()``), written atomically. Returns the path. ``progress(done, total)``: OBJ files read."""
+    model = load_ict(source, progress=progress)
     digest = model.digest
     if check_digest and digest != TEMPLATE_DIGEST:
         raise FacecapError(f"{source}: not the ICT-FaceKit release facecap knows (data digest {digest[:16]}..., "
-                           f"expected {TEMPLATE_DIGEST[:16]}...); the template's accuracy figures hold only for it")
+                           f"expected {TEMPLATE_DIGEST[:16]}...); the template's accuracy figures hold only for it. "
+                           f"Download that release: {RELEASE_URL}")
     out = Path(out) if out is not None else template_path()
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out, suffix=".npz") as tmp:

@@ -1,6 +1,6 @@
 """``python -m facecap template``: install the optional human template (docs/strategies.md, "semantic").
 
-    python -m facecap template convert PATH [--out FILE]   # a copy of ICT-FaceKit's face region -> facecap's template
+    python -m facecap template convert PATH [--out FILE]   # the ICT-FaceKit download -> facecap's template
     python -m facecap template info [FILE]                  # where the template is, and what it holds
 
 The model is not shipped with facecap (ICT-FaceKit, MIT, USC Institute for Creative Technologies); the
@@ -11,7 +11,13 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..character.ict_release import RELEASE_COMMIT
 from ..character.template import HumanTemplate, convert, template_path
+
+
+def _progress(done, total):
+    print(f"\rfacecap: reading ICT-FaceKit {done}/{total} OBJ files", end="\n" if done == total else "",
+          file=sys.stderr, flush=True)
 
 
 def main(argv=None, *, parents=()):
@@ -20,16 +26,19 @@ def main(argv=None, *, parents=()):
         description="Install the optional human template from a copy of ICT-FaceKit (hash-checked), or say where "
                     "the installed one is; the semantic strategy fits it to the actor when nothing else is known.")
     sub = parser.add_subparsers(dest="action", required=True)
-    p = sub.add_parser("convert", help="convert a copy of the ICT-FaceKit face region (ict_face.npz, or the folder "
-                                       "holding it) into facecap's template")
-    p.add_argument("source", help="the ICT-FaceKit face file or its folder")
+    p = sub.add_parser("convert", help="convert a copy of ICT-FaceKit into facecap's template: the zip as downloaded "
+                                       f"from GitHub (release {RELEASE_COMMIT[:7]}, docs/strategies.md), the "
+                                       "repository folder or its FaceXModel folder")
+    p.add_argument("source", help="the ICT-FaceKit download: its zip, the repository folder or FaceXModel/ (or a "
+                                  "reduced ict_face.npz)")
     p.add_argument("--out", default=None, help=f"where to write it (default: {template_path()}, which [actor] "
                                                 "template = \"auto\" finds)")
     p = sub.add_parser("info", help="where the template is and what it holds")
     p.add_argument("path", nargs="?", default=None, help=f"a template file (default: {template_path()})")
     args = parser.parse_args(argv)
     if args.action == "convert":
-        out = convert(Path(args.source).expanduser(), None if args.out is None else Path(args.out).expanduser())
+        out = convert(Path(args.source).expanduser(), None if args.out is None else Path(args.out).expanduser(),
+                      progress=_progress if sys.stderr.isatty() else None)
         print(f"facecap: human template written to {out}", file=sys.stdout)
         return 0
     path = Path(args.path).expanduser() if args.path else template_path()

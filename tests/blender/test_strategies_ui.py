@@ -218,8 +218,8 @@ def test_solve_panel_draws_only_what_applies(scene):
     assert {"examples_action", "rbf_kernel", "rbf_far"} <= drawn["rbf"]
     assert {"examples_action", "pca_mode", "pca_ica"} <= drawn["pca"]
     assert {"refine_max_iterations", "calib_poses", "mapping"} <= drawn["refine"]
-    assert {"actor_profile", "actor_template", "unseen_shapes", "exclusive", "calib_poses", "regularisation"} \
-        <= drawn["semantic"] and "mapping" not in drawn["semantic"]
+    assert {"actor_profile", "actor_template", "facecap.install_template", "unseen_shapes", "exclusive", "calib_poses",
+            "regularisation"} <= drawn["semantic"] and "mapping" not in drawn["semantic"]
     assert "calib_path" in _draw("calibrated", calib_source="FILE")
     assert "parallel_gamma" in _draw("parallel", parallel_curve="gamma")
     assert "smoothing_second" in _draw("pca", pca_mode="posed") and "smoothing_second" not in _draw("pca", pca_mode="related")
@@ -259,3 +259,30 @@ def test_strategy_settings_are_saved_in_the_blend(scene, tmp_path):
     settings = retarget_settings(s)
     assert settings.calibration.pose_table() == {"jawOpen": [[120, 135]], "AU12": [[200, 215]]}
     assert settings.calibration.split == ("AU12",) and settings.mapping.table_dict() == {"AU12": {"mouthSmileLeft": pytest.approx(0.7)}}
+
+
+def test_install_template_from_the_download(scene, tmp_path, monkeypatch):
+    """Install Human Template: the ICT-FaceKit folder as downloaded (a file chosen inside it stands for it) is
+    converted into facecap's data folder, hash-checked; a second install keeps it; a wrong choice is one error."""
+    from ict_release_copy import write_ict_release
+    from shared_data import ICT_FACEKIT, require
+
+    from facecap.solvers.character.template import TEMPLATE_DIGEST, HumanTemplate, template_path
+
+    monkeypatch.setenv("FACECAP_DATA", str(tmp_path / "data"))
+    release = write_ict_release(require(ICT_FACEKIT) / "ict_face.npz", tmp_path / "ICT-FaceKit")
+    with pytest.raises(RuntimeError, match="choose the ICT-FaceKit download"):  # bpy.ops raises an ERROR report
+        bpy.ops.facecap.install_template(filepath=str(tmp_path / "nothing.zip"))
+    assert not template_path().exists()
+    assert bpy.ops.facecap.install_template(filepath=str(release / "FaceXModel" / "jawOpen.obj")) == {"FINISHED"}
+    assert HumanTemplate.load(template_path()).model.digest == TEMPLATE_DIGEST
+    stamp = template_path().stat().st_mtime_ns
+    assert bpy.ops.facecap.install_template(directory=str(release)) == {"FINISHED"}
+    assert template_path().stat().st_mtime_ns == stamp  # already installed: not written again
+    other = tmp_path / "other"
+    (other / "FaceXModel").mkdir(parents=True)
+    (other / "FaceXModel" / "generic_neutral_mesh.obj").write_text("v 0 0 0\n")
+    template_path().unlink()
+    with pytest.raises(RuntimeError, match="generic_neutral_mesh.obj: 1 vertices"):
+        bpy.ops.facecap.install_template(directory=str(other))
+    assert not template_path().exists()

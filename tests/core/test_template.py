@@ -1,13 +1,18 @@
 """The optional human template: converted from a copy of ICT-FaceKit (hash-checked), fitted to an actor's neutral
 markers, its shapes at the markers. Uses the shared copy of the model (never the repository's)."""
 
+import os
+import zipfile
+
 import numpy as np
 import pytest
+from ict_release_copy import write_ict_release
 from shared_data import ICT_FACEKIT, require
 
 from facecap.solvers.character.face_model import from_ict_arrays, load_ict
+from facecap.solvers.character.ict_release import RELEASE_COMMIT, RELEASE_URL
 from facecap.solvers.character.template import TEMPLATE_DIGEST, HumanTemplate, convert, template_path
-from facecap.solvers.errors import FacecapError
+from facecap.solvers.errors import FacecapError, InputFileError
 from facecap.solvers.tools.synthetic.realism.actors import Perturbation, make_actor
 from facecap.solvers.tools.synthetic.realism.layouts import layout
 
@@ -45,6 +50,87 @@ def test_convert_writes_the_template_and_refuses_another_model(model, tmp_path, 
         HumanTemplate.load(_junk(tmp_path))
     with pytest.raises(FacecapError, match="missing"):
         from_ict_arrays({"neutral_cm": arrays["neutral_cm"]}, source="bad.npz")
+
+
+@pytest.fixture(scope="module")
+def release(tmp_path_factory):
+    """ICT-FaceKit as GitHub serves it: the repository folder and its zip (``ICT-FaceKit-<commit>/FaceXModel``)."""
+    root = tmp_path_factory.mktemp("download")
+    folder = write_ict_release(require(ICT_FACEKIT) / "ict_face.npz", root / f"ICT-FaceKit-{RELEASE_COMMIT}")
+    archive = root / f"ICT-FaceKit-{RELEASE_COMMIT}.zip"
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        for path in sorted(folder.rglob("*")):
+            z.write(path, path.relative_to(root).as_posix())
+    return folder, archive
+
+
+@pytest.mark.parametrize("form", ["zip", "repository", "FaceXModel"])
+def test_convert_reads_the_release_as_downloaded(model, release, form, tmp_path):
+    """The zip as downloaded, the unpacked repository or its FaceXModel folder: the same face region, polygons,
+    landmarks and data digest as the reduced file (so the hash check accepts the release itself)."""
+    folder, archive = release
+    source = {"zip": archive, "repository": folder, "FaceXModel": folder / "FaceXModel"}[form]
+    seen = []
+    out = convert(source, tmp_path / "t.npz", progress=lambda done, total: seen.append((done, total)))
+    t = HumanTemplate.load(out).model
+    reduced = HumanTemplate.load(convert(ICT_FACEKIT, tmp_path / "reduced.npz")).model
+    assert t.digest == TEMPLATE_DIGEST
+    assert t.shape_names == model.shape_names
+    model = reduced  # the template as the reduced file converts (stored float32)
+    np.testing.assert_array_equal(t.neutral, model.neutral)
+    np.testing.assert_array_equal(t.deltas, model.deltas)
+    np.testing.assert_array_equal(t.identity, model.identity)
+    np.testing.assert_array_equal(t.landmarks68, model.landmarks68)
+    np.testing.assert_array_equal(t.triangles, model.triangles)  # the polygons reaching the back of the head left out
+    assert seen[-1] == (154, 154) and len(seen) == 154
+
+
+def _nudged(obj_text):
+    """The OBJ text with its first vertex moved by 0.1 mm: another model as far as the hash check is concerned."""
+    lines = obj_text.split("\n")
+    i = next(i for i, line in enumerate(lines) if line.startswith("v "))
+    v, x, *rest = lines[i].split()
+    lines[i] = " ".join([v, repr(float(x) + 0.01), *rest])
+    return "\n".join(lines)
+
+
+def _variant(folder, tmp_path, changes):
+    """A copy of the release folder (links) with ``changes`` {file name: new text or None to leave it out}."""
+    copy = tmp_path / "ICT-FaceKit" / "FaceXModel"
+    copy.mkdir(parents=True)
+    for path in (folder / "FaceXModel").iterdir():
+        if path.name not in changes:
+            os.symlink(path, copy / path.name)
+    for name, text in changes.items():
+        if text is not None:
+            (copy / name).write_text(text)
+    return copy.parent
+
+
+def test_a_broken_release_is_named_and_nothing_is_written(release, tmp_path):
+    folder, _ = release
+    fx = folder / "FaceXModel"
+    ident = (fx / "identity050.obj").read_text()
+    cases = [
+        ({"identity050.obj": None}, InputFileError, r"identity050\.obj: missing from the ICT-FaceKit download"),
+        ({"identity050.obj": ident[: len(ident) // 3]}, InputFileError, r"identity050\.obj: \d+ vertices"),
+        ({"identity050.obj": ident.replace("\nv ", "\nv x ", 1)}, InputFileError, r"vertex 1: expected three numbers"),
+        ({"identity050.obj": ident.replace("\nv ", "\nv 1\nv ", 1)}, InputFileError, r"identity050\.obj, line 4"),
+        ({"vertex_indices.json": "{}"}, InputFileError, "idx_to_landmark_verts"),
+        ({"jawOpen.obj": _nudged((fx / "jawOpen.obj").read_text())}, FacecapError,
+         "not the ICT-FaceKit release facecap knows"),
+    ]
+    for i, (changes, error, message) in enumerate(cases):
+        source = _variant(folder, tmp_path / str(i), changes)
+        with pytest.raises(error, match=message) as caught:
+            convert(source, tmp_path / "t.npz")
+        assert not (tmp_path / "t.npz").exists()
+        if "missing" in message or "knows" in message:
+            assert RELEASE_URL in str(caught.value)
+    with pytest.raises(InputFileError, match="not an ICT-FaceKit download"):
+        with zipfile.ZipFile(tmp_path / "other.zip", "w") as z:
+            z.writestr("README.md", "not a face")
+        convert(tmp_path / "other.zip", tmp_path / "t.npz")
 
 
 def _junk(tmp_path):

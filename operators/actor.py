@@ -1,0 +1,68 @@
+"""What is known of the actor's face: installing the optional human template from the ICT-FaceKit download."""
+
+from pathlib import Path
+
+import bpy
+from bpy.props import StringProperty
+
+from ..solvers.character.ict_release import RELEASE_URL
+from ..solvers.character.template import HumanTemplate, TEMPLATE_DIGEST, convert, template_path
+from ..solvers.errors import FacecapError
+
+
+class FACECAP_OT_install_template(bpy.types.Operator):
+    """Install the human template from ICT-FaceKit as downloaded (its GitHub zip, the repository folder or
+    FaceXModel; hash-checked): the semantic solve then fits it to the actor when no calibration is given"""
+
+    bl_idname = "facecap.install_template"
+    bl_label = "Install Human Template"
+    bl_options = {"REGISTER"}  # writes facecap's data folder, not the .blend: nothing to undo
+
+    filepath: StringProperty(subtype="FILE_PATH", description="The ICT-FaceKit zip, or a file in its folder")
+    directory: StringProperty(subtype="DIR_PATH")
+    filter_glob: StringProperty(default="*.zip;*.obj;*.json;*.npz", options={"HIDDEN"})
+
+    def invoke(self, context, _event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        source = _source(self.filepath, self.directory)
+        if source is None:
+            self.report({"ERROR"}, f"choose the ICT-FaceKit download (its zip or folder; {RELEASE_URL})")
+            return {"CANCELLED"}
+        installed = template_path()
+        if installed.is_file() and _installed_digest(installed) == TEMPLATE_DIGEST:
+            self.report({"INFO"}, f"The human template is already installed: {installed}")
+            return {"FINISHED"}
+        wm = context.window_manager
+        wm.progress_begin(0, 154)
+        try:
+            out = convert(source, progress=lambda done, _total: wm.progress_update(done))
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        finally:
+            wm.progress_end()
+        self.report({"INFO"}, f"Human template installed: {out} ([actor] template \"auto\" uses it)")
+        return {"FINISHED"}
+
+
+def _source(filepath, directory):
+    """The zip chosen, or the folder (a file chosen inside FaceXModel or the repository stands for its folder)."""
+    path = Path(bpy.path.abspath(filepath)) if filepath else None
+    if path is not None and path.is_file() and path.suffix.lower() in (".zip", ".npz"):
+        return path
+    folder = path.parent if path is not None and path.is_file() else path if path is not None and path.is_dir() \
+        else Path(bpy.path.abspath(directory)) if directory else None
+    return folder if folder is not None and folder.is_dir() else None
+
+
+def _installed_digest(path):
+    try:
+        return HumanTemplate.load(path).model.digest
+    except FacecapError:
+        return None  # unreadable: converted again (atomically) over it
+
+
+CLASSES = (FACECAP_OT_install_template,)
