@@ -159,7 +159,7 @@ class FACECAP_OT_track_face_landmarks(ClipJobOperator, bpy.types.Operator):
         scene.facecap.take_name = name
         use_landmark_defaults(scene.facecap)
         self.report({"INFO"}, f"{session.result.summary()}; added as '{coll.name}' (stable: the head-rigid landmarks, "
-                              "neutral: detected, binding: nearest)")
+                              "neutral: detected, binding: nearest, human template: none)")
 
 
 class FACECAP_OT_solve_clip_flow(ClipJobOperator, bpy.types.Operator):

@@ -127,8 +127,11 @@ class ClipLandmarks(_ClipJob):
 
 def use_landmark_defaults(settings):
     """Set the sidebar up as a landmark take needs it: the head-rigid landmarks stable, the neutral
-    detected, the binding by position found automatically."""
+    detected, the binding by position found automatically, the human template not used unless a path
+    names one (``flow_config.landmark_defaults``)."""
     rigid = set(RIGID)
+    if settings.actor_template.strip() in ("", "auto"):
+        settings.actor_template = "none"
     for item in settings.markers:
         item.stable = item.name in rigid
     settings.neutral_mode = "DETECT"

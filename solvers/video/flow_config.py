@@ -103,7 +103,10 @@ def is_landmark_take(raw):
 def landmark_defaults(data, rigid):
     """Fill in what a landmark take does not need to be told (in the parsed TOML ``data``, for the
     marker-take parser): stabilise on the detector's head-rigid points ``rigid``, the neutral detected
-    from the take, the binding by position found automatically. A key the config gives is kept."""
+    from the take, the binding by position found automatically, no human template (the detector's points
+    do not move as the template's skin does: rendered ICT footage solved worse with it, docs/video.md). A
+    key the config gives is kept."""
+    data.setdefault("actor", {}).setdefault("template", "none")
     stabilise = data.setdefault("stabilise", {})
     stabilise.setdefault("markers", list(rigid))
     neutral = data.setdefault("neutral", {})

@@ -78,6 +78,7 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
     assert len(settings.markers) == 468 and settings.take_name == "face.mp4 landmarks"  # no irises: not on skin
     assert {m.name for m in settings.markers if m.stable} == set(RIGID)
     assert settings.neutral_mode == "DETECT" and settings.binding_mode == "nearest"
+    assert settings.actor_template == "none"  # "auto" would fit the human template to the detector's points
     empties = settings.marker_collection.objects
     nose, eye = empties["lm001"], empties["lm033"]
     assert nose.location.y < eye.location.y  # the face looks down -Y, like the characters

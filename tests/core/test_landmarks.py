@@ -106,16 +106,18 @@ def test_four_sections_make_a_semantic_take_with_landmark_defaults(tmp_path):
     s = config.settings
     assert s.strategy == "semantic" and s.stable_markers == RIGID and s.neutral_detect
     assert config.binding.mode == "nearest"
+    assert s.actor.template == "none"  # the detector's points are not the template's skin (docs/video.md)
 
 
 def test_a_landmark_take_keeps_what_the_config_says(tmp_path):
     from facecap.solvers.config import load_take_config
 
     path = tmp_path / "take.toml"
-    path.write_text(FOUR + '[neutral]\nframes = [1, 15]\n[stabilise]\nmarkers = ["lm010", "lm168", "lm234"]\n',
-                    encoding="utf-8")
+    path.write_text(FOUR + '[neutral]\nframes = [1, 15]\n[stabilise]\nmarkers = ["lm010", "lm168", "lm234"]\n'
+                    '[actor]\ntemplate = "auto"\n', encoding="utf-8")
     s = load_take_config(path).settings
     assert s.neutral_frames == (1, 15) and not s.neutral_detect and s.stable_markers == ("lm010", "lm168", "lm234")
+    assert s.actor.template == "auto"
 
 
 @pytest.mark.parametrize("extra, key, match", [
