@@ -6,7 +6,7 @@ import bpy
 from bpy.props import StringProperty
 
 from ..solvers.character.ict_release import RELEASE_URL
-from ..solvers.character.template import HumanTemplate, TEMPLATE_DIGEST, convert, template_path
+from ..solvers.character.template import TEMPLATE_DIGEST, HumanTemplate, convert, template_path
 from ..solvers.errors import FacecapError
 
 
