@@ -12,22 +12,16 @@ TICK_SECONDS = 0.1  # how often the sidebar looks at a running solve
 STEP_SECONDS = 0.1  # a rig solve's work per tick (on the main thread): the interface stays live between
 
 
-class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
-    """Solve shape-key weights (or a rig's controls) for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept). The status bar shows what is solving, how far and for how long; Esc cancels with the scene untouched"""
-
-    bl_idname = "facecap.solve"
-    bl_label = "Solve and Key"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        s = context.scene.facecap
-        return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
+class SolveJobOperator(ClipJobOperator):
+    """The sidebar's solves beside the interface: ``_start(context)`` gives the session
+    (``scene_solve.start_session``), ``_write(context, session)`` keys its finished result. Invoked from the
+    sidebar the solve runs while the status bar says what and for how long, Esc cancels with nothing written;
+    from scripts and in background mode it runs at once."""
 
     def execute(self, context):
-        """Solve and key at once (bpy.ops from scripts and background mode)."""
+        """Solve and write at once (bpy.ops from scripts and background mode)."""
         try:
-            session = scene_solve.start_session(context.scene.facecap, context.scene)
+            session = self._start(context)
             session.wait()
             return self._write(context, session)
         except FacecapError as exc:
@@ -38,7 +32,7 @@ class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
         if bpy.app.background or context.window is None:
             return self.execute(context)
         try:
-            self._session = scene_solve.start_session(context.scene.facecap, context.scene)
+            self._session = self._start(context)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -74,6 +68,22 @@ class FACECAP_OT_solve(ClipJobOperator, bpy.types.Operator):
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+
+
+class FACECAP_OT_solve(SolveJobOperator, bpy.types.Operator):
+    """Solve shape-key weights (or a rig's controls) for every frame and key them as the solve layer (a new action named after the take; your own keys on the layer above are kept). The status bar shows what is solving, how far and for how long; Esc cancels with the scene untouched"""
+
+    bl_idname = "facecap.solve"
+    bl_label = "Solve and Key"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        s = context.scene.facecap
+        return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
+
+    def _start(self, context):
+        return scene_solve.start_session(context.scene.facecap, context.scene)
 
     def _write(self, context, session):
         """Key the finished solve and report it (a FacecapError of the solve is raised here)."""

@@ -14,6 +14,7 @@ from ..facecap_addon.scene import layers, scene_solve, tuning_scene
 from ..solvers.character.shape_controls import load_preset, save_preset
 from ..solvers.errors import FacecapError
 from ..solvers.tuning.retune import fit_gain_offset
+from .solve import SolveJobOperator
 
 
 def _solved(context):
@@ -107,8 +108,8 @@ class FACECAP_OT_tuning_clear(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class FACECAP_OT_retune(bpy.types.Operator):
-    """Re-optimise the library from the tuning frames, store it as a new version and re-solve the take"""
+class FACECAP_OT_retune(SolveJobOperator, bpy.types.Operator):
+    """Re-optimise the library from the tuning frames, store it as a new version and re-solve the take. The status bar shows how long; Esc cancels with nothing stored or keyed"""
 
     bl_idname = "facecap.retune"
     bl_label = "Retune"
@@ -124,24 +125,26 @@ class FACECAP_OT_retune(bpy.types.Operator):
     def poll(cls, context):
         return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
 
-    def execute(self, context):
+    def _start(self, context):
+        settings = context.scene.facecap
+        corrections = tuning_scene.corrections(settings)
+        mu = None if settings.tune_auto_mu else settings.tune_mu
+        session = scene_solve.start_session(settings, context.scene, what="Retune", corrections=corrections, mu=mu)
+        session.corrections = corrections  # what _write compares the re-solve with
+        return session
+
+    def _write(self, context, session):
         scene = context.scene
         settings = scene.facecap
-        try:
-            corrections = tuning_scene.corrections(settings)
-            mu = None if settings.tune_auto_mu else settings.tune_mu
-            result = scene_solve.solve_take(settings, scene, corrections=corrections, mu=mu)
-            tuned = result.retune
-            if tuned.changed:
-                tuning_scene.store_version(scene, tuned.version)
-                settings.library_active = tuned.version.name
-                settings.library_index = list(settings.library_versions.keys()).index(tuned.version.name)
-            if self.consume:
-                tuning_scene.take_in_corrections(settings, sorted(corrections))
-            scene_solve.key_solve(settings, result)
-        except FacecapError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        result, corrections = session.wait(), session.corrections
+        tuned = result.retune
+        if tuned.changed:
+            tuning_scene.store_version(scene, tuned.version)
+            settings.library_active = tuned.version.name
+            settings.library_index = list(settings.library_versions.keys()).index(tuned.version.name)
+        if self.consume:
+            tuning_scene.take_in_corrections(settings, sorted(corrections))
+        scene_solve.key_solve(settings, result)
         rows = {float(f): i for i, f in enumerate(result.frames)}
         for item in settings.tuning_frames:
             want = np.array(list(corrections[float(item.frame)].values()))
@@ -202,8 +205,8 @@ class FACECAP_OT_library_revert(bpy.types.Operator):
         return bpy.ops.facecap.library_use(name=parent)
 
 
-class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
-    """Fit each shape's gain and offset to the tuning frames (least squares), then re-solve and key"""
+class FACECAP_OT_fit_gain_offset(SolveJobOperator, bpy.types.Operator):
+    """Fit each shape's gain and offset to the tuning frames (least squares), then re-solve and key. The status bar shows how long; Esc cancels with nothing changed"""
 
     bl_idname = "facecap.fit_gain_offset"
     bl_label = "Fit Gain and Offset"
@@ -213,21 +216,27 @@ class FACECAP_OT_fit_gain_offset(bpy.types.Operator):
     def poll(cls, context):
         return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
 
-    def execute(self, context):
+    def _start(self, context):
         settings = context.scene.facecap
-        try:
-            corrections = tuning_scene.corrections(settings)
-            names = tuning_scene.shape_names(settings.target)
-            frames = sorted(corrections)
-            solve, _ = layers.layer_values(settings.target.data.shape_keys, names, frames)
-            gain, offset = fit_gain_offset(solve, {i: np.array([corrections[f][n] for n in names])
-                                                   for i, f in enumerate(frames)})
-            changed = tuning_scene.compose_gain_offset(settings, names, gain, offset)
-            tuning_scene.take_in_corrections(settings, frames)
-            scene_solve.key_solve(settings, scene_solve.solve_take(settings, context.scene))
-        except FacecapError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        corrections = tuning_scene.corrections(settings)
+        names = tuning_scene.shape_names(settings.target)
+        frames = sorted(corrections)
+        solve, _ = layers.layer_values(settings.target.data.shape_keys, names, frames)
+        gain, offset = fit_gain_offset(solve, {i: np.array([corrections[f][n] for n in names])
+                                               for i, f in enumerate(frames)})
+        # solved with the fitted controls before they are written: Esc leaves the shape list as it was
+        controls = tuning_scene.controls_with_gain_offset(settings, names, gain, offset)
+        session = scene_solve.start_session(settings, context.scene, what="Fit Gain and Offset", controls=controls)
+        session.fit = (names, gain, offset, frames)
+        return session
+
+    def _write(self, context, session):
+        settings = context.scene.facecap
+        result = session.wait()
+        names, gain, offset, frames = session.fit
+        changed = tuning_scene.compose_gain_offset(settings, names, gain, offset)
+        tuning_scene.take_in_corrections(settings, frames)
+        scene_solve.key_solve(settings, result)
         self.report({"INFO"}, f"Gain/offset fitted on {len(changed)} shape(s): {', '.join(changed[:6])}"
                     + ("..." if len(changed) > 6 else ""))
         return {"FINISHED"}

@@ -3,9 +3,10 @@ and the solve layer it keys.
 
 *Solve and Key*, *Retune*, *Fit Gain and Offset* and *Solve from Clip Flow* all build their request
 here (``request_from_scene``): the take and the character read from the scene, the active library
-version, the animator's locks and the per-shape controls. *Solve and Key* solves on a worker thread
-(``SolveInBackground``) so the sidebar shows its progress and Esc cancels it; onto a rig it runs in
-short steps on the main thread instead (``RigSolveSession``: Blender evaluates the rig).
+version, the animator's locks and the per-shape controls. *Solve and Key*, *Retune* and *Fit Gain and
+Offset* solve on a worker thread (``SolveInBackground``) so the sidebar shows their progress and Esc
+cancels them; onto a rig they run in short steps on the main thread instead (``RigSolveSession``:
+Blender evaluates the rig).
 """
 
 import glob
@@ -27,18 +28,20 @@ from .scene_binding import binding_from_sidebar, geometric_character, show_marke
 from .tuning_scene import load_version, shape_controls
 
 
-def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=None, mu=None):
+def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=None, mu=None, controls=None):
     """A SolveRequest for the sidebar's take and strategy.
 
     ``footage`` (with ``flow``): a video take solved from flow features instead of the imported
-    markers; ``corrections`` ({frame: {shape: value}}) and ``mu``: retune from them and re-solve.
+    markers; ``corrections`` ({frame: {shape: value}}) and ``mu``: retune from them and re-solve;
+    ``controls``: per-shape controls instead of the shape list's (a gain/offset fit not yet written).
     """
+    controls = shape_controls(settings) if controls is None else controls
 
     strategy = settings.strategy if footage is None else settings.video.flow_strategy
     markers = None if strategy == "parallel" or footage is not None else take.markers_from_collection(settings)
     rsettings = replace(take.retarget_settings(settings), strategy=strategy)
     if settings.rig_preset != "NONE" and footage is None:
-        return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu)
+        return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu, controls=controls)
     if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
@@ -54,7 +57,7 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     version = load_version(scene, settings.library_active) if settings.library_active and footage is None else None
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
-                        parent=settings.library_active or "", controls=shape_controls(settings), fps=settings.fps)
+                        parent=settings.library_active or "", controls=controls, fps=settings.fps)
 
 
 def rig_settings(settings):
@@ -78,15 +81,16 @@ def _rig_inputs(settings, markers, rsettings):
     return rig_settings(settings), rsettings, sampling
 
 
-def _rig_solve_request(settings, markers, rsettings, target, *, corrections=None, mu=None):
+def _rig_solve_request(settings, markers, rsettings, target, *, corrections=None, mu=None, controls=None):
     return SolveRequest(character=None, settings=rsettings, markers=markers, corrections=corrections, mu=mu,
-                        controls=shape_controls(settings), fps=settings.fps, rig=target)
+                        controls=shape_controls(settings) if controls is None else controls, fps=settings.fps,
+                        rig=target)
 
 
-def _rig_request(settings, markers, rsettings, *, corrections, mu):
+def _rig_request(settings, markers, rsettings, *, corrections, mu, controls):
     rig, rsettings, sampling = _rig_inputs(settings, markers, rsettings)
     target, _ = build_rig_target(settings.target, markers.names, rig, binding=sampling, n_frames=markers.n_frames)
-    return _rig_solve_request(settings, markers, rsettings, target, corrections=corrections, mu=mu)
+    return _rig_solve_request(settings, markers, rsettings, target, corrections=corrections, mu=mu, controls=controls)
 
 
 def solve_take(settings, scene, **kwargs):
@@ -145,16 +149,18 @@ def key_solve(settings, result):
 
 
 class SolveInBackground:
-    """*Solve and Key* in the sidebar: the request is built here (it reads the scene), the solve runs on a
+    """*Solve and Key* (or *Retune*, *Fit Gain and Offset*: ``what``, with their ``request_from_scene``
+    keywords) in the sidebar: the request is built here (it reads the scene), the solve runs on a
     worker thread (numpy and scipy only: no Blender data is touched there) so the interface stays live
     and Esc answers at once; nothing in the scene changes until the operator keys the finished result.
     A cancelled solve cannot be stopped inside numpy: it finishes on its thread and is dropped."""
 
     what = "Solve and Key"
 
-    def __init__(self, settings, scene):
+    def __init__(self, settings, scene, *, what=None, **request):
         self.settings = settings
-        self.request = request_from_scene(settings, scene)
+        self.what = what or self.what
+        self.request = request_from_scene(settings, scene, **request)
         self.size = _describe(self.request)
         self.result = self.error = None
         self.cancelled = False
@@ -200,8 +206,9 @@ class RigSolveSession:
 
     what = "Solve and Key"
 
-    def __init__(self, settings, scene):
+    def __init__(self, settings, scene, *, what=None, **request):
         self.settings = settings
+        self.what = what or self.what
         markers = take.markers_from_collection(settings)
         rsettings = replace(take.retarget_settings(settings), strategy=settings.strategy)
         rig, rsettings, sampling = _rig_inputs(settings, markers, rsettings)
@@ -210,12 +217,12 @@ class RigSolveSession:
         self.result = self.error = None
         self.cancelled = False
         self.started = time.monotonic()
-        self._steps = self._run(settings, markers, rsettings, rig, sampling)
+        self._steps = self._run(settings, markers, rsettings, rig, sampling, request)
 
-    def _run(self, settings, markers, rsettings, rig, sampling):
+    def _run(self, settings, markers, rsettings, rig, sampling, request):
         target, _ = yield from build_rig_target_steps(settings.target, markers.names, rig, binding=sampling,
                                                       n_frames=markers.n_frames, chunk=PROBE_CHUNK)
-        job = solve_job(_rig_solve_request(settings, markers, rsettings, target))
+        job = solve_job(_rig_solve_request(settings, markers, rsettings, target, **request))
         self.stage = "solving"
         try:
             while not job.step():
@@ -283,11 +290,12 @@ class RigSolveSession:
             self._steps.close()
 
 
-def start_session(settings, scene):
-    """The *Solve and Key* session for the sidebar's target: on a thread, or in steps onto a rig."""
+def start_session(settings, scene, *, what=None, **request):
+    """The session of a sidebar solve (*Solve and Key*, or ``what`` with its ``request_from_scene`` keywords:
+    corrections, mu, controls) for the sidebar's target: on a thread, or in steps onto a rig."""
     if settings.rig_preset != "NONE":
-        return RigSolveSession(settings, scene)
-    return SolveInBackground(settings, scene)
+        return RigSolveSession(settings, scene, what=what, **request)
+    return SolveInBackground(settings, scene, what=what, **request)
 
 
 def _describe(request):

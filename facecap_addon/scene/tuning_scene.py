@@ -9,6 +9,7 @@ so a version round-trips bit-exactly and nothing is ever overwritten.
 import base64
 import glob
 import io
+from dataclasses import replace
 
 import numpy as np
 
@@ -36,14 +37,34 @@ def shape_controls(settings, *, with_locks=False):
     """
     out = {}
     for s in settings.shapes:
-        control = ShapeControl(
-            gain=s.gain, offset=s.offset, clamp=(s.clamp_min, s.clamp_max) if s.use_clamp else None,
-            curve=f"gamma:{s.gamma:g}" if s.curve == "gamma" else s.curve, smoothing=s.smoothing, mute=s.mute,
-            lock=s.lock_value if with_locks and s.lock else None,
-        )
+        control = _control(s, with_locks)
         if control != ShapeControl():
             out[glob.escape(s.name)] = control
     return out
+
+
+def _control(s, with_locks=False):
+    return ShapeControl(
+        gain=s.gain, offset=s.offset, clamp=(s.clamp_min, s.clamp_max) if s.use_clamp else None,
+        curve=f"gamma:{s.gamma:g}" if s.curve == "gamma" else s.curve, smoothing=s.smoothing, mute=s.mute,
+        lock=s.lock_value if with_locks and s.lock else None,
+    )
+
+
+def controls_with_gain_offset(settings, names, gain, offset):
+    """``shape_controls`` as they will be once ``compose_gain_offset`` has written the fitted gain and offset
+    (nothing is written: a solve can run with them and be dropped)."""
+    out = shape_controls(settings)
+    items = {s.name: s for s in settings.shapes}
+    for n, (g, o) in _composed(items, names, gain, offset).items():
+        out[glob.escape(n)] = replace(_control(items[n]), gain=g, offset=o)
+    return out
+
+
+def _composed(items, names, gain, offset, tol=1e-6):
+    """{shape: (gain, offset)} of the shapes a fit changes, composed on their current controls."""
+    return {n: (float(g * items[n].gain), float(g * items[n].offset + o)) for n, g, o in zip(names, gain, offset)
+            if n in items and not (abs(g - 1.0) <= tol and abs(o) <= tol)}
 
 
 def set_controls(settings, controls):
@@ -72,14 +93,10 @@ def compose_gain_offset(settings, names, gain, offset, *, tol=1e-6):
     g = gain g1, o = gain o1 + offset. Returns the names of the shapes that changed.
     """
     items = {s.name: s for s in settings.shapes}
-    changed = []
-    for n, g, o in zip(names, gain, offset):
-        if n not in items or (abs(g - 1.0) <= tol and abs(o) <= tol):
-            continue
-        item = items[n]
-        item.gain, item.offset = float(g * item.gain), float(g * item.offset + o)
-        changed.append(n)
-    return changed
+    changed = _composed(items, names, gain, offset, tol)
+    for n, (g, o) in changed.items():
+        items[n].gain, items[n].offset = g, o
+    return list(changed)
 
 
 # -- library versions in the .blend -------------------------------------------------------------------

@@ -275,3 +275,46 @@ weights = "out/weights.csv"
     np.testing.assert_allclose(cli_weights, _solve_values(ctx), atol=1e-3)
     print(f"\noperator vs CLI: library max |diff| {np.abs(cli_version.payload.deltas - op_version.payload.deltas).max():.2e} m, "
           f"weights max |diff| {np.abs(cli_weights - _solve_values(ctx)).max():.2e}")
+
+
+@pytest.mark.parametrize("operator", ["retune", "fit_gain_offset"])
+def test_retune_and_fit_gain_run_beside_the_interface_and_esc_changes_nothing(solved, data, operator, monkeypatch):
+    """From the sidebar both solve on a worker thread (the status bar says which and for how long); Esc leaves
+    the library, the shape list, the solve layer and the animator's layer as they were; left to finish, the
+    result is what bpy.ops gives."""
+    import threading
+
+    from scene_fixtures import modal_driver
+
+    from facecap.facecap_addon.scene import scene_solve
+    from facecap.operators import tuning
+
+    ctx = solved
+    _correct(ctx, data, _worst_rows(data, _solve_values(ctx)))
+    assert bpy.ops.facecap.tuning_add_edited() == {"FINISHED"}
+    cls = {"retune": tuning.FACECAP_OT_retune, "fit_gain_offset": tuning.FACECAP_OT_fit_gain_offset}[operator]
+    Driver = modal_driver(cls)
+    Driver.consume = True  # the operator property's default
+    state = lambda: (len(ctx.s.library_versions), ctx.s.library_active, [(s.gain, s.offset) for s in ctx.s.shapes],  # noqa: E731
+                     layers.solved_action(ctx.key).name, ctx.key.animation_data.action.name, _solve_values(ctx).tobytes())
+    before = state()
+    go = threading.Event()
+    real_solve = scene_solve.solve
+    tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+    monkeypatch.setattr(scene_solve, "solve", lambda request: go.wait(60) and real_solve(request))
+    driver = Driver(cls._start(Driver, bpy.context))  # _start reads only the context
+    assert driver.modal(bpy.context, tick) == {"RUNNING_MODAL"}
+    label = {"retune": "Retune", "fit_gain_offset": "Fit Gain and Offset"}[operator]
+    assert driver._session.status().startswith(f"{label}: solving {N_FRAMES} frames")
+    assert driver.modal(bpy.context, esc) == {"CANCELLED"}
+    go.set()
+    driver._session.thread.join()
+    monkeypatch.setattr(scene_solve, "solve", real_solve)
+    assert driver.reports[-1][0] == "WARNING" and f"{label} cancelled" in driver.reports[-1][1]
+    assert state() == before
+    driver = Driver(cls._start(Driver, bpy.context))
+    driver._session.thread.join()
+    assert driver.modal(bpy.context, tick) == {"FINISHED"}
+    after = state()
+    assert after[3] != before[3] and after[5] != before[5]  # a new solve layer with other values
+    assert (after[0] == before[0] + 1) if operator == "retune" else (after[2] != before[2])
