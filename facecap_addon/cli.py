@@ -24,9 +24,9 @@ bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
                               long takes; --landmarks: face landmarks on rendered footage of a real face;
                               --clean: spike removal and gap filling on long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
-template convert PATH         install the optional human template from ICT-FaceKit as downloaded (its GitHub
-                              zip or folder; hash-checked); `template info` says where it is ([actor] template,
-                              docs/strategies.md)
+template fetch | convert PATH install the optional human template: download ICT-FaceKit (fetch) or convert a
+                              download (its GitHub zip or folder); hash-checked; `template info` says where it
+                              is ([actor] template, docs/strategies.md)
 rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
                               and platform, with the locked scipy/OpenCV wheels (docs/install.md)
@@ -315,7 +315,7 @@ COMMANDS = {
     "rig-bench": ("the test rigs' figures (control rig, correctives, Rigify face from a capture)",
                   "Solve the test rigs (a control rig with correctives, a bone-only face, a Rigify face) from known "
                   "control curves and a real capture, and print their figures as JSON."),
-    "template": ("install the optional human template from a copy of ICT-FaceKit, or say where it is", None),
+    "template": ("install the optional human template (download ICT-FaceKit, or convert a copy), or say where it is", None),
     "build-extension": ("build the Blender extension zips (per Blender generation and platform)", None),
     "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",
                         "Take MediaPipe's face-mesh models out of the locked mediapipe 0.10.21 wheel (downloaded once "

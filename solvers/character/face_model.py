@@ -8,6 +8,7 @@ summed into ARKit's single ``browInnerUp`` and ``cheekPuff``; ICT has no ``tongu
 """
 
 import hashlib
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -116,10 +117,16 @@ def load_ict(path, *, progress=None):
     path = Path(path)
     if path.is_dir() and (path / ICT_FILE).is_file():
         path = path / ICT_FILE
-    if path.suffix != ".npz" and path.exists() and is_release(path):
-        return from_ict_arrays(read_release(path, progress=progress), source=str(path))
+    expected = (f"expected ICT-FaceKit's download: the zip, the repository folder or {FOLDER}/ with the OBJ "
+                f"files; or a reduced {ICT_FILE}")
+    if path.suffix != ".npz" and path.exists():
+        if is_release(path):
+            return from_ict_arrays(read_release(path, progress=progress), source=str(path))
+        raise FacecapError(f"{path}: not ICT-FaceKit ({expected})")
     if not path.is_file():
-        raise FacecapError(f"{path}: no ICT-FaceKit here (expected its download: the zip, the repository folder "
-                           f"or {FOLDER}/ with the OBJ files; or a reduced {ICT_FILE})")
-    with np.load(path, allow_pickle=False) as data:
-        return from_ict_arrays({k: data[k] for k in data.files}, source=str(path))
+        raise FacecapError(f"{path}: no ICT-FaceKit here ({expected})")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return from_ict_arrays({k: data[k] for k in data.files}, source=str(path))
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise FacecapError(f"{path}: not a readable {ICT_FILE} ({exc})") from None

@@ -53,8 +53,8 @@ STATEMENTS = {
     "character": ("nothing is known about the actor's face: the weights follow the character's geometry, not the "
                   "actor's expressions. Give calibration poses ([calibration] poses, or frames of the take labelled "
                   "with [calibration] poses), a performer profile ([actor] profile) or the human template "
-                  "(install it once from the ICT-FaceKit download: `python -m facecap template convert`, or Install "
-                  "Human Template in the sidebar) to solve the actor's expressions"),
+                  "(install it once: `python -m facecap template fetch`, or Install Human Template in the sidebar with "
+                  "the ICT-FaceKit download) to solve the actor's expressions"),
 }
 
 

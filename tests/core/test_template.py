@@ -85,6 +85,62 @@ def test_convert_reads_the_release_as_downloaded(model, release, form, tmp_path)
     assert seen[-1] == (154, 154) and len(seen) == 154
 
 
+@pytest.fixture
+def server(release):
+    """A local web server holding the release zip (``/ict.zip``), a missing file and a download cut short."""
+    import http.server
+    import threading
+
+    data = release[1].read_bytes()
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 (http.server's name)
+            if self.path == "/ict.zip":
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(data)))
+                self.end_headers()
+                self.wfile.write(data)
+            elif self.path == "/cut.zip":  # says the whole size, sends a third, closes
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(data)))
+                self.end_headers()
+                self.wfile.write(data[: len(data) // 3])
+            else:
+                self.send_error(404)
+
+        def log_message(self, *args):
+            pass
+
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}"
+    httpd.shutdown()
+    httpd.server_close()
+
+
+def test_fetch_downloads_converts_and_cleans_up(server, tmp_path):
+    """`template fetch` (here from a local server): downloaded into the cache, converted (hash-checked), the zip
+    removed unless kept; a failed download names the address and leaves no partial file; a zip that is not the
+    release is refused and removed, so the next fetch downloads again."""
+    from facecap.solvers.tools.template import fetch
+
+    cache = tmp_path / "cache"
+    out = fetch(f"{server}/ict.zip", tmp_path / "t.npz", cache=cache)
+    assert HumanTemplate.load(out).model.digest == TEMPLATE_DIGEST and list(cache.iterdir()) == []
+    fetch(f"{server}/ict.zip", tmp_path / "t2.npz", cache=cache, keep=True)
+    assert [p.name for p in cache.iterdir()] == ["ict.zip"]
+    for url, match in ((f"{server}/missing.zip", "could not download ICT-FaceKit.*Not Found"),
+                       (f"{server}/cut.zip", "could not download ICT-FaceKit")):
+        with pytest.raises(FacecapError, match=match) as caught:
+            fetch(url, tmp_path / "x.npz", cache=cache)
+        assert url in str(caught.value) and "template convert" in str(caught.value)
+    assert [p.name for p in cache.iterdir()] == ["ict.zip"] and not (tmp_path / "x.npz").exists()
+    (cache / "other.zip").write_bytes(b"not a zip")
+    with pytest.raises(FacecapError):
+        fetch(f"{server}/other.zip", tmp_path / "x.npz", cache=cache)
+    assert not (cache / "other.zip").exists() and not (tmp_path / "x.npz").exists()
+
+
 def _nudged(obj_text):
     """The OBJ text with its first vertex moved by 0.1 mm: another model as far as the hash check is concerned."""
     lines = obj_text.split("\n")
