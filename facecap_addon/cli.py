@@ -24,9 +24,8 @@ bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
                               long takes; --landmarks: face landmarks on rendered footage of a real face;
                               --clean: spike removal and gap filling on long takes
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
-template fetch | convert PATH install the optional human template: download ICT-FaceKit (fetch) or convert a
-                              download (its GitHub zip or folder); hash-checked; `template info` says where it
-                              is ([actor] template, docs/strategies.md)
+template fetch | convert PATH install the optional human template: download ICT-FaceKit, or convert a download
+                              (zip or folder); hash-checked; `template info`: where it is (docs/strategies.md)
 rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
                               and platform, with the locked scipy/OpenCV wheels (docs/install.md)
