@@ -28,6 +28,10 @@ class FacecapError(Exception):
     """Base class for readable, expected errors (bad files, bad settings, impossible solves)."""
 
 
+class Cancelled(FacecapError):
+    """The user cancelled a long operation (a progress callback returned False): video, a download."""
+
+
 class InputFileError(FacecapError):
     """A file could not be read. The message names the file and, where known, the line and field."""
 

@@ -6,7 +6,11 @@ reduced file's float32 delta, and "-0" where the release has it, so the copy con
 release; the back of the head (vertices after the face region) and polygons among them are added as the release has
 them after the face region."""
 
+import contextlib
+import http.server
 import json
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -51,3 +55,41 @@ def write_ict_release(npz, folder):
         "expressions": [str(n) for n in d["expression_names"]],
         "idx_to_landmark_verts": d["landmarks_multipie68"].tolist()}))
     return Path(folder)
+
+
+@contextlib.contextmanager
+def serve_release(archive):
+    """A local web server for the zip ``archive``: ``/ict.zip`` whole, ``/cut.zip`` announced whole but cut after a
+    third, ``/slow.zip`` a megabyte every 0.2 s; anything else 404. Yields its address."""
+    data = Path(archive).read_bytes()
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 (http.server's name)
+            if self.path not in ("/ict.zip", "/cut.zip", "/slow.zip"):
+                self.send_error(404)
+                return
+            self.send_response(200)
+            self.send_header("Content-Length", str(len(data)))
+            self.end_headers()
+            try:
+                if self.path == "/ict.zip":
+                    self.wfile.write(data)
+                elif self.path == "/cut.zip":
+                    self.wfile.write(data[: len(data) // 3])
+                else:
+                    for i in range(0, len(data), 1 << 20):
+                        self.wfile.write(data[i:i + (1 << 20)])
+                        time.sleep(0.2)
+            except (BrokenPipeError, ConnectionResetError):
+                pass  # the client stopped reading (a cancelled download)
+
+        def log_message(self, *args):
+            pass
+
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{httpd.server_address[1]}"
+    finally:
+        httpd.shutdown()
+        httpd.server_close()

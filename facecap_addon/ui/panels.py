@@ -359,6 +359,7 @@ def _draw_actor(layout, s):
     row = box.row(align=True)
     row.prop(s, "actor_template")
     row.operator("facecap.install_template", text="", icon="IMPORT")  # from the ICT-FaceKit download
+    row.operator("facecap.download_template", text="", icon="URL")  # or downloaded here (online access)
     row = box.row(align=True)
     row.prop(s, "unseen_shapes")
     row.prop(s, "exclusive", text="Exclusive")

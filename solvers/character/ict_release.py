@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FacecapError, InputFileError
+from ..errors import Cancelled, FacecapError, InputFileError
 
 #: The release facecap's template figures come from, and where to download it.
 RELEASE_COMMIT = "da5f95a607f5e6b37755b38d3385d7f2853732e5"
@@ -79,14 +79,13 @@ class _Release:
 def read_release(path, *, progress=None):
     """The face region of the ICT-FaceKit release at ``path`` as ``ict_face.npz``'s arrays.
 
-    ``progress(done, total)`` is called after each OBJ file."""
+    ``progress(done, total)`` is called after each OBJ file; returning False cancels (``Cancelled``)."""
     release = _Release(path)
     try:
         total = 1 + len(EXPRESSIONS) + len(IDENTITIES)
         with release.open(NEUTRAL) as f:
             neutral, quads = _read_obj(f, release.where(NEUTRAL), faces=True)
-        if progress:
-            progress(1, total)
+        _report(progress, 1, total)
         done = 1
 
         def deltas(names):
@@ -96,8 +95,7 @@ def read_release(path, *, progress=None):
                 with release.open(f"{name}.obj") as f:
                     out[i] = _read_obj(f, release.where(f"{name}.obj"))[0] - neutral
                 done += 1
-                if progress:
-                    progress(done, total)
+                _report(progress, done, total)
             return out
 
         expressions, identities = deltas(EXPRESSIONS), deltas(IDENTITIES)
@@ -108,6 +106,11 @@ def read_release(path, *, progress=None):
     return {"neutral_cm": neutral.astype(np.float32), "quads": quads, "expression_names": np.array(EXPRESSIONS),
             "expression_deltas_cm": expressions, "identity_deltas_cm": identities,
             "landmarks_multipie68": landmarks}
+
+
+def _report(progress, done, total):
+    if progress is not None and progress(done, total) is False:
+        raise Cancelled("reading ICT-FaceKit cancelled")
 
 
 def _read_obj(stream, where, *, faces=False):

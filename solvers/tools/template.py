@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..character.ict_release import RELEASE_COMMIT, RELEASE_URL
 from ..character.template import HumanTemplate, convert, template_path
-from ..errors import FacecapError
+from ..errors import Cancelled, FacecapError
 from .build_extension import default_cache_dir
 
 CHUNK = 1 << 20
@@ -33,12 +33,14 @@ def _progress(done, total):
 
 def _download_progress(done, total):
     size = f"{done / 1e6:.0f} of {total / 1e6:.0f} MB" if total else f"{done / 1e6:.0f} MB"
-    print(f"\rfacecap: downloading ICT-FaceKit, {size}", end="", file=sys.stderr, flush=True)
+    print(f"\rfacecap: downloading ICT-FaceKit, {size}", end="\n" if done == total else "", file=sys.stderr,
+          flush=True)
 
 
 def download(url, path, *, progress=None, timeout=TIMEOUT_S):
     """``url`` to ``path``, atomically: read into ``<path>.part-<pid>`` (two downloads at once do not meet),
-    renamed when complete, removed when not (an error, Ctrl-C)."""
+    renamed when complete, removed when not (an error, Ctrl-C, ``progress(done, total)`` returning False:
+    ``Cancelled``)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     part = path.with_name(f"{path.name}.part-{os.getpid()}")
@@ -49,8 +51,8 @@ def download(url, path, *, progress=None, timeout=TIMEOUT_S):
             while chunk := response.read(CHUNK):
                 f.write(chunk)
                 done += len(chunk)
-                if progress:
-                    progress(done, total)
+                if progress is not None and progress(done, total) is False:
+                    raise Cancelled("the download of ICT-FaceKit was cancelled")
             if total and done != total:
                 raise _failed(url, f"the download stopped at {done} of {total} bytes")
         os.replace(part, path)
@@ -76,10 +78,10 @@ def fetch(url=RELEASE_URL, out=None, *, cache=None, keep=False, progress=None, r
     archive = cache / name
     if not archive.is_file():
         download(url, archive, progress=progress)
-        if progress:
-            print(file=sys.stderr)
     try:
         path = convert(archive, out, progress=read_progress)
+    except Cancelled:
+        raise  # the download is kept: the next fetch converts it
     except FacecapError:
         archive.unlink(missing_ok=True)
         raise

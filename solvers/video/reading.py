@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FacecapError, InputFileError, needs
+from ..errors import Cancelled, FacecapError, InputFileError, needs  # Cancelled: video's callers import it here
 from ..io.limits import check_input_file
 
 VIDEO_EXTENSIONS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv")
@@ -28,10 +28,6 @@ PREFETCH = 8  # frames decoded ahead by the reader thread
 #: Largest video file (or image of a sequence) opened, bytes: far beyond any face take's footage
 MAX_VIDEO_BYTES = 1 << 40
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".webp", ".pgm", ".ppm")
-
-
-class Cancelled(FacecapError):
-    """The user cancelled a long video operation (a progress callback returned False)."""
 
 
 @dataclass(frozen=True)

@@ -218,8 +218,8 @@ def test_solve_panel_draws_only_what_applies(scene):
     assert {"examples_action", "rbf_kernel", "rbf_far"} <= drawn["rbf"]
     assert {"examples_action", "pca_mode", "pca_ica"} <= drawn["pca"]
     assert {"refine_max_iterations", "calib_poses", "mapping"} <= drawn["refine"]
-    assert {"actor_profile", "actor_template", "facecap.install_template", "unseen_shapes", "exclusive", "calib_poses",
-            "regularisation"} <= drawn["semantic"] and "mapping" not in drawn["semantic"]
+    assert {"actor_profile", "actor_template", "facecap.install_template", "facecap.download_template", "unseen_shapes",
+            "exclusive", "calib_poses", "regularisation"} <= drawn["semantic"] and "mapping" not in drawn["semantic"]
     assert "calib_path" in _draw("calibrated", calib_source="FILE")
     assert "parallel_gamma" in _draw("parallel", parallel_curve="gamma")
     assert "smoothing_second" in _draw("pca", pca_mode="posed") and "smoothing_second" not in _draw("pca", pca_mode="related")
@@ -286,3 +286,57 @@ def test_install_template_from_the_download(scene, tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="generic_neutral_mesh.obj: 1 vertices"):
         bpy.ops.facecap.install_template(directory=str(other))
     assert not template_path().exists()
+
+
+def test_download_template_beside_the_interface(scene, tmp_path, monkeypatch):
+    """Download Human Template (here from a local server): from a script it installs at once; with Blender's
+    online access off it refuses, naming the preference and the manual route; from the sidebar it downloads on a
+    worker thread (the status bar says how far) and Esc leaves nothing installed and no partial file."""
+    import time
+    import zipfile
+    from types import SimpleNamespace
+
+    from ict_release_copy import serve_release, write_ict_release
+    from shared_data import ICT_FACEKIT, require
+
+    from facecap.operators import actor
+    from facecap.solvers.character.template import TEMPLATE_DIGEST, HumanTemplate, template_path
+
+    monkeypatch.setenv("FACECAP_DATA", str(tmp_path / "data"))
+    monkeypatch.setenv("FACECAP_CACHE", str(tmp_path / "cache"))
+    folder = write_ict_release(require(ICT_FACEKIT) / "ict_face.npz", tmp_path / "ICT-FaceKit")
+    archive = tmp_path / "ict.zip"
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as z:
+        for path in sorted(folder.rglob("*")):
+            z.write(path, path.relative_to(tmp_path).as_posix())
+    with serve_release(archive) as url:
+        monkeypatch.setattr(actor, "_online_access", lambda: False)
+        with pytest.raises(RuntimeError, match="online access is off"):
+            bpy.ops.facecap.download_template(url=f"{url}/ict.zip")
+        monkeypatch.setattr(actor, "_online_access", lambda: True)
+
+        class Driver:  # the operator's modal methods on a plain object, as Blender would call them
+            modal, cancel, _stop = (actor.FACECAP_OT_download_template.modal, actor.FACECAP_OT_download_template.cancel,
+                                    actor.FACECAP_OT_download_template._stop)
+
+            def __init__(self, job):
+                self._job, self._timer, self.reports = job, None, []
+
+            def report(self, kind, message):
+                self.reports.append((kind.pop(), message))
+
+        tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+        driver = Driver(actor.DownloadJob(f"{url}/slow.zip"))
+        while driver._job.done == 0:
+            time.sleep(0.05)
+        assert driver.modal(bpy.context, tick) == {"RUNNING_MODAL"}
+        assert driver._job.status().startswith("Download Human Template (ICT-FaceKit da5f95a): downloading ")
+        assert driver.modal(bpy.context, esc) == {"CANCELLED"}
+        driver._job.thread.join(30)
+        assert driver.reports == [("WARNING", "Download Human Template cancelled; nothing was installed")]
+        assert not template_path().exists() and not any((tmp_path / "cache").rglob("*.part-*"))
+
+        assert bpy.ops.facecap.download_template(url=f"{url}/ict.zip") == {"FINISHED"}
+    assert HumanTemplate.load(template_path()).model.digest == TEMPLATE_DIGEST
+    assert list((tmp_path / "cache" / "downloads").iterdir()) == []  # the zip removed once converted
+    assert bpy.ops.facecap.download_template(url="http://127.0.0.1:9/never.zip") == {"FINISHED"}  # installed: no call

@@ -6,13 +6,13 @@ import zipfile
 
 import numpy as np
 import pytest
-from ict_release_copy import write_ict_release
+from ict_release_copy import serve_release, write_ict_release
 from shared_data import ICT_FACEKIT, require
 
 from facecap.solvers.character.face_model import from_ict_arrays, load_ict
 from facecap.solvers.character.ict_release import RELEASE_COMMIT, RELEASE_URL
 from facecap.solvers.character.template import TEMPLATE_DIGEST, HumanTemplate, convert, template_path
-from facecap.solvers.errors import FacecapError, InputFileError
+from facecap.solvers.errors import Cancelled, FacecapError, InputFileError
 from facecap.solvers.tools.synthetic.realism.actors import Perturbation, make_actor
 from facecap.solvers.tools.synthetic.realism.layouts import layout
 
@@ -87,35 +87,8 @@ def test_convert_reads_the_release_as_downloaded(model, release, form, tmp_path)
 
 @pytest.fixture
 def server(release):
-    """A local web server holding the release zip (``/ict.zip``), a missing file and a download cut short."""
-    import http.server
-    import threading
-
-    data = release[1].read_bytes()
-
-    class Handler(http.server.BaseHTTPRequestHandler):
-        def do_GET(self):  # noqa: N802 (http.server's name)
-            if self.path == "/ict.zip":
-                self.send_response(200)
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-            elif self.path == "/cut.zip":  # says the whole size, sends a third, closes
-                self.send_response(200)
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data[: len(data) // 3])
-            else:
-                self.send_error(404)
-
-        def log_message(self, *args):
-            pass
-
-    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    threading.Thread(target=httpd.serve_forever, daemon=True).start()
-    yield f"http://127.0.0.1:{httpd.server_address[1]}"
-    httpd.shutdown()
-    httpd.server_close()
+    with serve_release(release[1]) as url:
+        yield url
 
 
 def test_fetch_downloads_converts_and_cleans_up(server, tmp_path):
@@ -135,6 +108,9 @@ def test_fetch_downloads_converts_and_cleans_up(server, tmp_path):
             fetch(url, tmp_path / "x.npz", cache=cache)
         assert url in str(caught.value) and "template convert" in str(caught.value)
     assert [p.name for p in cache.iterdir()] == ["ict.zip"] and not (tmp_path / "x.npz").exists()
+    with pytest.raises(Cancelled):  # progress returning False: the partial download removed
+        fetch(f"{server}/slow.zip", tmp_path / "x.npz", cache=cache, progress=lambda done, total: done < 2 << 20)
+    assert [p.name for p in cache.iterdir()] == ["ict.zip"]
     (cache / "other.zip").write_bytes(b"not a zip")
     with pytest.raises(FacecapError):
         fetch(f"{server}/other.zip", tmp_path / "x.npz", cache=cache)
