@@ -151,7 +151,7 @@ def main(argv=None):
     summary = summarise(rows)
     print()
     print(markdown(summary))
-    real = run_real(args.shared) if args.real else []
+    real = run_real(args.shared, template=load_template(Path(args.shared) / "data" / "ict-facekit")) if args.real else []
     if real:
         print()
         print(real_markdown(real))

@@ -11,6 +11,7 @@ from ....character.binding_map import BindingSettings
 from ....io import import_markers
 from ....pipeline import RetargetSettings, retarget
 from ....pipeline.binding import bind_character
+from ....strategies.options import StrategyInputs
 from .targets import SAMPLE_DIR, sample_character
 
 
@@ -48,23 +49,27 @@ CAPTURES = (
 GAZE_PREFIX = "eyeLook"
 
 
-def run_real(shared, *, strategies=("geometric", "semantic")):
+def run_real(shared, *, strategies=("geometric", "semantic"), template=None):
     """One row per (capture, strategy): weights at the upper bound, the shapes pinned most, the largest gaze
-    weight, the plausibility verdict and the fit residual."""
+    weight, the plausibility verdict and the fit residual; with a ``template`` (HumanTemplate) also the semantic
+    solve with it ("semantic + template")."""
     mesh = sample_character()
     rows = []
+    solves = [(s, s, None) for s in strategies]
+    if template is not None:
+        solves.append(("semantic + template", "semantic", StrategyInputs(template=template)))
     for capture in CAPTURES:
         markers = import_markers(Path(shared) / capture.path, **capture.read).markers.to_units("m")
         settings = RetargetSettings(stable_markers=capture.stable, neutral_frames=capture.neutral)
         basis = bind_character(mesh, markers, settings, capture.binding).basis
-        for strategy in strategies:
-            res = retarget(markers, basis, replace(settings, strategy=strategy))
+        for label, strategy, inputs in solves:
+            res = retarget(markers, basis, replace(settings, strategy=strategy), inputs=inputs)
             W = np.nan_to_num(res.weights)
             at_top = W >= basis.upper[None] - 1e-3
             gaze = [k for k, n in enumerate(res.shape_names) if n.startswith(GAZE_PREFIX)]
             pinned = sorted(((float(at_top[:, k].mean()), n) for k, n in enumerate(res.shape_names)), reverse=True)[:3]
             check = res.info.get("plausibility", {})
-            rows.append({"capture": capture.name, "strategy": strategy, "frames": int(W.shape[0]),
+            rows.append({"capture": capture.name, "strategy": label, "frames": int(W.shape[0]),
                          "markers": len(res.marker_names), "at_upper": float(at_top.mean()),
                          "pinned": [(n, round(s, 3)) for s, n in pinned if s > 0],
                          "gaze_max": float(W[:, gaze].max()) if gaze else 0.0,
