@@ -11,7 +11,8 @@ from facecap.solvers.character.basis import Basis
 from facecap.solvers.pipeline import RetargetSettings, retarget
 from facecap.solvers.pipeline.plausibility import check, marker_noise
 from facecap.solvers.strategies.options import ActorSettings, CalibrationSettings, StrategyInputs
-from facecap.solvers.strategies.semantic import exclusive_locks, opposing_pairs
+from facecap.solvers.engine import solve_bounded
+from facecap.solvers.strategies.semantic import CONJUGATE_WEIGHT, exclusive_locks, opposing_pairs, with_conjugate_gaze
 from facecap.solvers.tools.compare import SAMPLE_BASIS, STABLE, calibration_weights, make_actor
 from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
@@ -63,6 +64,35 @@ def test_opposing_shapes_are_exclusive():
     assert np.all(locks[-10:, 0] == 0) and np.all(np.isnan(locks[-10:, 1]))  # jawRight the last
     assert np.all(locks[:10, 3] == 0) and np.all(locks[-10:, 4] == 0)  # wide leads the first frames, blink the last
     assert np.isnan(locks[:, 2]).all()
+
+
+def test_the_eyes_turn_together():
+    """Gaze driven by markers (lid markers that the template's or the measured gaze shapes move): where one eye's
+    markers are lost, its gaze follows the other eye's (look in with the other's look out, up with up) instead of
+    falling to rest; where both are seen the coupling costs the fit nothing."""
+    names = ("eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight",
+             "jawOpen")
+    R = with_conjugate_gaze(1e-3, names)
+    assert R.shape == (7, 7) and np.allclose(R, R.T) and np.linalg.eigvalsh(R).min() > 0
+    assert R[0, 4] == -CONJUGATE_WEIGHT and R[2, 5] == -CONJUGATE_WEIGHT and R[0, 3] == 0 and R[6, 6] == 1e-3
+    assert with_conjugate_gaze(1e-3, ("jawOpen", "eyeBlinkLeft")) == 1e-3  # no gaze pair: unchanged
+    rng = np.random.default_rng(0)
+    A = np.zeros((18, 7))  # each shape moves its own three coordinates (left eye 0-8, right eye 9-17, jaw none)
+    for k, rows in enumerate([(0, 1, 2), (3, 4, 5), (6, 7, 8), (9, 10, 11), (12, 13, 14), (15, 16, 17)]):
+        A[list(rows), k] = 1.0
+    t = np.linspace(0, 1, 120)
+    W = np.zeros((120, 7))
+    W[:, 0] = W[:, 4] = np.clip(np.sin(6 * t), 0, None)  # both eyes to the subject's right, together
+    W[:, 2] = W[:, 5] = 0.5 * t
+    D = W @ A.T + rng.normal(scale=0.01, size=(120, 18))
+    mask = np.ones_like(D)
+    mask[60:, 9:] = 0.0  # the right eye's markers lost for the second half
+    free = solve_bounded(A, D, mask=mask, regularisation=1e-3, relative=True)
+    tied = solve_bounded(A, D, mask=mask, regularisation=with_conjugate_gaze(1e-3, names), relative=True)
+    assert np.abs(free.weights[60:, 4]).max() < 0.05  # uncoupled, the lost eye rests
+    np.testing.assert_allclose(tied.weights[60:, [4, 5]], W[60:, [4, 5]], atol=0.06)  # coupled, it follows
+    np.testing.assert_allclose(tied.weights[:60], W[:60], atol=0.03)
+    np.testing.assert_allclose(free.weights[:60], W[:60], atol=0.03)
 
 
 def test_calibrated_actor_on_a_different_character(sample):
