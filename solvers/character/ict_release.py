@@ -124,9 +124,9 @@ def _read_obj(stream, where, *, faces=False):
                     raise InputFileError(where, f"expected `v x y z`, got {raw.strip()[:60]!r}", line=number)
                 coords.append(parts[1:4])
                 n += 1
+                if n == FACE_VERTICES and not faces:
+                    break  # the face region is read; the rest of the head is not needed
             continue
-        if n >= FACE_VERTICES and not faces:
-            break  # the face region is read; the rest of the head is not needed
         if faces and raw.startswith(b"f "):
             try:
                 corners = [int(c.split(b"/")[0]) - 1 for c in raw.split()[1:]]
