@@ -10,6 +10,7 @@ stored float32), so the template's data digest identifies the release whichever 
 
 import json
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,9 @@ def read_release(path, *, progress=None):
         expressions, identities = deltas(EXPRESSIONS), deltas(IDENTITIES)
         with release.open(INDICES) as f:
             landmarks = _landmarks(f, release.where(INDICES))
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:  # a damaged zip or an unreadable file
+        raise InputFileError(path, f"the ICT-FaceKit download could not be read ({exc}); download it again "
+                             f"({RELEASE_URL})") from None
     finally:
         release.close()
     return {"neutral_cm": neutral.astype(np.float32), "quads": quads, "expression_names": np.array(EXPRESSIONS),

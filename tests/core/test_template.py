@@ -159,6 +159,16 @@ def test_a_broken_release_is_named_and_nothing_is_written(release, tmp_path):
         assert not (tmp_path / "t.npz").exists()
         if "missing" in message or "knows" in message:
             assert RELEASE_URL in str(caught.value)
+    damaged = tmp_path / "damaged.zip"  # bytes zeroed inside one member's compressed data
+    data = bytearray(release[1].read_bytes())
+    with zipfile.ZipFile(release[1]) as z:
+        member = z.getinfo(next(n for n in z.namelist() if n.endswith("identity050.obj")))
+    middle = member.header_offset + 30 + len(member.filename) + 2000  # within the face region (read)
+    data[middle:middle + 64] = bytes(64)
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(InputFileError, match=r"identity050\.obj|could not be read"):  # bad text, or zlib's error
+        convert(damaged, tmp_path / "t.npz")
+    assert not (tmp_path / "t.npz").exists()
     with pytest.raises(InputFileError, match="not an ICT-FaceKit download"):
         with zipfile.ZipFile(tmp_path / "other.zip", "w") as z:
             z.writestr("README.md", "not a face")
