@@ -314,7 +314,7 @@ COMMANDS = {
     "rig-bench": ("the test rigs' figures (control rig, correctives, Rigify face from a capture)",
                   "Solve the test rigs (a control rig with correctives, a bone-only face, a Rigify face) from known "
                   "control curves and a real capture, and print their figures as JSON."),
-    "template": ("install the optional human template (download ICT-FaceKit, or convert a copy), or say where it is", None),
+    "template": ("install the optional human template (download ICT-FaceKit or convert a copy); where it is", None),
     "build-extension": ("build the Blender extension zips (per Blender generation and platform)", None),
     "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",
                         "Take MediaPipe's face-mesh models out of the locked mediapipe 0.10.21 wheel (downloaded once "
