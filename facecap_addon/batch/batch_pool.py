@@ -142,7 +142,8 @@ class WorkerProcess:
             self.proc.send_signal(signal.SIGINT)
 
     def stop(self, timeout=10.0):
-        """End the worker: close its request pipe (it exits), kill it if it does not."""
+        """End the worker: close its request pipe (it exits), kill it if it does not, and whatever it forked
+        that outlived it (its session's process group: a child blocked on a pipe to it would linger)."""
         for conn in (self.requests, self.replies):
             conn.close()
         if self.proc.poll() is None:
@@ -151,6 +152,10 @@ class WorkerProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)  # the group outlives its leader while members remain
+        except (ProcessLookupError, PermissionError):
+            pass  # nothing left of it
 
 
 class LocalPool:
@@ -192,6 +197,10 @@ class LocalPool:
                     elif kind == "done":
                         w.spec = None
                         events.finished(payload)
+                for w in [w for w in workers if w.proc.poll() is not None]:
+                    # dead, but its pipe still open: a process it forked (a split solve) outlived it
+                    death = WorkerDied(f"the worker process ({w.label}) {describe_exit(w.proc.returncode)}")
+                    failures = self._replace(w, death, workers, queue, events, failures)
                 events.tick()
             return True
         except KeyboardInterrupt:
