@@ -22,7 +22,7 @@ def table():
 
 
 def median(summary, target, method, figure="rmse", region="all"):
-    return summary[("dense", target, method)]["median"][region][figure]
+    return summary[("ict", "dense", target, method)]["median"][region][figure]
 
 
 def test_the_default_is_safe_on_a_stylised_character(table):

@@ -1,8 +1,9 @@
 """``python -m facecap bench --realism``: the cross-character benchmark.
 
-Seeded draws of a perturbed human actor (the ICT face model) performing real iPhone recordings (Live Link
-Face) with head motion, noise and gaps, captured with a studio's layouts, solved onto the sample
-character, another person of the face model and a cartoon, by every method of ``methods.METHODS``;
+Seeded draws of a perturbed human actor (of the ICT face model, or the Face Cap head: ``families``) performing
+real iPhone recordings (Live Link Face) with head motion, noise and gaps, captured with a studio's layouts,
+solved onto the sample character, another person of the ICT face model and a cartoon, by every method of
+``methods.METHODS``;
 per face region: weights RMSE, mean per-shape correlation, the share of weights at the upper bound and
 the jitter, each beside the truth's. Medians over the draws, and the worst draw.
 """
@@ -16,6 +17,7 @@ import numpy as np
 
 from ...character.face_model import load_ict
 from ..synthetic.realism.actors import Perturbation
+from ..synthetic.realism.families import FAMILIES, load_family
 from ..synthetic.realism.layouts import LAYOUTS
 from ..synthetic.realism.methods import METHODS, base_settings, bound_character, load_template, run_method
 from ..synthetic.realism.metrics import REGIONS, compare
@@ -29,41 +31,51 @@ from ..synthetic.realism.targets import TARGETS, make_target
 FIGURES = ("rmse", "r", "at_upper", "jitter")
 
 
-def run(shared, *, draws=5, frames=1200, targets=("sample",), layouts=("dense",), methods=tuple(METHODS),
-        perturbation=Perturbation(), first_seed=0, progress=None):
-    """Every (draw, layout, target, method): a list of row dicts with the metrics per region."""
+def run(shared, *, draws=5, frames=1200, actors=("ict",), targets=("sample",), layouts=("dense",),
+        methods=tuple(METHODS), perturbation=Perturbation(), first_seed=0, progress=None):
+    """Every (actor family, draw, layout, target, method): a list of row dicts with the metrics per region."""
     shared = Path(shared)
     model = load_ict(shared / "data" / "ict-facekit")
-    performances = load_performances(shared / "data" / "realdata" / "llf", model.shape_names)
-    template = load_template(shared / "data" / "ict-facekit")  # the same model, as a user's template
+    template = load_template(shared / "data" / "ict-facekit")  # the ICT model, as a user's template
     meshes = {t: make_target(t, model) for t in targets}
     rows = []
-    for seed in range(first_seed, first_seed + draws):
-        for layout in layouts:
-            draw = make_draw(model, performances, seed, layout=layout, frames=frames, perturbation=perturbation)
-            for target in targets:
-                try:  # bound once for every method (a binding by position takes seconds)
-                    character, bind_error = bound_character(meshes[target], draw, base_settings(draw)), ""
-                except Exception as exc:  # noqa: BLE001  (a binding that fails fails every method's row)
-                    character, bind_error = None, f"binding: {type(exc).__name__}: {exc}"
-                for method in methods:
-                    t0 = time.perf_counter()
-                    try:
-                        if character is None:
-                            raise RuntimeError(bind_error)
-                        weights, names, upper, _ = run_method(method, draw, meshes[target], template,
-                                                                  character=character)
-                        metrics = compare(weights, names, draw.truth, draw.shape_names, upper=upper,
-                                          frames=draw.performance_frames)
-                        error = ""
-                    except Exception as exc:  # noqa: BLE001  (a method that fails is a row of the table)
-                        metrics, error = None, f"{type(exc).__name__}: {exc}"
-                    row = {"seed": seed, "layout": layout, "target": target, "method": method,
-                           "metrics": metrics, "seconds": time.perf_counter() - t0, "error": error,
-                           "performance": draw.description}
-                    rows.append(row)
-                    if progress:
-                        progress(row)
+    for actor in actors:
+        family = load_family(actor, shared, model)
+        performances = load_performances(shared / "data" / "realdata" / "llf", family.model.shape_names)
+        for seed in range(first_seed, first_seed + draws):
+            rows += _draw_rows(actor, family, performances, seed, frames, layouts, targets, methods, meshes,
+                               template, perturbation, progress)
+    return rows
+
+
+def _draw_rows(actor, family, performances, seed, frames, layouts, targets, methods, meshes, template, perturbation,
+               progress):
+    """The rows of one draw of ``family`` (every layout, target and method)."""
+    rows = []
+    for layout in layouts:
+        draw = make_draw(family, performances, seed, layout=layout, frames=frames, perturbation=perturbation)
+        for target in targets:
+            try:  # bound once for every method (a binding by position takes seconds)
+                character, bind_error = bound_character(meshes[target], draw, base_settings(draw)), ""
+            except Exception as exc:  # noqa: BLE001  (a binding that fails fails every method's row)
+                character, bind_error = None, f"binding: {type(exc).__name__}: {exc}"
+            for method in methods:
+                t0 = time.perf_counter()
+                try:
+                    if character is None:
+                        raise RuntimeError(bind_error)
+                    weights, names, upper, _ = run_method(method, draw, meshes[target], template, character=character)
+                    metrics = compare(weights, names, draw.truth, draw.shape_names, upper=upper,
+                                      frames=draw.performance_frames)
+                    error = ""
+                except Exception as exc:  # noqa: BLE001  (a method that fails is a row of the table)
+                    metrics, error = None, f"{type(exc).__name__}: {exc}"
+                row = {"actor": actor, "seed": seed, "layout": layout, "target": target, "method": method,
+                       "metrics": metrics, "seconds": time.perf_counter() - t0, "error": error,
+                       "performance": draw.description}
+                rows.append(row)
+                if progress:
+                    progress(row)
     return rows
 
 
@@ -75,10 +87,11 @@ def _finite(reduce, values):
 
 
 def summarise(rows):
-    """{(layout, target, method): {"median": {region: {figure: value}}, "worst": ..., "n": draws, "errors": n}}."""
+    """{(actor, layout, target, method): {"median": {region: {figure: value}}, "worst": ..., "n": draws,
+    "errors": n}}."""
     groups = {}
     for row in rows:
-        groups.setdefault((row["layout"], row["target"], row["method"]), []).append(row)
+        groups.setdefault((row["actor"], row["layout"], row["target"], row["method"]), []).append(row)
     out = {}
     for key, group in groups.items():
         ok = [r["metrics"] for r in group if r["metrics"] is not None]
@@ -95,28 +108,32 @@ def summarise(rows):
 
 
 def markdown(summary):
-    """The summary as Markdown tables: overall per target and layout, then per region."""
+    """The summary as Markdown tables: overall per actor family, layout and target, then per region."""
     lines = []
-    keys = sorted(summary, key=lambda k: (k[0], k[1], list(METHODS).index(k[2]) if k[2] in METHODS else 99))
-    lines.append("| layout | target | method | draws | RMSE (median) | RMSE (worst) | mean per-shape r (shapes moved) | "
-                 "at upper | jitter (truth) |")
-    lines.append("|---|---|---|---|---|---|---|---|---|")
+    order = {name: i for i, name in enumerate(FAMILIES)}
+    keys = sorted(summary, key=lambda k: (order.get(k[0], 99), k[1], k[2],
+                                          list(METHODS).index(k[3]) if k[3] in METHODS else 99))
+    lines.append("| actor | layout | target | method | draws | RMSE (median) | RMSE (worst) | mean per-shape r (shapes "
+                 "moved) | at upper | jitter (truth) |")
+    lines.append("|---|---|---|---|---|---|---|---|---|---|")
     for key in keys:
         s = summary[key]
+        head = " | ".join(key)
         if "all" not in s["median"]:
-            lines.append(f"| {key[0]} | {key[1]} | {key[2]} | {s['n']} | failed | | | | |")
+            lines.append(f"| {head} | {s['n']} | failed | | | | |")
             continue
         m, w = s["median"]["all"], s["worst"]["all"]
-        lines.append(f"| {key[0]} | {key[1]} | {key[2]} | {s['n'] - s['errors']}/{s['n']} | {m['rmse']:.3f} | "
+        lines.append(f"| {head} | {s['n'] - s['errors']}/{s['n']} | {m['rmse']:.3f} | "
                      f"{w['rmse']:.3f} | {m['r']:.2f} ({m['r_moved']:.2f}) | {100 * m['at_upper']:.1f}% | {m['jitter']:.4f} "
                      f"({m['truth_jitter']:.4f}) |")
     regions = [r for r, _ in REGIONS]
     lines += ["", "Weights RMSE per region (median over draws; mean per-shape r in brackets):", "",
-              "| layout | target | method | " + " | ".join(regions) + " |", "|---|---|---|" + "---|" * len(regions)]
+              "| actor | layout | target | method | " + " | ".join(regions) + " |",
+              "|---|---|---|---|" + "---|" * len(regions)]
     for key in keys:
         med = summary[key]["median"]
         cells = [f"{med[r]['rmse']:.3f} ({med[r]['r']:.2f})" if r in med else "" for r in regions]
-        lines.append(f"| {key[0]} | {key[1]} | {key[2]} | " + " | ".join(cells) + " |")
+        lines.append(f"| {' | '.join(key)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -127,6 +144,8 @@ def main(argv=None):
                              "(default: shared/ beside the checkout)")
     parser.add_argument("--draws", type=int, default=5)
     parser.add_argument("--frames", type=int, default=1200, help="frames per take at 60 fps (default 1200)")
+    parser.add_argument("--actors", default=",".join(FAMILIES), help="comma-separated actor families of "
+                        f"{', '.join(FAMILIES)} (the ICT face model; the Face Cap head, not of the template's family)")
     parser.add_argument("--targets", default="sample,ict,toon", help=f"comma-separated of {', '.join(TARGETS)}")
     parser.add_argument("--layouts", default="dense", help=f"comma-separated of {', '.join(LAYOUTS)}")
     parser.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated of {', '.join(METHODS)}")
@@ -142,10 +161,10 @@ def main(argv=None):
         m = row["metrics"]
         figures = "failed: " + row["error"] if m is None else \
             f"RMSE {m['all']['rmse']:.3f} r {m['all']['r']:.2f} at upper {100 * m['all']['at_upper']:.1f}%"
-        print(f"draw {row['seed']} {row['layout']:>11} {row['target']:>6} {row['method']:>17}: {figures} "
+        print(f"{row['actor']:>7} draw {row['seed']} {row['layout']:>11} {row['target']:>6} {row['method']:>17}: {figures} "
               f"({row['seconds']:.1f} s)", flush=True)
 
-    rows = run(args.shared, draws=args.draws, frames=args.frames, targets=tuple(args.targets.split(",")),
+    rows = run(args.shared, draws=args.draws, frames=args.frames, actors=tuple(args.actors.split(",")), targets=tuple(args.targets.split(",")),
                layouts=tuple(args.layouts.split(",")), methods=tuple(args.methods.split(",")),
                perturbation=perturbation, progress=progress)
     summary = summarise(rows)

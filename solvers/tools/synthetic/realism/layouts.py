@@ -58,13 +58,15 @@ class Layout:
     landmarks: tuple = ()  # (marker, vertex group) pairs for a binding by position that the automatic one refused
 
 
-def layout(name, landmarks68=None):
-    """The layout ``name`` ("dense", "sparse" or "landmarks68"; the last needs the model's landmark vertices)."""
+def layout(name, landmarks68=None, dense=None):
+    """The layout ``name`` ("dense", "sparse" or "landmarks68"; the last needs the model's landmark vertices) on
+    the ICT face, or on another face whose ``dense`` layout ({marker: vertex}) is given."""
+    dense = DENSE_VERTICES if dense is None else dense
     if name == "dense":
         names = tuple(DENSE_VERTICES)
-        return Layout("dense", names, tuple(DENSE_VERTICES[n] for n in names), DENSE_HEAD)
+        return Layout("dense", names, tuple(dense[n] for n in names), DENSE_HEAD)
     if name == "sparse":
-        return Layout("sparse", SPARSE, tuple(DENSE_VERTICES[n] for n in SPARSE),
+        return Layout("sparse", SPARSE, tuple(dense[n] for n in SPARSE),
                       tuple(n for n in SPARSE if n.startswith("head_")))
     if name == "landmarks68":
         names = tuple(f"lm{i:02d}" for i in range(68))

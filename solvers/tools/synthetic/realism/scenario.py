@@ -1,4 +1,4 @@
-"""One draw of the realism benchmark: a perturbed actor of the face model, a layout, a real performance
+"""One draw of the realism benchmark: a perturbed actor of a face family, a layout, a real performance
 captured with head motion, noise and gaps, and the actor's calibration sessions."""
 
 from dataclasses import dataclass
@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .actors import Perturbation, make_actor
+from .families import ActorFamily, ict_family
 from .layouts import layout as make_layout
 from .takes import REST, CaptureSettings, calibration_weights, capture, performance_segment
 
@@ -36,11 +37,14 @@ class Draw:
         return np.arange(len(self.truth)) >= REST
 
 
-def make_draw(model, performances, seed, *, layout="dense", frames=1200, perturbation=Perturbation(),
+def make_draw(family, performances, seed, *, layout="dense", frames=1200, perturbation=Perturbation(),
               capture_settings=CaptureSettings()):
-    """Draw number ``seed`` of ``layout`` (a name of ``layouts.LAYOUTS``) with ``frames`` at 60 fps."""
+    """Draw number ``seed`` of an actor of ``family`` (an ActorFamily, or the ICT FaceModel for its own) in
+    ``layout`` (a name of ``layouts.LAYOUTS``) with ``frames`` at 60 fps; ``performances`` on the family's shapes."""
+    family = family if isinstance(family, ActorFamily) else ict_family(family)
+    model = family.model
     rng = np.random.default_rng(seed)
-    lay = make_layout(layout, model.landmarks68)
+    lay = make_layout(layout, family.landmarks68, family.dense)
     actor = make_actor(model, lay.vertices, lay.names, seed=int(rng.integers(1 << 31)), perturbation=perturbation)
     weights, description = performance_segment(performances, frames, rng)
     markers = capture(actor, weights, rng, settings=capture_settings, stable=lay.stable,
