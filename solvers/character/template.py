@@ -6,12 +6,11 @@ once (``python -m facecap template convert <the download>``: the GitHub zip as d
 folder or its ``FaceXModel`` folder, ``ict_release``; hash-checked: ``TEMPLATE_DIGEST``); facecap then finds
 it in its data folder (``template_path``) or at the path ``[actor] template`` names.
 
-Fitting (``HumanTemplate.fit``): the markers (in the character's frame: upright, looking down -Y, metres)
-are aligned to the template's surface by robust ICP from a centroid-and-size start (the character's
-alignment already put them upright and forward, so no orientation search is needed), then the identity
-coefficients (a ridge towards the mean face), the alignment and each marker's closest surface point are
-refitted in turn. The expression deltas at those points, carried back by the alignment, are the actor's
-shapes as the template knows them.
+Fitting (``HumanTemplate.fit``): the markers (metres, turned upright by a given orientation or started by the
+automatic multi-start search) are aligned to the template's surface by robust ICP, then the similarity and the
+identity coefficients are solved together to convergence (``template_fit``: point-to-plane, a ridge towards the
+mean face, a prior on the scale). The expression deltas at each marker's closest point, carried back by the
+similarity, are the actor's shapes as the template knows them.
 """
 
 import os
@@ -22,11 +21,12 @@ import numpy as np
 
 from ..errors import FacecapError, InputFileError
 from ..io.files import atomic_path
-from ..transforms import Similarity, fit_similarity
+from ..transforms import Similarity
 from .alignment import align_automatic, refine
 from .face_model import FaceModel, load_ict
 from .ict_release import RELEASE_URL
 from .surface import closest_points, interpolate, make_surface
+from .template_fit import fit_identity
 
 TEMPLATE_NAME = "ict-facekit.npz"
 FORMAT = "facecap human template 1"
@@ -90,6 +90,7 @@ class TemplateFit:
     residual_mm: np.ndarray
     scale: float
     notes: tuple
+    objective: float = float("nan")
 
 
 class HumanTemplate:
@@ -131,14 +132,18 @@ class HumanTemplate:
         start, note = align_automatic(self._surface, X[ok], unit=1e-3, scale=1.0)
         fit = self.fit(names, X, start=start, **options)
         return TemplateFit(fit.shape_names, fit.marker_names, fit.deltas, fit.residual_mm, fit.scale,
-                           (f"template: {note}",) + fit.notes)
+                           (f"template: {note}",) + fit.notes, fit.objective)
 
-    def fit(self, names, markers, *, start=None, iterations=4, modes=IDENTITY_MODES, ridge=IDENTITY_RIDGE):
-        """Fit the template to the actor's neutral ``markers`` (M, 3; metres; upright and looking down -Y
-        unless a ``start`` Similarity onto the template is given).
+    def fit(self, names, markers, *, start=None, orientation=None, modes=IDENTITY_MODES, ridge=IDENTITY_RIDGE):
+        """Fit the template to the actor's neutral ``markers`` (M, 3; metres): from a ``start`` Similarity onto the
+        template, else from the centroids and sizes with the markers turned by ``orientation`` (3, 3; default:
+        already upright and looking down -Y). A robust ICP of the similarity onto the mean face
+        (``alignment.refine``), then the similarity and the identity solved together to convergence
+        (``template_fit.fit_identity``).
 
-        Returns a TemplateFit (deltas in the markers' frame); markers farther than 8 mm from the fitted
-        surface get no shape (zero deltas) and are named in the notes."""
+        Returns a TemplateFit (deltas in the markers' frame; ``objective`` the fit's cost, comparable between fits
+        of the same markers from different starts); markers farther than 8 mm from the fitted surface get no
+        shape (zero deltas) and are named in the notes."""
         X = np.asarray(markers, dtype=np.float64)
         ok = np.isfinite(X).all(axis=1)
         if ok.sum() < 6:
@@ -148,23 +153,17 @@ class HumanTemplate:
         spread = lambda p: np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean())  # noqa: E731
         face = m.neutral[np.unique(m.triangles)]
         if start is None:
+            R = np.eye(3) if orientation is None else np.asarray(orientation, dtype=np.float64)
             scale = 0.8 * spread(face) / spread(X[ok])  # markers cover most, not all, of the face
-            start = Similarity(scale, np.eye(3), face.mean(axis=0) - scale * X[ok].mean(axis=0))
+            start = Similarity(scale, R, face.mean(axis=0) - scale * R @ X[ok].mean(axis=0))
         sim, note = refine(self._surface, X[ok], start, unit=unit, scale_range=1.3)
-        notes = [f"template: {note}"]
-        verts = m.neutral
         modes = min(modes, m.identity.shape[0])
-        surface = self._surface
-        for _ in range(iterations):
-            tri, bary, _, _ = closest_points(surface, sim.apply(X[ok]), candidates=CANDIDATES)
-            base = interpolate(m.neutral[None], m.triangles, tri, bary)[0]
-            basis = interpolate(m.identity[:modes], m.triangles, tri, bary).reshape(modes, -1).T
-            target = (sim.apply(X[ok]) - base).ravel()
-            coeffs = np.linalg.solve(basis.T @ basis + ridge * unit**2 * len(target) * np.eye(modes), basis.T @ target)
-            verts = m.person(coeffs)
-            surface = make_surface(verts, m.triangles)
-            tri, bary, _, _ = closest_points(surface, sim.apply(X[ok]), candidates=CANDIDATES)
-            sim = fit_similarity(X[ok], interpolate(verts[None], m.triangles, tri, bary)[0])
+        sim, coeffs, objective, steps, settled = fit_identity(m, X[ok], sim, modes=modes,
+                                                              ridge=ridge * int(ok.sum()))
+        notes = [f"template: {note}"]
+        if not settled:
+            notes.append(f"template: the fit had not settled after {steps} steps")
+        surface = make_surface(m.person(coeffs), m.triangles)
         tri, bary, _, dist = closest_points(surface, sim.apply(X[ok]), candidates=CANDIDATES)
         deltas = np.zeros((len(m.shape_names), len(X), 3))
         deltas[:, ok] = sim.inverse_vectors(interpolate(m.deltas, m.triangles, tri, bary))
@@ -175,6 +174,6 @@ class HumanTemplate:
             deltas[:, far] = 0.0
             notes.append(f"template: {int(far.sum())} marker(s) are farther than 8 mm from the fitted face and get "
                          f"no template shapes: {[n for n, f in zip(names, far) if f][:8]}")
-        notes.append(f"template: fitted {modes} identity modes; markers {np.nanmedian(residual):.2f} mm from the "
-                     f"face (median), {np.nanmax(residual):.2f} mm worst; scale {sim.scale:.3f}")
-        return TemplateFit(m.shape_names, tuple(names), deltas, residual, float(sim.scale), tuple(notes))
+        notes.append(f"template: fitted {modes} identity modes in {steps} steps; markers {np.nanmedian(residual):.2f} "
+                     f"mm from the face (median), {np.nanmax(residual):.2f} mm worst; scale {sim.scale:.3f}")
+        return TemplateFit(m.shape_names, tuple(names), deltas, residual, float(sim.scale), tuple(notes), objective)

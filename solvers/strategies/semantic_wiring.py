@@ -15,11 +15,6 @@ from .actor_model import ActorKnowledge
 from .calibrated import actor_basis_from_poses
 from .semantic import SemanticStrategy
 
-#: A template fitted from the upright start with markers farther than this (median, mm) from the face is
-#: fitted again from the automatic multi-start alignment, and the closer fit kept (a good fit: 0.5-1 mm).
-TEMPLATE_START_MM = 1.5
-
-
 def character_in_actor_space(character, names, neutral, settings):
     """(the character's shapes at the take's markers in actor space (K, M, 3), NaN rows for markers not bound
     on the character; the actor -> character Alignment; the bound markers it aligns), or (None, None, ()) when
@@ -65,22 +60,19 @@ def poses_in_take(take, poses, neutral_frames=None):
 
 
 def fit_template(template, names, neutral, align):
-    """The human template fitted to the take's neutral: a TemplateFit whose deltas are in actor space."""
-    ok = np.isfinite(neutral).all(axis=1)
-    # the markers' global similarity onto the character (the alignment's own is per bound marker)
-    sim = None if align is None else Similarity(align.scale, align.rotation, align.translation)
-    fit = template.fit(names, sim.apply(neutral)) if sim is not None else None
-    if fit is None or not np.nanmedian(fit.residual_mm[ok]) <= TEMPLATE_START_MM:
-        try:  # the character's upright pose was no good start: the multi-start search, if it does better
-            searched = template.fit_automatic(names, neutral)
-        except FacecapError:
-            if fit is None:
-                raise
-        else:
-            if fit is None or np.nanmedian(searched.residual_mm[ok]) < np.nanmedian(fit.residual_mm[ok]):
-                return searched
-    deltas = sim.inverse_vectors(fit.deltas)
-    return type(fit)(fit.shape_names, fit.marker_names, deltas, fit.residual_mm, fit.scale, fit.notes)
+    """The human template fitted to the take's neutral (actor space): a TemplateFit. Fitted from two starts, the
+    markers turned upright by the actor -> character alignment and the automatic multi-start search (when it
+    does not refuse), and the fit of lower cost kept: each is fitted to convergence, so the choice does not
+    move with the arithmetic's rounding (a threshold on an unconverged fit's residual did)."""
+    fits = []
+    if align is not None:
+        fits.append(template.fit(names, neutral, orientation=align.rotation))
+    try:
+        fits.append(template.fit_automatic(names, neutral))
+    except FacecapError:
+        if not fits:
+            raise
+    return min(fits, key=lambda f: f.objective)
 
 
 def fit_semantic(settings, character, inputs, take, *, priors):
