@@ -262,9 +262,10 @@ def _check_profile_output(path, data, strategy):
     if "profile" not in data.get("output", {}):
         return
     cal, actor = data.get("calibration", {}), data.get("actor", {})
-    if strategy != "semantic" or not ("poses" in cal or "basis" in cal or "profile" in actor):
-        raise ConfigError("a performer profile holds the actor's measured shapes: give [calibration] poses (with "
-                          "markers, or frames of this take) and the semantic strategy", path=path, key="output.profile")
+    if strategy != "semantic" or not ("poses" in cal or "sequence" in cal or "basis" in cal or "profile" in actor):
+        raise ConfigError("a performer profile holds the actor's measured shapes: give [calibration] sequence (a ROM "
+                          "session) or poses (with markers, or frames of this take) and the semantic strategy",
+                          path=path, key="output.profile")
 
 
 def _projection(path, solve):

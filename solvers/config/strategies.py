@@ -27,6 +27,7 @@ from ..strategies.options import (
     RefineSettings,
     StrategyInputs,
 )
+from ..rom.sheets import sequence_poses
 from ..strategies.parallel import parallel_curve
 from ..strategies.wiring import NEEDS
 
@@ -70,8 +71,10 @@ def strategy_settings(path, data, strategy):
                  f"strategy '{strategy}' needs {NEEDS[strategy]}")
     if strategy in ("linear", "rbf", "pca") and "weights" not in ex:
         fail("examples.weights", f"strategy '{strategy}' needs {NEEDS[strategy]}")
-    if strategy == "semantic" and "basis" in cal and ("markers" in cal or "poses" in cal):
+    if strategy == "semantic" and "basis" in cal and ("markers" in cal or "poses" in cal or "sequence" in cal):
         fail("calibration.basis", "give either a stored basis or calibration markers + poses, not both")
+    if "sequence" in cal and strategy != "semantic":
+        fail("calibration.sequence", f"a ROM sequence calibrates the semantic strategy; [solve] strategy is '{strategy}'")
     return {
         "actor": _actor(data.get("actor", {}), data.get("solve", {}), fail),
         "calibration": _calibration(cal, fail),
@@ -120,8 +123,37 @@ def _calibration(cal, fail):
     align = cal.get("align", "rigid")
     if align not in ALIGN:
         fail("calibration.align", f"expected one of {ALIGN}; got '{align}'")
+    sequence, holds = _sequence(cal, fail)
     return CalibrationSettings(poses=tuple(poses), neutral_frames=None if neutral is None else tuple(neutral),
-                               split=tuple(split), stable_markers=tuple(stable), align=align)
+                               split=tuple(split), stable_markers=tuple(stable), align=align, sequence=sequence,
+                               holds=holds)
+
+
+def _sequence(cal, fail):
+    """[calibration] sequence (a ROM sheet's name or its poses) and holds ({label = middle frame})."""
+    if "sequence" not in cal:
+        if "holds" in cal:
+            fail("calibration.holds", "holds place the poses of a [calibration] sequence; give the sequence")
+        return (), None
+    if "poses" in cal:
+        fail("calibration.sequence", "give either a ROM sequence (its holds are found) or poses with frame ranges, "
+                                     "not both")
+    try:
+        poses = sequence_poses(cal["sequence"])
+    except FacecapError as exc:
+        fail("calibration.sequence", str(exc).split(": ", 1)[-1])
+    holds = cal.get("holds")
+    if holds is None:
+        return poses, None
+    labels = {p.label for p in poses}
+    if not isinstance(holds, dict) or not holds:
+        fail("calibration.holds", 'expected a table of pose label = middle frame, e.g. { "jaw open" = 212 }')
+    for label, frame in holds.items():
+        if label not in labels:
+            fail("calibration.holds", f"'{label}' is not a pose of the sequence; its poses: {sorted(labels)}")
+        if not _number(frame) or not np.isfinite(frame):
+            fail("calibration.holds", f"the middle frame of '{label}' must be a number; got {frame!r}")
+    return poses, tuple((label, float(frame)) for label, frame in holds.items())
 
 
 def _table(table, keyed_by, fail):

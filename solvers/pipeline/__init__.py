@@ -153,7 +153,8 @@ def _needs_binding(settings, inputs):
     markers too)."""
     if settings.strategy == "geometric":
         return True
-    knows = (settings.calibration.poses or inputs.calibration is not None or inputs.profile is not None
+    knows = (settings.calibration.poses or settings.calibration.sequence or inputs.calibration is not None
+             or inputs.profile is not None
              or inputs.actor_basis is not None or inputs.template is not None)
     return settings.strategy == "semantic" and not knows
 

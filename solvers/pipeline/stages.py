@@ -123,7 +123,7 @@ def normalised(stab, settings, notes):
     neutral, offsets, info = normalise_stabilised(stab, settings, notes)
     sm = stab.markers
     pos = sm.positions if offsets is None else sm.positions + offsets
-    take = PreparedTake(pos - neutral[None], neutral, sm.names, sm.frames, stab, offsets)
+    take = PreparedTake(pos - neutral[None], neutral, sm.names, sm.frames, stab, offsets, fps=sm.fps)
     pos = sm = None
     stab.release_markers()  # their (F, M, 3) floats: computed again if read (issue 18)
     return take, info

@@ -100,6 +100,7 @@ class PreparedTake:
     offsets : (F, M, D) master T-pose offsets added to the positions, or None
     observed : (F, M) bool, where each marker was measured, kept when ``deltas`` were handed to a
         solve (``handed_over``; then ``deltas`` is None)
+    fps : the take's frame rate (None where unknown)
     """
 
     deltas: np.ndarray
@@ -109,6 +110,7 @@ class PreparedTake:
     stabilise: object
     offsets: np.ndarray = None
     observed: np.ndarray = None
+    fps: float = None
 
     @property
     def dim(self):

@@ -23,6 +23,11 @@ class CalibrationSettings:
     stable_markers : markers the calibration take is stabilised on; () = ``[stabilise] markers``
     align : "rigid" (default), "similarity" or "none": how the take's neutral is brought onto the
         calibration neutral (the master T-pose alignment)
+    sequence : a range-of-motion session's poses in the order performed (``rom.sheets.Pose``s, a built-in sheet
+        or the config's list); their holds are found in the calibration take (or the take itself) and the
+        actor's shapes estimated from them (``semantic``)
+    holds : ((label, middle frame), ...) where the user put the ROM's poses (Find Poses' timeline markers
+        moved, or ``[calibration] holds``): used instead of the holds found
     """
 
     poses: tuple = ()
@@ -30,6 +35,8 @@ class CalibrationSettings:
     split: tuple = ()
     stable_markers: tuple = ()
     align: str = default("calibration.align")
+    sequence: tuple = ()
+    holds: tuple = None
 
     def pose_table(self):
         """``{name: [[first, last], ...]}`` for ``actor_basis_from_poses``."""

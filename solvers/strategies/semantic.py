@@ -129,6 +129,7 @@ class SemanticStrategy:
         self.noise = float("nan")
         self.model = None
         self.notes = ()
+        self.rom = None  # the RomResult the actor model was measured from ([calibration] sequence)
 
     def fit(self, character, *, names, neutral, knowledge=ActorKnowledge(), character_deltas=None, deltas=None,
             noise=None, alignment=None, alignment_names=(), bounds=(), locks=(), regions=()):
@@ -247,6 +248,8 @@ class SemanticStrategy:
         rms = residual_rms(res.weights, basis.deltas, D)
         rms[~res.solved] = np.nan
         info = {"mode": res.mode, "actor_model": self.model.report()}
+        if self.rom is not None:
+            info["rom"] = self.rom.report()
         return StrategyResult(weights=res.weights, shape_names=basis.shape_names, solved=res.solved,
                               source_weights=res.weights, source_names=basis.shape_names,
                               warnings=tuple(self.notes) + tuple(notes) + tuple(res.warnings), residual_rms=rms,

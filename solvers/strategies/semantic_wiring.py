@@ -10,9 +10,10 @@ from ..capture.align import align_actor
 from ..capture.noise import marker_noise, shrink_pose_noise
 from ..character.basis import Basis
 from ..errors import FacecapError
-from ..transforms import Similarity
 from .actor_model import ActorKnowledge
+from .base import as_target
 from .calibrated import actor_basis_from_poses
+from .rom_wiring import learn_from_rom, prepare_rom, rom_settings_for_take
 from .semantic import SemanticStrategy
 
 def character_in_actor_space(character, names, neutral, settings):
@@ -80,8 +81,13 @@ def fit_semantic(settings, character, inputs, take, *, priors):
     returns (strategy, notes)."""
     notes = []
     cal = settings.calibration
-    measured = None
-    if inputs.calibration is not None and cal.poses:
+    measured = rom = None
+    char_deltas, align, bound = character_in_actor_space(character, take.names, take.neutral, settings)
+    if cal.sequence:
+        rom = _learn_from_rom(settings, character, inputs, take)
+        measured = rom.measured
+        notes.extend(rom.notes)
+    elif inputs.calibration is not None and cal.poses:
         measured, pose_notes = actor_basis_from_poses(
             inputs.calibration, poses=cal.pose_table(), neutral=tuple(cal.neutral_frames or settings.neutral_frames),
             stable_markers=tuple(cal.stable_markers or settings.stable_markers), split=tuple(cal.split))
@@ -92,7 +98,6 @@ def fit_semantic(settings, character, inputs, take, *, priors):
                      or settings.master is not None)
         measured = poses_in_take(take, cal.pose_table(), settings.neutral_frames if plain else None)
     profile = inputs.profile if inputs.profile is not None else inputs.actor_basis
-    char_deltas, align, bound = character_in_actor_space(character, take.names, take.neutral, settings)
     template = None
     if inputs.template is not None:
         template = fit_template(inputs.template, take.names, take.neutral, align)
@@ -107,4 +112,20 @@ def fit_semantic(settings, character, inputs, take, *, priors):
     s.fit(character, names=take.names, neutral=take.neutral, knowledge=knowledge, character_deltas=char_deltas,
           deltas=take.deltas, noise=marker_noise(take.deltas), alignment=align, alignment_names=bound,
           bounds=settings.bounds, locks=settings.locks, regions=settings.regions)
+    s.rom = rom
     return s, notes
+
+
+def _learn_from_rom(settings, character, inputs, take):
+    """A RomResult from the [calibration] markers take, or from the take itself (its own neutral)."""
+    if inputs.calibration is not None:
+        stable, neutral = rom_settings_for_take(settings, take)
+        rom = prepare_rom(inputs.calibration, stable, neutral, [])
+    else:
+        rom = take
+    char_deltas, align, _ = character_in_actor_space(character, rom.names, rom.neutral, settings)
+    template = None if inputs.template is None else fit_template(inputs.template, rom.names, rom.neutral, align)
+    character_shapes = None
+    if char_deltas is not None:
+        character_shapes = (as_target(character).names, char_deltas)
+    return learn_from_rom(settings, rom, character_shapes, template)

@@ -26,6 +26,7 @@ LAYERS = (
     ("facecap.solvers.video", 50),
     ("facecap.solvers.pipeline", 40),
     ("facecap.solvers.strategies", 30),
+    ("facecap.solvers.rom", 25),  # range-of-motion sessions: below the strategies that learn from them
     ("facecap.solvers.character", 22),
     ("facecap.solvers.capture", 21),
     ("facecap.solvers.engine", 10),

@@ -87,7 +87,7 @@ def carried_vertices(source, target, vertices):
     """The ``target`` vertex nearest each of ``source``'s ``vertices`` (N,) carried over by the thin-plate warp
     through both faces' ``motion_landmarks``."""
     from scipy.interpolate import RBFInterpolator  # scipy: the benchmark's own dependency
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # scipy: as above
 
     warp = RBFInterpolator(motion_landmarks(source), motion_landmarks(target), kernel="thin_plate_spline")
     return cKDTree(target.neutral).query(warp(source.neutral[np.asarray(vertices)]))[1].astype(np.int64)

@@ -13,6 +13,7 @@ from ....character.template import HumanTemplate
 from ....errors import FacecapError
 from ....pipeline import RetargetSettings, retarget
 from ....pipeline.binding import bind_character
+from ....rom.sheets import SHEETS
 from ....strategies.options import ActorSettings, CalibrationSettings, StrategyInputs
 from .takes import REST
 
@@ -26,7 +27,11 @@ METHODS = {
     "poses12": "semantic, 12 calibration poses",
     "poses12+template": "semantic, 12 calibration poses and the human template",
     "template": "semantic, the human template (no calibration)",
-    "calibration": "semantic, one calibration pose per shape",
+    "calibration": "semantic, one calibration pose per shape (perfect poses, frame ranges typed)",
+    "rom24": "semantic, the facecap-24 ROM performed imperfectly, its poses found",
+    "rom24+template": "semantic, the facecap-24 ROM and the human template",
+    "rom51": "semantic, the arkit-51 ROM (a pose per shape) performed imperfectly, its poses found",
+    "rom51+template": "semantic, the arkit-51 ROM and the human template",
     "oracle": "semantic with the actor's true (linear) shapes as its profile (no user has them)",
 }
 
@@ -78,7 +83,11 @@ def run_method(name, draw, mesh, template, *, character=None):
         if name == "calibration":
             settings = replace(settings, calibration=CalibrationSettings(poses=_poses(draw.calibration_poses)))
             inputs = replace(inputs, calibration=draw.calibration)
-        if name in ("template", "poses12+template"):
+        if name.startswith("rom"):
+            sheet = {"rom24": "facecap-24", "rom51": "arkit-51"}[name.split("+")[0]]
+            settings = replace(settings, calibration=CalibrationSettings(sequence=SHEETS[sheet]))
+            inputs = replace(inputs, calibration=draw.roms[sheet].markers)
+        if name in ("template", "poses12+template") or name.endswith("+template"):
             inputs = replace(inputs, template=template)
         if name == "oracle":  # the actor's own shapes, as no user can know them (combination terms left out)
             a = draw.actor

@@ -7,12 +7,18 @@ import numpy as np
 
 from .actors import Perturbation, make_actor
 from .families import ActorFamily, ict_family
+from ....rom.sheets import SHEETS
 from .layouts import layout as make_layout
+from .rom import rom_session
 from .takes import REST, CaptureSettings, calibration_weights, capture, performance_segment
 
 #: The short calibration a user can afford: 12 poses (jaw, smiles, funnel, pucker, blinks, brows, close, puff).
 FEW_POSES = ("jawOpen", "mouthSmileLeft", "mouthSmileRight", "mouthFunnel", "mouthPucker", "eyeBlinkLeft",
              "eyeBlinkRight", "browInnerUp", "browDownLeft", "browDownRight", "mouthClose", "cheekPuff")
+
+
+#: The ROM sheets every draw's actor performs.
+ROM_SHEETS = ("facecap-24", "arkit-51")
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,6 +36,7 @@ class Draw:
     calibration_poses: dict
     few: object  # MarkerSet: the 12 poses of FEW_POSES
     few_poses: dict
+    roms: dict = None  # {sheet name: RomSession}, performed imperfectly (``rom``)
 
     @property
     def performance_frames(self):
@@ -55,5 +62,9 @@ def make_draw(family, performances, seed, *, layout="dense", frames=1200, pertur
     calibration = capture(actor, calib_w, rng, settings=quiet, stable=lay.stable, source=f"calibration {seed}")
     few_w, few_poses = calibration_weights(model.shape_names, FEW_POSES, rng)
     few = capture(actor, few_w, rng, settings=quiet, stable=lay.stable, source=f"short calibration {seed}")
+    roms = {}
+    for i, sheet in enumerate(ROM_SHEETS):  # streams of their own: the draws above stay as they were
+        roms[sheet] = rom_session(actor, SHEETS[sheet], np.random.default_rng([seed, 37, i]), stable=lay.stable,
+                                  capture_settings=capture_settings, source=f"ROM {sheet} {seed}")
     return Draw(seed, lay, actor, markers, weights, model.shape_names, description, calibration, calib_poses,
-                few, few_poses)
+                few, few_poses, roms)

@@ -1,0 +1,100 @@
+"""What the semantic solve learns from a range-of-motion session ([calibration] sequence): the ROM take (the
+calibration take, or the take itself) stabilised and its neutral found, its poses found and named by the sheet
+against a prior (the human template fitted to its neutral, else the character's shapes carried to it), and the
+actor's shapes estimated from them (``rom``)."""
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..capture.neutral import neutral_from_frames
+from ..capture.normalise import detect_neutral_frames
+from ..capture.stabilise import stabilise_rigid
+from ..errors import FacecapError
+from ..rom import find_poses, fit_rom, prior_for, sheet_shapes
+from .base import PreparedTake
+
+
+#: Frames at most that the ROM's neutral is detected from.
+DETECT_FRAMES = 2000
+
+
+@dataclass(frozen=True, eq=False)
+class RomResult:
+    """The actor's ``measured`` shapes (a Basis, the ROM take's actor space), the poses ``found`` (RomPoses),
+    the joint ``fit`` and ``notes``; ``prior`` says what named the poses."""
+
+    measured: object
+    found: object
+    fit: object
+    prior: str
+    notes: tuple
+
+    def report(self):
+        out = self.found.report()
+        out["prior"] = self.prior
+        out["measured_shapes"] = len(self.measured.shape_names)
+        out["gains"] = {n: round(float(g), 3) for n, g in zip(sheet_shapes(self.found.poses), self.fit.gains)}
+        return out
+
+
+def prepare_rom(markers, stable, neutral_frames, notes):
+    """The ROM take (a MarkerSet, 3D) as a PreparedTake: stabilised on ``stable`` markers, its neutral the
+    ``neutral_frames`` (first, last) or, when None, the pose it returns to between the expressions."""
+    if markers.dim != 3:
+        raise FacecapError("[calibration] sequence: a ROM take must be 3D markers (a filmed ROM calibrates video "
+                           "takes through the video path)")
+    if len(stable) < 3:
+        raise FacecapError("[calibration] sequence: the ROM take is stabilised on at least 3 stable markers "
+                           "([calibration] stable_markers or [stabilise] markers)")
+    markers = markers.to_units("m")
+    stab = stabilise_rigid(markers, tuple(stable), reference_frames=neutral_frames)
+    sm = stab.markers
+    if neutral_frames is None:  # every few frames: a long session's rests are long (the whole take: seconds)
+        step = max(1, sm.n_frames // DETECT_FRAMES)
+        frames, _ = detect_neutral_frames(replace(sm, frames=sm.frames[::step], positions=sm.positions[::step]))
+        sel = np.isin(sm.frames, frames)
+        with np.errstate(invalid="ignore"):
+            neutral = np.nanmedian(sm.positions[sel], axis=0)
+        notes.append(f"ROM: neutral detected from {len(frames)} frame(s) (the face at rest between the poses)")
+    else:
+        neutral = neutral_from_frames(sm, *neutral_frames)
+    return PreparedTake(sm.positions - neutral[None], neutral, sm.names, sm.frames, stab, fps=sm.fps)
+
+
+def rom_prior(shapes, rom, character_deltas, template_fit):
+    """(K, M, 3) the prior for ``shapes`` at the ROM's markers and what it is: the template's shapes where it has
+    them, else the character's."""
+    sources = []
+    if template_fit is not None:
+        sources.append((template_fit.shape_names, template_fit.deltas))
+    if character_deltas is not None:
+        sources.append(character_deltas)
+    prior, have = prior_for(shapes, rom.names, sources)
+    what = ("the human template" if template_fit is not None else "the character's shapes") if have.any() else "none"
+    return prior, what
+
+
+def learn_from_rom(settings, rom, character_deltas, template_fit):
+    """A RomResult for the PreparedTake ``rom``; ``character_deltas``: (shape names, (K, M, 3)) the
+    character's shapes carried to the ROM's markers or None; ``template_fit``: the template fitted to it or None."""
+    cal = settings.calibration
+    shapes = sheet_shapes(cal.sequence)
+    prior, what = rom_prior(shapes, rom, character_deltas, template_fit)
+    given = None if cal.holds is None else dict(cal.holds)
+    found = find_poses(rom, cal.sequence, prior, fps=rom.fps or 60.0, given=given)
+    measured, fit, notes = fit_rom(found, prior)
+    told = [f"ROM: {int(found.found.sum())} of {len(cal.sequence)} poses {'placed' if given else 'found'} "
+            f"({len(found.holds)} holds in the take), named against {what}; {len(measured.shape_names)} shapes "
+            "measured"]
+    return RomResult(measured, found, fit, what, tuple(told) + found.notes + notes)
+
+
+def rom_settings_for_take(settings, take):
+    """The ROM's stable markers and neutral frames: [calibration]'s, else the take's."""
+    cal = settings.calibration
+    stable = tuple(cal.stable_markers) or (take.stabilise.stable_names if take.stabilise is not None
+                                           else tuple(settings.stable_markers))
+    neutral = tuple(cal.neutral_frames) if cal.neutral_frames else None
+    return stable, neutral
+
