@@ -12,7 +12,8 @@ from ..capture.normalise import detect_neutral_frames
 from ..capture.stabilise import stabilise_rigid
 from ..errors import FacecapError
 from ..rom import find_poses, fit_rom, prior_for, sheet_shapes
-from .base import PreparedTake
+from .actor_space import character_in_actor_space, fit_template
+from .base import PreparedTake, as_target
 
 
 #: Frames at most that the ROM's neutral is detected from.
@@ -90,11 +91,31 @@ def learn_from_rom(settings, rom, character_deltas, template_fit):
     return RomResult(measured, found, fit, what, tuple(told) + found.notes + notes)
 
 
-def rom_settings_for_take(settings, take):
-    """The ROM's stable markers and neutral frames: [calibration]'s, else the take's."""
+def rom_settings_for_take(settings, take=None):
+    """The ROM's stable markers and neutral frames: [calibration]'s, else the take's (or [stabilise]'s)."""
     cal = settings.calibration
-    stable = tuple(cal.stable_markers) or (take.stabilise.stable_names if take.stabilise is not None
-                                           else tuple(settings.stable_markers))
+    stable = tuple(cal.stable_markers) or (take.stabilise.stable_names if take is not None and take.stabilise
+                                           is not None else tuple(settings.stable_markers))
     neutral = tuple(cal.neutral_frames) if cal.neutral_frames else None
     return stable, neutral
+
+
+def learn_from_rom_take(settings, character, inputs, take=None):
+    """A RomResult from the [calibration] markers take (``inputs.calibration``), or from ``take`` itself (a
+    PreparedTake with its own neutral) when there is none; the prior is the template (``inputs.template``) fitted
+    to the ROM's neutral where given, else ``character``'s shapes (a Basis with markers bound) carried to it.
+    What a performer profile is made of (``RomResult.measured``), here or in a take's semantic solve."""
+    if inputs.calibration is not None:
+        stable, neutral = rom_settings_for_take(settings, take)
+        notes = []
+        rom = prepare_rom(inputs.calibration, stable, neutral, notes)
+    elif take is not None:
+        rom, notes = take, []
+    else:
+        raise FacecapError("[calibration] sequence: no ROM take ([calibration] markers)")
+    char_deltas, align, _ = character_in_actor_space(character, rom.names, rom.neutral, settings)
+    template = None if inputs.template is None else fit_template(inputs.template, rom.names, rom.neutral, align)
+    character_shapes = None if char_deltas is None else (as_target(character).names, char_deltas)
+    result = learn_from_rom(settings, rom, character_shapes, template)
+    return replace(result, notes=tuple(notes) + result.notes)
 

@@ -6,33 +6,14 @@ import warnings
 
 import numpy as np
 
-from ..capture.align import align_actor
 from ..capture.noise import marker_noise, shrink_pose_noise
 from ..character.basis import Basis
 from ..errors import FacecapError
 from .actor_model import ActorKnowledge
-from .base import as_target
 from .calibrated import actor_basis_from_poses
-from .rom_wiring import learn_from_rom, prepare_rom, rom_settings_for_take
+from .actor_space import character_in_actor_space, fit_template
+from .rom_wiring import learn_from_rom_take
 from .semantic import SemanticStrategy
-
-def character_in_actor_space(character, names, neutral, settings):
-    """(the character's shapes at the take's markers in actor space (K, M, 3), NaN rows for markers not bound
-    on the character; the actor -> character Alignment; the bound markers it aligns), or (None, None, ()) when
-    ``character`` has no geometry."""
-    if not isinstance(character, Basis):
-        return None, None, ()
-    bound = [n for n in character.marker_names if n in set(names)]
-    if len(bound) < 3:
-        return None, None, ()
-    idx = [names.index(n) for n in bound]
-    align = align_actor(neutral[idx], character.subset_markers(bound).neutral, tuple(bound),
-                        regions=settings.align_regions, flag_mm=settings.align_flag_mm)
-    out = np.full((character.n_shapes, len(names), 3), np.nan)
-    cols = [character.marker_names.index(n) for n in bound]
-    out[:, idx] = align.inverse_vectors(character.deltas[:, cols])
-    return out, align, tuple(bound)
-
 
 def poses_in_take(take, poses, neutral_frames=None):
     """Poses labelled in the take itself: the median of the take's deltas over each pose's frames (a Basis
@@ -60,22 +41,6 @@ def poses_in_take(take, poses, neutral_frames=None):
     return Basis(tuple(names), take.names, take.neutral, shrunk)
 
 
-def fit_template(template, names, neutral, align):
-    """The human template fitted to the take's neutral (actor space): a TemplateFit. Fitted from two starts, the
-    markers turned upright by the actor -> character alignment and the automatic multi-start search (when it
-    does not refuse), and the fit of lower cost kept: each is fitted to convergence, so the choice does not
-    move with the arithmetic's rounding (a threshold on an unconverged fit's residual did)."""
-    fits = []
-    if align is not None:
-        fits.append(template.fit(names, neutral, orientation=align.rotation))
-    try:
-        fits.append(template.fit_automatic(names, neutral))
-    except FacecapError:
-        if not fits:
-            raise
-    return min(fits, key=lambda f: f.objective)
-
-
 def fit_semantic(settings, character, inputs, take, *, priors):
     """A fitted SemanticStrategy for ``take`` (a PreparedTake) and ``character`` (a Basis, or shape names);
     returns (strategy, notes)."""
@@ -84,7 +49,7 @@ def fit_semantic(settings, character, inputs, take, *, priors):
     measured = rom = None
     char_deltas, align, bound = character_in_actor_space(character, take.names, take.neutral, settings)
     if cal.sequence:
-        rom = _learn_from_rom(settings, character, inputs, take)
+        rom = learn_from_rom_take(settings, character, inputs, take)
         measured = rom.measured
         notes.extend(rom.notes)
     elif inputs.calibration is not None and cal.poses:
@@ -114,18 +79,3 @@ def fit_semantic(settings, character, inputs, take, *, priors):
           bounds=settings.bounds, locks=settings.locks, regions=settings.regions)
     s.rom = rom
     return s, notes
-
-
-def _learn_from_rom(settings, character, inputs, take):
-    """A RomResult from the [calibration] markers take, or from the take itself (its own neutral)."""
-    if inputs.calibration is not None:
-        stable, neutral = rom_settings_for_take(settings, take)
-        rom = prepare_rom(inputs.calibration, stable, neutral, [])
-    else:
-        rom = take
-    char_deltas, align, _ = character_in_actor_space(character, rom.names, rom.neutral, settings)
-    template = None if inputs.template is None else fit_template(inputs.template, rom.names, rom.neutral, align)
-    character_shapes = None
-    if char_deltas is not None:
-        character_shapes = (as_target(character).names, char_deltas)
-    return learn_from_rom(settings, rom, character_shapes, template)
