@@ -127,7 +127,9 @@ def key_solve(settings, result):
     (solve layer + their keys), so re-keying that value under their keys would count them twice.
     """
     actor = result.info.get("actor_model")  # what a semantic solve knew of the actor: shown in the Solve panel
-    settings.actor_tier = f"{actor['tier']}: {actor['statement']}" if actor else ""
+    advice = (result.info.get("plausibility") or {}).get("prior_advice")  # the expressions are not the actor's
+    settings.actor_tier = (f"{actor['tier']}: {actor['statement']}" + (f". {advice[0].upper()}{advice[1:]}" if advice
+                                                                        else "")) if actor else ""
     name = settings.take_name or "FaceCap"
     rig = rig_settings(settings)
     if rig is not None:

@@ -132,8 +132,8 @@ def _retarget_markers(markers, character, settings, inputs):
         info["plausibility"], warning = plausibility.check(
             weights, res.shape_names, getattr(strategy, "upper", np.ones(len(res.shape_names))), res.residual_rms,
             noise, held=_held(strategy, settings, res.shape_names, weights.shape[0]))
-        if warning:
-            notes.append(warning)
+        advice = plausibility.prior_advice(info["plausibility"], getattr(getattr(strategy, "model", None), "tier", None))
+        notes.extend(line for line in (advice, warning) if line)
     timings["total"] = time.perf_counter() - t0
     return assemble(strategy, res, weights, frames=take.frames, settings=settings, notes=notes, timings=timings,
                     take=take, normalise=norm_info, suggestion=suggestion, info=info)

@@ -1,6 +1,7 @@
 """After every marker solve: is the result plausible animation, or a good fit hiding wrong weights?
 
-Three symptoms, each measured, reported, and summed up in at most one warning line that says what to do:
+Three symptoms, each measured, reported, and summed up in at most one warning line that says what to do (and,
+apart from them, whether the expressions solved against are this actor's: ``prior_advice``):
 
 * the fit residual against the markers' own noise (estimated from the take: the second difference of
   white noise has 6 times its variance, and a face moves little from one frame to the next at 60 fps);
@@ -15,6 +16,14 @@ from ..strategies.semantic import opposing_pairs
 
 #: A residual this many times the noise is a fit that does not describe the face.
 RESIDUAL_RATIO = 3.0
+#: A residual (RMS marker distance) above this many times the capture's noise (per coordinate) says the expressions
+#: solved against are not the actor's. Realism benchmark (draws 100-101, 600 frames, dense, onto the sample): the
+#: actor's own poses or ROM leave 1.8-2.1x, the human template 2.6x on its own family's actors but 4.8-5.0x on the
+#: Face Cap head, 12 poses + template 3.2-4.1x there, the character's shapes 5.3-9.1x.
+PRIOR_RATIO = 3.0
+#: What the user is told to record, by what the solve knew.
+APPROXIMATE = {"template": "the human template's expressions", "character": "the character's expressions",
+               "poses": "the expressions completed from the template or the character"}
 #: More than this share of the weights at the upper bound is pinning.
 PINNED_SHARE = 0.02
 #: A shape at its upper bound in more than this share of frames is named.
@@ -63,6 +72,36 @@ def check(weights, shape_names, upper, residual_rms, noise, *, held=()):
     report["plausible"] = not problems
     if not problems:
         return report, None
-    return report, ("the solve is not plausible animation: " + "; ".join(problems) + ". Give the solve what it "
-                    "lacks of the actor's face ([calibration] poses, [actor] profile or template), check the "
-                    "binding, or lock the named shapes ([solve] locks)")
+    return report, _problem_line(problems)
+
+
+def prior_advice(report, tier):
+    """A line telling the user that the expressions solved against are not this actor's and what to record, when
+    the ``report`` of ``check`` shows a residual above ``PRIOR_RATIO`` times the noise; None otherwise. ``tier``:
+    the semantic solve's (``ActorModel.tier``). Also sets ``report["prior_mismatch"]`` and ``["prior_advice"]``."""
+    ratio = report.get("residual_to_noise")
+    if ratio is None or tier is None:
+        return None
+    times = ratio * np.sqrt(3.0)  # the RMS marker distance over the noise per coordinate
+    report["prior_mismatch"] = bool(times > PRIOR_RATIO)
+    if not report["prior_mismatch"]:
+        return None
+    left = (f"{report['residual_mm']:.2f} mm at the markers, {times:.1f}x the capture's noise "
+            f"({report['noise_mm']:.2f} mm)")
+    report["prior_advice"] = _advice(tier, left)
+    return report["prior_advice"]
+
+
+def _advice(tier, left):
+    if tier in APPROXIMATE:
+        return (f"the expressions solved against ({APPROXIMATE[tier]}) leave {left}: they are not this actor's, and "
+                "the weights follow them. Record this performer's range of motion once (the facecap-24 sheet, "
+                "docs/rom.md) and give it as [calibration] sequence, or give their performer profile ([actor] profile)")
+    return (f"the actor's {tier} leaves {left}: it does not describe this take (another performer, markers placed "
+            "elsewhere, a different day's face?). Record the range of motion again (docs/rom.md)")
+
+
+def _problem_line(problems):
+    return ("the solve is not plausible animation: " + "; ".join(problems) + ". Give the solve what it lacks of the "
+            "actor's face (a range-of-motion session, [calibration] sequence: docs/rom.md; [actor] profile or "
+            "template), check the binding, or lock the named shapes ([solve] locks)")

@@ -13,11 +13,14 @@ from facecap.solvers.character.face_model import load_ict
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.rom import ARKIT_51, SHEETS, align_holds, find_poses, fit_examples, sequence_poses, sheet_shapes
 from facecap.solvers.strategies.rom_wiring import prepare_rom
+from facecap.solvers.tools.synthetic.realism import methods
 from facecap.solvers.tools.synthetic.realism.families import load_family
 from facecap.solvers.tools.synthetic.realism.layouts import DENSE_HEAD
+from facecap.solvers.tools.synthetic.realism.methods import load_template
 from facecap.solvers.tools.synthetic.realism.rom import rom_session
 from facecap.solvers.tools.synthetic.realism.scenario import make_draw
 from facecap.solvers.tools.synthetic.realism.takes import load_performances
+from facecap.solvers.tools.synthetic.realism.targets import make_target
 from facecap.solvers.transforms import fit_similarity
 
 
@@ -149,3 +152,21 @@ def test_a_skipped_pose_is_named_and_the_others_keep_their_holds(families):
     assert not found.found[5] and any("eyes shut" in n for n in found.notes)
     others = [j for j in range(24) if j != 5]
     assert np.all(np.abs(found.middles[others] - session.middles) <= 5)
+
+
+def test_a_prior_that_is_not_the_actors_is_said_and_the_rom_sheet_named(families, monkeypatch):
+    family, performances = families["facecap"]
+    draw = make_draw(family, performances, 100, frames=600)
+    template = load_template(SHARED / "data" / "ict-facekit")
+    mesh = make_target("sample", load_ict(SHARED / "data" / "ict-facekit"))
+    seen = {}
+    real = methods.retarget
+    monkeypatch.setattr(methods, "retarget", lambda *a, **k: seen.setdefault("result", real(*a, **k)))
+    methods.run_method("template", draw, mesh, template)
+    result = seen.pop("result")
+    # measured: the ICT template on the Face Cap head leaves 1.5 mm, 4.8-5.0x the noise
+    assert result.info["plausibility"]["prior_mismatch"] and "facecap-24" in result.info["plausibility"]["prior_advice"]
+    assert any("not this actor's" in w for w in result.warnings)
+    methods.run_method("rom24+template", draw, mesh, template)
+    check = seen.pop("result").info["plausibility"]
+    assert not check["prior_mismatch"] and "prior_advice" not in check  # the actor's own ROM: 1.8-2.1x

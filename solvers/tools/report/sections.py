@@ -168,6 +168,9 @@ def actor_html(review):
                      f'{esc(actor["statement"])}.</p>')
         if actor.get("unseen"):
             parts.append(f'<p class="note">Held at rest (no marker sees them): {esc(", ".join(actor["unseen"]))}.</p>')
+        advice = (info.get("plausibility") or {}).get("prior_advice")
+        if advice:
+            parts.append(f'<p class="warn">Not this actor\'s expressions: {esc(advice)}.</p>')
     else:
         parts.append('<p class="note">This strategy does not solve against a model of the actor.</p>')
     check = info.get("plausibility")
