@@ -310,7 +310,7 @@ OPTIONS = (
     O("actor", "normalise", "bool", default=True,
       doc="semantic, nothing known about the actor: scale the actor's motion per marker to the character's range",
       headless="an expert setting of the semantic solve"),
-    # -- [calibration] (calibrated, refine) --------------------------------------------------------
+    # -- [calibration] (calibrated, refine; semantic: a ROM sequence or poses) --------------------------------------------------------
     O("calibration", "markers", "path", doc="The actor's calibration take",
       ui="facecap.calib_source, facecap.calib_path, facecap.calib_collection"),
     O("calibration", "units", "choice", choices=("m", "cm", "mm", "px"), doc="Units of the calibration take",
@@ -329,6 +329,13 @@ OPTIONS = (
       headless="the sidebar keeps library versions in the .blend (Tuning panel)"),
     O("calibration", "align", "choice", default="rigid", choices=("rigid", "similarity", "none"),
       doc="How the take's neutral is brought onto the calibration neutral", ui="facecap.calib_align"),
+    O("calibration", "sequence", ("str", "list"),
+      doc="semantic: a range-of-motion session, its poses in the order performed: \"facecap-24\", \"arkit-51\" or a "
+          "list of ARKit names and {shape = weight, label = ...} tables; the holds are found in the calibration take "
+          "(or the take itself) and the actor's shapes estimated from them (docs/rom.md)",
+      headless="the sidebar's ROM sheet chooses a built-in sheet"),
+    O("calibration", "holds", "table", doc="{pose label = middle frame}: where the ROM's poses are held, instead of "
+      "the holds found (Find Poses' timeline markers)", headless="the sidebar reads Find Poses' timeline markers"),
     # -- [mapping] (calibrated, refine, parallel) --------------------------------------------------
     O("mapping", "aliases", "bool", default=True, doc="Match names through ARKit / MediaPipe / FACS alias tables",
       ui="facecap.mapping_aliases"),

@@ -116,6 +116,9 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
         write_actor_basis(config, result, outputs)
     if config.output_profile is not None:
         write_profile(config, result, outputs)
+    rom = result.info.get("rom")
+    if rom:
+        say(f"ROM: {rom['summary']}")
     statement = result.info.get("actor_model", {}).get("statement")
     if statement:
         say(f"actor: {statement}")

@@ -165,8 +165,8 @@ def find_poses(take, poses, prior, *, fps, given=None):
 
 def fit_rom(found, prior, *, neutral_counts=None):
     """The actor's measured shapes from the poses ``found`` (a RomPoses) with the ``prior`` (K, M, 3) for the
-    sheet's shapes: a Basis of the shapes the poses measure (``joint.MEASURED``), in the ROM take's actor space,
-    the JointFit, and notes."""
+    sheet's shapes: a Basis of the shapes the poses measure (``joint.MEASURED``; the others are completed from the
+    prior by the solve), in the ROM take's actor space, and the JointFit."""
     shapes = sheet_shapes(found.poses)
     use = found.found
     if not use.any():
@@ -178,9 +178,5 @@ def fit_rom(found, prior, *, neutral_counts=None):
     error = MEDIAN_ERROR * found.noise * np.sqrt(1.0 / n) if np.isfinite(found.noise) else 0.0
     fit = fit_examples(E, asked_weights(found.poses, shapes)[use], prior, error=error)
     keep = np.flatnonzero(fit.measured)
-    notes = []
-    weak = [shapes[k] for k in np.flatnonzero(~fit.measured) if fit.support[k] > 0]
-    if weak:
-        notes.append(f"ROM: shape(s) the poses hold too little of to measure (completed from the prior): {weak[:10]}")
     basis = Basis(tuple(shapes[k] for k in keep), found.names, found.neutral, fit.shapes[keep])
-    return basis, fit, tuple(notes)
+    return basis, fit

@@ -23,25 +23,30 @@ DETECT_FRAMES = 2000
 @dataclass(frozen=True, eq=False)
 class RomResult:
     """The actor's ``measured`` shapes (a Basis, the ROM take's actor space), the poses ``found`` (RomPoses),
-    the joint ``fit`` and ``notes``; ``prior`` says what named the poses."""
+    the joint ``fit``, ``notes`` (warnings: poses not found, expressions left out) and a one-line ``summary``;
+    ``prior`` says what named the poses."""
 
     measured: object
     found: object
     fit: object
     prior: str
     notes: tuple
+    summary: str = ""
 
     def report(self):
         out = self.found.report()
+        out["summary"] = self.summary
         out["prior"] = self.prior
         out["measured_shapes"] = len(self.measured.shape_names)
+        out["completed_from_prior"] = [n for n in sheet_shapes(self.found.poses) if n not in self.measured.shape_names]
         out["gains"] = {n: round(float(g), 3) for n, g in zip(sheet_shapes(self.found.poses), self.fit.gains)}
         return out
 
 
-def prepare_rom(markers, stable, neutral_frames, notes):
+def prepare_rom(markers, stable, neutral_frames):
     """The ROM take (a MarkerSet, 3D) as a PreparedTake: stabilised on ``stable`` markers, its neutral the
-    ``neutral_frames`` (first, last) or, when None, the pose it returns to between the expressions."""
+    ``neutral_frames`` (first, last) or, when None, the pose it returns to between the expressions; and where the
+    neutral came from (words)."""
     if markers.dim != 3:
         raise FacecapError("[calibration] sequence: a ROM take must be 3D markers (a filmed ROM calibrates video "
                            "takes through the video path)")
@@ -57,10 +62,11 @@ def prepare_rom(markers, stable, neutral_frames, notes):
         sel = np.isin(sm.frames, frames)
         with np.errstate(invalid="ignore"):
             neutral = np.nanmedian(sm.positions[sel], axis=0)
-        notes.append(f"ROM: neutral detected from {len(frames)} frame(s) (the face at rest between the poses)")
+        where = f"the neutral detected from {len(frames)} frames (the face at rest between the poses)"
     else:
         neutral = neutral_from_frames(sm, *neutral_frames)
-    return PreparedTake(sm.positions - neutral[None], neutral, sm.names, sm.frames, stab, fps=sm.fps)
+        where = f"the neutral of frames {neutral_frames[0]}-{neutral_frames[1]}"
+    return PreparedTake(sm.positions - neutral[None], neutral, sm.names, sm.frames, stab, fps=sm.fps), where
 
 
 def rom_prior(shapes, rom, character_deltas, template_fit):
@@ -84,11 +90,11 @@ def learn_from_rom(settings, rom, character_deltas, template_fit):
     prior, what = rom_prior(shapes, rom, character_deltas, template_fit)
     given = None if cal.holds is None else dict(cal.holds)
     found = find_poses(rom, cal.sequence, prior, fps=rom.fps or 60.0, given=given)
-    measured, fit, notes = fit_rom(found, prior)
-    told = [f"ROM: {int(found.found.sum())} of {len(cal.sequence)} poses {'placed' if given else 'found'} "
-            f"({len(found.holds)} holds in the take), named against {what}; {len(measured.shape_names)} shapes "
-            "measured"]
-    return RomResult(measured, found, fit, what, tuple(told) + found.notes + notes)
+    measured, fit = fit_rom(found, prior)
+    summary = (f"{int(found.found.sum())} of {len(cal.sequence)} poses {'placed' if given else 'found'} "
+               f"({len(found.holds)} holds in the take), named against {what}; {len(measured.shape_names)} shapes "
+               "measured")
+    return RomResult(measured, found, fit, what, found.notes, summary)
 
 
 def rom_settings_for_take(settings, take=None):
@@ -107,15 +113,14 @@ def learn_from_rom_take(settings, character, inputs, take=None):
     What a performer profile is made of (``RomResult.measured``), here or in a take's semantic solve."""
     if inputs.calibration is not None:
         stable, neutral = rom_settings_for_take(settings, take)
-        notes = []
-        rom = prepare_rom(inputs.calibration, stable, neutral, notes)
+        rom, where = prepare_rom(inputs.calibration, stable, neutral)
     elif take is not None:
-        rom, notes = take, []
+        rom, where = take, "the take's own neutral"
     else:
         raise FacecapError("[calibration] sequence: no ROM take ([calibration] markers)")
     char_deltas, align, _ = character_in_actor_space(character, rom.names, rom.neutral, settings)
     template = None if inputs.template is None else fit_template(inputs.template, rom.names, rom.neutral, align)
     character_shapes = None if char_deltas is None else (as_target(character).names, char_deltas)
     result = learn_from_rom(settings, rom, character_shapes, template)
-    return replace(result, notes=tuple(notes) + result.notes)
+    return replace(result, summary=f"{result.summary}; {where}")
 

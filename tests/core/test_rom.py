@@ -115,7 +115,7 @@ def _rom(families, name, seed, sheet, **kwargs):
     family, performances = families[name]
     draw = make_draw(family, performances, seed, frames=200)
     session = rom_session(draw.actor, SHEETS[sheet], np.random.default_rng([seed, 99]), stable=DENSE_HEAD, **kwargs)
-    return draw, session, prepare_rom(session.markers, DENSE_HEAD, None, [])
+    return draw, session, prepare_rom(session.markers, DENSE_HEAD, None)[0]
 
 
 def _true_prior(draw, rom, shapes):
