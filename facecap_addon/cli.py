@@ -47,7 +47,7 @@ from ..solvers.config import load_take_config  # noqa: E402
 from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.bench.accuracy_bench import main as accuracy_main  # noqa: E402
-from ..solvers.tools.bench.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.bench.bench import goal_verdict, run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.bench.clean_bench import bench_clean  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
@@ -219,7 +219,7 @@ def _cmd_landmark_models(args):
 
 def _bench_line(row):
     ratio = f"{row['ratio']:.0f}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
-    return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
+    return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; {goal_verdict(row)}; {row['note']}"
 
 
 def _overwrite_flag(parser):
