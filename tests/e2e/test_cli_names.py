@@ -53,3 +53,21 @@ def test_a_misspelt_object_or_shape_key_stops_before_the_solve(tmp_path, old, ne
     assert any("[2/5] opening" in line for line in err) and not any("[3/5]" in line for line in err), err
     (error,) = [line for line in err if line.startswith("facecap: error: ")]
     assert error == f"facecap: error: {config}: [{key}] {said}", error
+
+
+def test_what_reading_found_is_said_before_blender_opens_the_character(tmp_path):
+    """Issue 40: the guessed units and the assumed frame rate were said after [5/5], when it was too late to stop."""
+    text = SAMPLE.read_text(encoding="utf-8").replace('units = "mm"\n', "").replace("fps = 60\n", "")
+    for name in ("character.blend", "sample_take.csv"):
+        text = text.replace(f'"{name}"', f'"{(ROOT / "sample_blends" / name).as_posix()}"')
+    config = tmp_path / "take.toml"
+    config.write_text(text.replace('"out/', f'"{tmp_path.as_posix()}/out/'))
+    proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config)], capture_output=True,
+                          text=True, timeout=600, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    err = proc.stderr.splitlines()
+    units = next(i for i, line in enumerate(err) if line.startswith("facecap: warning: units not given: guessed mm"))
+    rate = next(i for i, line in enumerate(err) if line.startswith("facecap: warning: frame rate assumed: 60 fps"))
+    opening = next(i for i, line in enumerate(err) if "[2/5] opening" in line)
+    assert max(units, rate) < opening, err
+    assert sum("units not given" in line for line in err) == 1  # said once, not again at the end
