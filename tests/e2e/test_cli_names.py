@@ -29,30 +29,25 @@ def retarget(tmp_path, old, new):
     return config, proc.stderr.splitlines()
 
 
-@pytest.mark.parametrize("old, new, key, said", [
+@pytest.mark.parametrize("old, new, key, said, opened", [
     ('"head_side_R"]', '"head_sid_R"]', "stabilise.markers", "no marker 'head_sid_R' (did you mean 'head_side_R'?) in "
-                                                              "sample_take.csv"),
+                                                              "sample_take.csv", False),
     ('markers = "sample_take.csv"', 'markers = "sample_tak.csv"', "source.markers",
-     "sample_tak.csv: file not found (did you mean 'sample_take.csv'?)"),
-])
-def test_a_misspelt_file_or_marker_stops_before_blender_opens_the_character(tmp_path, old, new, key, said):
-    config, err = retarget(tmp_path, old, new)
-    assert not any("[2/5] opening" in line for line in err), err
-    (error,) = [line for line in err if line.startswith("facecap: error: ")]
-    assert error.startswith(f"facecap: error: {config}: [{key}] ") and said in error, error
-
-
-@pytest.mark.parametrize("old, new, key, said", [
+     "sample_tak.csv: file not found (did you mean 'sample_take.csv'?)", False),
     ('object = "Face"', 'object = "face"', "target.object", "no object named 'face' in character.blend (did you mean "
-                                                            "'Face'?); its meshes: Face"),
+                                                            "'Face'?); its meshes: Face", True),
     ("regularisation = 0.001", "regularisation = 0.001\nlocks = { tongueOt = 0.0 }", "solve.locks.tongueOt",
-     "'tongueOt' matches no shape key of the character (did you mean 'tongueOut'?)"),
+     "'tongueOt' matches no shape key of the character (did you mean 'tongueOut'?)", True),
 ])
-def test_a_misspelt_object_or_shape_key_stops_before_the_solve(tmp_path, old, new, key, said):
+def test_a_misspelt_name_stops_the_run_as_early_as_it_can_be_known(tmp_path, old, new, key, said, opened):
+    """A file or a marker: before Blender opens the character; an object or a shape key: after, before the solve."""
     config, err = retarget(tmp_path, old, new)
-    assert any("[2/5] opening" in line for line in err) and not any("[3/5]" in line for line in err), err
+    assert any("[2/5] opening" in line for line in err) == opened and not any("[3/5]" in line for line in err), err
     (error,) = [line for line in err if line.startswith("facecap: error: ")]
-    assert error == f"facecap: error: {config}: [{key}] {said}", error
+    if opened:
+        assert error == f"facecap: error: {config}: [{key}] {said}", error
+    else:
+        assert error.startswith(f"facecap: error: {config}: [{key}] ") and said in error, error
 
 
 def test_what_reading_found_is_said_before_blender_opens_the_character(tmp_path):
