@@ -1,44 +1,6 @@
-"""Headless command line, shared by ``python -m facecap`` and ``blender -b -P facecap_addon/cli.py -- ...``.
-
-Commands
---------
-retarget --config take.toml   solve a take onto its character with its [solve] strategy and write
-                              .blend / weights CSV / report (/ the actor basis, [output] actor_basis);
-                              a [source] video take solves from flow-PCA features (Ctrl-C cancels);
-                              --html PATH [--truth CSV]: the review page (docs/review.md)
-compare [options]             measure every strategy on the same synthetic takes (Markdown table)
-demo [--out DIR]              retarget the bundled sample take and print its accuracy against ground truth
-inspect FILE [options]        describe a capture file (--json: as JSON); non-zero exit with a one-line reason if it is bad
-convert IN OUT [options]      convert a capture file to another format (.csv .c3d .trc .json; weights to a
-                              weights CSV)
-track --config take.toml      track video footage (LK points or dense flow) and write the 2D tracks CSV
-tune --config take.toml       retune what the strategy learned from [tuning] corrections, store the new
-                              library version ([tuning] out) and write the re-solved take
-batch TAKES... [--jobs N]     run many takes (configs, folders, batch files with [defaults]), each isolated,
-  [--scheduler ADDRESS]       on worker processes here or on a Dask farm; JSON / CSV summary; --resume
-  [--summary PATH] [--resume] skips takes whose inputs, config and outputs are unchanged (docs/batch.md)
-bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
-                              time the solve, the keying and the whole CLI, with ratios to naive baselines;
-                              --accuracy: accuracy over random scenarios; --batch: batch --jobs 2 against
-                              sequential retarget runs; --memory: peak memory of the CLI's process tree on
-                              long takes; --landmarks: face landmarks on rendered footage of a real face;
-                              --clean: spike removal and gap filling on long takes
-docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
-template fetch | convert PATH install the optional human template: download ICT-FaceKit, or convert a download
-                              (zip or folder); hash-checked; `template info`: where it is (docs/strategies.md)
-rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
-build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
-                              and platform, with the locked scipy/OpenCV wheels (docs/install.md)
-landmark-models               put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
-                              facecap cache, for [tracking] method = "landmarks" outside Blender
-
-Every command takes -q/--quiet (only warnings and errors on stderr) and -v/--verbose (debug lines too,
-Blender's own output among them); ``facecap --version``. Progress and warnings go to stderr through
-logging (``console.py``), a command's product to stdout. Every expected failure (bad config, missing or
-malformed file, a full disk) exits with status 1 and one line on stderr per problem naming the file and
-field; Ctrl-C and SIGTERM exit with 130 at any moment; a bug is one line too ("internal error", its
-traceback with FACECAP_TRACEBACK=1). Outputs go through one output policy (``solvers/io/outputs.py``;
-``--overwrite`` lets them replace files facecap did not write).
+"""Headless command line, shared by ``python -m facecap`` and ``blender -b -P facecap_addon/cli.py -- ...``:
+argument parsing and dispatch. The commands, their one-line summaries and how they print and fail are in
+``headless/commands.py``; every command's ``--help`` is docs/commands.md.
 """
 
 import importlib
@@ -85,7 +47,7 @@ from ..solvers.config import load_take_config  # noqa: E402
 from ..solvers.errors import FacecapError  # noqa: E402
 from ..solvers.tools import config_docs  # noqa: E402
 from ..solvers.tools.bench.accuracy_bench import main as accuracy_main  # noqa: E402
-from ..solvers.tools.bench.bench import run_benchmarks  # noqa: E402
+from ..solvers.tools.bench.bench import goal_verdict, run_benchmarks  # noqa: E402
 from ..solvers.tools.build_extension import main as build_extension_main  # noqa: E402
 from ..solvers.tools.bench.clean_bench import bench_clean  # noqa: E402
 from ..solvers.tools.convert import main as convert_main  # noqa: E402
@@ -95,6 +57,7 @@ from ..solvers.tools.template import main as template_main  # noqa: E402
 from ..solvers.video.cli import main as track_main  # noqa: E402
 from ..solvers.video.reading import Cancelled  # noqa: E402
 from .headless import console  # noqa: E402
+from .headless.commands import BATCH_COMMANDS, BLENDER_COMMANDS, COMMANDS, FORWARDING  # noqa: E402
 from .batch.batch import run_batch  # noqa: E402
 from .batch.batch_worker import serve  # noqa: E402
 from .bench.bench import MEMORY_FRAMES, bench_batch, bench_cli_retarget, bench_keying, bench_memory  # noqa: E402
@@ -256,7 +219,7 @@ def _cmd_landmark_models(args):
 
 def _bench_line(row):
     ratio = f"{row['ratio']:.0f}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
-    return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
+    return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; {goal_verdict(row)}; {row['note']}"
 
 
 def _overwrite_flag(parser):
@@ -287,40 +250,6 @@ def _output_options():
 
 OUTPUT_OPTIONS = _output_options()
 
-#: command: (one line for the command list, the description its --help starts with)
-COMMANDS = {
-    "retarget": ("retarget a take described by a TOML config",
-                 "Retarget a take described by a TOML config onto its character and write the .blend, the weights "
-                 "CSV, the JSON report and the review page its [output] names."),
-    "batch": ("run many takes, each isolated, here (--jobs) or on a Dask farm (--scheduler)",
-              "Run many takes, each in its own worker process, here or on a Dask farm, and write a summary "
-              "(JSON, CSV and an index of the review pages)."),
-    "demo": ("retarget the bundled sample take and print its accuracy",
-             "Retarget the bundled sample take onto the bundled sample character and print the accuracy against "
-             "the ground truth and the files written."),
-    "inspect": ("describe a marker or weights file (markers, frames, rate, units, gaps, segments)", None),
-    "convert": ("convert a capture to CSV, C3D, TRC or JSON (weights: to a weights CSV)", None),
-    "track": ("track markers or dense flow in video footage and write 2D tracks", None),
-    "tune": ("retune the strategy from an animator's corrected frames and re-solve the take",
-             "Retune what the strategy learned from an animator's corrected frames ([tuning] corrections), store "
-             "the new library version and write the re-solved take."),
-    "compare": ("accuracy and time of every strategy on the same synthetic takes (Markdown)", None),
-    "config-docs": ("write the config reference (docs/config.md) from the option tables", None),
-    "bench": ("time the solver, keying and the whole CLI against naive baselines",
-              "Time the solver, the keying and the whole command line against naive baselines, and print each "
-              "with its ratio and goal."),
-    "docs-images": ("render the documentation's pictures from the sample character",
-                    "Render the documentation's pictures (docs/images) from the sample character, headless."),
-    "rig-bench": ("the test rigs' figures (control rig, correctives, Rigify face from a capture)",
-                  "Solve the test rigs (a control rig with correctives, a bone-only face, a Rigify face) from known "
-                  "control curves and a real capture, and print their figures as JSON."),
-    "template": ("install the optional human template (download ICT-FaceKit or convert a copy); where it is", None),
-    "build-extension": ("build the Blender extension zips (per Blender generation and platform)", None),
-    "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",
-                        "Take MediaPipe's face-mesh models out of the locked mediapipe 0.10.21 wheel (downloaded once "
-                        "with pip, hash checked) into the facecap cache, for [tracking] method = \"landmarks\" "
-                        "outside Blender."),
-}
 
 
 def build_parser():
@@ -469,15 +398,6 @@ def _forwarded_verbosity(rest):
 
 def _interrupt(signum, frame):
     raise KeyboardInterrupt
-
-
-#: Commands that pass their own options on to their tool
-FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension", "template")
-
-#: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
-BATCH_COMMANDS = ("retarget", "tune", "demo")
-#: Commands that start Blender: its own output lines are captured (``console.blender_output_captured``).
-BLENDER_COMMANDS = ("retarget", "tune", "demo", "docs-images")
 
 
 def keep_freed_memory():

@@ -3,6 +3,7 @@
 import bpy
 
 from ..facecap_addon.scene import scene_binding, take
+from ..facecap_addon.ui.greyed import needs, unless
 from ..solvers.errors import FacecapError
 
 
@@ -16,8 +17,7 @@ class FACECAP_OT_bind_markers(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        s = context.scene.facecap
-        return s.target is not None and s.marker_collection is not None
+        return needs(cls, context, "character", "take")
 
     def execute(self, context):
         s = context.scene.facecap
@@ -46,7 +46,7 @@ class FACECAP_OT_clear_binding(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene.facecap.target is not None
+        return needs(cls, context, "character")
 
     def execute(self, context):
         s = context.scene.facecap
@@ -87,7 +87,7 @@ class FACECAP_OT_binding_landmark_remove(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return len(context.scene.facecap.binding_landmarks) > 0
+        return unless(cls, len(context.scene.facecap.binding_landmarks) > 0, "No landmarks: nothing to remove")
 
     def execute(self, context):
         s = context.scene.facecap

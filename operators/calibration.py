@@ -2,6 +2,8 @@
 
 import bpy
 
+from ..facecap_addon.ui.greyed import unless
+
 
 class FACECAP_OT_calib_pose_add(bpy.types.Operator):
     """Add a calibration pose named after 'Pose Name' over the timeline's preview range (or the current frame)"""
@@ -41,7 +43,7 @@ class FACECAP_OT_calib_pose_remove(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return len(context.scene.facecap.calib_poses) > 0
+        return unless(cls, len(context.scene.facecap.calib_poses) > 0, "No calibration poses: nothing to remove")
 
     def execute(self, context):
         settings = context.scene.facecap

@@ -5,6 +5,7 @@ import os
 import bpy
 
 from ..facecap_addon.scene.export import FORMATS, export_take
+from ..facecap_addon.ui.greyed import needs
 from ..solvers.errors import FacecapError
 
 SUFFIX = {"GLTF": ".glb", "FBX": ".fbx"}
@@ -28,8 +29,7 @@ class FACECAP_OT_export_take(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        target = context.scene.facecap.target
-        return target is not None and getattr(target.data, "shape_keys", None) is not None
+        return needs(cls, context, "character", "shape keys")
 
     def check(self, _context):
         """Keep the file name's suffix the format's (the file browser calls this on every change)."""

@@ -10,6 +10,7 @@ from bpy_extras.io_utils import ImportHelper
 
 from ..facecap_addon.scene import import_scene, take
 from ..facecap_addon.scene.scene_sources import markers_from_clip, markers_from_empties
+from ..facecap_addon.ui.greyed import needs, unless
 from ..solvers.capture.cleaning import CleanSettings, clean
 from ..solvers.errors import FacecapError
 from ..solvers.io import import_markers
@@ -138,7 +139,8 @@ class FACECAP_OT_use_selected_empties(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return any(o.type == "EMPTY" for o in context.selected_objects)
+        return unless(cls, any(o.type == "EMPTY" for o in context.selected_objects),
+                      "Select the marker empties first (each an animated empty named after its marker)")
 
     def execute(self, context):
         empties = sorted((o for o in context.selected_objects if o.type == "EMPTY"), key=lambda o: o.name)
@@ -169,7 +171,8 @@ class FACECAP_OT_import_clip_tracks(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene.active_clip is not None or len(bpy.data.movieclips) > 0
+        return unless(cls, context.scene.active_clip is not None or len(bpy.data.movieclips) > 0,
+                      "Open a movie clip with tracks first (Movie Clip Editor: Open, then track it)")
 
     def execute(self, context):
         clip = bpy.data.movieclips.get(self.clip) if self.clip else context.scene.active_clip
@@ -206,7 +209,7 @@ class FACECAP_OT_clean_markers(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene.facecap.marker_collection is not None
+        return needs(cls, context, "take")
 
     def execute(self, context):
         settings = context.scene.facecap

@@ -3,6 +3,7 @@
 import bpy
 
 from ..facecap_addon.scene import take
+from ..facecap_addon.ui.greyed import needs, unless
 from ..solvers.errors import FacecapError
 from ..solvers.strategies.mapping import Mapping
 
@@ -34,7 +35,7 @@ class FACECAP_OT_mapping_remove(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return len(context.scene.facecap.mapping) > 0
+        return unless(cls, len(context.scene.facecap.mapping) > 0, "The mapping is empty")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -52,8 +53,7 @@ class FACECAP_OT_mapping_fill_by_name(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        s = context.scene.facecap
-        return s.target is not None and s.strategy in ("calibrated", "refine", "parallel")
+        return needs(cls, context, "character", "mapping strategy")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -85,7 +85,7 @@ class FACECAP_OT_mapping_clear(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return len(context.scene.facecap.mapping) > 0
+        return unless(cls, len(context.scene.facecap.mapping) > 0, "The mapping is empty")
 
     def execute(self, context):
         settings = context.scene.facecap

@@ -8,7 +8,7 @@ import numpy as np
 from bpy.props import IntProperty, StringProperty
 
 from ..facecap_addon.scene import take
-from ..facecap_addon.scene.take import can_stabilise
+from ..facecap_addon.ui.greyed import needs
 from ..solvers.capture.neutral import neutral_from_frames
 from ..solvers.capture.normalise import detect_neutral_frames
 from ..solvers.errors import FacecapError
@@ -28,7 +28,7 @@ class FACECAP_OT_set_neutral(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene.facecap.marker_collection is not None
+        return needs(cls, context, "take")
 
     def execute(self, context):
         scene = context.scene
@@ -59,7 +59,7 @@ class FACECAP_OT_detect_neutral(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return can_stabilise(context.scene.facecap)
+        return needs(cls, context, "take", "stable set")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -119,7 +119,7 @@ class FACECAP_OT_master_from_take(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return can_stabilise(context.scene.facecap)
+        return needs(cls, context, "take", "stable set")
 
     def execute(self, context):
         settings = context.scene.facecap

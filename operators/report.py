@@ -5,6 +5,7 @@ from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper
 
 from ..facecap_addon.render import review
+from ..facecap_addon.ui.greyed import needs
 from ..solvers.errors import FacecapError
 
 
@@ -23,8 +24,7 @@ class FACECAP_OT_export_review(bpy.types.Operator, ExportHelper):
 
     @classmethod
     def poll(cls, context):
-        s = context.scene.facecap
-        return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
+        return needs(cls, context, "character", "take or weights")
 
     def execute(self, context):
         try:

@@ -4,6 +4,7 @@ import bpy
 import numpy as np
 
 from ..facecap_addon.scene import scene_solve
+from ..facecap_addon.ui.greyed import needs, unless
 from ..solvers.errors import FacecapError
 from .video import ClipJobOperator  # its cancel and _stop: Blender ending the operator, the timer and status bar
 
@@ -79,8 +80,7 @@ class FACECAP_OT_solve(SolveJobOperator, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        s = context.scene.facecap
-        return s.target is not None and (s.marker_collection is not None or s.strategy == "parallel")
+        return needs(cls, context, "character", "take or weights")
 
     def _start(self, context):
         return scene_solve.start_session(context.scene.facecap, context.scene)
@@ -114,7 +114,7 @@ class FACECAP_OT_refresh_shapes(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene.facecap.target is not None
+        return needs(cls, context, "character")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -160,7 +160,7 @@ class FACECAP_OT_region_remove(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return len(context.scene.facecap.regions) > 0
+        return unless(cls, len(context.scene.facecap.regions) > 0, "No regions: nothing to remove")
 
     def execute(self, context):
         settings = context.scene.facecap

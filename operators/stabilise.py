@@ -4,7 +4,7 @@ import bpy
 import numpy as np
 
 from ..facecap_addon.scene import take
-from ..facecap_addon.scene.take import can_stabilise
+from ..facecap_addon.ui.greyed import needs
 from ..solvers.capture.stable_markers import suggest_stable_markers
 from ..solvers.errors import FacecapError
 from ..solvers.pipeline.stages import stabilise_take
@@ -20,7 +20,7 @@ class FACECAP_OT_stabilise(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return can_stabilise(context.scene.facecap)
+        return needs(cls, context, "take", "stable set")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -61,7 +61,7 @@ class FACECAP_OT_suggest_stable(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene.facecap.marker_collection is not None
+        return needs(cls, context, "take")
 
     def execute(self, context):
         settings = context.scene.facecap

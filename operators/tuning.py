@@ -11,16 +11,11 @@ from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
 from ..facecap_addon.scene import layers, scene_solve, tuning_scene
+from ..facecap_addon.ui.greyed import needs, unless
 from ..solvers.character.shape_controls import load_preset, save_preset
 from ..solvers.errors import FacecapError
 from ..solvers.tuning.retune import fit_gain_offset
 from .solve import SolveJobOperator
-
-
-def _solved(context):
-    s = context.scene.facecap
-    key = getattr(getattr(s.target, "data", None), "shape_keys", None)
-    return key is not None and layers.solved_action(key) is not None
 
 
 def _add_frames(settings, frames):
@@ -45,7 +40,7 @@ class FACECAP_OT_tuning_add_current(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _solved(context)
+        return needs(cls, context, "solve")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -64,7 +59,7 @@ class FACECAP_OT_tuning_add_edited(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _solved(context)
+        return needs(cls, context, "solve")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -85,7 +80,7 @@ class FACECAP_OT_tuning_remove(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return len(context.scene.facecap.tuning_frames) > 0
+        return unless(cls, len(context.scene.facecap.tuning_frames) > 0, "No tuning frames: nothing to remove")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -123,7 +118,7 @@ class FACECAP_OT_retune(SolveJobOperator, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
+        return needs(cls, context, "solve", "tuning frames")
 
     def _start(self, context):
         settings = context.scene.facecap
@@ -196,7 +191,8 @@ class FACECAP_OT_library_revert(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return bool(context.scene.facecap.library_active)
+        return unless(cls, bool(context.scene.facecap.library_active),
+                      "No library version in use: the strategy solves with what it fitted")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -214,7 +210,7 @@ class FACECAP_OT_fit_gain_offset(SolveJobOperator, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _solved(context) and len(context.scene.facecap.tuning_frames) > 0
+        return needs(cls, context, "solve", "tuning frames")
 
     def _start(self, context):
         settings = context.scene.facecap
@@ -250,7 +246,7 @@ class FACECAP_OT_jump_worst(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _solved(context)
+        return needs(cls, context, "solve")
 
     def execute(self, context):
         settings = context.scene.facecap
@@ -302,7 +298,7 @@ class FACECAP_OT_controls_load(bpy.types.Operator, ImportHelper):
 
     @classmethod
     def poll(cls, context):
-        return len(context.scene.facecap.shapes) > 0
+        return needs(cls, context, "shapes")
 
     def execute(self, context):
         try:

@@ -8,6 +8,7 @@ import bpy
 from ..facecap_addon.scene import import_scene
 from ..facecap_addon.ui.properties_video import METHOD_ITEMS
 from ..facecap_addon.scene.video_scene import ClipFlowSolving, ClipLandmarks, ClipTracking, use_landmark_defaults
+from ..facecap_addon.ui.greyed import unless
 from ..solvers.errors import FacecapError
 
 TICK_SECONDS = 0.02  # timer interval
@@ -20,7 +21,8 @@ class ClipJobOperator:
 
     @classmethod
     def poll(cls, context):
-        return context.scene.active_clip is not None
+        return unless(cls, context.scene.active_clip is not None,
+                      "Open the footage first: the scene's active clip (Movie Clip Editor: Open)")
 
     def execute(self, context):
         """Run to completion (bpy.ops from scripts and background mode)."""

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from shared_data import ICT_FACEKIT
+from shared_data import reason as shared_data_reason
 
 @dataclass(frozen=True, eq=False)
 class Face:
@@ -117,7 +118,7 @@ def ict_available():
     import pytest
 
     if not (ICT_FACEKIT / "ict_face.npz").is_file():
-        reason = f"the ICT face is not at {ICT_FACEKIT} (the shared data folder beside the checkout)"
+        reason = shared_data_reason(ICT_FACEKIT / "ict_face.npz")
         if os.environ.get("FACECAP_CI"):
             pytest.fail(f"CI prerequisite missing: {reason}", pytrace=False)
         pytest.skip(reason)

@@ -22,6 +22,45 @@ ICT_FACEKIT = SHARED / "data" / "ict-facekit"
 BUGS = SHARED / "bugs"
 
 
+#: Where each folder of the shared data comes from, for someone without it: all of it is third-party data under
+#: its own licence, kept out of the repository; each is public except the project's own bug reproducers.
+SOURCES = {
+    "realdata": "real captures from public repositories: c3d.org's sample files (github.com/biomechanics-foundation/"
+                "c3dio, tests/c3d_org_samples; sample 29 is Facial-Sing.c3d, saved as c3d/c3dorg_29_Facial-Sing.c3d), "
+                "github.com/pyomeca/ezc3d-testFiles, Biomechanical-ToolKit/BTKData, opensim-org/opensim-models (TRC) "
+                "and alexdjulin/LiveLinkFace-CSV-Retarget-For-Motionbuilder (anim/alex_rom_*.csv, saved as "
+                "llf/llf_alex_rom_*.csv); docs/realdata.md lists every file",
+    "realdata/edge-cases": "four files from other writers: github.com/opensim-org/opensim-core (OpenSim/Sandbox/"
+                           "MatlabScripts/test_walking.trc), github.com/pyomeca/pyomeca (tests/data/markers.trc), "
+                           "github.com/JMTechArt/Pipeline-Examples (a Live Link Face CSV) and "
+                           "github.com/sentien-io/SentienLiveLinkFace (recording/recording.csv)",
+    "blenderface": "the two captures of the blenderFace R package (github.com/axzinker/blenderFace: Subject_01.csv, "
+                   "Subject_02.csv, Blender_Scalingdata.csv)",
+    "ict-facekit": "the ICT Face Model's face region (github.com/ICT-VGL/ICT-FaceKit, MIT) reduced to ict_face.npz "
+                   "(keys in tests/ict_release_copy.py); `python -m facecap template fetch` installs the same model "
+                   "for the add-on but not this copy",
+    "bugs": "the project's own reproducers of reported bugs (not published; these tests run on the project's machines)",
+}
+
+
+def reason(path):
+    """Why a test that needs ``path`` of the shared data cannot run here, and how to get it: what the data is and
+    where it is published, and where the tests look (``FACECAP_SHARED``, else ``shared/`` beside the checkout)."""
+    rel = Path(path).resolve().relative_to(SHARED) if Path(path).resolve().is_relative_to(SHARED) else Path(path)
+    parts = rel.parts[1:] if rel.parts[:1] == ("data",) else rel.parts
+    source = next((SOURCES[k] for k in ("/".join(parts[:2]), "/".join(parts[:1])) if k in SOURCES),
+                  "the project's shared data")
+    return (f"needs {rel.as_posix()} of the shared data, not found at {path}: {source}. Put such a folder at "
+            f"{SHARED} (shared/data/... beside the checkout) or set FACECAP_SHARED to it")
+
+
+def skip_without(path):
+    """A ``pytest.mark.skipif`` for tests that need ``path`` of the shared data, with ``reason(path)``."""
+    import pytest
+
+    return pytest.mark.skipif(not Path(path).exists(), reason=reason(path))
+
+
 def require(path):
     """``path`` (shared data) when it exists; otherwise the test is skipped on a developer's machine and fails in
     CI (``FACECAP_CI=1``), where the shared folder is expected beside the checkout."""
@@ -29,7 +68,6 @@ def require(path):
 
     if Path(path).exists():
         return Path(path)
-    message = f"shared data not found: {path} (set FACECAP_SHARED to the folder holding data/)"
     if os.environ.get("FACECAP_CI"):
-        pytest.fail(message)
-    pytest.skip(message)
+        pytest.fail(reason(path))
+    pytest.skip(reason(path))

@@ -1,9 +1,13 @@
 """What a headless take writes about the actor, beside the .blend and the weights: the actor library a
 calibrated or refine solve used (``[output] actor_basis``) and the performer profile a semantic solve measured
-(``[output] profile``, read back by a later take's ``[actor] profile``)."""
+(``[output] profile``, read back by a later take's ``[actor] profile``), and the library versions a retune
+stores (``tune``)."""
+
+from pathlib import Path
 
 from ...solvers.errors import ConfigError
 from ...solvers.strategies.actor_model import profile_of
+from ...solvers.tuning.store import save_version
 
 
 def write_actor_basis(config, result, outputs):
@@ -29,3 +33,25 @@ def write_profile(config, result, outputs):
     config.output_profile.parent.mkdir(parents=True, exist_ok=True)
     profile.save_npz(config.output_profile)
     outputs["profile"] = str(config.output_profile)
+
+
+def versions_folder(config):
+    """``[tuning] out``, else the folder of the first [output] file, else ``<config folder>/library``."""
+    if config.tuning is not None and config.tuning.out is not None:
+        return config.tuning.out
+    for path in (config.output_report, config.output_weights, config.output_blend):
+        if path is not None:
+            return Path(path).parent
+    return config.path.parent / "library"
+
+
+def store_retune(config, tuned):
+    """Store the retune's new version (and, once, the original: the way back); the report's fields."""
+
+    folder = versions_folder(config)
+    saved = {}
+    if config.tuning.library is None and not (folder / f"{tuned.parent_version.name}.npz").exists():
+        saved["original"] = str(save_version(tuned.parent_version, folder))  # the way back, once
+    if tuned.changed:
+        saved["version"] = str(save_version(tuned.version, folder))
+    return {**tuned.report(), "files": saved, "corrections_file": str(config.tuning.corrections)}

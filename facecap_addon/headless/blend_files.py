@@ -300,3 +300,20 @@ def target_changed(target):
         return None
     return (f"[target] blend {target} has changed since the output .blend was made from it: this run adds to "
             "the output's own copy of the character; run with --replace to start from the changed one")
+
+
+def names_in_file(target_object):
+    """What a take config may name in the open .blend (``solvers.config.names.check_scene_names``): every
+    object's name and type, the shape keys of ``target_object`` (None when it has none) and a function
+    giving an armature's bones."""
+    import bpy  # bpy: Blender starts on first import
+
+    obj = bpy.data.objects.get(target_object)
+    keys = getattr(getattr(obj, "data", None), "shape_keys", None)
+    shapes = None if keys is None else [k.name for k in keys.key_blocks if k != keys.reference_key]
+
+    def bones_of(name):
+        armature = bpy.data.objects.get(name)
+        return [b.name for b in armature.data.bones] if armature is not None and armature.type == "ARMATURE" else []
+
+    return {o.name: o.type for o in bpy.data.objects}, shapes, bones_of

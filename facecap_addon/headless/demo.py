@@ -10,10 +10,21 @@ from ...solvers.config import load_take_config
 from ...solvers.io.csv import read_weights_csv
 from ...solvers.transforms import rotation_angle_deg
 from . import console
-from .headless import run_take
+from .headless import progress_line, run_take
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_CONFIG = ROOT / "sample_blends" / "sample_take.toml"
+#: Warnings the sample take gives on purpose, and why: a first-time user should not think the demo went wrong.
+EXPECTED = {"held at rest": "expected for the sample take (its markers sit on the skin, none on the eyes or "
+                            "the tongue): "}
+
+
+def _say(message):
+    """The demo's progress and warning lines: a warning the sample gives on purpose says so."""
+    if message.startswith("warning: "):
+        why = next((note for words, note in EXPECTED.items() if words in message), "")
+        message = "warning: " + why + message.removeprefix("warning: ")
+    progress_line(message)
 
 
 def run_demo(out):
@@ -28,7 +39,7 @@ def run_demo(out):
         output_html=out / "sample_take_review.html",
         truth_path=ROOT / "sample_blends" / "sample_take_weights.csv",
     )
-    result, outputs = run_take(config)
+    result, outputs = run_take(config, say=_say)
 
     _, names, truth = read_weights_csv(ROOT / "sample_blends" / "sample_take_weights.csv")
     order = [names.index(n) for n in result.shape_names]

@@ -17,6 +17,7 @@ import numpy as np
 from ...solvers.capture.cleaning import clean
 from ...solvers.character.binding_map import BindingSettings
 from ...solvers.config.checks import check_against_take
+from ...solvers.config.names import check_input_files, check_scene_names, check_take_names
 from ...solvers.config.paths import check_outputs, expected_sizes, take_outputs
 from ...solvers.config.strategies import load_strategy_inputs
 from ...solvers.engine.split import LONG_TAKE_FRAMES, release_freed_memory, run_beside
@@ -29,14 +30,14 @@ from ...solvers.io.outputs import check_free_space
 from ...solvers.markers import UNIT_SCALE
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve_job
-from ...solvers.tuning.store import load_version, save_version
+from ...solvers.tuning.store import load_version
 from ...solvers.video.cli import FrameProgress, run_showing_progress, sigint_cancels
 from ...solvers.video.flow_config import LandmarkTake, check_against_footage
 from ...solvers.video.reading import Cancelled, Footage
 from . import console
-from .actor_outputs import write_actor_basis, write_profile
-from .blend_files import (open_blend, remove_earlier_solve, save_blend_atomic, stamp_target, start_blender,
-                          target_changed)
+from .actor_outputs import store_retune, versions_folder, write_actor_basis, write_profile
+from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_blend_atomic, stamp_target,
+                          start_blender, target_changed)
 from .landmark_take import hold_gaze, read_landmarks
 from ..render.review import read_review_truth, write_take_review
 from .take_request import corrections_for, rig_request, shape_names, source_fields
@@ -89,7 +90,7 @@ def run_take(config, *, quiet=False, tune=False, replace=False, overwrite=False,
 def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review):
     timings = {}
     take, obj, timings["read"], t_open = _read_and_open(config, say, base, quiet=quiet)
-    check_against_take(config, take.markers, take.inputs)
+    said = len(take.notes)  # said by _read_and_open
     changed = target_changed(config.target_blend) if base.mode == "added" else None
     if changed:
         take.notes = tuple(take.notes) + (changed,)
@@ -109,7 +110,7 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
         extra["library"] = {"file": str(config.tuning.library), "version": request.version.name,
                             "parent": request.version.parent}
     if tune:
-        extra["tuning"] = _store_retune(config, result.retune)
+        extra["tuning"] = store_retune(config, result.retune)
     if take.footage is not None:
         extra["flow"] = result.info["flow"]
     if config.output_actor_basis is not None:
@@ -134,7 +135,7 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
         result = dataclasses.replace(result, stabilise=result.stabilise.without_markers())
     release_freed_memory()
     outputs = key_and_write(config, obj, result, outputs=outputs, timings=timings, t0=t0, notes=take.notes, say=say,
-                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=fps)
+                            report_fields={**source_info, "cleaning": take.cleaning, **extra}, fps=fps, said=said)
     if config.output_html is not None:
         outputs["html"] = str(write_take_review(config, obj, settings, result, notes=take.notes,
                                                 timings=timings, truth=truth, options=review, say=say,
@@ -161,6 +162,7 @@ def preflight(config, *, tune=False, replace=False, overwrite=False):
     of earlier killed runs are removed. Returns the ``Base`` to open."""
     if tune and config.video is not None:
         raise ConfigError("tuning a [source] video take is not supported yet", path=config.path, key="source.video")
+    check_input_files(config)  # every missing input, each with its key, before anything is read
     if not tune and not take_outputs(config):
         raise ConfigError("nothing would be written: give [output] blend, weights, report, html, gltf or fbx",
                           path=config.path, key="output")
@@ -233,19 +235,28 @@ def _read_and_open(config, say, base, *, quiet=False):
     child while Blender starts and opens the character (measured on a 36,000-frame CSV take: 1.0-1.5 s
     of reading beside 0.8-1.0 s of start-up); a bad file is read again here, so its error is raised here."""
 
-    def read():
+    def read():  # the take's checks before Blender opens the character (beside it on a large take)
         t = time.perf_counter()
-        return read_take(config, say, quiet=quiet), time.perf_counter() - t
+        take = read_take(config, say, quiet=quiet)
+        check_against_take(config, take.markers, take.inputs)
+        check_take_names(config, take.markers, getattr(take.inputs, "calibration", None))
+        return take, time.perf_counter() - t
 
     def open_character():  # Blender's start-up (the first ``import bpy``) is in here
         t = time.perf_counter()
         return open_target(config, say, base), time.perf_counter() - t
 
+    def tell(take):  # what reading found (units, rate guessed) said at once, not after [5/5]
+        for note in take.notes:
+            say(f"warning: {note.removeprefix('warning: ')}")
+
     path = config.markers_path
     if path is not None and path.is_file() and path.stat().st_size > PARALLEL_READ_BYTES:
         (obj, t_open), (take, t_read) = run_beside(open_character, read)
+        tell(take)
     else:
         take, t_read = read()
+        tell(take)
         obj, t_open = open_character()
     return take, obj, t_read, t_open
 
@@ -293,13 +304,10 @@ def open_target(config, say, base=None):
             raise InputFileError(base.path, "file not found (config [target] blend)")
         say(f"[2/5] opening {base.path}" + (" (adding to it)" if base.mode == "added" else ""))
         open_blend(base.path, "the existing [output] blend" if base.mode == "added" else "[target] blend")
-    obj = bpy.data.objects.get(config.target_object)
-    if obj is None:
-        where = "the existing [output] blend (--replace starts from [target] blend)" if base.mode == "added" \
-            else "the .blend"
-        raise ConfigError(f"no object named '{config.target_object}' in {where}", path=config.path,
-                          key="target.object")
-    return obj
+    where = "the existing [output] blend (--replace starts from [target] blend)" if base.mode == "added" \
+        else base.path.name if base.path is not None else "the open file"
+    check_scene_names(config, *names_in_file(config.target_object), where=where)  # before anything is solved
+    return bpy.data.objects[config.target_object]
 
 
 @contextlib.contextmanager
@@ -392,33 +400,12 @@ def _run(request, *, quiet):
     return run_showing_progress(job, f"flow ({request.flow.method})", quiet=quiet or console.quiet())
 
 
-def versions_folder(config):
-    """``[tuning] out``, else the folder of the first [output] file, else ``<config folder>/library``."""
-    if config.tuning is not None and config.tuning.out is not None:
-        return config.tuning.out
-    for path in (config.output_report, config.output_weights, config.output_blend):
-        if path is not None:
-            return Path(path).parent
-    return config.path.parent / "library"
-
-
-def _store_retune(config, tuned):
-    """Store the retune's new version (and, once, the original: the way back); the report's fields."""
-
-    folder = versions_folder(config)
-    saved = {}
-    if config.tuning.library is None and not (folder / f"{tuned.parent_version.name}.npz").exists():
-        saved["original"] = str(save_version(tuned.parent_version, folder))  # the way back, once
-    if tuned.changed:
-        saved["version"] = str(save_version(tuned.version, folder))
-    return {**tuned.report(), "files": saved, "corrections_file": str(config.tuning.corrections)}
-
-
-def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields, fps=None):
+def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, report_fields, fps=None, said=0):
     """Key ``result`` as ``obj``'s solve layer and write ``[output]`` weights / .blend / report.
 
     ``outputs`` holds what was already written; ``report_fields`` are added to the JSON report
-    (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings. The scene
+    (source, cleaning, tuning...); ``notes`` (reading) go before the solve's warnings, the first ``said`` of
+    them in the report only (said already). The scene
     takes the take's frame range and ``fps``. Returns ``outputs`` with the action and the written paths.
     """
     import bpy  # bpy: Blender starts on first import
@@ -480,7 +467,7 @@ def key_and_write(config, obj, result, *, outputs, timings, t0, notes, say, repo
         report["timings_s"].update({k: round(v, 6) for k, v in timings.items()})
         write_json_atomic(config.output_report, report)
         outputs["report"] = str(config.output_report)
-    for note in list(notes) + list(result.warnings):
+    for note in list(notes)[said:] + list(result.warnings):
         say(f"warning: {note.removeprefix('warning: ')}")
     return outputs
 

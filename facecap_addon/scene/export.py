@@ -12,6 +12,9 @@ originals only lend their names (a game engine binds animation by name) for the 
 exporter's call; everything is put back and the copies removed, also when the exporter fails.
 """
 
+import contextlib
+import io
+import logging
 import os
 from pathlib import Path
 
@@ -26,6 +29,24 @@ from .scene_data import shape_key_names
 
 #: file suffix -> format
 FORMATS = {".glb": "GLTF", ".fbx": "FBX"}
+#: Where the exporters' own console lines go: debug lines of the package's Blender log (``facecap -v`` shows
+#: them), as the command line does with Blender's other output (``headless/console.py``).
+BLENDER_LOG = logging.getLogger(__name__.rsplit(".", 3)[0] + ".blender")
+
+
+@contextlib.contextmanager
+def exporter_lines_logged():
+    """What an exporter prints (glTF: "ERROR Draco is not available because library could not be found" where
+    Blender's Python module lacks the compression libraries, which facecap never asks for; "INFO: Starting glTF
+    2.0 export") kept off the artist's console, as debug lines of ``BLENDER_LOG``, even when the export fails."""
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out):
+            yield
+    finally:
+        for line in out.getvalue().splitlines():
+            if line.strip():
+                BLENDER_LOG.debug(line.rstrip())
 
 
 def export_take(obj, path, *, head_target="", fps=None, take_name=None):
@@ -161,7 +182,7 @@ class _Copies:
     def write(self, path, fmt):
         self._borrow_names()
         try:
-            with bpy.context.temp_override(scene=self.scene):
+            with bpy.context.temp_override(scene=self.scene), exporter_lines_logged():
                 if fmt == "GLTF":
                     _call(bpy.ops.export_scene.gltf, filepath=str(path), export_format="GLB", use_active_scene=True,
                           export_animations=True, export_morph=True, export_morph_animation=True,

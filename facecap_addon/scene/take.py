@@ -425,12 +425,26 @@ def key_head_on_target(target, stab, name, *, scale=1.0, frames=None):
 
 
 def key_head_motion(scene, stab, name):
-    """An empty keyed with the removed head motion (location + unwrapped Euler rotation)."""
+    """An empty called ``name`` keyed with the removed head motion (location + unwrapped Euler rotation).
 
-    head = bpy.data.objects.new(name, None)
-    head.empty_display_type = "ARROWS"
-    head.empty_display_size = 0.05
-    scene.collection.objects.link(head)
+    Stabilising the same take again re-keys the empty an earlier Stabilise made for it (marked
+    ``facecap_head = name``) and replaces that run's action, instead of adding ``name.001`` each time; an
+    object of the user's is never taken over."""
+
+    head = next((o for o in bpy.data.objects if o.get("facecap_head") == name and o.type == "EMPTY"), None)
+    if head is None:
+        head = bpy.data.objects.new(name, None)
+        head.empty_display_type = "ARROWS"
+        head.empty_display_size = 0.05
+        head["facecap_head"] = name
+    if head.name not in scene.collection.all_objects:
+        scene.collection.objects.link(head)
+    earlier = head.animation_data.action if head.animation_data is not None else None
+    if earlier is not None and earlier.get("facecap_head") == name:  # the earlier run's: its name is free again
+        head.animation_data.action = None
+        earlier.use_fake_user = False  # anim gives every action one; this one is replaced, not kept
+        if earlier.users == 0:
+            bpy.data.actions.remove(earlier)
     Rh = stab.head_rotations()  # raw = Rh @ stabilised - Rh @ t
     loc = -np.einsum("fij,fj->fi", Rh, stab.translations)
     # Unwrapped so a head turning past 180 deg never flips between frames.
@@ -440,5 +454,6 @@ def key_head_motion(scene, stab, name):
     head["facecap_unreliable"] = 0.0
     values = np.column_stack([values, _unreliable(stab)])
     curves = LOCATION + [("rotation_euler", 0), ("rotation_euler", 1), ("rotation_euler", 2), ('["facecap_unreliable"]', 0)]
-    anim.new_action_with_curves(head, name=name, curves=curves, frames=stab.markers.frames, values=values)
+    action = anim.new_action_with_curves(head, name=name, curves=curves, frames=stab.markers.frames, values=values)
+    action["facecap_head"] = name  # the next Stabilise of this take replaces it
     return head

@@ -10,7 +10,8 @@ Blender versions each accepts, written into its manifest). The build
 1. fetches every locked wheel into a cache (``$FACECAP_CACHE/wheels``, default ``~/.cache/facecap``),
    downloading missing ones with ``pip download`` (pip's HTTP cache makes a repeat fast) and checking
    each file's sha256 against the lock;
-2. stages the add-on source, per build, with that build's wheels in ``./wheels`` and a generated
+2. stages the add-on's files (an explicit list, ``extension_files.py``: nothing else in the checkout), per
+   build, with that build's wheels in ``./wheels`` and a generated
    ``blender_manifest.toml`` (the repository's manifest plus the build's ``blender_version_min``/``max``,
    ``platforms = [...]`` and ``wheels = [...]``: never hand-edited);
 3. runs Blender's own extension tool (``blender_ext.py``, shipped inside the ``bpy`` wheel) as a
@@ -38,6 +39,8 @@ from pathlib import Path
 
 from ..errors import FacecapError
 from ..extension_builds import BUILDS, PLATFORMS, build_for_python, build_named
+from . import release
+from .extension_files import copy_addon
 
 REPO = Path(__file__).resolve().parents[2]
 LOCK_FILE = REPO / "wheels.lock.toml"
@@ -275,37 +278,15 @@ def generated_manifest(text, wheel_paths, platforms, ext_build=BUILDS[0]):
     return out
 
 
-def _top_level_excludes(manifest):
-    """Root entries the manifest excludes outright (``/tests/``, ``/README.md``): not worth staging."""
-    patterns = manifest.get("build", {}).get("paths_exclude_pattern", [])
-    return {p.strip("/") for p in patterns if p.startswith("/") and "*" not in p and p.strip("/").count("/") == 0}
-
-
-def _ignore(out_dir):
-    """copytree's ignore: caches, backups, and the output folder (earlier zips must not ship in new ones)."""
-    base = shutil.ignore_patterns("__pycache__", "*.pyc", "*.blend1")
-
-    def ignore(directory, names):
-        return set(base(directory, names)) | {n for n in names if (Path(directory) / n).resolve() == out_dir}
-
-    return ignore
-
-
-def stage_source(stage, wheel_files, platforms, *, ext_build=BUILDS[0], source=REPO, out_dir=None, assets=None):
-    """Copy the add-on source into ``stage`` with the wheels in ``./wheels``, the ``assets``
-    ({LockedAsset: bytes}) at their targets and the manifest generated for ``ext_build``."""
+def stage_source(stage, wheel_files, platforms, *, ext_build=BUILDS[0], source=REPO, assets=None):
+    """Copy the add-on's files (``extension_files.addon_files``: an explicit list, so nothing else in the
+    checkout ships: not a take, not ``out/``, not earlier zips) into ``stage`` with the wheels in ``./wheels``,
+    the ``assets`` ({LockedAsset: bytes}) at their targets and the manifest generated for ``ext_build``."""
     text = (Path(source) / MANIFEST).read_text(encoding="utf-8")
-    skip = _top_level_excludes(tomllib.loads(text)) | {"wheels", MANIFEST}
-    out_dir = None if out_dir is None else Path(out_dir).resolve()
-    ignore = _ignore(out_dir)
-    for entry in sorted(Path(source).iterdir()):
-        if (entry.name.startswith(".") or entry.name in skip or entry.name.endswith(".egg-info")
-                or entry.resolve() == out_dir):
-            continue
-        if entry.is_dir():
-            shutil.copytree(entry, stage / entry.name, ignore=ignore)
-        else:
-            shutil.copy2(entry, stage / entry.name)
+    try:
+        copy_addon(source, stage)
+    except FileNotFoundError as exc:
+        raise BuildError(f"{exc.args[0]}; build from a whole source checkout") from None
     (stage / "wheels").mkdir()
     for path in wheel_files:
         shutil.copy2(path, stage / "wheels" / Path(path).name)
@@ -316,6 +297,13 @@ def stage_source(stage, wheel_files, platforms, *, ext_build=BUILDS[0], source=R
     rel = [f"./wheels/{Path(p).name}" for p in wheel_files]
     (stage / MANIFEST).write_text(generated_manifest(text, rel, platforms, ext_build), encoding="utf-8")
     return tomllib.loads(text)
+
+
+def _valid_tags(tool):
+    """``--valid-tags <Blender's tag list>``: run outside Blender, the tool checks no tags unless told where
+    Blender keeps the list extensions.blender.org accepts (beside the tool in the bpy wheel)."""
+    tags = Path(tool).resolve().parents[3] / "modules" / "_bpy_internal" / "extensions" / "tags.py"
+    return ["--valid-tags", tags] if tags.is_file() else []
 
 
 def _run_tool(tool, *args, cwd=None):
@@ -394,15 +382,16 @@ def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=Non
             stage = Path(tmp) / "facecap"
             stage.mkdir()
             manifest = stage_source(stage, [paths[w.file] for w in chosen], mine, ext_build=b, source=source,
-                                    out_dir=out_dir, assets=assets)
-            _run_tool(tool, "build", "--source-dir", stage, "--output-dir", made, "--split-platforms", cwd=tmp)
+                                    assets=assets)
+            _run_tool(tool, "build", "--source-dir", stage, "--output-dir", made, "--split-platforms",
+                      *_valid_tags(tool), cwd=tmp)
             for p in mine:
                 tool_zip = Path(made) / f"{manifest['id']}-{manifest['version']}-{p.replace('-', '_')}.zip"
                 if not tool_zip.is_file():
                     raise BuildError(f"Blender's extension tool did not write {tool_zip.name}")
                 path = out_dir / b.zip_name(manifest["version"], p)
                 os.replace(tool_zip, path)
-                _run_tool(tool, "validate", path)
+                _run_tool(tool, "validate", path, *_valid_tags(tool))
                 built.append(BuiltZip(b.name, p, path, path.stat().st_size,
                                       tuple(w.file for w in chosen if w.platform == p)))
     return built
@@ -421,11 +410,24 @@ def main(argv=None, *, parents=()):
     parser.add_argument("--platform", action="append", choices=PLATFORMS,
                         help="build only this platform (repeatable; default: every platform of each build)")
     parser.add_argument("--cache", help="wheel cache folder (default: $FACECAP_CACHE or ~/.cache/facecap)")
+    parser.add_argument("--release", metavar="TAG",
+                        help="a release's build (the release workflow's): TAG must be v<the manifest's version>; "
+                             f"also writes {release.CHECKSUMS} and {release.NOTES} (which zip is whose) beside the zips")
+    parser.add_argument("--docs", metavar="PAGE", help="rewrite the zip table of PAGE (docs/install.md) with the "
+                                                       "zips built")
     args = parser.parse_args(argv)
+    manifest = tomllib.loads((REPO / MANIFEST).read_text(encoding="utf-8"))
+    if args.release is not None:  # before any download: a mislabelled release never starts
+        release.check_tag(args.release, manifest["version"])
     built = build(args.out, builds=args.build, platforms=args.platform or PLATFORMS, cache_dir=args.cache,
                   log=lambda line: print(line, flush=True))
     for z in built:
         mb = z.size / 1e6
         over = f"  (over the {SIZE_TARGET_MB:.0f} MB target)" if mb > SIZE_TARGET_MB else ""
         print(f"{z.build} {z.platform}: {z.path} ({mb:.1f} MB, validated){over}")
+    if args.release is not None:
+        for path in release.write_release(built, args.out, manifest, sha256_of):
+            print(f"wrote {path}")
+    if args.docs is not None:
+        print(f"wrote {release.write_docs_table(built, args.docs)}")
     return 0

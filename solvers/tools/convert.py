@@ -91,10 +91,10 @@ def main(argv=None, *, parents=()):
                     print(f"facecap convert: {note}", file=sys.stderr)
             line = convert(args.file, args.out, kind=kind, got=got, out_units=args.out_units, overwrite=args.overwrite)
     except FacecapError as exc:
-        print(f"facecap convert: {exc}", file=sys.stderr)
+        print(f"facecap convert: error: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:  # the output could not be written (disk full, permissions changed)
-        print(f"facecap convert: {args.out}: cannot write: {exc.strerror or exc}", file=sys.stderr)
+        print(f"facecap convert: error: {args.out}: cannot write: {exc.strerror or exc}", file=sys.stderr)
         return 1
     print(f"facecap convert: {line}")
     return 0

@@ -163,7 +163,7 @@ def main(argv=None, *, parents=()):
             warnings.simplefilter("ignore")  # the notes carry them
             kind, got = read_capture(args)
     except FacecapError as exc:
-        print(f"facecap inspect: {exc}", file=sys.stderr)
+        print(f"facecap inspect: error: {exc}", file=sys.stderr)
         return 1
     if args.json:
         data = summary(got) if kind == "markers" else summary_weights(got, fps_given=args.fps is not None)

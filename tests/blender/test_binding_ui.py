@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from scene_fixtures import LayoutStub
-from shared_data import REALDATA
+from shared_data import REALDATA, skip_without
 
 from facecap.facecap_addon.scene import anim, layers, scene_binding
 from facecap.facecap_addon.scene.scene_data import basis_from_object, mesh_from_object
@@ -139,7 +139,7 @@ def test_landmarks_are_picked_from_the_marker_list_and_the_vertex_groups(renamed
         bpy.ops.facecap.bind_markers()  # two are not enough (and not none: automatic)
 
 
-@pytest.mark.skipif(not FACIAL_SING.is_file(), reason=f"no real-data corpus at {REALDATA}")
+@skip_without(FACIAL_SING)
 @pytest.mark.parametrize("landmarks", [False, True], ids=["automatic", "landmarks"])
 def test_facial_sing_in_the_sidebar(landmarks):
     """The real NaturalPoint capture (38 markers, mm, a head band, Unlabeled1 missing over the neutral)

@@ -157,3 +157,26 @@ def test_the_file_name_follows_the_format(solved, tmp_path):
     assert (tmp_path / "take.fbx").is_file()
     assert op(filepath=str(tmp_path / "other.glb"), format="FBX") == {"FINISHED"}  # the suffix names the format
     assert (tmp_path / "other.glb").read_bytes()[:4] == b"glTF"
+
+
+def test_the_exporters_own_lines_stay_off_the_console(solved, tmp_path, monkeypatch, capfd, caplog):
+    """Issue 40: the glTF exporter printed "ERROR Draco is not available ..." (the bpy module has no Draco
+    library, which the export never uses): what an exporter prints is a debug line of facecap's Blender log."""
+    import logging
+
+    from facecap.facecap_addon.scene import export
+
+    real = export._call
+
+    def noisy(operator, **options):  # what glTF prints the first time a process exports
+        print("ERROR Draco is not available because library could not be found at /x/libbf_intern_draco_bridge.so")
+        return real(operator, **options)
+
+    monkeypatch.setattr(export, "_call", noisy)
+    capfd.readouterr()
+    with caplog.at_level(logging.DEBUG, logger=export.BLENDER_LOG.name):
+        assert bpy.ops.facecap.export_take(filepath=str(tmp_path / "take.glb"), format="GLTF") == {"FINISHED"}
+    out, err = capfd.readouterr()
+    assert "Draco" not in out + err and "Starting glTF" not in out + err
+    debug = [r.getMessage() for r in caplog.records if r.name == export.BLENDER_LOG.name]
+    assert any(m.startswith("ERROR Draco is not available") for m in debug), debug

@@ -149,3 +149,31 @@ def test_output_head_keys_the_solved_head_motion_on_the_character(take):
     assert frames.size == markers.n_frames
     np.testing.assert_allclose(loc[0], (0.0, 0.0, 1.6), atol=1e-4)  # rest placement kept at the reference
     assert np.ptp(loc, axis=0).max() > 1e-3  # and the head moves
+
+
+def test_stabilising_again_reuses_the_head_empty_and_its_action(take):
+    """Issue 40: every Stabilise added another empty and action (FaceCap Head sample_take.001, ...). The take's
+    head empty is re-keyed and its action replaced; another take gets its own; a user's object of that name is
+    never taken over."""
+    _import(take)
+    s = bpy.context.scene.facecap
+    name = f"FaceCap Head {s.take_name}"
+    objects, actions = len(bpy.data.objects), len(bpy.data.actions)
+    assert bpy.ops.facecap.stabilise() == {"FINISHED"}
+    head = s.head_object
+    assert head.name == name and head.animation_data.action.name == name
+    first, _ = anim.read_curves(head, [("location", 0)])
+    for _ in range(2):
+        assert bpy.ops.facecap.stabilise() == {"FINISHED"}
+    assert s.head_object == head and len(bpy.data.objects) == objects + 1 and len(bpy.data.actions) == actions + 1
+    assert head.animation_data.action.name == name
+    again, _ = anim.read_curves(head, [("location", 0)])
+    assert np.array_equal(first, again)
+    s.take_name = "another_take"
+    assert bpy.ops.facecap.stabilise() == {"FINISHED"}
+    assert s.head_object.name == "FaceCap Head another_take" and head.name == name  # the first take's kept
+    mine = bpy.data.objects.new("FaceCap Head mine", None)  # a user's empty that happens to have the name
+    bpy.context.scene.collection.objects.link(mine)
+    s.take_name = "mine"
+    assert bpy.ops.facecap.stabilise() == {"FINISHED"}
+    assert s.head_object != mine and mine.animation_data is None

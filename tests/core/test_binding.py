@@ -6,6 +6,7 @@ import warnings
 import numpy as np
 import pytest
 from realdata_corpus import CORPUS
+from shared_data import skip_without
 from sample_geometry import geometry_module
 
 from facecap.solvers.character.alignment import rodrigues
@@ -192,7 +193,7 @@ def test_sampled_basis_interpolates_the_mesh_deltas(face):
     np.testing.assert_array_equal(parse_target("(1, 2.5, -3)"), [1.0, 2.5, -3.0])
 
 
-@pytest.mark.skipif(not FACIAL_SING.is_file(), reason="no real-data corpus")
+@skip_without(FACIAL_SING)
 def test_real_facial_capture_binds_to_the_sample_character(face):
     """c3dorg_29_Facial-Sing (NaturalPoint, 38 markers, mm) onto the sample character, both ways."""
     from facecap.solvers.io import import_markers

@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 import realdata_corpus as corpus
+from shared_data import skip_without
 from facecap.solvers import FacecapError, load_take_config
 from facecap.solvers.io import import_markers, read_weights
 from facecap.solvers.io.weights import parse_timecode
 
 EDGE = corpus.CORPUS / "edge-cases"
-pytestmark = pytest.mark.skipif(not EDGE.is_dir(), reason=f"no edge-case files at {EDGE}")
+pytestmark = skip_without(EDGE)
 
 
 def test_a_comma_separated_trc_reads_as_its_rows():

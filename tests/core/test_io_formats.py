@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_data import BLENDERFACE
+from shared_data import BLENDERFACE, skip_without
 
 from facecap.solvers import InputFileError, MarkerSet
 from facecap.solvers.io.c3d import read_c3d
@@ -215,7 +215,7 @@ def test_weights_bad_timecode(tmp_path):
         read_weights(path)
 
 
-@pytest.mark.skipif(not BLENDERFACE.is_dir(), reason="blenderFace captures not available")
+@skip_without(BLENDERFACE)
 @pytest.mark.parametrize("subject, frames, neutral", [(1, 1714, (800, 985)), (2, 1692, (700, 940))])
 def test_real_blenderface_captures(subject, frames, neutral):
     with warnings.catch_warnings():

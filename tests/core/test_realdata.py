@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import realdata_corpus as corpus
+from shared_data import skip_without
 
-pytestmark = pytest.mark.skipif(not corpus.CORPUS.is_dir(), reason=f"no real-data corpus at {corpus.CORPUS}")
+pytestmark = skip_without(corpus.CORPUS)
 
 #: The only C3D files facecap may refuse, and the real cause its message must name.
 REFUSED_C3D = {

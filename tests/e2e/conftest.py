@@ -28,10 +28,22 @@ def cache_dir():
 
 @pytest.fixture(scope="session")
 def extension_zips(tmp_path_factory):
-    """``python -m facecap build-extension`` run once: {(build, platform): zip path} for every build."""
-    out = tmp_path_factory.mktemp("dist")
-    proc = subprocess.run([sys.executable, "-m", "facecap", "build-extension", "--out", str(out)],
-                          capture_output=True, text=True, timeout=1800, cwd=out)
+    """The release workflow's build command (``.github/workflows/release.yml``) run once as written there, with
+    the manifest's version as the tag and a temporary folder as ``dist``: {(build, platform): zip path} for
+    every build, and what it printed."""
+    import shlex
+    import tomllib
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[2]
+    version = tomllib.loads((root / "blender_manifest.toml").read_text(encoding="utf-8"))["version"]
+    (job,) = yaml.safe_load((root / ".github" / "workflows" / "release.yml").read_text(encoding="utf-8"))["jobs"].values()
+    (line,) = [s["run"] for s in job["steps"] if "facecap build-extension" in s.get("run", "")]
+    out = tmp_path_factory.mktemp("release")
+    argv = [a.replace("$GITHUB_REF_NAME", f"v{version}") for a in shlex.split(line)]
+    assert argv[0] == "python"
+    proc = subprocess.run([sys.executable, *argv[1:]], capture_output=True, text=True, timeout=1800, cwd=out)
     if proc.returncode != 0 and "could not download" in proc.stderr:
         missing_prerequisite(proc.stderr.strip().splitlines()[-1])
     assert proc.returncode == 0, f"build-extension failed:\n{proc.stdout}\n{proc.stderr}"
@@ -41,4 +53,4 @@ def extension_zips(tmp_path_factory):
         if ", validated)" in rest:
             build, platform = which.split(" ")
             zips[(build, platform)] = Path(rest.split(" (")[0])
-    return {"zips": zips, "stdout": proc.stdout}
+    return {"zips": zips, "stdout": proc.stdout, "dist": out / "dist"}

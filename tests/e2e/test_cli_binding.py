@@ -17,7 +17,7 @@ import pytest
 
 from facecap.solvers.io.csv import read_weights_csv
 from facecap.solvers.tools.synthetic.realism import real_captures
-from shared_data import BLENDERFACE, REALDATA
+from shared_data import BLENDERFACE, REALDATA, skip_without
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "sample_blends"
@@ -60,7 +60,7 @@ mode = "nearest"
 FACIAL_SING_LANDMARKS = real_captures.landmarks_toml(real_captures.FACIAL_SING_LANDMARKS)
 
 
-@pytest.mark.skipif(not FACIAL_SING.is_file(), reason=f"no real-data corpus at {REALDATA}")
+@skip_without(FACIAL_SING)
 @pytest.mark.parametrize("landmarks", [False, True], ids=["automatic", "landmarks"])
 def test_facial_sing_binds_by_position_and_retargets(tmp_path, landmarks):
     mean, report, proc = retarget(tmp_path, FACIAL_SING_BODY + (FACIAL_SING_LANDMARKS if landmarks else ""))
@@ -81,7 +81,7 @@ def test_facial_sing_binds_by_position_and_retargets(tmp_path, landmarks):
     assert stored["mode"] == binding["mode"] and sum(stored["bound"]) == binding["bound"]
 
 
-@pytest.mark.skipif(not BLENDERFACE.is_dir(), reason=f"no blenderFace captures at {BLENDERFACE}")
+@skip_without(BLENDERFACE)
 @pytest.mark.parametrize("subject", sorted(SUBJECTS))
 def test_blenderface_binds_by_the_documented_map(tmp_path, subject):
     scale, (first, last) = SUBJECTS[subject]

@@ -6,6 +6,7 @@ The build runs as a user would run it (a subprocess of the CLI; wheels cached in
 Installing and using the linux-x64 zips in real Blender releases is ``test_install_matrix.py``.
 """
 
+import re
 import tomllib
 import zipfile
 from pathlib import Path
@@ -67,12 +68,39 @@ def test_each_zip_holds_its_locked_wheels_unmodified_and_its_blender_range(exten
     assert set(imports) <= tops
 
 
-def test_zip_has_the_addon_and_no_developer_files(extension_zips):
-    names = zipfile.ZipFile(extension_zips["zips"][(BUILDS[-1].name, "linux-x64")]).namelist()
+@pytest.mark.parametrize("build, platform", ZIPS)
+def test_zip_holds_the_addon_files_and_nothing_else(extension_zips, build, platform):
+    """Exactly the add-on's files (``extension_files.addon_files``), the generated manifest, the build's wheels
+    and the locked assets: nothing a checkout may hold besides (issue 40: a take, a capture, ``out/``)."""
+    from facecap.solvers.tools.build_extension import read_assets
+    from facecap.solvers.tools.extension_files import addon_files
+
+    names = [n for n in zipfile.ZipFile(extension_zips["zips"][(build, platform)]).namelist() if not n.endswith("/")]
     assert {"blender_manifest.toml", "__init__.py", "operators/__init__.py", "solvers/engine/__init__.py"} <= set(names)
     shipped = [n for n in names if n in DEV_ONLY_FILES or n.startswith(DEV_ONLY_DIRS) or "__pycache__/" in n
                or n.endswith(".pyc")]
     assert shipped == [], f"developer-only files in the extension zip: {shipped}"
+    generated = {"blender_manifest.toml"} | {a.target for a in read_assets()}
+    rest = sorted(n for n in names if not n.startswith("wheels/") and n not in generated)
+    assert rest == addon_files(REPO)
+
+
+def test_the_release_files_sum_every_zip_and_install_md_gives_their_sizes(extension_zips):
+    """``--release`` wrote SHA256SUMS (each zip's real hash) and the notes' table; docs/install.md's table gives
+    each zip's size within 0.3 MB (the add-on's Python moves a zip by kilobytes a commit; issue 40 found the
+    page 4 MB low): ``python -m facecap build-extension --docs docs/install.md`` rewrites it."""
+    from facecap.solvers.tools import release
+
+    zips = extension_zips["zips"]
+    sums = dict(reversed(line.split("  ")) for line in (extension_zips["dist"] / release.CHECKSUMS).read_text().splitlines())
+    assert sums == {p.name: sha256_of(p) for p in zips.values()}
+    notes = (extension_zips["dist"] / release.NOTES).read_text()
+    page = (REPO / "docs" / "install.md").read_text(encoding="utf-8")
+    table = page.split(release.BEGIN, 1)[1].split(release.END, 1)[0]
+    for path in zips.values():
+        assert f"`{path.name}` ({path.stat().st_size / 1e6:.1f} MB)" in notes
+        documented = float(re.search(rf"`{re.escape(path.name)}` \((\d+\.\d) MB\)", table).group(1))
+        assert abs(documented - path.stat().st_size / 1e6) <= 0.3, (path.name, documented)
 
 
 def test_wheel_lists_and_blender_ranges_are_generated_never_written_in_the_repository():
@@ -109,24 +137,6 @@ def test_a_tampered_cached_wheel_is_fetched_again(tmp_path):
     good.write_bytes(b"tampered")
     with pytest.raises(BuildError, match="could not download facecap_no_such_package-1.0-py3-none-any.whl"):
         fetch_wheels([wheel], tmp_path)  # not on PyPI: the download fails, the bad file is not used
-
-
-def test_staging_leaves_out_developer_folders_and_earlier_builds(tmp_path):
-    """An output folder inside the source (``--out zips``) is never staged, so zips never nest."""
-    from facecap.solvers.tools.build_extension import stage_source
-
-    source = tmp_path / "src"
-    for rel in ("__init__.py", "solvers/__init__.py", "zips/facecap-0.1.0-linux_x64.zip", "tests/test_x.py",
-                "sample_blends/character.blend", ".git/HEAD", "solvers/__pycache__/x.pyc"):
-        (source / rel).parent.mkdir(parents=True, exist_ok=True)
-        (source / rel).write_text("x")
-    (source / "blender_manifest.toml").write_text((REPO / "blender_manifest.toml").read_text())
-    stage = tmp_path / "stage"
-    stage.mkdir()
-    stage_source(stage, [], ["linux-x64"], source=source, out_dir=source / "zips")
-    staged = sorted(str(p.relative_to(stage)) for p in stage.rglob("*") if p.is_file())
-    assert staged == ["__init__.py", "blender_manifest.toml", "solvers/__init__.py"]
-    assert tomllib.loads((stage / "blender_manifest.toml").read_text())["platforms"] == ["linux-x64"]
 
 
 @pytest.mark.parametrize("build, platform", ZIPS)
