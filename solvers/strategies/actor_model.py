@@ -215,50 +215,6 @@ def character_normalisation(prior, deltas, usable, noise):
     return gains, ratio, share, far
 
 
-import os
-GAIN_PRIORS = tuple(os.environ.get("FC_GP", "").split(",")) if os.environ.get("FC_GP") else ()
-GROUPS = (("brow",), ("eyeLook",), ("eyeBlink", "eyeSquint", "eyeWide"), ("cheek", "noseSneer"), ("jaw",), ("mouth",))
-SHRINK = float(os.environ.get("FC_SHRINK", "1.0"))
-
-
-def _group(name):
-    for i, prefixes in enumerate(GROUPS):
-        if name.startswith(prefixes):
-            return i
-    return -1
-
-
-def _mirror(name):
-    if name.endswith("Left"):
-        return name[:-4] + "Right"
-    if name.endswith("Right"):
-        return name[:-5] + "Left"
-    return None
-
-
-def completion_gains(shapes, basis, known, prior, usable):
-    """(K,) sizes for the shapes completed from the prior: what the measured ones say of the prior's sizes (each
-    measured shape's least-squares size along its prior's direction): a measured mirror's, else the median of its
-    face region's measured ones, shrunk towards 1 by their count; 1 where nothing is measured near."""
-    K = len(shapes)
-    logs = np.full(K, np.nan)
-    for k in np.flatnonzero(known):
-        p, b = prior[k][usable].ravel(), basis[k][usable].ravel()
-        if p @ p > 0:
-            logs[k] = np.log(np.clip((b @ p) / (p @ p), 1.0 / MAX_GAIN, MAX_GAIN))
-    index = {n: i for i, n in enumerate(shapes)}
-    out = np.ones(K)
-    for k in np.flatnonzero(~known):
-        twin = index.get(_mirror(shapes[k]))
-        if twin is not None and np.isfinite(logs[twin]):
-            out[k] = np.exp(logs[twin])
-            continue
-        near = [logs[i] for i in range(K) if np.isfinite(logs[i]) and _group(shapes[i]) == _group(shapes[k]) >= 0]
-        if near:
-            out[k] = np.exp(len(near) / (len(near) + SHRINK) * np.median(near))
-    return out
-
-
 def build_actor_model(character, names, neutral, knowledge, *, character_deltas=None, deltas=None, noise=None):
     """The actor's shapes for ``character``'s shape names at the take's markers.
 
@@ -324,10 +280,8 @@ def build_actor_model(character, names, neutral, knowledge, *, character_deltas=
             filled = prior / gains[None, :, None]
         label = f"completed ({prior_name})" if known.any() else prior_name
         unfilled = basis.copy()
-        scale = completion_gains(shapes, basis, known, prior, usable) if (
-            known.any() and prior_name in GAIN_PRIORS) else np.ones(K)
         for k in np.flatnonzero(~known):
-            basis[k], sources[k], unfilled[k] = scale[k] * filled[k], label, prior[k]
+            basis[k], sources[k], unfilled[k] = filled[k], label, prior[k]
     else:
         unfilled = basis
     # what a shape moves before any range normalisation (a shape the character moves no marker with is unseen)
