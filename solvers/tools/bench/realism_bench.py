@@ -19,13 +19,14 @@ from ...character.face_model import load_ict
 from ..synthetic.realism.actors import Perturbation
 from ..synthetic.realism.families import FAMILIES, load_family
 from ..synthetic.realism.layouts import LAYOUTS
-from ..synthetic.realism.methods import METHODS, base_settings, bound_character, load_template, run_method
+from ..synthetic.realism.methods import METHODS, base_settings, bound_character, holds_found, load_template, run_method
 from ..synthetic.realism.metrics import REGIONS, compare
 from ..synthetic.realism.real_captures import markdown as real_markdown
 from ..synthetic.realism.real_captures import run_real
 from ..synthetic.realism.scenario import make_draw
 from ..synthetic.realism.takes import load_performances
 from ..synthetic.realism.targets import TARGETS, make_target
+from .realism_docs import PLAN, docs_markdown, write_docs
 
 #: A benchmark row's key figures, in table order.
 FIGURES = ("rmse", "r", "at_upper", "jitter")
@@ -64,9 +65,11 @@ def _draw_rows(actor, family, performances, seed, frames, layouts, targets, meth
                 try:
                     if character is None:
                         raise RuntimeError(bind_error)
-                    weights, names, upper, _ = run_method(method, draw, meshes[target], template, character=character)
+                    weights, names, upper, result = run_method(method, draw, meshes[target], template,
+                                                               character=character)
                     metrics = compare(weights, names, draw.truth, draw.shape_names, upper=upper,
                                       frames=draw.performance_frames)
+                    metrics["holds"] = holds_found(method, draw, result)
                     error = ""
                 except Exception as exc:  # noqa: BLE001  (a method that fails is a row of the table)
                     metrics, error = None, f"{type(exc).__name__}: {exc}"
@@ -103,6 +106,9 @@ def summarise(rows):
             summary["median"][region] = {f: _finite(np.nanmedian, [m[f] for m in have]) for f in have[0]}
             summary["worst"][region] = {"rmse": _finite(np.nanmax, [m["rmse"] for m in have]),
                                         "r": _finite(np.nanmin, [m["r"] for m in have])}
+        holds = [m["holds"] for m in ok if m.get("holds")]
+        if holds:  # a ROM method: its holds found within 5 frames of their middles, over every draw
+            summary["holds"] = [sum(h[0] for h in holds), sum(h[1] for h in holds)]
         out[key] = summary
     return out
 
@@ -124,8 +130,14 @@ def markdown(summary):
             continue
         m, w = s["median"]["all"], s["worst"]["all"]
         lines.append(f"| {head} | {s['n'] - s['errors']}/{s['n']} | {m['rmse']:.3f} | "
-                     f"{w['rmse']:.3f} | {m['r']:.2f} ({m['r_moved']:.2f}) | {100 * m['at_upper']:.1f}% | {m['jitter']:.4f} "
+                     f"{w['rmse']:.3f} | {m['r']:.2f} ({m['r_moved']:.2f}) | {100 * m['at_upper']:.1f}% | "
+                     f"{m['jitter']:.4f} "
                      f"({m['truth_jitter']:.4f}) |")
+    found = [(k, summary[k]["holds"]) for k in keys if "holds" in summary[k]]
+    if found:
+        lines += ["", "ROM holds found within 5 frames of their true middles (all draws):", "",
+                  "| actor | layout | target | method | holds |", "|---|---|---|---|---|"]
+        lines += [f"| {' | '.join(k)} | {w}/{n} ({100 * w / max(n, 1):.1f} %) |" for k, (w, n) in found]
     regions = [r for r, _ in REGIONS]
     lines += ["", "Weights RMSE per region (median over draws; mean per-shape r in brackets):", "",
               "| actor | layout | target | method | " + " | ".join(regions) + " |",
@@ -156,6 +168,9 @@ def main(argv=None):
     parser.add_argument("--real", action="store_true", help="also the real captures (Facial-Sing, blenderFace) onto "
                         "the sample character, judged by how plausible their weights are (no truth)")
     parser.add_argument("--json", help="write every row and the summary here")
+    parser.add_argument("--docs", help="run the docs' plan (every tier, both actor families, every character and "
+                        "layout it reports; --targets, --layouts and --methods are ignored) and write its tables into "
+                        "this page (docs/accuracy.md, between its generated markers)")
     args = parser.parse_args(argv)
     perturbation = Perturbation.none() if args.exact_actor else Perturbation()
 
@@ -163,16 +178,25 @@ def main(argv=None):
         m = row["metrics"]
         figures = "failed: " + row["error"] if m is None else \
             f"RMSE {m['all']['rmse']:.3f} r {m['all']['r']:.2f} at upper {100 * m['all']['at_upper']:.1f}%"
-        print(f"{row['actor']:>7} draw {row['seed']} {row['layout']:>11} {row['target']:>6} {row['method']:>17}: {figures} "
+        print(f"{row['actor']:>7} draw {row['seed']} {row['layout']:>11} {row['target']:>6} {row['method']:>17}: "
+              f"{figures} "
               f"({row['seconds']:.1f} s)", flush=True)
 
-    rows = run(args.shared, draws=args.draws, frames=args.frames, actors=tuple(args.actors.split(",")), targets=tuple(args.targets.split(",")),
-               layouts=tuple(args.layouts.split(",")), methods=tuple(args.methods.split(",")),
-               perturbation=perturbation, first_seed=args.first_seed, progress=progress)
+    plan = PLAN if args.docs else ((tuple(args.layouts.split(",")), tuple(args.targets.split(",")),
+                                    tuple(args.methods.split(","))),)
+    rows = []
+    for layouts, targets, methods in plan:
+        rows += run(args.shared, draws=args.draws, frames=args.frames, actors=tuple(args.actors.split(",")),
+                    targets=targets, layouts=layouts, methods=methods, perturbation=perturbation,
+                    first_seed=args.first_seed, progress=progress)
     summary = summarise(rows)
     print()
     print(markdown(summary))
-    real = run_real(args.shared, template=load_template(Path(args.shared) / "data" / "ict-facekit")) if args.real else []
+    if args.docs:
+        write_docs(Path(args.docs), docs_markdown(summary, draws=args.draws, frames=args.frames))
+        print(f"\nwrote the realism tables into {args.docs}")
+    real = run_real(args.shared, template=load_template(Path(args.shared) / "data" / "ict-facekit")) \
+        if args.real else []
     if real:
         print()
         print(real_markdown(real))

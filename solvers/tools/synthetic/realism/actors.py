@@ -94,7 +94,7 @@ def marker_support(model, vertices, rng, radius):
             continue
         d = np.linalg.norm(model.neutral - model.neutral[v], axis=1)
         near = np.flatnonzero(d < 2.5 * radius)
-        near = near[np.argsort(d[near])][:8]
+        near = near[np.argsort(d[near], kind="stable")][:8]  # stable: ties the same in every NumPy
         w = rng.dirichlet(np.ones(len(near)))
         w[0] += 1.0  # biased towards the chosen vertex: the offset stays within ~radius
         out.append((near, w / w.sum()))

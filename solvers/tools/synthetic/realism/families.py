@@ -76,7 +76,7 @@ def motion_landmarks(model):
         size = np.linalg.norm(model.deltas[names.index(shape)], axis=1)
         if side:
             size = size * (side * model.neutral[:, 0] > MIDLINE)
-        top = np.argsort(size)[-LANDMARK_VERTICES:]
+        top = np.argsort(size, kind="stable")[-LANDMARK_VERTICES:]  # stable: ties the same in every NumPy
         out.append((model.neutral[top] * size[top, None]).sum(axis=0) / size[top].sum())
     mid = np.flatnonzero(np.abs(model.neutral[:, 0]) < MIDLINE)
     out.append(model.neutral[mid[np.argmin(model.neutral[mid, 1])]])  # the nose tip: the face looks down -Y

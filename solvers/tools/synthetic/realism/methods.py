@@ -36,6 +36,22 @@ METHODS = {
 }
 
 
+#: The ROM methods' sheets.
+ROM_METHODS = {"rom24": "facecap-24", "rom51": "arkit-51"}
+
+
+def holds_found(name, draw, result):
+    """(within, total): of the holds a ROM method's session performed, how many were found within 5 frames of their
+    true middle (None for other methods)."""
+    if result is None or not name.startswith("rom") or "rom" not in result.info:
+        return None
+    session = draw.roms[ROM_METHODS[name.split("+")[0]]]
+    middles = {p["label"]: p["middle"] for p in result.info["rom"]["poses_table"]}
+    found = [middles.get(session.poses[j].label) for j in session.performed if j >= 0]
+    true = [m for j, m in zip(session.performed, session.middles) if j >= 0]
+    return sum(f is not None and abs(f - t) <= 5 for f, t in zip(found, true)), len(true)
+
+
 def _poses(table):
     return tuple((name, (tuple(frames),)) for name, frames in table.items())
 
@@ -60,14 +76,14 @@ def base_settings(draw):
 
 
 def run_method(name, draw, mesh, template, *, character=None):
-    """(weights (F, K), shape names, upper bounds (K,), notes) of method ``name`` on ``draw`` onto ``mesh``
-    (``character``: its shapes at the draw's markers when already bound, ``bound_character``)."""
+    """(weights (F, K), shape names, upper bounds (K,), the RetargetResult or None) of method ``name`` on ``draw``
+    onto ``mesh`` (``character``: its shapes at the draw's markers when already bound, ``bound_character``)."""
     settings = base_settings(draw)
     character = bound_character(mesh, draw, settings) if character is None else character
     if name == "zero":
-        return np.zeros((len(draw.truth), character.n_shapes)), character.shape_names, character.upper, ()
+        return np.zeros((len(draw.truth), character.n_shapes)), character.shape_names, character.upper, None
     if name == "plain":
-        return plain_solve(draw, character), character.shape_names, character.upper, ()
+        return plain_solve(draw, character), character.shape_names, character.upper, None
     inputs = StrategyInputs()
     if name == "geometric":
         settings = replace(settings, strategy="geometric")
@@ -84,7 +100,7 @@ def run_method(name, draw, mesh, template, *, character=None):
             settings = replace(settings, calibration=CalibrationSettings(poses=_poses(draw.calibration_poses)))
             inputs = replace(inputs, calibration=draw.calibration)
         if name.startswith("rom"):
-            sheet = {"rom24": "facecap-24", "rom51": "arkit-51"}[name.split("+")[0]]
+            sheet = ROM_METHODS[name.split("+")[0]]
             settings = replace(settings, calibration=CalibrationSettings(sequence=SHEETS[sheet]))
             inputs = replace(inputs, calibration=draw.roms[sheet].markers)
         if name in ("template", "poses12+template") or name.endswith("+template"):
@@ -93,7 +109,7 @@ def run_method(name, draw, mesh, template, *, character=None):
             a = draw.actor
             inputs = replace(inputs, profile=Basis(a.shape_names, a.names, a.neutral, a.deltas))
     res = retarget(draw.markers, character, settings, inputs=inputs)
-    return res.weights, res.shape_names, character.upper, tuple(res.warnings)
+    return res.weights, res.shape_names, character.upper, res
 
 
 def plain_solve(draw, character):

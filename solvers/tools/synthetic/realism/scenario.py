@@ -5,9 +5,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ....rom.sheets import SHEETS
 from .actors import Perturbation, make_actor
 from .families import ActorFamily, ict_family
-from ....rom.sheets import SHEETS
 from .layouts import layout as make_layout
 from .rom import rom_session
 from .takes import REST, CaptureSettings, calibration_weights, capture, performance_segment
