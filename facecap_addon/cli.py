@@ -75,8 +75,6 @@ import ctypes  # noqa: E402
 import io  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
-import signal  # noqa: E402
-import threading  # noqa: E402
 import tomllib  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -437,8 +435,7 @@ def main(argv=None):
     console.configure(console.verbosity(args) if args.command not in FORWARDING else _forwarded_verbosity(args.rest))
     if args.command in BATCH_COMMANDS:
         keep_freed_memory()
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _interrupt) if main_thread else None  # cleans up as Ctrl-C does
+    previous = console.interrupts_handled()  # Ctrl-C and SIGTERM: KeyboardInterrupt at any moment
     try:
         with console.closed_pipe_ends_quietly():
             if args.command in BLENDER_COMMANDS:
@@ -458,17 +455,12 @@ def main(argv=None):
             raise
         return console.failed(exc)
     finally:
-        if main_thread:
-            signal.signal(signal.SIGTERM, previous)
+        console.restore_handlers(previous)
 
 
 def _forwarded_verbosity(rest):
     quiet = any(a in ("-q", "--quiet") for a in rest)
     return -1 if quiet else 1 if any(a in ("-v", "--verbose") for a in rest) else 0
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 #: Commands that pass their own options on to their tool
