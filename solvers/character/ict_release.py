@@ -97,7 +97,7 @@ class _Release:
 
     def check(self):
         """Raise unless every file read is there and within the release's bounds (the module docstring)."""
-        what = f"this is not the ICT-FaceKit release facecap knows; download it again ({RELEASE_URL})"
+        what = f"a bad download, or not the ICT-FaceKit release facecap knows; download it again ({RELEASE_URL})"
         if self.zip is not None:
             infos = {}
             for name in FILES:

@@ -74,7 +74,7 @@ def download(url, path, *, progress=None, timeout=TIMEOUT_S, max_bytes=MAX_DOWNL
             if total > free:
                 raise OutputError(f"{path.parent}: not enough free space for the download ({total / 2**20:.0f} MiB; "
                                   f"{free / 2**20:.0f} MiB free)")
-            while chunk := response.read(min(CHUNK, max_bytes + 1 - done)):
+            while chunk := response.read1(min(CHUNK, max_bytes + 1 - done)):  # what came: the deadline is seen
                 f.write(chunk)
                 done += len(chunk)
                 if done > max_bytes:
