@@ -38,6 +38,7 @@ from pathlib import Path
 
 from ..errors import FacecapError
 from ..extension_builds import BUILDS, PLATFORMS, build_for_python, build_named
+from ..io.outputs import check_files_in, mark_output
 
 REPO = Path(__file__).resolve().parents[2]
 LOCK_FILE = REPO / "wheels.lock.toml"
@@ -350,13 +351,14 @@ def _plan(wheels, builds, platforms, lock):
 
 
 def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_FILE, source=REPO,
-          log=print):
+          log=print, overwrite=False):
     """Build and validate one extension zip per build and platform in ``out_dir``.
 
     Parameters
     ----------
     out_dir : path-like
-        Where the zips go (created if missing); same-named zips are replaced.
+        Where the zips go (created if missing); same-named zips facecap built are replaced, other files in
+        their way refused before anything is fetched (the output policy; ``overwrite`` replaces them).
     builds : sequence of str, optional
         Names of builds (``solvers/extension_builds.py``); default all.
     platforms : sequence of str
@@ -381,6 +383,9 @@ def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=Non
         raise BuildError(exc.args[0]) from None
     wheels, _ = read_lock(lock)
     jobs = _plan(wheels, chosen_builds, platforms, lock)
+    version = tomllib.loads((Path(source) / MANIFEST).read_text(encoding="utf-8")).get("version", "")
+    check_files_in(out_dir, [b.zip_name(version, p) for b, mine, _ in jobs for p in mine], "--out", "extension_zip",
+                   overwrite=overwrite)
     tool = Path(tool) if tool else find_extension_tool()
     paths = fetch_wheels([w for _, _, chosen in jobs for w in chosen], cache_dir, log=log)
     assets = fetch_assets(read_assets(lock), cache_dir, log=log)
@@ -402,6 +407,7 @@ def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=Non
                     raise BuildError(f"Blender's extension tool did not write {tool_zip.name}")
                 path = out_dir / b.zip_name(manifest["version"], p)
                 os.replace(tool_zip, path)
+                mark_output(path, "extension_zip")  # facecap's own: the next build replaces it
                 _run_tool(tool, "validate", path)
                 built.append(BuiltZip(b.name, p, path, path.stat().st_size,
                                       tuple(w.file for w in chosen if w.platform == p)))
@@ -421,9 +427,11 @@ def main(argv=None, *, parents=()):
     parser.add_argument("--platform", action="append", choices=PLATFORMS,
                         help="build only this platform (repeatable; default: every platform of each build)")
     parser.add_argument("--cache", help="wheel cache folder (default: $FACECAP_CACHE or ~/.cache/facecap)")
+    parser.add_argument("--overwrite", action="store_true", help="let the zips replace files in --out that facecap "
+                        "did not build (default: refused)")
     args = parser.parse_args(argv)
     built = build(args.out, builds=args.build, platforms=args.platform or PLATFORMS, cache_dir=args.cache,
-                  log=lambda line: print(line, flush=True))
+                  log=lambda line: print(line, flush=True), overwrite=args.overwrite)
     for z in built:
         mb = z.size / 1e6
         over = f"  (over the {SIZE_TARGET_MB:.0f} MB target)" if mb > SIZE_TARGET_MB else ""

@@ -8,13 +8,14 @@ the jitter, each beside the truth's. Medians over the draws, and the worst draw.
 """
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ...character.face_model import load_ict
+from ...io.files import write_json_atomic
+from ...io.outputs import Output, check_outputs
 from ..synthetic.realism.actors import Perturbation
 from ..synthetic.realism.layouts import LAYOUTS
 from ..synthetic.realism.methods import METHODS, base_settings, bound_character, load_template, run_method
@@ -135,7 +136,9 @@ def main(argv=None):
     parser.add_argument("--real", action="store_true", help="also the real captures (Facial-Sing, blenderFace) onto "
                         "the sample character, judged by how plausible their weights are (no truth)")
     parser.add_argument("--json", help="write every row and the summary here")
+    parser.add_argument("--overwrite", action="store_true", help="let --json replace a file facecap did not write")
     args = parser.parse_args(argv)
+    check_outputs([Output("--json", args.json, "bench_json")], overwrite=args.overwrite)  # before hours of work
     perturbation = Perturbation.none() if args.exact_actor else Perturbation()
 
     def progress(row):
@@ -156,6 +159,6 @@ def main(argv=None):
         print()
         print(real_markdown(real))
     if args.json:
-        Path(args.json).write_text(json.dumps({"rows": rows, "summary": {" / ".join(k): v for k, v in summary.items()},
-                                               "real": real}, indent=1))
+        write_json_atomic(Path(args.json), {"rows": rows, "summary": {" / ".join(k): v for k, v in summary.items()},
+                                            "real": real})
     return 0
