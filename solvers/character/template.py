@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from ..io.archives import check_members
 from ..io.files import atomic_path, remove_stale_temporaries
+from ..io.limits import check_input_file
 from ..io.outputs import Output, check_outputs
 from ..transforms import Similarity, fit_similarity
 from .alignment import align_automatic, refine
@@ -44,6 +45,7 @@ TEMPLATE_DIGEST = "acc3b12be22afdc7bc45c0f0ce880d5a657e8e29676328c35863c30f92334
 TEMPLATE_MODEL_DIGEST = "f6e287e9486456a2d306c206eb781aaec56f8f6dc8a69824376fef0dbed25e9e"
 #: Bounds of a template file's arrays before they are read: it holds about 20 MB (the identity modes)
 MAX_TEMPLATE_ARRAY_BYTES = 64 << 20
+MAX_TEMPLATE_BYTES = 256 << 20
 MAX_TEMPLATE_RATIO = 50
 #: Identity modes fitted (of 100) and their ridge: enough for the face's proportions, few enough that
 #: 30-70 markers with 0.3 mm noise determine them.
@@ -141,6 +143,7 @@ class HumanTemplate:
             return cls(model, source=str(path))
         again = ("install it again: `python -m facecap template fetch`, or `template convert` on the ICT-FaceKit "
                  f"download ({RELEASE_URL})")
+        check_input_file(path, limit=MAX_TEMPLATE_BYTES)  # a FIFO would block the reader, a device feed it for ever
         try:
             with np.load(path, allow_pickle=False) as z:
                 if "format" not in z.files or str(z["format"]) != FORMAT:

@@ -51,13 +51,17 @@ def _download_progress(done, total):
           flush=True)
 
 
-def download(url, path, *, progress=None, timeout=TIMEOUT_S, max_bytes=MAX_DOWNLOAD_BYTES, deadline=DOWNLOAD_SECONDS):
+def download(url, path, *, progress=None, timeout=None, max_bytes=None, deadline=None):
     """``url`` to ``path``, atomically: read into a temporary file beside it (``files.new_temporary``: two
     downloads at once do not meet, and one killed outright is removed by the next fetch), renamed when
     complete, removed when not (an error, Ctrl-C, ``progress(done, total)`` returning False: ``Cancelled``).
     At most ``max_bytes`` are read (a larger announced size is refused before the first byte), within
-    ``deadline`` seconds in all, and only when the disk has room for an announced size."""
+    ``deadline`` seconds in all, and only when the disk has room for an announced size (defaults:
+    ``TIMEOUT_S`` per read, ``MAX_DOWNLOAD_BYTES``, ``DOWNLOAD_SECONDS``)."""
     path = Path(path)
+    timeout = TIMEOUT_S if timeout is None else timeout
+    max_bytes = MAX_DOWNLOAD_BYTES if max_bytes is None else max_bytes
+    deadline = DOWNLOAD_SECONDS if deadline is None else deadline
     if urllib.parse.urlsplit(url).scheme.lower() not in ("http", "https"):
         raise FacecapError(f"{url}: not an http(s) address; for a file you have, run "
                            "`python -m facecap template convert <the zip>`")
@@ -93,6 +97,17 @@ def download(url, path, *, progress=None, timeout=TIMEOUT_S, max_bytes=MAX_DOWNL
     finally:
         part.unlink(missing_ok=True)
     return path
+
+
+def _check_address(url):
+    try:
+        parts = urllib.parse.urlsplit(url)
+        parts.port  # noqa: B018 - a port that is not a number raises here
+    except ValueError as exc:
+        raise FacecapError(f"{url[:200]}: not a valid address ({exc})") from None
+    if parts.scheme.lower() not in ("http", "https") or not parts.hostname:
+        raise FacecapError(f"{url[:200]}: not an http(s) address; for a file you have, run "
+                           "`python -m facecap template convert <the zip>`")
 
 
 def _announced(response):
@@ -135,6 +150,7 @@ def fetch(url=RELEASE_URL, out=None, *, cache=None, keep=False, progress=None, r
     remove the download unless ``keep``; a download already in the cache is used as it is. A download that
     does not convert is removed (the next fetch downloads again), and so are partial downloads left by
     fetches killed outright. Returns the template's path."""
+    _check_address(url)
     out = check_template_output(out, overwrite=overwrite)
     cache = Path(cache) if cache is not None else default_cache_dir() / "downloads"
     remove_stale_downloads(cache)
@@ -192,9 +208,8 @@ def main(argv=None, *, parents=()):
         return 0
     path = Path(args.path).expanduser() if args.path else template_path()
     if not path.exists():
-        print(f"facecap: no human template at {path}; install one with `python -m facecap template fetch` (or "
-              "`template convert` on a download)")
-        return 1
+        raise FacecapError(f"no human template at {path}; install one with `python -m facecap template fetch` (or "
+                           "`template convert` on a download)")
     t = HumanTemplate.load(path)
     m = t.model
     print(f"{path}: {len(m.shape_names)} shapes, {m.identity.shape[0]} identity modes, {m.n_vertices} vertices, "
