@@ -111,8 +111,8 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
     refined through the rig on every n-th frame); ``reference``: the slow path (``RigTarget``)."""
     steps = build_rig_target_steps(mesh, marker_names, rig_settings, say=say, binding=binding, n_frames=n_frames,
                                    chunk=4 * PROBE_CHUNK if progress is not None else None, reference=reference)
-    target, controls = run_steps(steps, progress,
-                                 lambda done, planned: Cancelled(f"rig probing cancelled after {done} of {planned} poses"))
+    target, controls = run_steps(
+        steps, progress, lambda done, planned: Cancelled(f"rig probing cancelled after {done} of {planned} poses"))
     left_out = unrunnable_drivers(mesh, controls)  # the rig evaluated: Blender has marked what it could not run
     if left_out:  # never silent: the solve's warnings (and the report's ``rig`` section) name them
         target.info.update(drivers_left_out=left_out, warnings=[left_out_warning(left_out)])

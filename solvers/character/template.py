@@ -104,8 +104,9 @@ def convert(source, out=None, *, progress=None, overwrite=False):
 def _check_release(model, source):
     if model.digest != TEMPLATE_DIGEST:
         raise FacecapError(f"{source}: not the ICT-FaceKit release facecap knows (data digest {model.digest[:16]}..., "
-                           f"expected {TEMPLATE_DIGEST[:16]}...: its shapes, their names, polygons or landmarks differ); "
-                           f"the template's accuracy figures hold only for it. Download that release: {RELEASE_URL}")
+                           f"expected {TEMPLATE_DIGEST[:16]}...: its shapes, their names, polygons or landmarks "
+                           f"differ); the template's accuracy figures hold only for it. Download that release: "
+                           f"{RELEASE_URL}")
 
 
 @dataclass(frozen=True, eq=False)

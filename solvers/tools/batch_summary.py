@@ -120,9 +120,9 @@ def to_csv(records):
     writer.writerow(CSV_COLUMNS)
     for r in records:
         total = r["seconds"].get("total") if r["seconds"] else None
+        outputs = "; ".join(f"{k}={v}" for k, v in r["outputs"].items())
         text = [formula_safe(str(t)) for t in (r["take"], r["status"], r["error"] or "", r["strategy"] or "",
-                                               r["worker"] or "", "; ".join(f"{k}={v}" for k, v in r["outputs"].items()),
-                                               r["config"])]
+                                               r["worker"] or "", outputs, r["config"])]
         writer.writerow([*text[:3], _blank(r["frames"]), _blank(r["shapes"]), text[3], _number(r["residual_mm"], 4),
                          r["warnings"], _number(total, 3), *text[4:]])
     return out.getvalue()

@@ -16,14 +16,13 @@ import http.server
 import json
 import os
 import struct
-import threading
 import time
 import zipfile
 from pathlib import Path
 
 import numpy as np
-
 from fuzz_commands import PATHS, SAMPLES, STABLE, Case, mutate_tables, toml_dumps
+from ict_release_copy import serving
 from shared_data import ICT_FACEKIT
 
 from facecap.solvers.character.ict_release import FILES  # the names of what is read, not what reading does
@@ -277,15 +276,9 @@ class Seeds:
             def log_message(self, *args):
                 pass
 
-        httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        httpd.daemon_threads = True
         self.served["tiny"] = self.tiny
-        threading.Thread(target=httpd.serve_forever, daemon=True).start()
-        try:
-            yield f"http://127.0.0.1:{httpd.server_address[1]}"
-        finally:
-            httpd.shutdown()
-            httpd.server_close()
+        with serving(Handler) as url:
+            yield url
 
 
 OUT_PATHS = PATHS + ["o/t.npz", "o/t.npz", "o/t.npz", None, "cfg.toml", "src.zip", "tpl"]

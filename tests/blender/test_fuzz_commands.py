@@ -18,7 +18,6 @@ The figures per command are printed (``-s``). Signals at random moments are in `
 import contextlib
 import io
 import json
-import os
 import random
 import shutil
 import signal
@@ -219,7 +218,8 @@ def test_every_command_under_hostile_input_ends_in_one_line_and_changes_no_input
     seeds = Seeds(tmp_path)
     with seeds.server() as url:
         cases = (list(retarget_cases(ws, rng, COUNTS["retarget"])) + list(track_cases(ws, rng, COUNTS["track"]))
-                 + list(batch_cases(ws, rng, COUNTS["batch"])) + list(reader_cases(ws, rng, COUNTS["readers"], tmp_path))
+                 + list(batch_cases(ws, rng, COUNTS["batch"]))
+                 + list(reader_cases(ws, rng, COUNTS["readers"], tmp_path))
                  + list(output_cases(ws, rng, COUNTS["outputs"]))
                  + list(template_cases(ws, seeds, rng, nrng, COUNTS["template"], url))
                  + list(rig_cases(ws, rng, COUNTS["rig"])))

@@ -52,8 +52,8 @@ NOT_WRITING = {
     "convert": ("--units", "--unit-scale", "--fps", "--up-axis", "--weights", "--columns", "file", "--out-units"),
     "compare": ("--frames", "--examples", "--seed", "--strategy"),
     # bench writes only in temporary folders of its own
-    "bench": ("--quick", "--accuracy", "--realism", "--landmarks", "--draws", "--clips", "--size", "--frames", "--batch",
-              "--batch-takes", "--batch-jobs", "--repeat", "--clean", "--memory"),
+    "bench": ("--quick", "--accuracy", "--realism", "--landmarks", "--draws", "--clips", "--size", "--frames",
+              "--batch", "--batch-takes", "--batch-jobs", "--repeat", "--clean", "--memory"),
     "bench --realism": ("--shared", "--draws", "--frames", "--targets", "--layouts", "--methods", "--exact-actor",
                         "--real"),
     "docs-images": ("--size", "--engine", "--solved"),

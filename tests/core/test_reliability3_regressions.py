@@ -1,21 +1,22 @@
 """Regression tests named after the defects of the third reliability campaign (``shared/bugs/reliability-3``) that
 need no Blender: the template command's outputs, archives and downloads (01-06) and CSV cells a spreadsheet would
-run (09). (Signals, Blender's temporary folder and rigs whose drivers cannot run: ``tests/e2e/test_reliability3_cli.py``.)"""
+run (09). (Signals, Blender's temporary folder and rigs whose drivers cannot run:
+``tests/e2e/test_reliability3_cli.py``.)"""
 
-import contextlib
 import csv
 import http.server
 import os
+import re
 import struct
 import subprocess
 import sys
-import threading
 import time
 import zipfile
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from ict_release_copy import serving
 from shared_data import ICT_FACEKIT, require
 
 from facecap.facecap_addon import cli
@@ -23,11 +24,10 @@ from facecap.solvers.character.face_model import ICT_FILE
 from facecap.solvers.character.ict_release import FILES, FOLDER, NEUTRAL, RELEASE_POLYGONS, read_release
 from facecap.solvers.character.template import FORMAT, TEMPLATE_DIGEST, HumanTemplate, convert, template_path
 from facecap.solvers.errors import FacecapError, InputFileError
-from facecap.solvers.io.files import machine_tag
-from facecap.solvers.io.outputs import OutputError
 from facecap.solvers.io import import_markers, read_weights, write_markers
 from facecap.solvers.io.csv import read_weights_csv
 from facecap.solvers.io.csv_write import formula_safe, text_of_cell, write_weights_csv
+from facecap.solvers.io.files import machine_tag
 from facecap.solvers.markers import MarkerSet
 from facecap.solvers.tools.batch_summary import new_record, to_csv
 from facecap.solvers.tools.template import download, fetch
@@ -114,7 +114,7 @@ def test_01_template_convert_never_replaces_its_source_or_someone_elses_file(ict
                          ("adir", "is a folder")):
         before = (tmp_path / out).read_bytes() if (tmp_path / out).is_file() else None
         rc, err = run("template", "convert", "src.npz", "--out", out)
-        assert rc == 1 and len(err) == 1 and __import__("re").search(message, err[0]), (out, err)
+        assert rc == 1 and len(err) == 1 and re.search(message, err[0]), (out, err)
         assert before is None or (tmp_path / out).read_bytes() == before
     rc, err = run("template", "convert", "src.npz", "--out", "src.npz", "--overwrite")
     assert rc == 1 and "is the same file as" in err[0]  # no flag allows writing over the source
@@ -290,21 +290,9 @@ class Endless(http.server.BaseHTTPRequestHandler):
         pass
 
 
-@contextlib.contextmanager
-def endless_server():
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Endless)
-    server.daemon_threads = True
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
-        yield f"http://127.0.0.1:{server.server_address[1]}"
-    finally:
-        server.shutdown()
-        server.server_close()
-
-
 def test_05_downloads_are_capped_in_size_and_time_and_leave_nothing(tmp_path):
     cache = tmp_path / "cache"
-    with endless_server() as url:
+    with serving(Endless) as url:
         with pytest.raises(FacecapError, match=r"more than 4 MiB came .*stopped"):
             download(f"{url}/endless", cache / "ict.zip", max_bytes=4 << 20)
         start = time.monotonic()
