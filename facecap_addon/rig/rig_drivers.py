@@ -65,6 +65,6 @@ def left_out_warning(found):
     named = "; ".join(found[:NAMED])
     return (f"rig: {len(found)} driver(s) could not be evaluated and are left out of the solve (what they drive does "
             f"not follow the controls: a corrective shape they drive is not applied): {named}{more}. A driver that "
-            "needs the file's own Python runs only where its scripts are trusted: if you trust its author, allow Auto Run "
-            "Python Scripts (Blender's Preferences > Save & Load) and solve it in the sidebar; facecap's command line "
-            "never runs a .blend's scripts. Otherwise fix or remove the drivers")
+            "needs the file's own Python runs only where its scripts are trusted: if you trust its author, allow "
+            "Auto Run Python Scripts (Blender's Preferences > Save & Load) and solve it in the sidebar; facecap's "
+            "command line never runs a .blend's scripts. Otherwise fix or remove the drivers")
