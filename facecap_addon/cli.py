@@ -37,8 +37,6 @@ import ctypes  # noqa: E402
 import io  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
-import signal  # noqa: E402
-import threading  # noqa: E402
 import tomllib  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -158,7 +156,8 @@ def _cmd_tune(args):
 def _cmd_docs_images(args):
     from .render.docs_images import render_docs_images  # imports bpy (and bmesh) at once: only for this command
 
-    written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, say=progress_line)
+    written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, say=progress_line,
+                                 overwrite=args.overwrite)
     for name, path in written.items():
         print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)", file=console.stdout())
     return 0
@@ -168,7 +167,8 @@ def _cmd_rig_bench(args):
     from .bench.rig_bench import rig_bench  # imports bpy at once: only for this command
 
     figures = rig_bench(capture=args.capture, frames=args.frames, sample_frames=args.sample_frames, docs=args.docs,
-                        repeat=args.repeat, reference=args.reference, long_only=args.long_only, say=progress_line)
+                        repeat=args.repeat, reference=args.reference, long_only=args.long_only, say=progress_line,
+                        overwrite=args.overwrite)
     print(json.dumps(figures, indent=2), file=console.stdout())
     return 0
 
@@ -335,12 +335,14 @@ def build_parser():
     p.add_argument("--repeat", type=int, default=1, help="solve the long Rigify take N times: median times (default 1)")
     p.add_argument("--reference", action="store_true", help="also the slow reference path: speed-up, both accuracies")
     p.add_argument("--long-only", action="store_true", help="only the long Rigify take (no control rigs, no capture)")
+    _overwrite_flag(p)
     p = command("docs-images", _cmd_docs_images)
     p.add_argument("--out", default=None, help="output folder (default: docs/images of this checkout)")
     p.add_argument("--size", type=int, default=280, help="tile height in pixels (default: 280)")
     p.add_argument("--engine", choices=("workbench", "cycles"), default="workbench",
                    help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
     p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
+    _overwrite_flag(p)
     command("template", _cmd_template)
     command("build-extension", _cmd_build_extension)
     command("landmark-models", _cmd_landmark_models)
@@ -366,8 +368,7 @@ def main(argv=None):
     console.configure(console.verbosity(args) if args.command not in FORWARDING else _forwarded_verbosity(args.rest))
     if args.command in BATCH_COMMANDS:
         keep_freed_memory()
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _interrupt) if main_thread else None  # cleans up as Ctrl-C does
+    previous = console.interrupts_handled()  # Ctrl-C and SIGTERM: KeyboardInterrupt at any moment
     try:
         with console.closed_pipe_ends_quietly():
             if args.command in BLENDER_COMMANDS:
@@ -387,17 +388,12 @@ def main(argv=None):
             raise
         return console.failed(exc)
     finally:
-        if main_thread:
-            signal.signal(signal.SIGTERM, previous)
+        console.restore_handlers(previous)
 
 
 def _forwarded_verbosity(rest):
     quiet = any(a in ("-q", "--quiet") for a in rest)
     return -1 if quiet else 1 if any(a in ("-v", "--verbose") for a in rest) else 0
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 def keep_freed_memory():

@@ -88,6 +88,7 @@ def solve_job(request):
         yield None
         if rig is not None:
             result = yield from rig.finish_steps(result, request.markers, settings)
+            result = replace(result, warnings=tuple(result.warnings) + tuple(rig.info.get("warnings", ())))
         return _with_controls(result, request, _take_fps(request))
 
     return Job(steps(), 1 + (rig.steps if rig is not None else 0), what="solve")

@@ -25,11 +25,12 @@ import numpy as np
 from ...solvers.config import load_take_config
 from ...solvers.io import write_markers
 from ...solvers.io.images import read_tga, write_png
+from ...solvers.io.outputs import check_files_in
 from ...solvers.tools.synthetic.realism.real_captures import FACIAL_SING_LANDMARKS, landmarks_toml
 from ...solvers.tools.synthetic.synth import performance_weights, synthesize_points
 from . import rig_samples, rig_samples_rigs
 from ..rig import rig_target
-from ..render.docs_images import compose
+from ..render.docs_images import DEFAULT_OUT, compose
 from ..headless.headless import run_take
 from ..render.render_state import mark_rendered
 from ..rig import rig_solve
@@ -251,9 +252,14 @@ def render_rigify(blend, face_name, result, path, *, count=5, size=(190, 216)):
 
 
 def rig_bench(*, capture=None, frames=3600, sample_frames=600, docs=None, repeat=1, reference=False, long_only=False,
-              say=print):
+              say=print, overwrite=False):
     """The figures of every test rig (a dict, also printed through ``say``); ``long_only``: only the
-    long Rigify take (time and accuracy)."""
+    long Rigify take (time and accuracy). ``docs``: the folder of the picture, through the output policy
+    before anything runs (the checkout's docs/images is facecap's own; elsewhere ``overwrite`` lets it replace
+    a file facecap did not write)."""
+    if docs is not None:
+        check_files_in(docs, ["rigify_face.png"], "--docs", "png", inputs={"--capture": capture}, overwrite=overwrite,
+                       owned=(DEFAULT_OUT,))
     with tempfile.TemporaryDirectory(prefix="facecap-rig-bench-") as tmp:
         figures = {} if long_only else control_rig_figures(tmp, sample_frames, say)
         rigify = Path(tmp) / "rigify"

@@ -15,6 +15,7 @@ import contextlib
 import ctypes
 import logging
 import os
+import signal
 import sys
 import threading
 import warnings
@@ -188,9 +189,29 @@ def failed(exc):
     elif isinstance(exc, OSError):
         log.error((f"{exc.filename}: " if getattr(exc, "filename", None) else "") + str(exc.strerror or exc))
     elif isinstance(exc, MemoryError):
-        log.error("out of memory (the take is too large for this machine's memory)")
+        log.error("out of memory (what this command reads or makes is too large for this machine's memory)")
     else:
         text = " ".join(str(exc).split())[:300]
         log.error(f"internal error (a bug in facecap; run with FACECAP_TRACEBACK=1 for where): "
                   f"{type(exc).__name__}: {text}")
     return 1
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def interrupts_handled():
+    """Make Ctrl-C (SIGINT) and SIGTERM raise KeyboardInterrupt in the main thread, whatever they did before:
+    a process started with SIGINT ignored (a background job of a shell script) would otherwise stop only where
+    facecap holds signals itself, and run on to the end elsewhere (while Blender opens a .blend). Returns the
+    handlers replaced, for ``restore_handlers`` (None off the main thread, where signals cannot be handled)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return {signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler),
+            signal.SIGTERM: signal.signal(signal.SIGTERM, _interrupt)}
+
+
+def restore_handlers(previous):
+    for sig, handler in (previous or {}).items():
+        signal.signal(sig, handler if handler is not None else signal.SIG_DFL)

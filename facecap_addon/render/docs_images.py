@@ -24,6 +24,7 @@ import numpy as np
 from ...solvers.errors import FacecapError
 from ...solvers.io.csv import read_weights_csv
 from ...solvers.io.images import read_tga, write_png
+from ...solvers.io.outputs import check_files_in
 from ...solvers.config import load_take_config
 from ..headless.demo import SAMPLE_CONFIG
 from ..headless.headless import run_take
@@ -79,9 +80,22 @@ def tile_size(size, picture):
     return int(round(h * ASPECT)), h
 
 
-def render_docs_images(solved=None, out=None, *, size=280, engine="workbench", say=print):
+#: The pictures ``generate`` renders
+PICTURES = ("expressions", "markers", "contact_sheet")
+
+
+def check_pictures(out=None, solved=None, *, overwrite=False):
+    """The output policy for the pictures in ``out`` (default: the checkout's docs/images, facecap's own, whose
+    pictures are replaced as they are): refused, before anything is rendered, where a file facecap did not
+    write is in the way (unless ``overwrite``). Returns the folder."""
+    return check_files_in(DEFAULT_OUT if out is None else out, [f"{p}.png" for p in PICTURES], "--out", "png",
+                          inputs={"--solved": solved}, overwrite=overwrite, owned=(DEFAULT_OUT,))
+
+
+def render_docs_images(solved=None, out=None, *, size=280, engine="workbench", say=print, overwrite=False):
     """``python -m facecap docs-images``: the pictures, from ``solved`` (a weights CSV) or, by default,
     from a retarget of the sample take (weights only). Returns {name: path}."""
+    out = check_pictures(out, solved, overwrite=overwrite)
     if solved is not None:
         return generate(solved, out, size=size, engine=engine, say=say)
     with tempfile.TemporaryDirectory(prefix="facecap-docs-") as tmp:

@@ -17,6 +17,7 @@ from ...solvers.pipeline.binding import from_record
 from ...solvers.rig import PoseLibrary, RigTarget, probe_rig_steps, run_steps
 from ...solvers.video.reading import Cancelled
 from ..scene import anim
+from .rig_drivers import left_out_warning, unrunnable_drivers
 from .rig_eval import RigEvaluator
 from .rig_keying import key_controls
 from .rig_target import driver_pairs, preset_controls, spec_controls
@@ -110,8 +111,12 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
     refined through the rig on every n-th frame); ``reference``: the slow path (``RigTarget``)."""
     steps = build_rig_target_steps(mesh, marker_names, rig_settings, say=say, binding=binding, n_frames=n_frames,
                                    chunk=4 * PROBE_CHUNK if progress is not None else None, reference=reference)
-    return run_steps(steps, progress,
-                     lambda done, planned: Cancelled(f"rig probing cancelled after {done} of {planned} poses"))
+    target, controls = run_steps(
+        steps, progress, lambda done, planned: Cancelled(f"rig probing cancelled after {done} of {planned} poses"))
+    left_out = unrunnable_drivers(mesh, controls)  # the rig evaluated: Blender has marked what it could not run
+    if left_out:  # never silent: the solve's warnings (and the report's ``rig`` section) name them
+        target.info.update(drivers_left_out=left_out, warnings=[left_out_warning(left_out)])
+    return target, controls
 
 
 def build_rig_target_steps(mesh, marker_names, rig_settings, *, say=None, binding=None, n_frames=None, chunk=None,

@@ -52,7 +52,7 @@ class FaceModel:
     landmarks68: np.ndarray
     polygons: np.ndarray = None  # (Q, 4) the source's quads (a renderer's faces), when it has them
     source: str = ""
-    digest: str = ""  # SHA-256 of the source's float32 arrays (``source_digest``)
+    digest: str = ""  # SHA-256 of everything the source holds (``source_digest``)
 
     @property
     def n_vertices(self):
@@ -65,10 +65,33 @@ class FaceModel:
 
 
 def source_digest(arrays):
-    """SHA-256 of an ICT face file's neutral, expression and identity arrays as float32 (its own units)."""
+    """SHA-256 of everything of an ICT face file a template keeps, in its own units: the neutral, the expression
+    and identity deltas (float32), the expression names in order, the polygons and the 68 landmark vertices
+    (int64); each with its key and shape, so that no two different files give the same bytes."""
     h = hashlib.sha256()
-    for key in ("neutral_cm", "expression_deltas_cm", "identity_deltas_cm"):
-        h.update(np.ascontiguousarray(arrays[key], dtype=np.float32).tobytes())
+    for key, dtype in (("neutral_cm", "<f4"), ("expression_deltas_cm", "<f4"), ("identity_deltas_cm", "<f4"),
+                       ("quads", "<i8"), ("landmarks_multipie68", "<i8")):
+        values = np.ascontiguousarray(arrays[key], dtype=dtype)
+        h.update(f"{key}{values.shape}".encode())
+        h.update(values.tobytes())
+    h.update("\n".join(str(n) for n in np.asarray(arrays["expression_names"]).ravel()).encode("utf-8"))
+    return h.hexdigest()
+
+
+def model_digest(model):
+    """SHA-256 of what a template file stores of ``model`` (facecap's units and axes, ARKit names, triangles),
+    as the template stores it (float32 shapes and modes; -0.0 counted as 0.0): identifies a template whoever
+    converted it, with whichever NumPy."""
+    h = hashlib.sha256()
+    arrays = (("neutral", model.neutral, "<f4"), ("deltas", model.deltas, "<f4"), ("identity", model.identity, "<f4"),
+              ("triangles", model.triangles, "<i8"), ("landmarks68", model.landmarks68, "<i8"))
+    for key, values, dtype in arrays:
+        values = np.ascontiguousarray(values, dtype=dtype)
+        if values.dtype.kind == "f":
+            values = values + values.dtype.type(0.0)  # -0.0 -> 0.0: the sign of a zero is not the model
+        h.update(f"{key}{values.shape}".encode())
+        h.update(values.tobytes())
+    h.update("\n".join(model.shape_names).encode("utf-8"))
     return h.hexdigest()
 
 

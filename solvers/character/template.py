@@ -3,8 +3,11 @@ markers, giving the actor's own expression shapes at the markers without a calib
 
 The template is not shipped with facecap. A user who has a copy of the ICT-FaceKit model (MIT) converts it
 once (``python -m facecap template convert <the download>``: the GitHub zip as downloaded, the repository
-folder or its ``FaceXModel`` folder, ``ict_release``; hash-checked: ``TEMPLATE_DIGEST``); facecap then finds
-it in its data folder (``template_path``) or at the path ``[actor] template`` names.
+folder or its ``FaceXModel`` folder, ``ict_release``; hash-checked: ``TEMPLATE_DIGEST`` covers everything the
+solve uses, the shapes' names and deltas, the identity modes, the polygons and the landmarks); facecap then finds
+it in its data folder (``template_path``) or at the path ``[actor] template`` names. Loading checks the template
+file's contents too (``TEMPLATE_MODEL_DIGEST``): a template installed by an earlier facecap is the same file and
+keeps working; one changed since, or any other model, is refused with how to install the template again.
 
 Fitting (``HumanTemplate.fit``): the markers (metres, turned upright by a given orientation or started by the
 automatic multi-start search) are aligned to the template's surface by robust ICP, then the similarity and the
@@ -14,25 +17,36 @@ similarity, are the actor's shapes as the template knows them.
 """
 
 import os
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import FacecapError, InputFileError
-from ..io.files import atomic_path
+from ..io.archives import check_members
+from ..io.files import atomic_path, remove_stale_temporaries
+from ..io.limits import check_input_file
+from ..io.outputs import Output, check_outputs
 from ..transforms import Similarity
 from .alignment import align_automatic, refine
-from .face_model import FaceModel, load_ict
+from .face_model import FaceModel, load_ict, model_digest
 from .ict_release import RELEASE_URL
 from .surface import closest_points, interpolate, make_surface
 from .template_fit import fit_identity
 
 TEMPLATE_NAME = "ict-facekit.npz"
 FORMAT = "facecap human template 1"
-#: SHA-256 of the face region's float32 neutral, expression and identity arrays (ICT-FaceKit
-#: @ da5f95a stores them, face region vertices 0-9408): a conversion of any other model is refused.
-TEMPLATE_DIGEST = "f48716ad59ed5db7f3eabea3c933da95d94637ffd2b2093f1f75770a243a3b2d"
+#: SHA-256 of the face region of ICT-FaceKit @ da5f95a as its files hold it (``face_model.source_digest``: the
+#: neutral, the expression names and deltas, the identity modes, the polygons, the landmarks): a conversion of
+#: any other model is refused.
+TEMPLATE_DIGEST = "acc3b12be22afdc7bc45c0f0ce880d5a657e8e29676328c35863c30f92334361"
+#: SHA-256 of the template ``convert`` makes of it (``face_model.model_digest``): what loading checks.
+TEMPLATE_MODEL_DIGEST = "f6e287e9486456a2d306c206eb781aaec56f8f6dc8a69824376fef0dbed25e9e"
+#: Bounds of a template file's arrays before they are read: it holds about 20 MB (the identity modes)
+MAX_TEMPLATE_ARRAY_BYTES = 64 << 20
+MAX_TEMPLATE_BYTES = 256 << 20
+MAX_TEMPLATE_RATIO = 50
 #: Identity modes fitted (of 100) and their ridge: enough for the face's proportions, few enough that
 #: 30-70 markers with 0.3 mm noise determine them.
 IDENTITY_MODES = 60
@@ -58,24 +72,41 @@ def template_path():
     return data_folder() / "templates" / TEMPLATE_NAME
 
 
-def convert(source, out=None, *, check_digest=True, progress=None):
+def check_template_output(out=None, source=None, *, overwrite=False):
+    """The output policy (``solvers.io.outputs``) for a template written at ``out`` (None: ``template_path()``,
+    facecap's own data folder, where it always replaces what is there) from ``source``: never the source, a
+    folder or someone else's file (unless ``overwrite``). Stale temporary files of killed runs beside it are
+    removed. Returns the path to write."""
+    path = Path(out) if out is not None else template_path()
+    check_outputs([Output("--out" if out is not None else "the template", path, "template")],
+                  {"the ICT-FaceKit download (SOURCE)": source}, overwrite=overwrite or out is None)
+    remove_stale_temporaries(path.parent)
+    return path
+
+
+def convert(source, out=None, *, progress=None, overwrite=False):
     """Convert a copy of ICT-FaceKit (its download as published: the zip, the repository folder or
     ``FaceXModel``; or the reduced face file ``ict_face.npz``) into facecap's template at ``out`` (default
-    ``template_path()``), written atomically. Returns the path. ``progress(done, total)``: OBJ files read."""
+    ``template_path()``), written atomically through the output policy (``check_template_output``) before
+    anything is read. Returns the path. ``progress(done, total)``: OBJ files read."""
+    out = check_template_output(out, source, overwrite=overwrite)
     model = load_ict(source, progress=progress)
-    digest = model.digest
-    if check_digest and digest != TEMPLATE_DIGEST:
-        raise FacecapError(f"{source}: not the ICT-FaceKit release facecap knows (data digest {digest[:16]}..., "
-                           f"expected {TEMPLATE_DIGEST[:16]}...); the template's accuracy figures hold only for it. "
-                           f"Download that release: {RELEASE_URL}")
-    out = Path(out) if out is not None else template_path()
+    _check_release(model, source)
     out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out, suffix=".npz") as tmp:
+    with atomic_path(out, suffix=".npz", kind="template") as tmp:
         np.savez_compressed(tmp, format=np.array(FORMAT), neutral=model.neutral, triangles=model.triangles,
                             shape_names=np.array(model.shape_names), deltas=model.deltas.astype(np.float32),
                             identity=model.identity.astype(np.float32), landmarks68=model.landmarks68,
-                            digest=np.array(digest))
+                            digest=np.array(model.digest))
     return out
+
+
+def _check_release(model, source):
+    if model.digest != TEMPLATE_DIGEST:
+        raise FacecapError(f"{source}: not the ICT-FaceKit release facecap knows (data digest {model.digest[:16]}..., "
+                           f"expected {TEMPLATE_DIGEST[:16]}...: its shapes, their names, polygons or landmarks "
+                           f"differ); the template's accuracy figures hold only for it. Download that release: "
+                           f"{RELEASE_URL}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,23 +136,35 @@ class HumanTemplate:
 
     @classmethod
     def load(cls, path):
-        """A template written by ``convert`` (or, for tests, an ICT-FaceKit face file or its folder)."""
+        """A template written by ``convert`` (or, for tests, an ICT-FaceKit face file or its folder), refused
+        unless it holds the release facecap knows (``TEMPLATE_MODEL_DIGEST``; ``TEMPLATE_DIGEST``)."""
         path = Path(path)
         if path.is_dir() or path.name == "ict_face.npz":
-            return cls(load_ict(path), source=str(path))
+            model = load_ict(path)
+            _check_release(model, path)
+            return cls(model, source=str(path))
+        again = ("install it again: `python -m facecap template fetch`, or `template convert` on the ICT-FaceKit "
+                 f"download ({RELEASE_URL})")
+        check_input_file(path, limit=MAX_TEMPLATE_BYTES)  # a FIFO would block the reader, a device feed it for ever
         try:
             with np.load(path, allow_pickle=False) as z:
                 if "format" not in z.files or str(z["format"]) != FORMAT:
                     raise InputFileError(path, "not a facecap human template (convert it with "
                                                "`python -m facecap template convert`)")
+                check_members(path, z.zip.infolist(), max_bytes=MAX_TEMPLATE_ARRAY_BYTES, max_ratio=MAX_TEMPLATE_RATIO,
+                              what=f"not a template facecap wrote; {again}")
                 model = FaceModel(z["neutral"].astype(np.float64), z["triangles"].astype(np.int64),
                                   tuple(str(n) for n in z["shape_names"]), z["deltas"].astype(np.float64),
                                   z["identity"].astype(np.float64), z["landmarks68"].astype(np.int64),
-                                  source=str(path), digest=str(z["digest"]))
+                                  source=str(path), digest=TEMPLATE_DIGEST)
         except FileNotFoundError:
             raise InputFileError(path, "file not found") from None
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, NotImplementedError) as exc:
             raise InputFileError(path, f"not a facecap human template: {exc}") from None
+        if model_digest(model) != TEMPLATE_MODEL_DIGEST:
+            raise InputFileError(path, "not the human template facecap converts from ICT-FaceKit "
+                                       f"{RELEASE_URL.rsplit('/', 1)[1][:7]} (changed or damaged since it was "
+                                       f"installed, or another model); {again}")
         return cls(model, source=str(path))
 
     def fit_automatic(self, names, markers, **options):

@@ -35,7 +35,7 @@ from .csv_vector import SlowPath as _SlowPath
 from .csv_vector import vector_numeric as _vector_numeric
 
 # The writers live in csv_write; imported here so `from .csv import write_markers_csv` keeps working.
-from .csv_write import AXES, segment_labels, write_markers_csv, write_weights_csv  # noqa: F401
+from .csv_write import AXES, segment_labels, text_of_cell, write_markers_csv, write_weights_csv  # noqa: F401
 from .csv_columns import FRAME_HEADERS, TIME_HEADERS, header_cells, header_columns
 from .limits import check_input_file
 from .timing import check_markerset, finish_arrays, segments_from_labels
@@ -287,11 +287,11 @@ def read_numeric_columns(sn, columns):
 
 
 def read_text_columns(sn, columns):
-    """List (one per column) of per-row stripped strings."""
+    """List (one per column) of per-row stripped strings (``'`` taken off a formula-like text, as written)."""
     out = [[] for _ in columns]
     for _, row in data_rows(sn):
         for j, c in enumerate(columns):
-            out[j].append(row[c].strip() if c < len(row) else "")
+            out[j].append(text_of_cell(row[c].strip()) if c < len(row) else "")
     return out
 
 

@@ -2,7 +2,7 @@
 CSV that has none, from the column names a take config gives (``[source] columns``)."""
 
 from ..errors import FacecapError, InputFileError
-from .csv_write import AXES
+from .csv_write import AXES, text_of_cell
 
 #: Column names of the frame number, and of the time with their unit in seconds (the wide reader's too).
 FRAME_HEADERS = ("frame", "frames", "frame_number", "frame#", "frame_no", "frameno")
@@ -37,7 +37,8 @@ def header_columns(path, columns, width):
 
 def header_cells(line, delimiter):
     """The cells of a header line (RFC 4180 quoting): unquoted cells stripped of spaces, quoted ones kept
-    exactly as written (a name may begin or end with a space)."""
+    exactly as written (a name may begin or end with a space); a name facecap wrote with a ``'`` before its
+    formula-like first character (``csv_write.formula_safe``) without it."""
     cells, cell, quoted, inside, i = [], [], False, False, 0
     while i < len(line):
         c = line[i]
@@ -58,4 +59,4 @@ def header_cells(line, delimiter):
             cell.append(c)
         i += 1
     cells.append("".join(cell) if quoted else "".join(cell).strip())
-    return tuple(cells)
+    return tuple(text_of_cell(c) for c in cells)

@@ -5,7 +5,10 @@ atomically: a wide marker CSV ``frame,<m>_x,<m>_y[,<m>_z]`` (plus a ``segment`` 
 take has non-overlapping segments) and a weights CSV ``frame,<shape>,...``. Text cells (the header's
 names, segment labels) are quoted as RFC 4180 says (the ``csv`` module), so a name holding the
 delimiter or a quote reads back as it was; a line break, which facecap's readers do not take inside a
-header or a label, is refused with the name.
+header or a label, is refused with the name. A text cell that a spreadsheet would run as a formula
+(it starts with ``= + - @`` or a tab: a shape key named ``=HYPERLINK(...)`` in someone's character) is
+written with a leading ``'`` (OWASP's advice for CSV injection), which spreadsheets show as text and
+facecap's readers take off again (``formula_safe`` / ``text_of_cell``).
 """
 
 import numpy as np
@@ -14,6 +17,23 @@ from ..errors import FacecapError
 from .files import atomic_path
 
 AXES = ("x", "y", "z")
+#: First characters that make a spreadsheet read a cell as a formula (OWASP, "CSV Injection")
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def formula_safe(text):
+    """``text`` as a CSV text cell a spreadsheet shows as text: a ``'`` before a formula's first character,
+    and before a ``'`` that starts such a cell already (so that ``text_of_cell`` gives back exactly ``text``)."""
+    if text[:1] in FORMULA_STARTS or (text[:1] == "'" and text[1:2] in FORMULA_STARTS + ("'",)):
+        return "'" + text
+    return text
+
+
+def text_of_cell(cell):
+    """The text ``formula_safe`` was given, from the cell it made (any other cell as it is)."""
+    if cell[:1] == "'" and cell[1:2] in FORMULA_STARTS + ("'",):
+        return cell[1:]
+    return cell
 
 
 def write_markers_csv(path, markers, *, delimiter=","):
@@ -85,8 +105,10 @@ def _text_row(cells, delimiter, path):
 
 def _quoted(text, delimiter, path, what):
     """``text`` as one CSV cell, quoted as RFC 4180 does (``csv.QUOTE_MINIMAL``) and also when it has
-    spaces at either end (unquoted cells are read stripped)."""
+    spaces at either end (unquoted cells are read stripped); a formula's first character is escaped
+    (``formula_safe``)."""
     _no_line_break(text, path, what)
+    text = formula_safe(text)
     if delimiter in text or '"' in text or text != text.strip():
         return '"' + text.replace('"', '""') + '"'
     return text
@@ -131,4 +153,4 @@ def _data_lines_per_cell(frame_text, values, delimiter, labels):
         yield f + delimiter + delimiter.join(cells) + "\n"
 
 
-__all__ = ["AXES", "segment_labels", "write_markers_csv", "write_weights_csv"]
+__all__ = ["AXES", "formula_safe", "segment_labels", "text_of_cell", "write_markers_csv", "write_weights_csv"]

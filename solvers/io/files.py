@@ -125,7 +125,7 @@ def remove_stale_temporaries(folder, *, max_age=STALE_AGE, now=None):
                 continue
             match = _TAGGED.match(entry.name)
             if match and match.group(1) == mine:
-                stale = not _alive(int(match.group(2)))
+                stale = not pid_alive(int(match.group(2)))
             else:
                 stale = now - entry.stat().st_mtime > max_age
             if stale:
@@ -136,7 +136,7 @@ def remove_stale_temporaries(folder, *, max_age=STALE_AGE, now=None):
     return removed
 
 
-def _alive(pid):
+def pid_alive(pid):
     if pid == os.getpid():
         return True
     try:

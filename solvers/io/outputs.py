@@ -112,6 +112,12 @@ KINDS = {
     "c3d": ("C3D file", lambda h: len(h) >= 2 and h[1] == 0x50 and h[0] >= 2),
     "trc": ("TRC file", lambda h: h.startswith(b"PathFileType")),
     "npz": ("stored library (.npz)", lambda h: h.startswith(b"PK\x03\x04") and b"shape_names" in h[:4096]),
+    "template": ("facecap human template (.npz)", lambda h: h.startswith(b"PK\x03\x04") and b"format.npy" in h[:128]),
+    "png": ("PNG image", lambda h: h.startswith(b"\x89PNG\r\n\x1a\n")),
+    "extension_zip": ("facecap extension zip", lambda h: h.startswith(b"PK\x03\x04")),
+    "bench_json": ("facecap benchmark JSON", lambda h: {"rows", "summary"} <= _json_keys(h)),
+    "config_docs": ("facecap config reference", lambda h: h.startswith(b"# Config reference")),
+    "commands_docs": ("facecap command reference", lambda h: h.startswith(b"# Command reference")),
     "glb": ("binary glTF (.glb)", lambda h: h.startswith(b"glTF")),
     "fbx": ("FBX file", lambda h: h.startswith(b"Kaydara FBX Binary") or h.lstrip().startswith(b"; FBX")),
     "plotly_js": ("plotly.js script", lambda h: b"plotly.js v" in h[:400]),
@@ -124,6 +130,9 @@ KINDS = {
 MARK = "user.facecap.output"
 #: Kinds an existing file of which is added to, not replaced: any such file qualifies, marked or not
 ADDED_TO = ("blend",)
+#: Kinds judged by their first bytes alone: the checkout's generated references, kept in version control
+#: (which keeps no mark)
+BY_CONTENT = ("config_docs", "commands_docs")
 
 
 def mark_output(path, kind=None):
@@ -154,7 +163,7 @@ def is_kind(path, kind):
     marker CSV), else its first bytes are of that kind and, where the file system keeps extended
     attributes, it carries facecap's mark."""
     mark = output_mark(path)
-    if kind not in ADDED_TO and mark is False:
+    if kind not in ADDED_TO + BY_CONTENT and mark is False:
         return False
     if isinstance(mark, str):
         return mark == kind
@@ -287,6 +296,18 @@ def check_outputs(outputs, inputs=None, *, overwrite=False, config=None, folders
             if same_file(folder, inp):
                 _fail(f"{key} is {in_key} ({resolved(inp)}); it must be a folder for the outputs", config)
         check_location(folder, key, config=config, folder=True)
+
+
+def check_files_in(folder, names, key, kind, *, inputs=None, overwrite=False, owned=()):
+    """The output policy for a command writing the files ``names`` (of ``kind``) into the folder ``folder`` that
+    the option ``key`` names: each file as any output (``check_outputs``), the folder writable. In a folder of
+    ``owned`` (facecap's own, e.g. the checkout's docs/images) its files are replaced as they are. Returns the
+    folder."""
+    folder = Path(os.path.expanduser(str(folder)))
+    mine = any(same_file(folder, o) for o in owned)
+    check_outputs([Output(f"{key} ({n})", folder / n, kind) for n in names], inputs, overwrite=overwrite or mine,
+                  folders=[(key, folder)])
+    return folder
 
 
 def check_output(out, *, overwrite=False, config=None):

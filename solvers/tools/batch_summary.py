@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FacecapError
+from ..io.csv_write import formula_safe
 from ..io.files import write_json_atomic, write_text_atomic
 from ..io.limits import MAX_TEXT_BYTES, check_input_file
 
@@ -112,14 +113,18 @@ class Summary:
 
 
 def to_csv(records):
+    """The summary as CSV; text cells that a spreadsheet would run as a formula (a take named ``=1+1``) are
+    written as text (``csv_write.formula_safe``)."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
     for r in records:
         total = r["seconds"].get("total") if r["seconds"] else None
-        writer.writerow([r["take"], r["status"], r["error"] or "", _blank(r["frames"]), _blank(r["shapes"]),
-                         r["strategy"] or "", _number(r["residual_mm"], 4), r["warnings"], _number(total, 3),
-                         r["worker"] or "", "; ".join(f"{k}={v}" for k, v in r["outputs"].items()), r["config"]])
+        outputs = "; ".join(f"{k}={v}" for k, v in r["outputs"].items())
+        text = [formula_safe(str(t)) for t in (r["take"], r["status"], r["error"] or "", r["strategy"] or "",
+                                               r["worker"] or "", outputs, r["config"])]
+        writer.writerow([*text[:3], _blank(r["frames"]), _blank(r["shapes"]), text[3], _number(r["residual_mm"], 4),
+                         r["warnings"], _number(total, 3), *text[4:]])
     return out.getvalue()
 
 

@@ -39,6 +39,7 @@ from pathlib import Path
 
 from ..errors import FacecapError
 from ..extension_builds import BUILDS, PLATFORMS, build_for_python, build_named
+from ..io.outputs import check_files_in, mark_output
 from . import release
 from .extension_files import copy_addon
 
@@ -338,13 +339,14 @@ def _plan(wheels, builds, platforms, lock):
 
 
 def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=None, lock=LOCK_FILE, source=REPO,
-          log=print):
+          log=print, overwrite=False):
     """Build and validate one extension zip per build and platform in ``out_dir``.
 
     Parameters
     ----------
     out_dir : path-like
-        Where the zips go (created if missing); same-named zips are replaced.
+        Where the zips go (created if missing); same-named zips facecap built are replaced, other files in
+        their way refused before anything is fetched (the output policy; ``overwrite`` replaces them).
     builds : sequence of str, optional
         Names of builds (``solvers/extension_builds.py``); default all.
     platforms : sequence of str
@@ -369,6 +371,9 @@ def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=Non
         raise BuildError(exc.args[0]) from None
     wheels, _ = read_lock(lock)
     jobs = _plan(wheels, chosen_builds, platforms, lock)
+    version = tomllib.loads((Path(source) / MANIFEST).read_text(encoding="utf-8")).get("version", "")
+    check_files_in(out_dir, [b.zip_name(version, p) for b, mine, _ in jobs for p in mine], "--out", "extension_zip",
+                   overwrite=overwrite)
     tool = Path(tool) if tool else find_extension_tool()
     paths = fetch_wheels([w for _, _, chosen in jobs for w in chosen], cache_dir, log=log)
     assets = fetch_assets(read_assets(lock), cache_dir, log=log)
@@ -391,6 +396,7 @@ def build(out_dir, *, builds=None, platforms=PLATFORMS, cache_dir=None, tool=Non
                     raise BuildError(f"Blender's extension tool did not write {tool_zip.name}")
                 path = out_dir / b.zip_name(manifest["version"], p)
                 os.replace(tool_zip, path)
+                mark_output(path, "extension_zip")  # facecap's own: the next build replaces it
                 _run_tool(tool, "validate", path, *_valid_tags(tool))
                 built.append(BuiltZip(b.name, p, path, path.stat().st_size,
                                       tuple(w.file for w in chosen if w.platform == p)))
@@ -415,12 +421,14 @@ def main(argv=None, *, parents=()):
                              f"also writes {release.CHECKSUMS} and {release.NOTES} (which zip is whose) beside the zips")
     parser.add_argument("--docs", metavar="PAGE", help="rewrite the zip table of PAGE (docs/install.md) with the "
                                                        "zips built")
+    parser.add_argument("--overwrite", action="store_true", help="let the zips replace files in --out that facecap "
+                        "did not build (default: refused)")
     args = parser.parse_args(argv)
     manifest = tomllib.loads((REPO / MANIFEST).read_text(encoding="utf-8"))
     if args.release is not None:  # before any download: a mislabelled release never starts
         release.check_tag(args.release, manifest["version"])
     built = build(args.out, builds=args.build, platforms=args.platform or PLATFORMS, cache_dir=args.cache,
-                  log=lambda line: print(line, flush=True))
+                  log=lambda line: print(line, flush=True), overwrite=args.overwrite)
     for z in built:
         mb = z.size / 1e6
         over = f"  (over the {SIZE_TARGET_MB:.0f} MB target)" if mb > SIZE_TARGET_MB else ""

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..errors import FacecapError
 from ..io.files import write_text_atomic
+from ..io.outputs import Output, check_outputs
 from ..options import OPTIONS, SECTIONS
 from ..video.cli import TRACK_OPTIONS
 
@@ -139,7 +140,11 @@ def main(argv=None, *, parents=(), commands=None):
     parser = argparse.ArgumentParser(prog="facecap config-docs", description=DESCRIPTION, parents=list(parents))
     parser.add_argument("--out", help="write the config reference here (default: print it)")
     parser.add_argument("--commands", metavar="PATH", help="also write the command reference here (docs/commands.md)")
+    parser.add_argument("--overwrite", action="store_true", help="let --out / --commands replace a file that is not "
+                        "facecap's reference (default: refused)")
     args = parser.parse_args(argv)
+    check_outputs([Output("--out", args.out, "config_docs"), Output("--commands", args.commands, "commands_docs")],
+                  overwrite=args.overwrite)  # None paths are left out
     text = render()
     if args.out:
         write_text_atomic(Path(args.out), text)

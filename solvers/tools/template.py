@@ -12,18 +12,32 @@ hold for what it installs.
 import argparse
 import http.client
 import os
+import re
+import shutil
 import sys
+import time
 import urllib.error
+import urllib.parse
 import urllib.request
 from pathlib import Path
 
 from ..character.ict_release import RELEASE_COMMIT, RELEASE_URL
-from ..character.template import HumanTemplate, convert, template_path
+from ..character.template import HumanTemplate, check_template_output, convert, template_path
 from ..errors import Cancelled, FacecapError
+from ..io.files import new_temporary, pid_alive, remove_stale_temporaries
+from ..io.outputs import OutputError
 from .build_extension import default_cache_dir
 
 CHUNK = 1 << 20
 TIMEOUT_S = 60  # per network read
+#: Largest download (bytes): the release's zip is about 0.2 GB (its OBJ files 0.4 GB unpacked); a server that
+#: sends more (or announces more) is not sending it, and the disk is not filled waiting to find out
+MAX_DOWNLOAD_BYTES = 768 << 20
+#: The whole download's deadline (seconds): 0.2 GB at 0.5 Mbit/s; a server trickling bytes slower than the
+#: per-read timeout notices is stopped here
+DOWNLOAD_SECONDS = 3600.0
+#: A partial download of an older facecap (``<name>.part-<pid>``), removed once its process is gone
+_OLD_PART = re.compile(r"^.+\.part-(\d+)$")
 
 
 def _progress(done, total):
@@ -37,30 +51,70 @@ def _download_progress(done, total):
           flush=True)
 
 
-def download(url, path, *, progress=None, timeout=TIMEOUT_S):
-    """``url`` to ``path``, atomically: read into ``<path>.part-<pid>`` (two downloads at once do not meet),
-    renamed when complete, removed when not (an error, Ctrl-C, ``progress(done, total)`` returning False:
-    ``Cancelled``)."""
+def download(url, path, *, progress=None, timeout=None, max_bytes=None, deadline=None):
+    """``url`` to ``path``, atomically: read into a temporary file beside it (``files.new_temporary``: two
+    downloads at once do not meet, and one killed outright is removed by the next fetch), renamed when
+    complete, removed when not (an error, Ctrl-C, ``progress(done, total)`` returning False: ``Cancelled``).
+    At most ``max_bytes`` are read (a larger announced size is refused before the first byte), within
+    ``deadline`` seconds in all, and only when the disk has room for an announced size (defaults:
+    ``TIMEOUT_S`` per read, ``MAX_DOWNLOAD_BYTES``, ``DOWNLOAD_SECONDS``)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    part = path.with_name(f"{path.name}.part-{os.getpid()}")
+    timeout = TIMEOUT_S if timeout is None else timeout
+    max_bytes = MAX_DOWNLOAD_BYTES if max_bytes is None else max_bytes
+    deadline = DOWNLOAD_SECONDS if deadline is None else deadline
+    if urllib.parse.urlsplit(url).scheme.lower() not in ("http", "https"):
+        raise FacecapError(f"{url}: not an http(s) address; for a file you have, run "
+                           "`python -m facecap template convert <the zip>`")
+    part = new_temporary(path)
+    start = time.monotonic()
     try:
         request = urllib.request.Request(url, headers={"User-Agent": "facecap"})
         with urllib.request.urlopen(request, timeout=timeout) as response, open(part, "wb") as f:
-            total, done = int(response.headers.get("Content-Length") or 0), 0
-            while chunk := response.read(CHUNK):
+            total, done = _announced(response), 0
+            if total > max_bytes:
+                raise _failed(url, f"the server announces {total / 2**20:.0f} MiB; the release is about 200 MB and "
+                                   f"facecap downloads at most {max_bytes / 2**20:.0f} MiB")
+            free = shutil.disk_usage(part.parent).free
+            if total > free:
+                raise OutputError(f"{path.parent}: not enough free space for the download ({total / 2**20:.0f} MiB; "
+                                  f"{free / 2**20:.0f} MiB free)")
+            while chunk := response.read1(min(CHUNK, max_bytes + 1 - done)):  # what came: the deadline is seen
                 f.write(chunk)
                 done += len(chunk)
+                if done > max_bytes:
+                    raise _failed(url, f"more than {max_bytes / 2**20:.0f} MiB came (the release is about 200 MB); "
+                                       "stopped")
+                if time.monotonic() - start > deadline:
+                    raise _failed(url, f"not finished after {deadline / 60:.0f} minutes ({done / 2**20:.0f} MiB); "
+                                       "stopped")
                 if progress is not None and progress(done, total) is False:
                     raise Cancelled("the download of ICT-FaceKit was cancelled")
             if total and done != total:
                 raise _failed(url, f"the download stopped at {done} of {total} bytes")
         os.replace(part, path)
-    except (urllib.error.URLError, http.client.HTTPException, OSError) as exc:
+    except (urllib.error.URLError, http.client.HTTPException, ValueError, OSError) as exc:
         raise _failed(url, getattr(exc, "reason", None) or exc) from None
     finally:
         part.unlink(missing_ok=True)
     return path
+
+
+def _check_address(url):
+    try:
+        parts = urllib.parse.urlsplit(url)
+        parts.port  # noqa: B018 - a port that is not a number raises here
+    except ValueError as exc:
+        raise FacecapError(f"{url[:200]}: not a valid address ({exc})") from None
+    if parts.scheme.lower() not in ("http", "https") or not parts.hostname:
+        raise FacecapError(f"{url[:200]}: not an http(s) address; for a file you have, run "
+                           "`python -m facecap template convert <the zip>`")
+
+
+def _announced(response):
+    try:
+        return max(0, int(response.headers.get("Content-Length") or 0))
+    except ValueError:
+        return 0
 
 
 def _failed(url, reason):
@@ -68,18 +122,45 @@ def _failed(url, reason):
                         "`python -m facecap template convert <the zip>`")
 
 
-def fetch(url=RELEASE_URL, out=None, *, cache=None, keep=False, progress=None, read_progress=None):
+def remove_stale_downloads(cache):
+    """Remove the partial downloads in ``cache`` that no live fetch owns (``files.remove_stale_temporaries``,
+    and ``<name>.part-<pid>`` of an older facecap whose process is gone); returns them."""
+    removed = remove_stale_temporaries(cache)
+    if Path(cache).is_dir():
+        for entry in Path(cache).iterdir():
+            match = _OLD_PART.match(entry.name)
+            if match and entry.is_file() and not pid_alive(int(match.group(1))):
+                entry.unlink(missing_ok=True)
+                removed.append(entry)
+    return removed
+
+
+def _archive_name(url):
+    """The cache's name of ``url``'s zip: the release's own, else the address's last part when it is a plain
+    file name (never ``..``, a hidden name or a path), else ``ict.zip``."""
+    if url == RELEASE_URL:
+        return f"ICT-FaceKit-{RELEASE_COMMIT}.zip"
+    name = urllib.parse.unquote(urllib.parse.urlsplit(url).path.rsplit("/", 1)[-1])
+    return name if re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,100}", name) else "ict.zip"
+
+
+def fetch(url=RELEASE_URL, out=None, *, cache=None, keep=False, progress=None, read_progress=None, overwrite=False):
     """Download ICT-FaceKit from ``url`` into facecap's cache (``<cache>/downloads``), convert it into the
-    template at ``out`` (default ``template_path()``) and remove the download unless ``keep``; a download
-    already in the cache is used as it is. A download that does not convert is removed (the next fetch
-    downloads again). Returns the template's path."""
+    template at ``out`` (default ``template_path()``; the output policy is applied before the download) and
+    remove the download unless ``keep``; a download already in the cache is used as it is. A download that
+    does not convert is removed (the next fetch downloads again), and so are partial downloads left by
+    fetches killed outright. Returns the template's path."""
+    _check_address(url)
+    out = check_template_output(out, overwrite=overwrite)
     cache = Path(cache) if cache is not None else default_cache_dir() / "downloads"
-    name = f"ICT-FaceKit-{RELEASE_COMMIT}.zip" if url == RELEASE_URL else Path(url.split("?")[0]).name or "ict.zip"
-    archive = cache / name
+    remove_stale_downloads(cache)
+    archive = cache / _archive_name(url)
+    if archive.exists() and not archive.is_file():
+        raise FacecapError(f"{archive}: in facecap's download cache but not a file; remove it")
     if not archive.is_file():
         download(url, archive, progress=progress)
     try:
-        path = convert(archive, out, progress=read_progress)
+        path = convert(archive, out, progress=read_progress, overwrite=True)  # ``out`` was checked above
     except Cancelled:
         raise  # the download is kept: the next fetch converts it
     except FacecapError:
@@ -101,6 +182,7 @@ def main(argv=None, *, parents=()):
     p.add_argument("--url", default=RELEASE_URL, help="where to download it from (default: the release on GitHub)")
     p.add_argument("--keep", action="store_true", help="keep the downloaded zip in facecap's cache")
     p.add_argument("--out", default=None, help=f"where to write the template (default: {template_path()})")
+    _overwrite_flag(p)
     p = sub.add_parser("convert", help="convert a copy of ICT-FaceKit into facecap's template: the zip as downloaded "
                                        f"from GitHub (release {RELEASE_COMMIT[:7]}, docs/strategies.md), the "
                                        "repository folder or its FaceXModel folder")
@@ -108,27 +190,33 @@ def main(argv=None, *, parents=()):
                                   "reduced ict_face.npz)")
     p.add_argument("--out", default=None, help=f"where to write it (default: {template_path()}, which [actor] "
                                                 "template = \"auto\" finds)")
+    _overwrite_flag(p)
     p = sub.add_parser("info", help="where the template is and what it holds")
     p.add_argument("path", nargs="?", default=None, help=f"a template file (default: {template_path()})")
     args = parser.parse_args(argv)
     tty = sys.stderr.isatty()
     if args.action == "fetch":
         out = fetch(args.url, None if args.out is None else Path(args.out).expanduser(), keep=args.keep,
-                    progress=_download_progress if tty else None, read_progress=_progress if tty else None)
+                    progress=_download_progress if tty else None, read_progress=_progress if tty else None,
+                    overwrite=args.overwrite)
         print(f"facecap: human template written to {out}", file=sys.stdout)
         return 0
     if args.action == "convert":
         out = convert(Path(args.source).expanduser(), None if args.out is None else Path(args.out).expanduser(),
-                      progress=_progress if tty else None)
+                      progress=_progress if tty else None, overwrite=args.overwrite)
         print(f"facecap: human template written to {out}", file=sys.stdout)
         return 0
     path = Path(args.path).expanduser() if args.path else template_path()
     if not path.exists():
-        print(f"facecap: no human template at {path}; install one with `python -m facecap template fetch` (or "
-              "`template convert` on a download)")
-        return 1
+        raise FacecapError(f"no human template at {path}; install one with `python -m facecap template fetch` (or "
+                           "`template convert` on a download)")
     t = HumanTemplate.load(path)
     m = t.model
     print(f"{path}: {len(m.shape_names)} shapes, {m.identity.shape[0]} identity modes, {m.n_vertices} vertices, "
           f"data digest {m.digest[:16]}...")
     return 0
+
+
+def _overwrite_flag(parser):
+    parser.add_argument("--overwrite", action="store_true", help="let --out replace a file facecap did not write "
+                        "(default: refused; never the source)")

@@ -26,6 +26,7 @@ import numpy as np
 from ..character.aliases import canonical_names, name_key
 from ..character.basis import Basis
 from ..errors import FacecapError, InputFileError
+from ..io.csv_write import text_of_cell
 from ..io.files import new_temporary, read_text_input
 from ..io.outputs import mark_output, write_error
 from ..pipeline import jsonable
@@ -255,7 +256,7 @@ def read_corrections_csv(path, shape_names=None):
     if not rows:
         raise InputFileError(path, "empty file; expected a header 'frame,<shape>,...'")
     line, header = rows[0]
-    header = [h.strip() for h in header]
+    header = [text_of_cell(h.strip()) for h in header]  # a formula-like name as facecap writes it ('=...)
     if header[0].lower() != "frame":
         raise InputFileError(path, f"the first column must be 'frame'; got {header[0]!r}", line=line, field="column 1")
     lookup = None if shape_names is None else _shape_lookup(shape_names)

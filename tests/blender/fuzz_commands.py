@@ -62,12 +62,15 @@ def toml_dumps(data):
 
 @dataclass
 class Case:
-    """One command line to run in ``folder``, after writing ``files`` ({name: bytes})."""
+    """One command line to run in ``folder``, after writing ``files`` ({name: bytes}) and calling ``setup(folder)``
+    (what bytes cannot make: FIFOs, links); the folder ``scratch`` (relative) is removed afterwards."""
 
     family: str
     argv: list
     files: dict = field(default_factory=dict)
     full_run: bool = False  # whether a valid config is solved to the end (else checked up to the preflight)
+    setup: object = None
+    scratch: str = None
 
 
 class Workspace:
@@ -95,6 +98,11 @@ class Workspace:
         shoot.mkdir()
         (shoot / "take_a.toml").write_text('[source]\nmarkers = "../take.csv"\n')
         (shoot / "take_b.toml").write_text('[source]\nmarkers = "../take.csv"\n[output]\naction = "b"\n')
+        self.freeze()
+
+    def freeze(self):
+        """Take the files now in the folder as the inputs no case may change (again after adding some)."""
+        f = self.folder
         self.inputs = sorted(p for p in f.rglob("*") if p.is_file() and not p.is_symlink() and p.stat().st_nlink == 1
                              or p.name == "take.csv")
         self.digest = self.snapshot()

@@ -1,24 +1,29 @@
 """A seeded fuzz campaign over every command, as an adversarial user would try it: hostile configs of
 ``retarget``, ``tune``, ``track`` and ``batch``, damaged capture files through ``inspect`` and ``convert``,
-and output paths that name inputs, folders, special files, links, loops or other people's files.
+output paths that name inputs, folders, special files, links, loops or other people's files, the template
+command on damaged and hostile ICT-FaceKit archives, folders and downloads from a local server, and rig targets
+whose drivers cannot run (``fuzz_template.py``).
 
 Every case runs the command line in this process (``facecap_addon.cli.main``) and must end in exit status
 0 (done), 1 (one line per problem, each starting ``facecap``) or 2 (a usage error), never with a
-traceback, an "internal error" or an exception out of ``main``; and no input, special file or file
-nobody asked to replace may change. Valid configs are solved to the end (the first ``FULL_RUNS`` of them;
+traceback, an "internal error" or an exception out of ``main``, within ``CASE_SECONDS``; no input, special
+file or file nobody asked to replace may change, no temporary file (a partial download, an output's) may be
+left, nothing from the rig's .blend may run, and no case may need more than ``PEAK_BYTES`` of memory (the
+process's peak resident size, reset before each case). Valid configs are solved to the end (the first
+``FULL_RUNS`` of them, ``RIG_FULL_RUNS`` of the rig's, which must warn about the drivers they leave out;
 later ones are checked up to the preflight, the solve itself being the one the other tests cover).
-Signals at random moments are in ``tests/e2e/test_fuzz_signals.py``.
+The figures per command are printed (``-s``). Signals at random moments are in ``tests/e2e/test_fuzz_signals.py``.
 """
 
 import contextlib
 import io
 import json
-import os
 import random
+import shutil
 import signal
 import sys
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -32,13 +37,21 @@ from facecap.solvers.errors import FacecapError
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from fuzz_commands import PATHS, Case, Workspace, mutate_tables, toml_dumps  # noqa: E402
+from fuzz_template import Seeds, litter, make_rig_blend, rig_cases, template_cases  # noqa: E402
 from test_fuzz_io import mutate, original  # noqa: E402
 
+from facecap.solvers.tools import template as template_tool  # noqa: E402
+
 SEED = 29
-#: Cases per family (2,050 in all)
-COUNTS = {"retarget": 800, "track": 300, "batch": 200, "readers": 450, "outputs": 300}
+#: Cases per family (2,570 in all)
+COUNTS = {"retarget": 800, "track": 300, "batch": 200, "readers": 450, "outputs": 300, "template": 460, "rig": 60}
 FULL_RUNS = 40
-CASE_SECONDS = 120  # a case still running after this is stopped and counted as a hang
+RIG_FULL_RUNS = 3
+CASE_SECONDS = 30  # a case still running after this is stopped and counted as a hang
+PEAK_BYTES = 1 << 30
+#: The download's bounds in the campaign: the mechanism is the one users get, its figures small enough that a
+#: server sending without end costs a case a second, not the 768 MiB and the hour of a real download
+DOWNLOAD_BOUNDS = {"MAX_DOWNLOAD_BYTES": 8 << 20, "DOWNLOAD_SECONDS": 3.0, "TIMEOUT_S": 2.0}
 
 
 class Hang(Exception):
@@ -128,6 +141,8 @@ def run_case(case, folder, counts):
     for name, data in case.files.items():
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
         (folder / name).write_bytes(data)
+    if case.setup is not None:
+        case.setup(folder)
     err, out = io.StringIO(), io.StringIO()
     previous = signal.signal(signal.SIGALRM, _hang)
     signal.alarm(CASE_SECONDS)
@@ -143,7 +158,28 @@ def run_case(case, folder, counts):
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
     counts[(case.family, "exit", rc)] += 1
+    if case.scratch:
+        shutil.rmtree(folder / case.scratch, ignore_errors=True)
     return rc, err.getvalue(), exc
+
+
+def reset_peak():
+    """Reset this process's peak resident size (Linux: ``clear_refs`` 5); False where it cannot be."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def memory(field="VmHWM"):
+    """This process's peak resident size since the last ``reset_peak`` (``VmHWM``) or its resident size now
+    (``VmRSS``), bytes; None where /proc cannot tell."""
+    try:
+        line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith(field + ":"))
+        return int(line.split()[1]) * 1024
+    except (OSError, StopIteration, ValueError):
+        return None
 
 
 def _hang(signum, frame):
@@ -171,16 +207,38 @@ def findings_of(case, rc, err, exc, before, after, files_before, folder):
 
 def test_every_command_under_hostile_input_ends_in_one_line_and_changes_no_input(tmp_path, monkeypatch):
     ws = Workspace(tmp_path / "ws")
+    make_rig_blend(ws.folder)
+    ws.freeze()
+    monkeypatch.setenv("FACECAP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("FACECAP_DATA", str(tmp_path / "data"))
+    for name, value in DOWNLOAD_BOUNDS.items():
+        monkeypatch.setattr(template_tool, name, value)
     rng = random.Random(SEED)
-    cases = (list(retarget_cases(ws, rng, COUNTS["retarget"])) + list(track_cases(ws, rng, COUNTS["track"]))
-             + list(batch_cases(ws, rng, COUNTS["batch"])) + list(reader_cases(ws, rng, COUNTS["readers"], tmp_path))
-             + list(output_cases(ws, rng, COUNTS["outputs"])))
-    rng.shuffle(cases)
-    solved = [0]
+    nrng = np.random.default_rng(SEED)
+    seeds = Seeds(tmp_path)
+    with seeds.server() as url:
+        cases = (list(retarget_cases(ws, rng, COUNTS["retarget"])) + list(track_cases(ws, rng, COUNTS["track"]))
+                 + list(batch_cases(ws, rng, COUNTS["batch"]))
+                 + list(reader_cases(ws, rng, COUNTS["readers"], tmp_path))
+                 + list(output_cases(ws, rng, COUNTS["outputs"]))
+                 + list(template_cases(ws, seeds, rng, nrng, COUNTS["template"], url))
+                 + list(rig_cases(ws, rng, COUNTS["rig"])))
+        rng.shuffle(cases)
+        _campaign(ws, cases, tmp_path, monkeypatch)
+
+
+def _campaign(ws, cases, tmp_path, monkeypatch):
+    solved, rig_solved, silent = [0], [0], []
     real_run_take = cli.run_take
 
     def run_take(config, **options):  # the first FULL_RUNS valid takes are solved; then the checks only
-        if solved[0] >= FULL_RUNS:
+        if config.rig is not None and rig_solved[0] < RIG_FULL_RUNS:
+            rig_solved[0] += 1
+            out = real_run_take(config, **options)
+            if not any("could not be evaluated" in w for w in out[0].warnings):
+                silent.append(str(config.path))
+            return out
+        if solved[0] >= FULL_RUNS or config.rig is not None:
             preflight(config, tune=options.get("tune", False), replace=options.get("replace", False),
                       overwrite=options.get("overwrite", False))
             raise FacecapError("fuzz: every check passed (not solved)")
@@ -196,18 +254,44 @@ def test_every_command_under_hostile_input_ends_in_one_line_and_changes_no_input
     monkeypatch.setattr(batch_module.LocalPool, "run", no_workers)
     monkeypatch.chdir(ws.folder)
     counts, findings = Counter(), []
+    figures = defaultdict(lambda: {"cases": 0, "seconds": 0.0, "slowest": 0.0, "peak_mb": 0.0, "grew_mb": 0.0})
     start = time.monotonic()
     for i, case in enumerate(cases):
         own = {name: data for name, data in case.files.items()}
+        measured, before = reset_peak(), memory("VmRSS")
+        began = time.monotonic()
         rc, err, exc = run_case(case, ws.folder, counts)
+        took, peak = time.monotonic() - began, memory() if measured else None
+        f = figures[case.argv[0] if case.family not in ("outputs", "rig") else case.family]
+        f["cases"] += 1
+        f["seconds"] += took
+        f["slowest"] = max(f["slowest"], took)
+        f["peak_mb"] = max(f["peak_mb"], (peak or 0) / 2**20)
+        f["grew_mb"] = max(f["grew_mb"], ((peak or 0) - (before or 0)) / 2**20)
         after = ws.snapshot()
-        for problem in findings_of(case, rc, err, exc, ws.digest, after, own, ws.folder):
-            findings.append(f"case {i} ({case.family}: {' '.join(case.argv)}; files {sorted(case.files)}): {problem}")
+        found = findings_of(case, rc, err, exc, ws.digest, after, own, ws.folder)
+        left = litter(ws.folder) + litter(tmp_path / "cache") + litter(tmp_path / "data")
+        found += [f"left behind: {left[:5]}"] if left else []
+        found += [f"peak memory {peak / 2**20:.0f} MB"] if peak is not None and peak > PEAK_BYTES else []
+        for problem in found:
+            findings.append(f"case {i} ({case.family}: {' '.join(case.argv)[:300]}; files {sorted(case.files)}): "
+                            f"{problem}")
+        for name in left:  # so that one finding does not hide the next
+            for root in (ws.folder, tmp_path / "cache", tmp_path / "data"):
+                (root / name).unlink(missing_ok=True)
         if after != ws.digest:  # put the inputs back so one finding does not hide the next
             pytest.fail("an input changed (the campaign cannot go on):\n" + "\n".join(findings[-5:]))
     seconds = time.monotonic() - start
     table = {f"{family} exit {rc}": n for (family, _, rc), n in sorted(counts.items(), key=str)}
-    print(f"\nfuzz campaign: {len(cases)} cases in {seconds:.0f} s, {solved[0]} solved to the end; {json.dumps(table)}")
-    assert len(cases) >= 2000
+    print(f"\nfuzz campaign: {len(cases)} cases in {seconds:.0f} s, {solved[0]} solved to the end (and {rig_solved[0]} "
+          f"rig takes); {json.dumps(table)}")
+    print("per command: cases, seconds in all, slowest case (s), peak memory of a case (MB: the whole process, "
+          "Blender and the campaign's inputs included; and its growth over the case)")
+    for command, f in sorted(figures.items()):
+        print(f"  {command:16s} {f['cases']:5d} {f['seconds']:7.1f} {f['slowest']:7.2f} {f['peak_mb']:7.0f} "
+              f"{f['grew_mb']:7.0f}")
+    assert len(cases) >= 2500 and figures["template"]["cases"] >= 300 and figures["rig"]["cases"] > 0
     assert not findings, f"{len(findings)} findings:\n" + "\n".join(findings[:40])
+    assert not silent, f"rig takes solved without a warning about their drivers: {silent}"
     assert solved[0] > 0 and counts[("retarget", "exit", 1)] > 0 and counts[("track", "exit", 0)] > 0
+    assert rig_solved[0] == RIG_FULL_RUNS and counts[("template", "exit", 1)] > 0

@@ -9,17 +9,19 @@ the jitter, each beside the truth's. Medians over the draws, and the worst draw.
 """
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ...character.face_model import load_ict
+from ...io.files import write_json_atomic
+from ...io.outputs import Output, check_outputs
 from ..synthetic.realism.actors import Perturbation
 from ..synthetic.realism.families import FAMILIES, load_family
 from ..synthetic.realism.layouts import LAYOUTS
-from ..synthetic.realism.methods import METHODS, base_settings, bound_character, holds_found, load_template, run_method
+from ..synthetic.realism.methods import (METHODS, base_settings, bound_character, holds_found, load_template,
+                                         run_method)
 from ..synthetic.realism.metrics import REGIONS, compare
 from ..synthetic.realism.real_captures import markdown as real_markdown
 from ..synthetic.realism.real_captures import run_real
@@ -171,7 +173,9 @@ def main(argv=None):
     parser.add_argument("--docs", help="run the docs' plan (every tier, both actor families, every character and "
                         "layout it reports; --targets, --layouts and --methods are ignored) and write its tables into "
                         "this page (docs/accuracy.md, between its generated markers)")
+    parser.add_argument("--overwrite", action="store_true", help="let --json replace a file facecap did not write")
     args = parser.parse_args(argv)
+    check_outputs([Output("--json", args.json, "bench_json")], overwrite=args.overwrite)  # before hours of work
     perturbation = Perturbation.none() if args.exact_actor else Perturbation()
 
     def progress(row):
@@ -201,6 +205,6 @@ def main(argv=None):
         print()
         print(real_markdown(real))
     if args.json:
-        Path(args.json).write_text(json.dumps({"rows": rows, "summary": {" / ".join(k): v for k, v in summary.items()},
-                                               "real": real}, indent=1))
+        write_json_atomic(Path(args.json), {"rows": rows, "summary": {" / ".join(k): v for k, v in summary.items()},
+                                            "real": real})
     return 0
