@@ -116,6 +116,8 @@ KINDS = {
     "png": ("PNG image", lambda h: h.startswith(b"\x89PNG\r\n\x1a\n")),
     "extension_zip": ("facecap extension zip", lambda h: h.startswith(b"PK\x03\x04")),
     "bench_json": ("facecap benchmark JSON", lambda h: {"rows", "summary"} <= _json_keys(h)),
+    "release_sums": ("facecap release checksums", lambda h: re.match(rb"[0-9a-f]{64}  facecap-", h) is not None),
+    "release_notes": ("facecap release notes", lambda h: h.startswith(b"# FaceCap ")),
     "config_docs": ("facecap config reference", lambda h: h.startswith(b"# Config reference")),
     "commands_docs": ("facecap command reference", lambda h: h.startswith(b"# Command reference")),
     "glb": ("binary glTF (.glb)", lambda h: h.startswith(b"glTF")),

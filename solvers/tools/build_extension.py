@@ -39,7 +39,7 @@ from pathlib import Path
 
 from ..errors import FacecapError
 from ..extension_builds import BUILDS, PLATFORMS, build_for_python, build_named
-from ..io.outputs import check_files_in, mark_output
+from ..io.outputs import Output, check_files_in, check_outputs, mark_output
 from . import release
 from .extension_files import copy_addon
 
@@ -427,6 +427,8 @@ def main(argv=None, *, parents=()):
     manifest = tomllib.loads((REPO / MANIFEST).read_text(encoding="utf-8"))
     if args.release is not None:  # before any download: a mislabelled release never starts
         release.check_tag(args.release, manifest["version"])
+        check_outputs([Output(f"--release ({n})", Path(args.out) / n, kind) for n, kind in release.FILES],
+                      overwrite=args.overwrite)
     built = build(args.out, builds=args.build, platforms=args.platform or PLATFORMS, cache_dir=args.cache,
                   log=lambda line: print(line, flush=True), overwrite=args.overwrite)
     for z in built:
@@ -434,7 +436,8 @@ def main(argv=None, *, parents=()):
         over = f"  (over the {SIZE_TARGET_MB:.0f} MB target)" if mb > SIZE_TARGET_MB else ""
         print(f"{z.build} {z.platform}: {z.path} ({mb:.1f} MB, validated){over}")
     if args.release is not None:
-        for path in release.write_release(built, args.out, manifest, sha256_of):
+        for path, (_, kind) in zip(release.write_release(built, args.out, manifest, sha256_of), release.FILES):
+            mark_output(path, kind)  # facecap's own: the next release build replaces them
             print(f"wrote {path}")
     if args.docs is not None:
         print(f"wrote {release.write_docs_table(built, args.docs)}")

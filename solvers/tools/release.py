@@ -73,9 +73,13 @@ def release_notes(built, version, website):
             f"`{CHECKSUMS}` lists each zip's SHA-256 (`sha256sum -c {CHECKSUMS} --ignore-missing`).\n")
 
 
+#: The files a release writes beside the zips, with their kinds in the output policy (``io.outputs.KINDS``).
+FILES = ((CHECKSUMS, "release_sums"), (NOTES, "release_notes"))
+
+
 def write_release(built, out_dir, manifest, sha256_of):
     """``SHA256SUMS`` and ``RELEASE_NOTES.md`` in ``out_dir`` (``manifest``: the repository's, as a dict);
-    returns their paths."""
+    returns their paths, in ``FILES`` order."""
     notes = Path(out_dir) / NOTES
     write_text_atomic(notes, release_notes(built, manifest["version"], manifest["website"]))
     return write_checksums(built, out_dir, sha256_of), notes

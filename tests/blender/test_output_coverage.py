@@ -42,6 +42,7 @@ WRITES = {
     ("template fetch", "--out"): "the human template (checked before the download)",
     ("template convert", "--out"): "the human template",
     ("build-extension", "--out"): "the extension zips in that folder",
+    ("build-extension", "--release"): "SHA256SUMS and RELEASE_NOTES.md beside the zips (checked before the build)",
 }
 #: Options that write nothing a user names (with why, where it is not plain)
 NOT_WRITING = {
@@ -55,14 +56,15 @@ NOT_WRITING = {
     "bench": ("--quick", "--accuracy", "--realism", "--landmarks", "--draws", "--clips", "--size", "--frames",
               "--batch", "--batch-takes", "--batch-jobs", "--repeat", "--clean", "--memory"),
     "bench --realism": ("--shared", "--draws", "--frames", "--targets", "--layouts", "--methods", "--exact-actor",
-                        "--real"),
+                        "--real", "--first-seed", "--actors", "--docs"),
     "docs-images": ("--size", "--engine", "--solved"),
     "rig-bench": ("--capture", "--frames", "--sample-frames", "--repeat", "--reference", "--long-only"),
     "template fetch": ("--url", "--keep"),  # the download goes to facecap's cache (its temporaries cleaned)
     "template convert": ("source",),
     "template info": ("path",),
-    # --cache: facecap's wheel cache, where verified wheels are added under their own names
-    "build-extension": ("--build", "--platform", "--cache"),
+    # --cache: facecap's wheel cache, where verified wheels are added under their own names; --docs edits only the
+    # generated block of a page that has one (refused without it), as bench --realism --docs
+    "build-extension": ("--build", "--platform", "--cache", "--docs"),
 }
 #: Commands without options of their own (landmark-models fills facecap's cache)
 COMMANDS = [[c] for c in cli.COMMANDS if c != "template"] + [["template", s] for s in ("fetch", "convert", "info")] \
@@ -107,6 +109,12 @@ def take_config(folder, output):
     return "take.toml"
 
 
+def _corrections(folder):
+    """An animator's corrections file for ``tune`` (inputs are checked before outputs: it must exist)."""
+    (folder / "c.csv").write_text("frame,jawOpen\n5,0.5\n")
+    return []
+
+
 def track_config(folder):
     import cv2
     import numpy as np
@@ -121,8 +129,8 @@ def track_config(folder):
     return "track.toml"
 
 
-ZIP = BUILDS[0].zip_name(tomllib.loads((ROOT / "blender_manifest.toml").read_text())["version"],
-                          BUILDS[0].platforms[0])
+VERSION = tomllib.loads((ROOT / "blender_manifest.toml").read_text())["version"]
+ZIP = BUILDS[0].zip_name(VERSION, BUILDS[0].platforms[0])
 
 
 def zips(folder):
@@ -136,7 +144,7 @@ CASES = [
     ("retarget", "--html", lambda f: ["--config", take_config(f, '[output]\nweights = "o/w.csv"'), "--html",
                                       "notes.txt"], "notes.txt"),
     ("tune", "--config", lambda f: ["--config", take_config(f, '[tuning]\ncorrections = "c.csv"\n[output]\n'
-                                                               'weights = "notes.txt"')], "notes.txt"),
+                                                               'weights = "notes.txt"'), *_corrections(f)], "notes.txt"),
     ("batch", "takes", lambda f: [take_config(f, '[output]\nweights = "notes.txt"'), "--summary", "o/s.json"],
      "notes.txt"),
     ("batch", "--summary", lambda f: [take_config(f, '[output]\nweights = "o/w.csv"'), "--summary", "notes.txt"],
@@ -154,6 +162,7 @@ CASES = [
     ("template convert", "--out", lambda f: [str(SAMPLES / "character_basis.npz"), "--out", "notes.txt"],
      "notes.txt"),
     ("build-extension", "--out", zips, f"dist/{ZIP}"),
+    ("build-extension", "--release", lambda f: [*zips(f), "--release", f"v{VERSION}"], "dist/RELEASE_NOTES.md"),
 ]
 
 
