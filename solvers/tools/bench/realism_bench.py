@@ -20,15 +20,14 @@ from ...io.outputs import Output, check_outputs
 from ..synthetic.realism.actors import Perturbation
 from ..synthetic.realism.families import FAMILIES, load_family
 from ..synthetic.realism.layouts import LAYOUTS
-from ..synthetic.realism.methods import (METHODS, base_settings, bound_character, holds_found, load_template,
-                                         run_method)
+from ..synthetic.realism.methods import METHODS, base_settings, bound_character, holds_found, load_template, run_method
 from ..synthetic.realism.metrics import REGIONS, compare
 from ..synthetic.realism.real_captures import markdown as real_markdown
 from ..synthetic.realism.real_captures import run_real
 from ..synthetic.realism.scenario import make_draw
 from ..synthetic.realism.takes import load_performances
 from ..synthetic.realism.targets import TARGETS, make_target
-from .realism_docs import PLAN, docs_markdown, write_docs
+from .realism_docs import PLAN, write_docs
 
 #: A benchmark row's key figures, in table order.
 FIGURES = ("rmse", "r", "at_upper", "jitter")
@@ -170,10 +169,11 @@ def main(argv=None):
     parser.add_argument("--real", action="store_true", help="also the real captures (Facial-Sing, blenderFace) onto "
                         "the sample character, judged by how plausible their weights are (no truth)")
     parser.add_argument("--json", help="write every row and the summary here")
-    parser.add_argument("--docs", help="run the docs' plan (every tier, both actor families, every character and "
-                        "layout it reports; --targets, --layouts and --methods are ignored) and write its tables into "
-                        "this page (docs/accuracy.md, between its generated markers)")
-    parser.add_argument("--overwrite", action="store_true", help="let --json replace a file facecap did not write")
+    parser.add_argument("--docs", metavar="FOLDER", help="run the docs' plan (every tier, both actor families, every "
+                        "character and layout it reports; --targets, --layouts and --methods are ignored) and write "
+                        "its tables into FOLDER's accuracy.md and strategies.md (docs: between their generated markers)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="let --json replace a file facecap did not write")
     args = parser.parse_args(argv)
     check_outputs([Output("--json", args.json, "bench_json")], overwrite=args.overwrite)  # before hours of work
     perturbation = Perturbation.none() if args.exact_actor else Perturbation()
@@ -197,8 +197,8 @@ def main(argv=None):
     print()
     print(markdown(summary))
     if args.docs:
-        write_docs(Path(args.docs), docs_markdown(summary, draws=args.draws, frames=args.frames))
-        print(f"\nwrote the realism tables into {args.docs}")
+        for page in write_docs(args.docs, summary, draws=args.draws, frames=args.frames):
+            print(f"wrote the realism tables into {page}")
     real = run_real(args.shared, template=load_template(Path(args.shared) / "data" / "ict-facekit")) \
         if args.real else []
     if real:
