@@ -37,10 +37,10 @@ def _download_progress(done, total):
           flush=True)
 
 
-def download(url, path, *, progress=None, timeout=TIMEOUT_S):
+def download(url, path, *, progress=None, timeout=TIMEOUT_S, what="ICT-FaceKit", manual=None):
     """``url`` to ``path``, atomically: read into ``<path>.part-<pid>`` (two downloads at once do not meet),
     renamed when complete, removed when not (an error, Ctrl-C, ``progress(done, total)`` returning False:
-    ``Cancelled``)."""
+    ``Cancelled``). ``what`` names the download in messages, ``manual`` says what to do when it fails."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     part = path.with_name(f"{path.name}.part-{os.getpid()}")
@@ -52,20 +52,20 @@ def download(url, path, *, progress=None, timeout=TIMEOUT_S):
                 f.write(chunk)
                 done += len(chunk)
                 if progress is not None and progress(done, total) is False:
-                    raise Cancelled("the download of ICT-FaceKit was cancelled")
+                    raise Cancelled(f"the download of {what} was cancelled")
             if total and done != total:
-                raise _failed(url, f"the download stopped at {done} of {total} bytes")
+                raise _failed(url, f"the download stopped at {done} of {total} bytes", what, manual)
         os.replace(part, path)
     except (urllib.error.URLError, http.client.HTTPException, OSError) as exc:
-        raise _failed(url, getattr(exc, "reason", None) or exc) from None
+        raise _failed(url, getattr(exc, "reason", None) or exc, what, manual) from None
     finally:
         part.unlink(missing_ok=True)
     return path
 
 
-def _failed(url, reason):
-    return FacecapError(f"{url}: could not download ICT-FaceKit ({reason}); download it in a browser and run "
-                        "`python -m facecap template convert <the zip>`")
+def _failed(url, reason, what="ICT-FaceKit", manual=None):
+    manual = manual or "download it in a browser and run `python -m facecap template convert <the zip>`"
+    return FacecapError(f"{url}: could not download {what} ({reason}); {manual}")
 
 
 def fetch(url=RELEASE_URL, out=None, *, cache=None, keep=False, progress=None, read_progress=None):
