@@ -3,6 +3,7 @@ markers), and how 2D takes see the character."""
 
 import bpy
 
+from ...solvers.video.landmarker_bundle import bundle_path
 from .panels import FacecapPanel
 
 
@@ -51,8 +52,6 @@ class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
 
 def _face_models_installed():
     """The Face Landmarker bundle is in the cache (found, not hash-checked: drawing stays instant)."""
-    from ...solvers.video.landmarker_bundle import bundle_path
-
     return bundle_path().is_file()
 
 

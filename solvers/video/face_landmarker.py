@@ -18,7 +18,7 @@ agrees with it to 4e-4 px of its 256-pixel crop; the blendshape head agrees to 3
 import numpy as np
 
 from ..errors import FacecapError
-from .face_mesh import N_POINTS, FaceMesh, _anchors
+from .face_mesh import N_POINTS, FaceMesh, anchors
 from .landmarker_bundle import read_bundle
 from .reading import opencv
 from .tflite_graph import TFLiteGraph
@@ -71,7 +71,7 @@ class FaceLandmarker(FaceMesh):
     def __init__(self, bundle, *, presence=0.5, min_detection=0.5):
         self.nets, self.head = load_bundle_models(bundle)
         self.presence, self.min_detection, self.iris = float(presence), float(min_detection), True
-        self.anchors = _anchors()
+        self.anchors = anchors()
         self.region = None
 
     def finish(self, rgb, points):

@@ -48,6 +48,8 @@ REGIONS = {
     "mouth": _names((61, 291, 0, 17, 13, 14, 37, 267, 84, 314, 40, 270, 91, 321, 78, 308, 81, 311, 178, 402,
                      82, 312, 87, 317)),
 }
+#: Frames the blendshape head scores at a time, beside the landmark model (on the eyes' thread)
+BLENDSHAPE_CHUNK = 32
 #: An adult's outer eye-corner distance (lm033 - lm263), metres: the scale of :func:`metric_take`.
 EYE_CORNERS_M = 0.09
 
@@ -140,6 +142,13 @@ def _landmark_steps(footage, mesh, smoothing):
     t_model, t0 = 0.0, time.perf_counter()
     reader = iter(footage)
     pending = None
+    landmarker = isinstance(mesh, FaceLandmarker)
+    scores = np.full((F, len(BLENDSHAPE_NAMES)), np.nan) if landmarker else None
+    chunks, done = [], 0  # the blendshape head on the second thread, BLENDSHAPE_CHUNK frames at a time
+
+    def score(a, b):
+        scores[a:b] = mesh.blendshapes(pos[a:b])
+
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="facecap-eyes") as eyes:
         try:
             for i, (f, img) in enumerate(reader):
@@ -151,20 +160,25 @@ def _landmark_steps(footage, mesh, smoothing):
                 if face.points is not None:
                     pos[i] = face.points  # filled in place by the eyes' thread
                     conf[i] = face.presence
-                    pending = eyes.submit(mesh.finish, rgb, pos[i])
+                    if not landmarker:
+                        pending = eyes.submit(mesh.finish, rgb, pos[i])
                     if face.detected:
                         detections.append(int(f))
+                if landmarker and i + 1 - done >= BLENDSHAPE_CHUNK:
+                    chunks.append(eyes.submit(score, done, i + 1))
+                    done = i + 1
                 t_model += time.perf_counter() - t1
                 yield f
             if pending is not None:
                 pending.result()
+            if landmarker:
+                t1 = time.perf_counter()
+                score(done, F)
+                for c in chunks:
+                    c.result()
+                t_model += time.perf_counter() - t1
         finally:
             reader.close()
-    scores = None
-    if isinstance(mesh, FaceLandmarker):  # the blendshape head over the whole clip at once
-        t1 = time.perf_counter()
-        scores = mesh.blendshapes(pos)
-        t_model += time.perf_counter() - t1
     t_all = time.perf_counter() - t0
     raw = pos.copy()
     raw[..., :2] = (raw[..., :2] + 0.5) / info.scale - 0.5  # working -> source pixels
