@@ -470,8 +470,7 @@ def _interrupt(signum, frame):
 
 
 #: Commands that pass their own options on to their tool
-FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension", "template",
-              "landmark-models")
+FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension", "template", "landmark-models")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
 BATCH_COMMANDS = ("retarget", "tune", "demo")

@@ -1,4 +1,4 @@
-"""``python -m facecap bench --fusion``: video takes judged on footage nobody tuned on.
+"""``python -m facecap.facecap_addon.bench.fusion_bench --out DIR``: video takes judged on footage nobody tuned on.
 
 Two real faces perform Live Link Face recordings from a relaxed start (``landmark_bench``): ICT faces
 (``shared/data/ict-facekit``: identities drawn from its identity modes) and the Face Cap head
@@ -159,7 +159,7 @@ def fit(out, *, log=print):
     tuned = [c.name for c in CLIPS if c.role == "tune"]
     table = fit_table(np.nan_to_num(truth), solved, corrected, names,
                       measured_on={"clips": tuned, "frames": int(len(truth)),
-                                   "command": "python -m facecap bench --fusion --fit"})
+                                   "command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit"})
     log(f"fusion table fitted on {len(tuned)} clips, {len(truth)} frames")
     return table, np.nanmean(truth, axis=0)
 
@@ -186,7 +186,7 @@ def evaluate(out, table, constant, role="report"):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="facecap bench --fusion")
+    parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
     parser.add_argument("--role", choices=("tune", "report"), action="append", help="only these clips")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "

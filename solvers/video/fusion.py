@@ -10,7 +10,7 @@ landmark solve is better on the jaw opening, the lower lip, smiles and blinks. P
     w = a * c + b * l                l the landmark solve's weight; a, b >= 0 from the fusion table
     w = clip(w, lower, upper)
 
-``a`` and ``b`` are measured, not chosen: ``python -m facecap bench --fusion --fit`` fits them by
+``a`` and ``b`` are measured, not chosen: ``python -m facecap.facecap_addon.bench.fusion_bench --fit`` fits them by
 non-negative least squares per shape on rendered clips with known weights (two ICT identities, two
 cameras, one recording; ``fusion_table.json`` beside this module says which) and never on the clips it
 reports. The result keeps the landmark take's own path onto the character: the semantic solve's weights

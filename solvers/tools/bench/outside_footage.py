@@ -1,5 +1,5 @@
 """Footage the project's scenario generator does not make, for judging the LK tracker on kinds nobody tuned it
-on (``bench --tracker``, ``tests/core/test_tracker_outside.py``).
+on (``tests/core/test_tracker_outside.py``, and the benchmark below).
 
 Written apart from ``synthetic/scenarios_footage.py`` on purpose (its textures, warps and motion are not used):
 an image (multi-octave value noise with a 1/f spectrum, or a real photograph: a studio-light panorama that
@@ -7,15 +7,23 @@ ships in the ``bpy`` wheel), a smooth random warp of the whole frame (a few low-
 rise and fall in time), a similarity head motion (rotation, zoom and shift, sinusoids) and a real codec
 (MJPG at a chosen quality, or lossless FFV1). Point p of the first frame is at ``S_t(p + W_t(p))`` in frame t.
 
+``python -m facecap.solvers.tools.bench.outside_footage`` prints the tracker beside the plain LK on every kind
+(960x720, 120 frames, 3 clips each; ``--size``, ``--frames``, ``--clips``).
+
 :data:`KINDS` are the kinds; a clip is drawn from a seed (:func:`outside_clip`).
 """
 
+import argparse
 import importlib.util
 import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from ...video.tracking import track_points
+from .reference_trackers import plain_lk
 
 #: kind -> texture, codec, JPEG quality, warp amplitude (pixels at 960x720), similarity amplitudes
 #: (degrees, zoom fraction, shift as a fraction of the width)
@@ -156,3 +164,44 @@ def outside_clip(path, kind, *, seed=0, size=(960, 720), frames=120, points=48, 
                                     mask=mask, blockSize=7).reshape(-1, 2).astype(np.float64)
     truth = np.stack([motion.forward(t, seeds) for t in range(frames)])
     return OutsideClip(Path(path), seeds, truth)
+
+
+def bench_outside(*, kinds=tuple(KINDS), seeds=(0, 1, 2), size=(960, 720), frames=120, log=print):
+    """The tracker beside the plain LK on every outside kind: one line per clip, then the medians per kind."""
+    def score(pos, truth):
+        err = np.linalg.norm(pos - truth, axis=2)[1:]
+        lost = np.isnan(err)
+        return float(np.median(np.where(lost, np.inf, err))), 100.0 * float(lost.mean())
+
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for kind in kinds:
+            for seed in seeds:
+                clip = outside_clip(Path(d) / f"{kind}-{seed}.avi", kind, seed=seed, size=size, frames=frames)
+                ours = score(track_points(str(clip.path), points=clip.seeds).markers.positions, clip.truth)
+                plain = score(plain_lk(clip.path, clip.seeds), clip.truth)
+                rows.append((kind, seed, ours, plain))
+                log(f"{kind} clip {seed}: ours {ours[0]:.3f} px, {ours[1]:.2f} % lost; plain LK {plain[0]:.3f} px, "
+                    f"{plain[1]:.2f} % lost")
+    for kind in kinds:
+        k = [r for r in rows if r[0] == kind]
+        log(f"{kind}: median ours {np.median([r[2][0] for r in k]):.3f} px, plain {np.median([r[3][0] for r in k]):.3f}"
+            f" px; lost ours {np.mean([r[2][1] for r in k]):.2f} %, plain {np.mean([r[3][1] for r in k]):.2f} %")
+    return rows
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m facecap.solvers.tools.bench.outside_footage",
+                                     description="The LK tracker beside the plain LK on footage from outside the "
+                                                 "project's scenario generator.")
+    parser.add_argument("--size", default="960x720", help="resolution (default 960x720)")
+    parser.add_argument("--frames", type=int, default=120, help="frames per clip (default 120)")
+    parser.add_argument("--clips", type=int, default=3, help="clips per kind (default 3)")
+    args = parser.parse_args(argv)
+    w, h = (int(v) for v in args.size.split("x"))
+    bench_outside(seeds=tuple(range(args.clips)), size=(w, h), frames=args.frames)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
