@@ -29,6 +29,9 @@ from ..character.aliases import canonical_names
 from ..errors import FacecapError
 
 TABLE_FILE = Path(__file__).resolve().parent / "fusion_table.json"
+#: The largest gain a table gives a signal: a score that barely moves in the tuning clips (eyeLookUp: 12x
+#: unbounded) would turn another face's noise into motion.
+MAX_GAIN = 2.0
 
 
 @dataclass(frozen=True)
@@ -50,9 +53,10 @@ class FusionTable:
             raise FacecapError(f"{path}: not a fusion table ({exc})") from None
 
     def save(self, path=TABLE_FILE):
-        shapes = {k: [round(self.score[k], 4), round(self.solve[k], 4)] for k in self.score}
-        text = json.dumps({"format": "facecap-fusion-table", "measured_on": self.measured_on, "shapes": shapes},
-                          indent=1)
+        rows = ",\n".join(f'  "{k}": [{self.score[k]:.4f}, {self.solve[k]:.4f}]' for k in self.score)
+        head = json.dumps({"format": "facecap-fusion-table", "measured_on": self.measured_on,
+                           "columns": ["score gain a", "solve gain b"]})
+        text = head[:-1] + ', "shapes": {\n' + rows + "\n}}"
         tmp = Path(path).with_name(Path(path).name + ".part")
         tmp.write_text(text + "\n", encoding="utf-8")
         tmp.replace(path)
@@ -120,16 +124,30 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
 def fit_table(truth, solved, corrected, names, *, measured_on=None):
     """The fusion table from tuning clips: per shape, non-negative (a, b) minimising
     ||a * corrected + b * solved - truth||^2 over every frame of every clip (``truth``, ``solved``,
-    ``corrected`` (F, S) stacked over the clips, columns ``names``)."""
-    from scipy.optimize import nnls  # scipy: imported on first use (only the benchmark fits tables)
+    ``corrected`` (F, S) stacked over the clips, columns ``names``), each gain at most ``MAX_GAIN``. A shape's
+    Left and Right share their gains (fitted on both sides' frames together): the face and the models are
+    symmetric, and a gain that differs between the sides would be the tuning clips' noise."""
+    from scipy.optimize import lsq_linear  # scipy: imported on first use (only the benchmark fits tables)
 
-    score, solve = {}, {}
+    groups = {}
     for j, name in enumerate(names):
-        A = np.stack([corrected[:, j], solved[:, j]], axis=1)
-        ok = np.isfinite(A).all(axis=1) & np.isfinite(truth[:, j])
-        if ok.sum() < 10 or np.ptp(truth[ok, j]) < 1e-6:
-            score[name], solve[name] = 0.0, 1.0  # nothing to learn from: the solve as it is
-            continue
-        (a, b), _ = nnls(A[ok], truth[ok, j])
-        score[name], solve[name] = float(a), float(b)
+        groups.setdefault(_unsided(name), []).append(j)
+    score, solve = {}, {}
+    for columns in groups.values():
+        A = np.concatenate([np.stack([corrected[:, j], solved[:, j]], axis=1) for j in columns])
+        y = np.concatenate([truth[:, j] for j in columns])
+        ok = np.isfinite(A).all(axis=1) & np.isfinite(y)
+        if ok.sum() < 10 or np.ptp(y[ok]) < 1e-6:
+            a, b = 0.0, 1.0  # nothing to learn from: the solve as it is
+        else:
+            a, b = lsq_linear(A[ok], y[ok], bounds=(0.0, MAX_GAIN)).x
+        for j in columns:
+            score[names[j]], solve[names[j]] = float(a), float(b)
     return FusionTable(score, solve, measured_on or {})
+
+
+def _unsided(name):
+    for side in ("Left", "Right"):
+        if name.endswith(side):
+            return name[: -len(side)]
+    return name
