@@ -108,7 +108,8 @@ def prepare(clip, out, character, *, log=print):
             "scores": found.blendshapes, "score_names": np.array(found.blendshape_names),
             "neutral": landmark_neutral(found), "render_s": t_render}
     np.savez(cached, **data)
-    video.unlink()  # 1-2 MB a clip; the npz keeps what the fusion needs
+    if clip.role == "tune":
+        video.unlink()  # the npz keeps what the fusion needs; a reported clip's video is kept for the speed
     log(f"{clip.name}: rendered in {t_render:.0f} s")
     return data
 
@@ -185,10 +186,32 @@ def evaluate(out, table, constant, role="report"):
     return rows
 
 
+def speed(video, log=print):
+    """Frames per second of the landmarks with the blendshape head (the bundle), decoding included, beside the
+    older models and decoding alone, in the same run (medians of 3; this machine's cores are shared)."""
+    from ...solvers.video.reading import Footage
+
+    def rate(run):
+        times = []
+        for _ in range(3):
+            t = time.perf_counter()
+            n = run()
+            times.append(time.perf_counter() - t)
+        return n / float(np.median(times))
+
+    decode = rate(lambda: sum(1 for _ in Footage(video, color=True)))
+    bundle = rate(lambda: len(track_landmarks(video).found))
+    older = rate(lambda: len(track_landmarks(video, bundle=None).found))
+    log(f"speed on {video.name} ({os.cpu_count()} cores): Face Landmarker with its blendshape head {bundle:.0f} "
+        f"frames/s, the older face mesh + iris models {older:.0f} frames/s, decoding alone {decode:.0f} frames/s")
+    return bundle, older, decode
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
     parser.add_argument("--role", choices=("tune", "report"), action="append", help="only these clips")
+    parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "
                                                           "(solvers/video/fusion_table.json)")
     args = parser.parse_args(argv)
@@ -210,6 +233,9 @@ def main(argv=None):
         table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1]
     rows = evaluate(out, table, constant)
     print_tables(rows)
+    videos = sorted(out.glob("report-*.mp4"))
+    if videos and args.speed:
+        speed(videos[0])
     return 0
 
 
