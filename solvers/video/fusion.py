@@ -64,12 +64,16 @@ class FusionTable:
 
 @dataclass(frozen=True, eq=False)
 class FaceScores:
-    """A take's blendshape scores: ``values`` (F, S) named ``names`` (NaN at frames without a face), and the
-    take's neutral frames (indices) they are corrected by."""
+    """A take's blendshape scores: ``values`` (F, S) named ``names`` (NaN at frames without a face), the take's
+    neutral frames (indices) they are corrected by, and the performer's ``response`` on this camera, if known:
+    ``response(corrected (F, S), names) -> (F, S)`` (per shape gain/offset or a monotone curve, from the
+    performer's ROM clip; the calibration issue's performer profile will provide it). It is applied to the
+    neutral-corrected scores and nowhere else (:func:`fuse`)."""
 
     values: np.ndarray
     names: tuple
     neutral: np.ndarray
+    response: object = None
 
 
 def neutral_corrected(scores, neutral):
@@ -91,7 +95,8 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
     table : FusionTable (default: the measured one, ``fusion_table.json``)
     response : callable(corrected (F, S), names) -> (F, S), optional
         The performer's response calibration (per shape gain/offset or monotone curve for this performer and
-        camera), applied to the neutral-corrected scores before they are combined: the one place it plugs in.
+        camera), applied to the neutral-corrected scores before they are combined: the one place it plugs in
+        (default: ``scores.response``).
     lower, upper : scalar or (K,) bounds of the character's shapes
 
     Returns
@@ -103,6 +108,7 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
     if len(scores.values) != len(w):
         raise FacecapError(f"the blendshape scores have {len(scores.values)} frames; the solve has {len(w)}")
     corrected = neutral_corrected(scores.values, scores.neutral)
+    response = scores.response if response is None else response
     if response is not None:
         corrected = np.asarray(response(corrected, tuple(scores.names)), dtype=np.float64)
     column = {n: j for j, n in enumerate(scores.names)}

@@ -45,8 +45,9 @@ def test_fuse_combines_per_shape_by_the_table_and_keeps_the_rest():
     np.testing.assert_allclose(w[:, 2], 0.7)  # no score for mySmirk
     np.testing.assert_allclose(w[5], solve[5])  # no face: the solve
     assert seen and seen[0][1] == names and np.isclose(seen[0][0][3, 0], 1.0)
-    w2, _ = fuse(solve, ("browInnerUp", "jawOpen", "x"), FaceScores(scores, names, np.array([0, 1])), table=table,
-                 response=lambda c, n: 2.0 * c, upper=np.array([0.8, 1.0, 1.0]))
+    w2, _ = fuse(solve, ("browInnerUp", "jawOpen", "x"),  # a performer's response riding with the scores
+                 FaceScores(scores, names, np.array([0, 1]), response=lambda c, n: 2.0 * c), table=table,
+                 upper=np.array([0.8, 1.0, 1.0]))
     assert w2[:5, 0].max() == pytest.approx(0.8)  # the character's bound
     with pytest.raises(FacecapError, match="5 frames; the solve has 6"):
         fuse(solve, names, FaceScores(scores[:5], names, np.array([0])), table=table)
