@@ -11,12 +11,12 @@ Looked up in this order: the ``path`` given (``[tracking] bundle``), ``$FACECAP_
 facecap cache (``<cache>/models/face_landmarker.task``). Every copy is hash-checked before it is used.
 """
 
-import hashlib
 import os
 import zipfile
 from pathlib import Path
 
 from ..errors import FacecapError
+from ..io.files import file_sha256
 from .face_models import cache_models_dir
 
 BUNDLE_FILE = "face_landmarker.task"
@@ -55,19 +55,11 @@ def find_bundle(path=None):
     return cached if cached.is_file() else None
 
 
-def sha256_of(path):
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def check_bundle(path):
     """Raise unless ``path`` is the bundle facecap knows (size, then SHA-256)."""
     path = Path(path)
     size = path.stat().st_size
-    if size != BUNDLE_SIZE or sha256_of(path) != BUNDLE_SHA256:
+    if size != BUNDLE_SIZE or file_sha256(path) != BUNDLE_SHA256:
         raise FacecapError(f"{path}: not the Face Landmarker bundle facecap was measured with ({BUNDLE_SIZE:,} "
                            f"bytes, SHA-256 {BUNDLE_SHA256[:16]}...; this file has {size:,} bytes); download it "
                            f"again with {FETCH_HINT}")

@@ -156,3 +156,15 @@ def test_fetch_downloads_checks_and_bounds_the_bundle(bundle, tmp_path, monkeypa
         with pytest.raises(FacecapError, match="sends 3,758,606 bytes, not the bundle's 3,758,596"):
             fetch_bundle(url + "/ict.zip", tmp_path / "c" / "face_landmarker.task")
         assert list((tmp_path / "c").iterdir()) == []
+
+
+def test_landmark_models_info_says_which_models_a_take_uses(bundle, tmp_path, monkeypatch, capsys):
+    from facecap.solvers.tools.landmark_models import main
+
+    monkeypatch.setenv("FACECAP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv(ENVIRONMENT, raising=False)
+    assert main(["info"]) == 0
+    assert "Face Landmarker bundle: not installed (`python -m facecap landmark-models fetch`" in capsys.readouterr().out
+    monkeypatch.setenv(ENVIRONMENT, str(bundle))
+    assert main(["info"]) == 0
+    assert f"Face Landmarker bundle: {bundle}\n" in capsys.readouterr().out
