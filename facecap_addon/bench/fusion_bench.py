@@ -31,6 +31,7 @@ from ...solvers.io.weights import read_weights
 from ...solvers.video.fusion import FaceScores, FusionTable, fit_table, fuse, neutral_corrected
 from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
 from ...solvers.video.landmarks import track_landmarks
+from ...solvers.video.reading import Footage
 from ..headless.headless import run_take
 from ..headless.landmark_take import landmark_neutral
 from ..render.face_footage import Shot, render_face_clip
@@ -189,8 +190,6 @@ def evaluate(out, table, constant, role="report"):
 def speed(video, log=print):
     """Frames per second of the landmarks with the blendshape head (the bundle), decoding included, beside the
     older models and decoding alone, in the same run (medians of 3; this machine's cores are shared)."""
-    from ...solvers.video.reading import Footage
-
     def rate(run):
         times = []
         for _ in range(3):

@@ -86,7 +86,7 @@ def _interpreter(data, x):
 def against_mediapipe(bundle, video, log=print):
     """facecap's landmarks and scores of ``video`` beside MediaPipe's FaceLandmarker (video mode)."""
     import mediapipe as mp  # only when installed: the reference pipeline
-    from mediapipe.tasks.python import BaseOptions, vision
+    from mediapipe.tasks.python import BaseOptions, vision  # as mediapipe
 
     cv2 = opencv()
     options = vision.FaceLandmarkerOptions(base_options=BaseOptions(model_asset_path=str(bundle)),
