@@ -214,7 +214,7 @@ def _cmd_build_extension(args):
 
 
 def _cmd_landmark_models(args):
-    return landmark_models_main([])
+    return landmark_models_main(args.rest, parents=[OUTPUT_OPTIONS])
 
 
 def _bench_line(row):

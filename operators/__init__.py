@@ -2,10 +2,11 @@
 
 import bpy
 
-from . import actor, binding, calibration, export, importers, mapping, neutral, report, solve, stabilise, tuning, video
+from . import (actor, binding, calibration, export, importers, mapping, neutral, report, solve, stabilise, tuning, video,
+               video_models)
 
 CLASSES = (importers.CLASSES + binding.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
-           + actor.CLASSES + mapping.CLASSES + video.CLASSES + tuning.CLASSES + export.CLASSES + report.CLASSES)
+           + actor.CLASSES + mapping.CLASSES + video.CLASSES + video_models.CLASSES + tuning.CLASSES + export.CLASSES + report.CLASSES)
 
 
 def register():

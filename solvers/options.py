@@ -408,6 +408,11 @@ OPTIONS = (
       headless="the sidebar always refines the eyes"),
     O("tracking", "models", "path", doc="Landmarks: folder of the face-mesh model files (default: found)",
       headless="the extension bundles the models"),
+    O("tracking", "bundle", "path", doc="Landmarks: the Face Landmarker bundle (default: installed by `landmark-models "
+      "fetch`, else the older models)", headless="the sidebar uses the installed bundle"),
+    O("tracking", "blendshapes", "choice", default="fuse", choices=("fuse", "ignore"),
+      doc="Landmarks: combine the Face Landmarker's blendshape scores with the solve per shape (docs/video.md)",
+      headless="the sidebar always combines them"),
     O("tracking", "region", "floats", length=4, low=0.0, high=1e6,
       doc="Face region [x, y, w, h] in pixels (default: the frame)",
       ui="facecap.video.region"),

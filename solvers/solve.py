@@ -16,6 +16,7 @@ from .pipeline import retarget
 from .strategies.options import StrategyInputs
 from .tuning.take import apply_version, retune_take
 from .video.flow_solve import retarget_flow_job
+from .video.fusion import fuse
 from .video.reading import Job
 
 
@@ -36,6 +37,8 @@ class SolveRequest:
     fps : frame rate for the controls' smoothing (default: the take's)
     rig : solvers.rig.RigTarget when the character is a rig: its basis is solved, then its controls
         (shape names are then control names: corrections, controls and locks name controls)
+    scores : video.fusion.FaceScores of a landmark take: the Face Landmarker's blendshape scores, combined
+        per shape with the solve (``video.fusion.fuse``) before the controls
     """
 
     character: object
@@ -51,6 +54,7 @@ class SolveRequest:
     controls: dict = None
     fps: float = None
     rig: object = None
+    scores: object = None
 
 
 def solve(request, progress=None):
@@ -89,6 +93,8 @@ def solve_job(request):
         if rig is not None:
             result = yield from rig.finish_steps(result, request.markers, settings)
             result = replace(result, warnings=tuple(result.warnings) + tuple(rig.info.get("warnings", ())))
+        if request.scores is not None:
+            result = _fused(result, request.scores)
         return _with_controls(result, request, _take_fps(request))
 
     return Job(steps(), 1 + (rig.steps if rig is not None else 0), what="solve")
@@ -102,6 +108,16 @@ def _take_fps(request):
     if request.markers is not None:
         return request.markers.fps
     return getattr(request.inputs.weights, "fps", None)
+
+
+def _fused(result, scores):
+    """``result`` with the blendshape scores combined into its weights, shape by shape (``video.fusion``)."""
+    weights, names = fuse(result.weights, result.shape_names, scores)
+    if not names:
+        return result
+    fusion = {"shapes": list(names), "neutral_frames": int(len(scores.neutral)),
+              "what": "the Face Landmarker's blendshape scores combined with the landmark solve (docs/video.md)"}
+    return replace(result, weights=weights, info={**result.info, "fusion": fusion})
 
 
 def _with_controls(result, request, fps):

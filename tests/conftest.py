@@ -1,10 +1,13 @@
 """Shared by every test folder: facecap's data folder is the user's (an installed human template changes what
 `[actor] template = "auto"` solves with), so the suite starts from an empty one; tests that install a template
-point FACECAP_DATA elsewhere themselves."""
+point FACECAP_DATA elsewhere themselves. Likewise a landmark take uses the Face Landmarker bundle when one is
+installed: the suite always names the shared copy (never a download), so what it runs does not depend on the
+machine's cache; tests of the older models ask for them (``bundle=None``)."""
 
 import os
 
 import pytest
+from shared_data import FACE_LANDMARKER
 
 
 @pytest.fixture(autouse=True, scope="session")
@@ -16,3 +19,17 @@ def empty_facecap_data(tmp_path_factory):
         os.environ.pop("FACECAP_DATA", None)
     else:
         os.environ["FACECAP_DATA"] = previous
+
+
+@pytest.fixture(autouse=True, scope="session")
+def shared_face_landmarker():
+    previous = os.environ.get("FACECAP_FACE_LANDMARKER")
+    if FACE_LANDMARKER.is_file():
+        os.environ["FACECAP_FACE_LANDMARKER"] = str(FACE_LANDMARKER)
+    else:
+        os.environ.pop("FACECAP_FACE_LANDMARKER", None)
+    yield
+    if previous is None:
+        os.environ.pop("FACECAP_FACE_LANDMARKER", None)
+    else:
+        os.environ["FACECAP_FACE_LANDMARKER"] = previous

@@ -19,6 +19,9 @@ SHARED = shared_root()
 REALDATA = Path(os.environ["FACECAP_REALDATA"]) if os.environ.get("FACECAP_REALDATA") else SHARED / "data" / "realdata"
 BLENDERFACE = SHARED / "data" / "blenderface"
 ICT_FACEKIT = SHARED / "data" / "ict-facekit"
+#: MediaPipe's Face Landmarker bundle (the copy every test uses: tests never download it)
+FACE_LANDMARKER = SHARED / "data" / "mediapipe" / "face_landmarker.task"
+FACECAP_HEAD = SHARED / "data" / "facecap-head" / "facecap_head.npz"
 BUGS = SHARED / "bugs"
 
 

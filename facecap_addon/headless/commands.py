@@ -33,8 +33,8 @@ template fetch | convert PATH install the optional human template: download ICT-
 rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
                               and platform, with the locked scipy/OpenCV wheels (docs/install.md)
-landmark-models               put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
-                              facecap cache, for [tracking] method = "landmarks" outside Blender
+landmark-models [fetch|info]  put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
+                              facecap cache; fetch: the Face Landmarker bundle (blendshapes, hash-checked)
 
 Every command takes -q/--quiet (only warnings and errors on stderr) and -v/--verbose (debug lines too,
 Blender's own output among them); ``facecap --version``. Progress and warnings go to stderr through
@@ -74,15 +74,14 @@ COMMANDS = {
                   "control curves and a real capture, and print their figures as JSON."),
     "template": ("install the optional human template (download ICT-FaceKit or convert a copy); where it is", None),
     "build-extension": ("build the Blender extension zips (per Blender generation and platform)", None),
-    "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",
-                        "Take MediaPipe's face-mesh models out of the locked mediapipe 0.10.21 wheel (downloaded once "
-                        "with pip, hash checked) into the facecap cache, for [tracking] method = \"landmarks\" "
-                        "outside Blender."),
+    "landmark-models": ("put the face-landmark models into the facecap cache; fetch: the Face Landmarker bundle",
+                        None),
 }
 
 
 #: Commands that pass their own options on to their tool
-FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension", "template")
+FORWARDING = ("compare", "track", "inspect", "convert", "config-docs", "build-extension", "template",
+              "landmark-models")
 
 #: Commands that run one take through and exit: they keep freed memory for reuse (``keep_freed_memory``).
 BATCH_COMMANDS = ("retarget", "tune", "demo")

@@ -38,7 +38,7 @@ from . import console
 from .actor_outputs import store_retune, versions_folder, write_actor_basis, write_profile
 from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_blend_atomic, stamp_target,
                           start_blender, target_changed)
-from .landmark_take import hold_gaze, read_landmarks
+from .landmark_take import hold_gaze, read_landmarks, with_scores
 from ..render.review import read_review_truth, write_take_review
 from .take_request import corrections_for, rig_request, shape_names, source_fields
 
@@ -374,6 +374,7 @@ def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False
     if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
         request, note = hold_gaze(request, shape_names(character), take.landmarks)
         take.notes = tuple(take.notes) + ((note,) if note else ())
+        request = with_scores(request, take.landmarks, config.video)
     fields = source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()

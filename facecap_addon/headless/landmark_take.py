@@ -10,6 +10,7 @@ from ...solvers.capture.normalise import detect_neutral_frames
 from ...solvers.capture.stabilise import stabilise_rigid
 from ...solvers.pipeline.stages import neutral_ranges
 from ...solvers.video.cli import run_showing_progress
+from ...solvers.video.fusion import FaceScores
 from ...solvers.video.gaze import gaze_locks
 from ...solvers.video.landmarks import RIGID, metric_take, track_landmarks_job
 from ...solvers.video.reading import Footage
@@ -20,7 +21,8 @@ def read_landmarks(video, inputs, say, *, quiet=False):
     """(markers in metres without the irises, source fields for the report, notes, the LandmarkResult) of
     the ``LandmarkTake`` ``video``; Ctrl-C stops between two frames (``Cancelled``: nothing written)."""
     footage = Footage(video.path, **video.footage, color=True)
-    job = track_landmarks_job(footage, smoothing=video.smoothing, iris=video.iris, models=video.models)
+    job = track_landmarks_job(footage, smoothing=video.smoothing, iris=video.iris, models=video.models,
+                              bundle=video.bundle)
     found = run_showing_progress(job, "landmarks", quiet=quiet or console.quiet())
     say(found.summary())
     info = footage.info
@@ -44,6 +46,27 @@ def neutral_indices(settings, markers):
     stable = [n for n in RIGID if n in markers.names]
     held = stabilise_rigid(markers, stable).markers
     return np.flatnonzero(np.isin(frames, detect_neutral_frames(held)[0]))
+
+
+def with_scores(request, found, video):
+    """``request`` carrying the Face Landmarker's blendshape scores of ``found`` (corrected by the take's neutral
+    frames and combined with the solve per shape, ``solvers/video/fusion.py``) unless the take has none or its
+    ``[tracking] blendshapes`` is "ignore"."""
+    if found.blendshapes is None or getattr(video, "blendshapes", "fuse") == "ignore":
+        return request
+    neutral = neutral_indices(request.settings, request.markers)
+    if neutral is None or not len(neutral):
+        return request
+    scores = FaceScores(found.blendshapes, tuple(found.blendshape_names), neutral)
+    return dataclasses.replace(request, scores=scores)
+
+
+def landmark_neutral(found):
+    """Indices of the neutral frames detected in a LandmarkResult, as a landmark take's solve detects them."""
+    markers = metric_take(found, iris=False)
+    stable = [n for n in RIGID if n in markers.names]
+    held = stabilise_rigid(markers, stable).markers
+    return np.flatnonzero(np.isin(markers.frames, detect_neutral_frames(held)[0]))
 
 
 def hold_gaze(request, shape_names, found):

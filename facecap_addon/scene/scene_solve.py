@@ -20,9 +20,12 @@ from ...solvers.config.rig import RigSettings
 from ...solvers.errors import FacecapError
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve, solve_job
+from ...solvers.video.fusion import FaceScores
 from ...solvers.video.reading import Cancelled
+from ..headless.landmark_take import neutral_indices
 from . import anim, layers, take
 from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding
+from .landmark_scores import scores_from_collection
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -57,7 +60,18 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     version = load_version(scene, settings.library_active) if settings.library_active and footage is None else None
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
-                        parent=settings.library_active or "", controls=controls, fps=settings.fps)
+                        parent=settings.library_active or "", controls=controls, fps=settings.fps,
+                        scores=None if markers is None else landmark_scores(settings, markers, rsettings))
+
+
+def landmark_scores(settings, markers, rsettings):
+    """The Face Landmarker's blendshape scores a landmark take keeps on its collection (``store_scores``), with
+    the take's neutral frames (given or detected as the solve detects them): FaceScores, or None."""
+    found = scores_from_collection(settings.marker_collection, markers.frames)
+    if found is None:
+        return None
+    neutral = neutral_indices(rsettings, markers)
+    return None if neutral is None or not len(neutral) else FaceScores(found[0], found[1], neutral)
 
 
 def rig_settings(settings):

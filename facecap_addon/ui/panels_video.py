@@ -3,6 +3,7 @@ markers), and how 2D takes see the character."""
 
 import bpy
 
+from ...solvers.video.landmarker_bundle import bundle_path
 from .panels import FacecapPanel
 
 
@@ -28,6 +29,8 @@ class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
         box.label(text="Without markers: the face's landmarks")
         box.prop(v, "landmark_smoothing")
         box.operator("facecap.track_face_landmarks", icon="USER").smoothing = v.landmark_smoothing
+        if not _face_models_installed():
+            box.operator("facecap.download_face_models", icon="URL")
         box = layout.box()
         box.label(text="Without markers: flow over the Region")
         col = box.column(align=True)
@@ -45,6 +48,11 @@ class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
             layout.prop(v, "camera")
             if v.camera is None and scene.camera is None:
                 layout.label(text="The scene has no camera: set one or pick it here", icon="ERROR")
+
+
+def _face_models_installed():
+    """The Face Landmarker bundle is in the cache (found, not hash-checked: drawing stays instant)."""
+    return bundle_path().is_file()
 
 
 CLASSES = (FACECAP_PT_video,)

@@ -51,13 +51,15 @@ def _download_progress(done, total):
           flush=True)
 
 
-def download(url, path, *, progress=None, timeout=None, max_bytes=None, deadline=None):
+def download(url, path, *, progress=None, timeout=None, max_bytes=None, deadline=None, what="ICT-FaceKit",
+             manual=None):
     """``url`` to ``path``, atomically: read into a temporary file beside it (``files.new_temporary``: two
     downloads at once do not meet, and one killed outright is removed by the next fetch), renamed when
     complete, removed when not (an error, Ctrl-C, ``progress(done, total)`` returning False: ``Cancelled``).
     At most ``max_bytes`` are read (a larger announced size is refused before the first byte), within
     ``deadline`` seconds in all, and only when the disk has room for an announced size (defaults:
-    ``TIMEOUT_S`` per read, ``MAX_DOWNLOAD_BYTES``, ``DOWNLOAD_SECONDS``)."""
+    ``TIMEOUT_S`` per read, ``MAX_DOWNLOAD_BYTES``, ``DOWNLOAD_SECONDS``). ``what`` names the download in
+    messages, ``manual`` says what to do when it fails."""
     path = Path(path)
     timeout = TIMEOUT_S if timeout is None else timeout
     max_bytes = MAX_DOWNLOAD_BYTES if max_bytes is None else max_bytes
@@ -72,8 +74,8 @@ def download(url, path, *, progress=None, timeout=None, max_bytes=None, deadline
         with urllib.request.urlopen(request, timeout=timeout) as response, open(part, "wb") as f:
             total, done = _announced(response), 0
             if total > max_bytes:
-                raise _failed(url, f"the server announces {total / 2**20:.0f} MiB; the release is about 200 MB and "
-                                   f"facecap downloads at most {max_bytes / 2**20:.0f} MiB")
+                raise _failed(url, f"the server announces {total / 2**20:.0f} MiB; facecap downloads at most "
+                                   f"{max_bytes / 2**20:.0f} MiB of {what}", what, manual)
             free = shutil.disk_usage(part.parent).free
             if total > free:
                 raise OutputError(f"{path.parent}: not enough free space for the download ({total / 2**20:.0f} MiB; "
@@ -82,18 +84,17 @@ def download(url, path, *, progress=None, timeout=None, max_bytes=None, deadline
                 f.write(chunk)
                 done += len(chunk)
                 if done > max_bytes:
-                    raise _failed(url, f"more than {max_bytes / 2**20:.0f} MiB came (the release is about 200 MB); "
-                                       "stopped")
+                    raise _failed(url, f"more than {max_bytes / 2**20:.0f} MiB came; stopped", what, manual)
                 if time.monotonic() - start > deadline:
                     raise _failed(url, f"not finished after {deadline / 60:.0f} minutes ({done / 2**20:.0f} MiB); "
-                                       "stopped")
+                                       "stopped", what, manual)
                 if progress is not None and progress(done, total) is False:
-                    raise Cancelled("the download of ICT-FaceKit was cancelled")
+                    raise Cancelled(f"the download of {what} was cancelled")
             if total and done != total:
-                raise _failed(url, f"the download stopped at {done} of {total} bytes")
+                raise _failed(url, f"the download stopped at {done} of {total} bytes", what, manual)
         os.replace(part, path)
     except (urllib.error.URLError, http.client.HTTPException, ValueError, OSError) as exc:
-        raise _failed(url, getattr(exc, "reason", None) or exc) from None
+        raise _failed(url, getattr(exc, "reason", None) or exc, what, manual) from None
     finally:
         part.unlink(missing_ok=True)
     return path
@@ -117,9 +118,9 @@ def _announced(response):
         return 0
 
 
-def _failed(url, reason):
-    return FacecapError(f"{url}: could not download ICT-FaceKit ({reason}); download it in a browser and run "
-                        "`python -m facecap template convert <the zip>`")
+def _failed(url, reason, what="ICT-FaceKit", manual=None):
+    manual = manual or "download it in a browser and run `python -m facecap template convert <the zip>`"
+    return FacecapError(f"{url}: could not download {what} ({reason}); {manual}")
 
 
 def remove_stale_downloads(cache):

@@ -43,7 +43,7 @@ EYE_CORNERS = ((33, 133), (362, 263))  # start -> end of each eye's region (the 
 DETECT_SIZE, MESH_SIZE, IRIS_SIZE = 128, 192, 64
 
 
-def _anchors():
+def anchors():
     """(896, 2) anchor centres of the short-range detector (strides 8 and 16; 2 and 6 per cell)."""
     out = []
     for stride, per_cell in ((8, 2), (16, 6)):
@@ -112,7 +112,7 @@ class FaceMesh:
     def __init__(self, *, models=None, presence=0.5, min_detection=0.5, iris=True):
         self.nets = load_networks(models)
         self.presence, self.min_detection, self.iris = float(presence), float(min_detection), bool(iris)
-        self.anchors = _anchors()
+        self.anchors = anchors()
         self.region = None  # the region followed from the last frame
 
     def reset(self):

@@ -68,7 +68,7 @@ def frame_number_error(key, value):
         return f"frame {value} does not exist: {FRAME_CONVENTION}"
     return None
 TRACKING_KEYS = ("method", "region", "reference", "stable_region", "grid_step", "drift", "preset")
-LANDMARK_KEYS = ("method", "smoothing", "iris", "models")
+LANDMARK_KEYS = ("method", "smoothing", "iris", "models", "bundle", "blendshapes")
 FLOW_KEYS = ("components", "variance")
 METHODS = ("dis", "farneback", "tvl1")
 NOT_FOR_VIDEO = ("clean", "stabilise", "neutral", "align", "calibration", "mapping", "refine", "binding")
@@ -93,6 +93,8 @@ class LandmarkTake:
     smoothing: bool = True
     iris: bool = True
     models: str = None
+    bundle: str = "auto"  # the Face Landmarker bundle: "auto" (installed, else the older models) or a path
+    blendshapes: str = "fuse"  # "fuse" its blendshape scores with the solve, or "ignore" them
 
 
 def is_landmark_take(raw):
@@ -180,8 +182,11 @@ def video_take(path, raw, data, strategy):
         models = trk.get("models")
         if models is not None:
             models = str(Path(models) if Path(models).is_absolute() else (base / models).resolve())
+        bundle = trk.get("bundle")
+        if bundle is not None:
+            bundle = str(Path(bundle) if Path(bundle).is_absolute() else (base / bundle).resolve())
         return LandmarkTake(video_path, footage, bool(trk.get("smoothing", True)), bool(trk.get("iris", True)),
-                            models)
+                            models, bundle or "auto", trk.get("blendshapes", "fuse"))
     for section in NOT_FOR_VIDEO:
         if section in data:
             raise ConfigError(f"[{section}] does not apply to a [source] video take (flow features: [tracking], "

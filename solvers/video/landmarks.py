@@ -21,8 +21,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..markers import MarkerSet
+from .face_landmarker import BLENDSHAPE_NAMES, FaceLandmarker
 from .face_mesh import N_MESH, N_POINTS, FaceMesh
 from .landmark_filter import smooth_landmarks
+from .landmarker_bundle import find_bundle
 from .reading import Footage, Job
 
 #: Names of the 478 points, MediaPipe's numbering.
@@ -46,6 +48,8 @@ REGIONS = {
     "mouth": _names((61, 291, 0, 17, 13, 14, 37, 267, 84, 314, 40, 270, 91, 321, 78, 308, 81, 311, 178, 402,
                      82, 312, 87, 317)),
 }
+#: Frames the blendshape head scores at a time, beside the landmark model (on the eyes' thread)
+BLENDSHAPE_CHUNK = 32
 #: An adult's outer eye-corner distance (lm033 - lm263), metres: the scale of :func:`metric_take`.
 EYE_CORNERS_M = 0.09
 
@@ -57,7 +61,9 @@ class LandmarkResult:
     ``markers``: MarkerSet (F, 478, 3) in source pixels (x, y, depth), NaN where no face was found;
     ``confidence`` (F,): the mesh model's face score (0 at gaps); ``detections``: frame numbers where
     the face was detected (not followed); ``raw``: the positions before temporal filtering;
-    ``timings``: seconds spent reading, in the models, filtering.
+    ``timings``: seconds spent reading, in the models, filtering; ``blendshapes`` (F, 52): the Face
+    Landmarker's blendshape scores (``blendshape_names``, NaN at gaps), None with the older models;
+    ``model``: which models found the points ("face landmarker" or "face mesh").
     """
 
     markers: MarkerSet
@@ -66,6 +72,9 @@ class LandmarkResult:
     raw: np.ndarray
     smoothing: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    blendshapes: np.ndarray = None
+    blendshape_names: tuple = BLENDSHAPE_NAMES
+    model: str = "face mesh"
 
     @property
     def found(self):
@@ -82,43 +91,49 @@ class LandmarkResult:
 
     def report(self):
         """JSON-ready summary for a take's report."""
-        return {"method": "landmarks", "points": self.markers.n_markers, "frames": int(len(self.found)),
+        return {"method": "landmarks", "model": self.model, "points": self.markers.n_markers, "frames": int(len(self.found)),
                 "frames_with_face": int(self.found.sum()), "detections": list(self.detections),
                 "mean_confidence": round(float(self.confidence[self.found].mean()) if self.found.any() else 0.0, 4),
                 "smoothing": self.smoothing, "timings_s": {k: round(v, 3) for k, v in self.timings.items()}}
 
 
-def track_landmarks(footage, *, models=None, smoothing=True, iris=True, progress=None):
+def track_landmarks(footage, *, models=None, smoothing=True, iris=True, bundle="auto", progress=None):
     """Face landmarks of every frame of ``footage`` (a :class:`~.reading.Footage` or a path).
 
     Parameters
     ----------
-    models : folder of the three model files, optional (default: found as ``face_models`` says)
+    models : folder of the three older model files, optional (default: found as ``face_models`` says)
+    bundle : "auto", a path, or None
+        The Face Landmarker bundle (``landmarker_bundle``): "auto" uses it when it is installed (else the
+        older models), a path uses that file, None the older models.
     smoothing : bool or dict
         Temporal filtering of the detector's jitter (keyword options of
         :func:`~.landmark_filter.smooth_landmarks`), or False for the raw points.
     iris : bool
-        Run the iris model (eyelids and gaze; about a third of the time).
+        Run the iris model of the older models (eyelids and gaze; about a third of their time).
     progress : callable(done, total) -> bool or None; False cancels (:class:`~.reading.Cancelled`)
 
     Returns
     -------
     LandmarkResult
     """
-    return track_landmarks_job(footage, models=models, smoothing=smoothing, iris=iris).run(progress)
+    return track_landmarks_job(footage, models=models, smoothing=smoothing, iris=iris, bundle=bundle).run(progress)
 
 
-def track_landmarks_job(footage, *, models=None, smoothing=True, iris=True):
+def track_landmarks_job(footage, *, models=None, smoothing=True, iris=True, bundle="auto"):
     """:func:`track_landmarks` as a :class:`~.reading.Job` that advances a frame per step (models loaded here)."""
     if not isinstance(footage, Footage):
         footage = Footage(footage, color=True)
-    mesh = FaceMesh(models=models, iris=iris)
+    path = find_bundle() if isinstance(bundle, str) and bundle == "auto" else \
+        None if bundle is None else find_bundle(bundle)
+    mesh = FaceLandmarker(path) if path is not None else FaceMesh(models=models, iris=iris)
     return Job(_landmark_steps(footage, mesh, smoothing), footage.info.n_frames, info=footage.info)
 
 
 def _landmark_steps(footage, mesh, smoothing):
     """Generator: per frame the mesh on this thread, the eyes of the frame before on a second one
-    (two cores: the iris model is the larger half of the work)."""
+    (two cores: the iris model is the larger half of the work of the older models; the Face Landmarker
+    has no second step, its blendshape head runs over the whole clip at the end)."""
     info = footage.info
     F = info.n_frames
     pos = np.full((F, N_POINTS, 3), np.nan)
@@ -127,6 +142,13 @@ def _landmark_steps(footage, mesh, smoothing):
     t_model, t0 = 0.0, time.perf_counter()
     reader = iter(footage)
     pending = None
+    landmarker = isinstance(mesh, FaceLandmarker)
+    scores = np.full((F, len(BLENDSHAPE_NAMES)), np.nan) if landmarker else None
+    chunks, done = [], 0  # the blendshape head on the second thread, BLENDSHAPE_CHUNK frames at a time
+
+    def score(a, b):
+        scores[a:b] = mesh.blendshapes(pos[a:b])
+
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="facecap-eyes") as eyes:
         try:
             for i, (f, img) in enumerate(reader):
@@ -138,13 +160,23 @@ def _landmark_steps(footage, mesh, smoothing):
                 if face.points is not None:
                     pos[i] = face.points  # filled in place by the eyes' thread
                     conf[i] = face.presence
-                    pending = eyes.submit(mesh.finish, rgb, pos[i])
+                    if not landmarker:
+                        pending = eyes.submit(mesh.finish, rgb, pos[i])
                     if face.detected:
                         detections.append(int(f))
+                if landmarker and i + 1 - done >= BLENDSHAPE_CHUNK:
+                    chunks.append(eyes.submit(score, done, i + 1))
+                    done = i + 1
                 t_model += time.perf_counter() - t1
                 yield f
             if pending is not None:
                 pending.result()
+            if landmarker:
+                t1 = time.perf_counter()
+                score(done, F)
+                for c in chunks:
+                    c.result()
+                t_model += time.perf_counter() - t1
         finally:
             reader.close()
     t_all = time.perf_counter() - t0
@@ -158,7 +190,8 @@ def _landmark_steps(footage, mesh, smoothing):
     markers = MarkerSet(NAMES, np.asarray(info.frames, dtype=np.float64), out, fps=info.fps, units="px",
                         source=info.path)
     return LandmarkResult(markers, conf, tuple(detections), raw,
-                          smoothing={"applied": used is not None, **(used or {})}, timings=timings)
+                          smoothing={"applied": used is not None, **(used or {})}, timings=timings,
+                          blendshapes=scores, model="face landmarker" if scores is not None else "face mesh")
 
 
 def metric_take(result, *, eye_corners_m=EYE_CORNERS_M, iris=True):

@@ -138,8 +138,8 @@ class LKTracker:
     typical one (an occluder) - or it leaves the frame.
 
     ``photometric``: the direct registration is also run on detail images (shading and lighting
-    removed) and kept per point where its contrast-normalised patch match is better (lighting drift;
-    measured in docs/accuracy.md).
+    removed) and the two are combined per point by their measured noise (:meth:`_combined`; lighting
+    drift, and footage nobody tuned for: docs/accuracy.md).
     """
 
     HISTORY = 30  # frames of per-point statistics
@@ -168,6 +168,8 @@ class LKTracker:
         n = len(self.ref_pts)
         self.fb_hist = np.full((self.HISTORY, n), np.nan)  # accepted forward-backward errors
         self.err_hist = np.full((self.HISTORY, n), np.nan)  # accepted patch errors (grey levels)
+        self.fb_raw_hist = np.full((self.HISTORY, n), np.nan)  # the direct registration's, on the image
+        self.fb_hp_hist = np.full((self.HISTORY, n), np.nan)  # and on its detail image
         self.frame_no = 0
 
     def _highpass(self, img):
@@ -234,6 +236,25 @@ class LKTracker:
         fb[~(st & st2 & self._inside(fwd))] = np.inf
         return fwd, fb
 
+    def _combined(self, idx, p_raw, fb_raw, p_hp, fb_hp):
+        """The direct registrations on the image and on its detail image as two measurements of the points
+        ``idx``: weighted by the inverse square of each one's typical forward-backward error at that point (its
+        noise, measured over the last frames), or the one that passed where the other failed. Detail images win
+        where shading misleads LK (lighting drift), the image itself where the detail is mostly codec noise (a
+        1/f texture in MJPG); neither is chosen frame by frame on its patch match (that lost to the plain LK on
+        footage nobody tuned for)."""
+        row = self.frame_no % self.HISTORY
+        self.fb_raw_hist[row], self.fb_hp_hist[row] = np.nan, np.nan
+        self.fb_raw_hist[row, idx] = np.where(np.isfinite(fb_raw), fb_raw, np.nan)
+        self.fb_hp_hist[row, idx] = np.where(np.isfinite(fb_hp), fb_hp, np.nan)
+        t_hp, t_raw = self._typical(self.fb_hp_hist, 1.0)[idx], self._typical(self.fb_raw_hist, 1.0)[idx]
+        w = (t_raw**2 / np.maximum(t_hp**2 + t_raw**2, 1e-12))[:, None]
+        ok_raw, ok_hp = np.isfinite(fb_raw), np.isfinite(fb_hp)
+        both = (ok_raw & ok_hp)[:, None]
+        p = np.where(both, w * p_hp + (1 - w) * p_raw, np.where(ok_hp[:, None], p_hp, p_raw))
+        fb = np.where(both[:, 0], w[:, 0] * fb_hp + (1 - w[:, 0]) * fb_raw, np.where(ok_hp, fb_hp, fb_raw))
+        return p.astype(np.float32), fb
+
     def step(self, img):
         """Track into ``img``; returns positions (M, 2) (NaN = lost), confidence (M,), re-acquired mask."""
         n = len(self.ref_pts)
@@ -254,13 +275,10 @@ class LKTracker:
             init = np.where(ok_c[:, None], p_c, self._predict() if (~ok_c).any() else p_c)
             idx = np.flatnonzero(want & np.isfinite(init[:, 0]))
             p_d[idx], fb_d[idx] = self._checked(self.ref_pyr, cur, self.ref_pts[idx], init[idx], self.ref_pts[idx])
-            if self.photometric:  # the same registration on detail images; kept where it fits the patch better
+            if self.photometric:  # the same registration on detail images, combined with it per point
                 p_h, fb_h = self._checked(self.ref_hp, self._highpass(img), self.ref_pts[idx], init[idx],
                                           self.ref_pts[idx])
-                e_raw = np.where(np.isfinite(fb_d[idx]), self._patch_error(img, np.nan_to_num(p_d[idx]), idx), np.inf)
-                e_hp = np.where(np.isfinite(fb_h), self._patch_error(img, np.nan_to_num(p_h), idx), np.inf)
-                better = e_hp < e_raw
-                p_d[idx[better]], fb_d[idx[better]] = p_h[better], fb_h[better]
+                p_d[idx], fb_d[idx] = self._combined(idx, p_d[idx], fb_d[idx], p_h, fb_h)
         ok_d = fb_d < np.where(ok_c | self.reregister, fb_limit, 0.5 * fb_limit)  # re-acquiring: a closer match
         err_typ = self._typical(self.err_hist, np.inf)
         e_c = np.where(ok_c, self._patch_error(img, np.nan_to_num(p_c)), np.inf)

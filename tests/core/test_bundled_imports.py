@@ -27,6 +27,8 @@ OPTIONAL = {
     "tqdm": "batch's progress bar; without it (as in Blender's Python) batch prints plain lines",
     "dask": "batch --scheduler only (the 'farm' extra); without it that option is one line naming the extra",
     "distributed": "as dask",
+    "ai_edge_litert": "landmarker_runtimes (a developer's benchmark) only: the reference runtime, used when installed",
+    "mediapipe": "landmarker_runtimes only, as ai_edge_litert: the reference pipeline, used when installed",
 }
 #: Calls whose first argument names a module that is imported at run time.
 IMPORT_CALLS = {"import_module", "__import__"}

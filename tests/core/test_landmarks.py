@@ -120,6 +120,20 @@ def test_a_landmark_take_keeps_what_the_config_says(tmp_path):
     assert s.actor.template == "auto"
 
 
+def test_a_landmark_take_names_its_bundle_and_what_to_do_with_the_scores(tmp_path):
+    """By default the installed Face Landmarker and its scores fused; a bundle path is relative to the config."""
+    from facecap.solvers.config import load_take_config
+
+    path = tmp_path / "take.toml"
+    path.write_text(FOUR, encoding="utf-8")
+    video = load_take_config(path).video
+    assert (video.bundle, video.blendshapes) == ("auto", "fuse")
+    path.write_text(FOUR.replace('method = "landmarks"', 'method = "landmarks"\nbundle = "m/fl.task"\n'
+                                 'blendshapes = "ignore"'), encoding="utf-8")
+    video = load_take_config(path).video
+    assert (video.bundle, video.blendshapes) == (str(tmp_path / "m" / "fl.task"), "ignore")
+
+
 @pytest.mark.parametrize("extra, key, match", [
     ('[flow]\ncomponents = 4\n', None, r"\[flow\] does not apply to a landmark take"),
     ('[solve]\nstrategy = "linear"\n', "solve.strategy", "a landmark take solves with geometric"),

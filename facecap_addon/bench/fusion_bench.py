@@ -1,0 +1,262 @@
+"""``python -m facecap.facecap_addon.bench.fusion_bench --out DIR``: video takes judged on footage nobody tuned on.
+
+Two real faces perform Live Link Face recordings from a relaxed start (``landmark_bench``): ICT faces
+(``shared/data/ict-facekit``: identities drawn from its identity modes) and the Face Cap head
+(``shared/data/facecap-head``: a scanned head with its own ARKit shapes, not of the ICT family), each
+filmed from the front and from 30 degrees to the side. Every clip goes through the landmark take onto
+another ICT identity (the character), and what the Face Landmarker's blendshape head scored is kept
+beside the solve, so that the fusion (``solvers/video/fusion.py``) can be fitted and judged.
+
+The clips are kept apart by role (:data:`CLIPS`):
+
+* **tune**: two ICT identities (seeds 21 and 22), windows of ``llf_alex_rom_3``: the only clips the
+  fusion table is fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
+* **report**: the ICT mean face and the Face Cap head (a face never tuned on), windows of
+  ``llf_alex_rom_4`` (another recording): judged, never fitted.
+
+Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip is rendered once).
+"""
+
+import argparse
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...solvers.character.face_model import CM, ICT_AXES
+from ...solvers.config import load_take_config
+from ...solvers.io.weights import read_weights
+from ...solvers.video.fusion import FaceScores, FusionTable, fit_table, fuse, neutral_corrected
+from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
+from ...solvers.video.landmarks import track_landmarks
+from ...solvers.video.reading import Footage
+from ..headless.headless import run_take
+from ..headless.landmark_take import landmark_neutral
+from ..render.face_footage import Shot, render_face_clip
+from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, shared_folder
+
+HOLD = 45
+CHARACTER_SEED = 7
+
+
+@dataclass(frozen=True)
+class Clip:
+    """One rendered clip: its role, the face ("ict-mean", "ict-<seed>" or "facecap"), the recording's window and
+    the camera's azimuth (degrees)."""
+
+    role: str
+    face: str
+    recording: str
+    start: int
+    azimuth: float
+    frames: int = 240
+
+    @property
+    def name(self):
+        return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
+
+
+CLIPS = tuple(
+    [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
+     for seed in (21, 22) for start in (600, 2100) for az in (0.0, 30.0)]
+    + [Clip("report", face, "llf_alex_rom_4.csv", start, az)
+       for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)])
+
+
+def face_arrays(face, shared):
+    """(neutral, polygons, shape names, deltas) of ``face`` in facecap's axes (metres, Z up, looking down -Y)."""
+    if face == "facecap":
+        d = np.load(shared / "facecap-head" / "facecap_head.npz")
+        to = ICT_AXES * CM
+        return (d["neutral"].astype(np.float64) @ to.T, d["faces"], tuple(str(n) for n in d["names"]),
+                np.einsum("kvi,ji->kvj", d["deltas"].astype(np.float64), to))
+    neutral, quads, names, deltas, identity = ict_arrays(shared / "ict-facekit" / "ict_face.npz")
+    if face != "ict-mean":
+        seed = int(face.split("-")[1])
+        neutral = neutral + np.einsum("i,ivd->vd", np.random.default_rng(seed).normal(size=20), identity[:20])
+    return neutral, quads, names, deltas
+
+
+def prepare(clip, out, character, *, log=print):
+    """Render ``clip``, run its landmark take onto ``character`` (unfused) and cache what the fusion needs:
+    ``<out>/<name>.npz`` with the truth, the solve, the blendshape scores and the take's neutral frames."""
+    cached = out / f"{clip.name}.npz"
+    if cached.is_file():
+        return dict(np.load(cached))
+    shared = shared_folder() / "data"
+    neutral, polygons, names, deltas = face_arrays(clip.face, shared)
+    weights, head, gaze = performance(shared / "realdata" / "llf" / clip.recording, names, start=clip.start,
+                                      frames=clip.frames, hold=HOLD)
+    video = out / f"{clip.name}.mp4"
+    t = time.perf_counter()
+    if not video.is_file():  # rendered under another name first: a clip cut short is never taken as whole
+        part = video.with_name(video.stem + "-part.mp4")
+        render_face_clip(part, neutral, polygons, deltas, weights, head=head, gaze=gaze,
+                         shot=Shot(distance=0.5, azimuth=clip.azimuth))
+        part.replace(video)
+    t_render = time.perf_counter() - t
+    solved = out / f"{clip.name}.csv"
+    config = out / f"{clip.name}.toml"
+    config.write_text(f'[target]\nblend = "{character}"\nobject = "ICT"\n[source]\nvideo = "{video.name}"\n'
+                      f'[tracking]\nmethod = "landmarks"\nblendshapes = "ignore"\n[output]\nweights = "{solved.name}"\n',
+                      encoding="utf-8")
+    run_take(load_take_config(config), quiet=True)
+    found = track_landmarks(video)
+    s = read_weights(solved)
+    data = {"truth": weights, "truth_names": np.array(names), "solved": s.values, "solved_names": np.array(s.names),
+            "scores": found.blendshapes, "score_names": np.array(found.blendshape_names),
+            "neutral": landmark_neutral(found), "render_s": t_render}
+    np.savez(cached, **data)
+    if clip.role == "tune":
+        video.unlink()  # the npz keeps what the fusion needs; a reported clip's video is kept for the speed
+    log(f"{clip.name}: rendered in {t_render:.0f} s")
+    return data
+
+
+def columns(data, names):
+    """(truth, solve, corrected scores) (F, len(names)) of a cached clip on ARKit ``names``, from the hold on
+    (NaN where a side has no such shape)."""
+    def pick(values, have):
+        have = [str(n) for n in have]
+        out = np.full((len(values), len(names)), np.nan)
+        for j, n in enumerate(names):
+            if n in have:
+                out[:, j] = values[:, have.index(n)]
+        return out
+
+    corrected = neutral_corrected(data["scores"], data["neutral"])
+    return (pick(data["truth"], data["truth_names"])[HOLD:], pick(data["solved"], data["solved_names"])[HOLD:],
+            pick(corrected, data["score_names"])[HOLD:])
+
+
+def judged_names():
+    return [n for shapes in REGIONS.values() for n in shapes]
+
+
+def region_rmse(got, truth, names):
+    """{region: weights RMSE, "visible": over every judged shape} (shapes the truth lacks left out)."""
+    out, every = {}, []
+    for region, shapes in REGIONS.items():
+        errs = [np.nanmean((got[:, names.index(s)] - truth[:, names.index(s)]) ** 2) for s in shapes
+                if np.isfinite(truth[:, names.index(s)]).any()]
+        every += errs
+        out[region] = float(np.sqrt(np.mean(errs)))
+    out["visible"] = float(np.sqrt(np.mean(every)))
+    peaks = []
+    for side in ("Left", "Right"):
+        j = names.index(f"eyeBlink{side}")
+        closed = truth[:, j] > 0.7
+        peaks.append(float(np.nanmax(got[closed, j])) if closed.any() else float("nan"))
+    out["blink_peak"] = float(np.nanmin(peaks)) if np.isfinite(peaks).any() else float("nan")
+    return out
+
+
+def fit(out, *, log=print):
+    """Fit the fusion table on the tuning clips in ``out``; returns it (not saved)."""
+    names = judged_names()
+    parts = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in CLIPS if c.role == "tune"]
+    truth, solved, corrected = (np.concatenate(p) for p in zip(*parts))
+    tuned = [c.name for c in CLIPS if c.role == "tune"]
+    table = fit_table(np.nan_to_num(truth), solved, corrected, names,
+                      measured_on={"clips": tuned, "frames": int(len(truth)),
+                                   "command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit"})
+    log(f"fusion table fitted on {len(tuned)} clips, {len(truth)} frames")
+    return table, np.nanmean(truth, axis=0)
+
+
+def evaluate(out, table, constant, role="report"):
+    """{clip: {method: region table}} for the clips of ``role``: the landmark solve, the corrected scores, the
+    fusion and a constant (the tuning clips' mean weights on every frame)."""
+    names = judged_names()
+    rows = {}
+    for clip in CLIPS:
+        if clip.role != role:
+            continue
+        data = dict(np.load(out / f"{clip.name}.npz"))
+        truth, solved, corrected = columns(data, names)
+        fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
+                        FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"]),
+                        table=table)
+        fused = columns({**data, "solved": fused}, names)[1]
+        rows[clip.name] = {"landmarks": region_rmse(solved, truth, names),
+                           "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names),
+                           "fused": region_rmse(fused, truth, names),
+                           "constant": region_rmse(np.broadcast_to(constant, truth.shape), truth, names)}
+    return rows
+
+
+def speed(video, log=print):
+    """Frames per second of the landmarks with the blendshape head (the bundle), decoding included, beside the
+    older models and decoding alone, in the same run (medians of 3; this machine's cores are shared)."""
+    def rate(run):
+        times = []
+        for _ in range(3):
+            t = time.perf_counter()
+            n = run()
+            times.append(time.perf_counter() - t)
+        return n / float(np.median(times))
+
+    decode = rate(lambda: sum(1 for _ in Footage(video, color=True)))
+    bundle = rate(lambda: len(track_landmarks(video).found))
+    older = rate(lambda: len(track_landmarks(video, bundle=None).found))
+    log(f"speed on {video.name} ({os.cpu_count()} cores): Face Landmarker with its blendshape head {bundle:.0f} "
+        f"frames/s, the older face mesh + iris models {older:.0f} frames/s, decoding alone {decode:.0f} frames/s")
+    return bundle, older, decode
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
+    parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
+    parser.add_argument("--role", choices=("tune", "report"), action="append", help="only these clips")
+    parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
+    parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "
+                                                          "(solvers/video/fusion_table.json)")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if find_bundle() is None:  # the shared copy, as the tests use it
+        os.environ[ENVIRONMENT] = str(shared_folder() / "data" / "mediapipe" / "face_landmarker.task")
+    character = out / "character.blend"
+    if not character.is_file():
+        neutral, quads, names, deltas, identity = ict_arrays(shared_folder() / "data" / "ict-facekit" / "ict_face.npz")
+        ict_character(character, neutral, quads, names, deltas, identity, CHARACTER_SEED)
+    for clip in CLIPS:
+        if args.role is None or clip.role in args.role:
+            prepare(clip, out, character)
+    if args.fit:
+        table, constant = fit(out)
+        table.save()
+    else:
+        table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1]
+    rows = evaluate(out, table, constant)
+    print_tables(rows)
+    videos = sorted(out.glob("report-*.mp4"))
+    if videos and args.speed:
+        speed(videos[0])
+    return 0
+
+
+def print_tables(rows):
+    """Per clip and method the region RMSEs, then the medians and worst cases over the clips."""
+    keys = list(REGIONS) + ["visible", "blink_peak"]
+    print("| clip | method | " + " | ".join(keys) + " |")
+    print("|---|---|" + "---|" * len(keys))
+    for clip, methods in rows.items():
+        for method, table in methods.items():
+            print(f"| {clip} | {method} | " + " | ".join(f"{table[k]:.3f}" for k in keys) + " |")
+    for face in ("ict", "facecap"):
+        mine = [m for c, m in rows.items() if f"-{face}" in c]
+        if not mine:
+            continue
+        for method in mine[0]:
+            vis = [m[method]["visible"] for m in mine]
+            brows = [m[method]["brows"] for m in mine]
+            blink = [m[method]["blink_peak"] for m in mine]
+            print(f"{face} {method}: visible median {np.median(vis):.3f} worst {np.max(vis):.3f}; brows median "
+                  f"{np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst {np.nanmin(blink):.2f}")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
