@@ -84,7 +84,8 @@ def download(url, path, *, progress=None, timeout=None, max_bytes=None, deadline
                 f.write(chunk)
                 done += len(chunk)
                 if done > max_bytes:
-                    raise _failed(url, f"more than {max_bytes / 2**20:.0f} MiB came; stopped", what, manual)
+                    raise _failed(url, f"more than {max_bytes / 2**20:.0f} MiB came (more than {what} holds); stopped",
+                                  what, manual)
                 if time.monotonic() - start > deadline:
                     raise _failed(url, f"not finished after {deadline / 60:.0f} minutes ({done / 2**20:.0f} MiB); "
                                        "stopped", what, manual)

@@ -62,6 +62,8 @@ NOT_WRITING = {
     "template fetch": ("--url", "--keep"),  # the download goes to facecap's cache (its temporaries cleaned)
     "template convert": ("source",),
     "template info": ("path",),
+    # fetch puts the Face Landmarker bundle into facecap's cache (staged, hash-checked, renamed): nothing a user names
+    "landmark-models": ("action", "--url"),
     # --cache: facecap's wheel cache, where verified wheels are added under their own names; --docs edits only the
     # generated block of a page that has one (refused without it), as bench --realism --docs
     "build-extension": ("--build", "--platform", "--cache", "--docs"),
