@@ -139,9 +139,9 @@ def _sequence(cal, fail):
         fail("calibration.sequence", "give either a ROM sequence (its holds are found) or poses with frame ranges, "
                                      "not both")
     try:
-        poses = sequence_poses(cal["sequence"])
-    except FacecapError as exc:
-        fail("calibration.sequence", str(exc).split(": ", 1)[-1])
+        poses = sequence_poses(cal["sequence"], where="")
+    except FacecapError as exc:  # the key is said by fail(): the message keeps the item
+        fail("calibration.sequence", str(exc).lstrip(": "))
     holds = cal.get("holds")
     if holds is None:
         return poses, None
