@@ -77,7 +77,8 @@ def activity(deltas, noise, fps):
     dist = np.where(np.isfinite(dist), dist, -np.inf)
     top = np.sort(dist, axis=1)[:, -TOP:]
     top = np.where(np.isfinite(top), top, np.nan)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a frame the head fit flagged: no marker, activity 0
         level = np.nanmean(top, axis=1) if top.size else np.zeros(len(deltas))
     return np.nan_to_num(level / activity_unit(noise, fps))
 
