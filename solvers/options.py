@@ -325,6 +325,13 @@ OPTIONS = (
       ui="facecap.calib_poses"),
     O("calibration", "stable_markers", "names", doc="Stable markers of the calibration take (default: the take's)",
       headless="the sidebar uses the take's stable markers"),
+    O("calibration", "sequence", ("str", "list"),
+      doc="semantic: a range-of-motion session in the order performed, its holds found in [calibration] markers: a "
+          "built-in sheet (\"facecap-24\", \"arkit-51\") or a list of ARKit names and tables of shape = weight "
+          "(optional `label`); see docs/rom.md", ui="facecap.calib_sheet"),
+    O("calibration", "holds", "table", doc="{pose label = middle frame}: where the [calibration] sequence's poses are "
+      "held, used instead of the holds found",
+      headless="the sidebar's holds are the timeline markers `ROM: <label>` that Find Poses places"),
     O("calibration", "basis", "path", doc="A stored actor library (.npz) instead of markers + poses",
       headless="the sidebar keeps library versions in the .blend (Tuning panel)"),
     O("calibration", "align", "choice", default="rigid", choices=("rigid", "similarity", "none"),
