@@ -2,10 +2,10 @@
 
 import bpy
 
-from . import actor, binding, calibration, export, importers, mapping, neutral, report, solve, stabilise, tuning, video
+from . import actor, binding, calibration, export, importers, mapping, neutral, report, rom, solve, stabilise, tuning, video
 
 CLASSES = (importers.CLASSES + binding.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
-           + actor.CLASSES + mapping.CLASSES + video.CLASSES + tuning.CLASSES + export.CLASSES + report.CLASSES)
+           + rom.CLASSES + actor.CLASSES + mapping.CLASSES + video.CLASSES + tuning.CLASSES + export.CLASSES + report.CLASSES)
 
 
 def register():
