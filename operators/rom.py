@@ -42,7 +42,7 @@ class RomJobOperator(SolveJobOperator):
             self._stop(context)
             self.report({"WARNING"}, f"{session.what} cancelled after {session.seconds():.1f} s; {self.untouched}")
             return {"CANCELLED"}
-        return super().modal(context, event)
+        return SolveJobOperator.modal(self, context, event)
 
 
 class FACECAP_OT_rom_find_poses(RomJobOperator, bpy.types.Operator):

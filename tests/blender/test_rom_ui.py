@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from shared_data import SHARED, require
 
-from scene_fixtures import draw_panel
+from scene_fixtures import draw_panel, modal_driver
 
 from facecap.facecap_addon.scene import import_scene, rom_markers, scene_solve
 from facecap.facecap_addon.scene.rom_scene import RomInBackground
@@ -114,6 +114,40 @@ def test_find_poses_marks_each_hold_near_its_true_middle_and_keeps_other_markers
     # the next Find Poses replaces them, not adds
     assert bpy.ops.facecap.rom_find_poses() == {"FINISHED"}
     assert len(rom_markers.rom_markers(scene)) == len(marks)
+
+
+def test_find_poses_runs_beside_the_interface_and_esc_leaves_the_markers(draw, monkeypatch):
+    """From the sidebar: the ROM take measured on a thread while the status bar says what, Esc drops it with the
+    timeline as it was; left to finish, the markers are placed as bpy.ops places them."""
+    import threading
+    from types import SimpleNamespace
+
+    from facecap.facecap_addon.scene import rom_scene
+    from facecap.operators.rom import FACECAP_OT_rom_find_poses
+
+    d, _ = draw
+    scene = _scene(d)
+    old = scene.timeline_markers.new(rom_markers.PREFIX + "smile", frame=77)
+    go = threading.Event()
+    real = rom_scene.learn_from_rom_take
+    monkeypatch.setattr(rom_scene, "learn_from_rom_take", lambda *a: go.wait(60) and real(*a))
+
+    class Driver(modal_driver(FACECAP_OT_rom_find_poses)):
+        untouched = FACECAP_OT_rom_find_poses.untouched
+
+    tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+    driver = Driver(RomInBackground(scene.facecap, what="Find Poses", use_markers=False))
+    assert driver.modal(bpy.context, tick) == {"RUNNING_MODAL"}
+    assert driver._session.status().startswith("Find Poses: measuring 24 poses of facecap-24 in ")
+    assert driver.modal(bpy.context, esc) == {"CANCELLED"}
+    go.set()
+    driver._session.thread.join()
+    assert driver.reports[-1][0] == "WARNING" and "the timeline markers are as they were" in driver.reports[-1][1]
+    assert _rom_marks(scene) == {"smile": 77} and old.frame == 77
+    driver = Driver(RomInBackground(scene.facecap, what="Find Poses", use_markers=False))
+    driver._session.thread.join()
+    assert driver.modal(bpy.context, tick) == {"FINISHED"}
+    assert len(_rom_marks(scene)) == 24 and driver.reports[-1][0] == "INFO"
 
 
 def test_a_dragged_marker_moves_the_hold_measured_and_a_stray_marker_is_named(draw):
