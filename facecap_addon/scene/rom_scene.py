@@ -5,8 +5,6 @@ the ``ROM: `` markers when there are any; the actor's measured shapes written as
 as ``[actor] profile``)."""
 
 import os
-import threading
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -72,19 +70,10 @@ class RomInBackground(SolveInBackground):
         rom = self.request[2].calibration
         self.size = f"{len(self.request[0].calibration.sequence)} poses of {settings.calib_sheet} in " \
                     f"{rom.n_frames} frames x {rom.n_markers} markers"
-        self.result = self.error = None
-        self.cancelled = False
-        self.started = time.monotonic()
-        self.thread = threading.Thread(target=self._run, name="facecap ROM", daemon=True)
-        self.thread.start()
+        self._begin()
 
-    def _run(self):
-        try:
-            self.result = learn_from_rom_take(*self.request)
-        except Exception as exc:  # handed to the main thread: FacecapError reported, anything else raised
-            self.error = exc
-        finally:
-            self.request = None
+    def _compute(self, request):
+        return learn_from_rom_take(*request)
 
     def status(self):
         return f"{self.what}: measuring {self.size}, {self.seconds():.0f} s; Esc cancels"
