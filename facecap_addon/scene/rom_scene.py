@@ -43,6 +43,9 @@ def rom_request(settings, *, use_markers):
         if not suggestion.ok:
             raise FacecapError(f"the ROM take's stable markers: {suggestion.message()}; tick them in the marker list")
         rsettings = replace(rsettings, calibration=replace(rsettings.calibration, stable_markers=suggestion.names))
+    elif len(rsettings.calibration.stable_markers or rsettings.stable_markers) < 3:
+        raise FacecapError("the ROM take is stabilised on the take's stable markers: tick at least 3 in the Take "
+                           "panel's marker list (or Auto Stable Set)")
     inputs = StrategyInputs(calibration=rom, template=take.human_template(settings, notes), notes=tuple(notes))
     return rsettings, _character(settings, rsettings, rom), inputs
 
@@ -103,7 +106,7 @@ def check_profile_output(settings, path, *, overwrite):
 
 def save_profile(settings, result, path):
     """Write ``result.measured`` (a RomResult's) to ``path`` atomically and make it the Solve panel's performer
-    profile (kept relative to the .blend when the file browser gave a relative path)."""
+    profile (relative to the .blend, ``//...``, when it lies in the .blend's folder)."""
     result.measured.save_npz(path)
     settings.actor_profile = bpy.path.relpath(str(path)) if bpy.data.filepath and _below(path) else str(path)
 
