@@ -64,7 +64,8 @@ class FACECAP_OT_rom_find_poses(RomJobOperator, bpy.types.Operator):
         for note in found.notes:  # poses not found, expressions the sheet does not ask, by name
             self.report({"WARNING"}, note)
         labels = [m.name[len(rom_markers.PREFIX):] for m in made]
-        self.report({"INFO"}, f"Find Poses: {len(made)} of {len(found.poses)} poses of {context.scene.facecap.calib_sheet} "
+        sheet = context.scene.facecap.calib_sheet
+        self.report({"INFO"}, f"Find Poses: {len(made)} of {len(found.poses)} poses of {sheet} "
                               f"found ({len(found.holds)} holds in the ROM take, named against {result.prior}) and "
                               f"marked '{rom_markers.PREFIX}<pose>' on the timeline: {', '.join(labels)}")
         return {"FINISHED"}

@@ -83,6 +83,16 @@ def tile_size(size, picture):
     return int(round(h * ASPECT)), h
 
 
+def docs_images_command(args, *, say, out):
+    """``python -m facecap docs-images``: render what ``args`` ask (``--pictures``: comma-separated, default all)
+    and print each picture written, with its size, to ``out``; returns the exit status."""
+    pictures = PICTURES if args.pictures is None else tuple(p.strip() for p in args.pictures.split(",") if p.strip())
+    written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, pictures=pictures, say=say)
+    for name, path in written.items():
+        print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)", file=out)
+    return 0
+
+
 def render_docs_images(solved=None, out=None, *, size=280, engine="workbench", pictures=PICTURES, say=print):
     """``python -m facecap docs-images``: the ``pictures``, the contact sheet from ``solved`` (a weights CSV)
     or, by default, from a retarget of the sample take (weights only). Returns {name: path}."""

@@ -160,5 +160,6 @@ def test_rom_sheets_show_every_pose_numbered_in_the_order_performed(tmp_path):
 def test_unknown_pictures_are_named_before_any_render():
     from facecap.solvers.errors import FacecapError
 
-    with pytest.raises(FacecapError, match="pictures must be some of expressions, markers, contact_sheet, rom; got faces"):
+    with pytest.raises(FacecapError, match="pictures must be some of expressions, markers, contact_sheet, rom; got "
+                                           "faces"):
         di.generate(None, pictures=("faces",))

@@ -180,7 +180,8 @@ def test_a_dragged_marker_moves_the_hold_measured_and_a_stray_marker_is_named(dr
 
 
 def _rmse(d, result):
-    return compare(result.weights, result.shape_names, d.truth, d.shape_names, frames=d.performance_frames)["all"]["rmse"]
+    metrics = compare(result.weights, result.shape_names, d.truth, d.shape_names, frames=d.performance_frames)
+    return metrics["all"]["rmse"]
 
 
 def test_save_performer_profile_serves_a_later_solve_of_the_actor(draw, tmp_path):
