@@ -26,7 +26,9 @@ from facecap.solvers.character.face_model import load_ict
 from facecap.solvers.io.csv import write_markers_csv
 from facecap.solvers.rom import SHEETS
 from facecap.solvers.tools.synthetic.realism.families import load_family
+from facecap.solvers.tools.synthetic.realism.layouts import DENSE_HEAD
 from facecap.solvers.tools.synthetic.realism.metrics import compare
+from facecap.solvers.tools.synthetic.realism.rom import rom_session
 from facecap.solvers.tools.synthetic.realism.scenario import make_draw
 from facecap.solvers.tools.synthetic.realism.takes import REST, load_performances
 
@@ -148,6 +150,23 @@ def test_find_poses_runs_beside_the_interface_and_esc_leaves_the_markers(draw, m
     driver._session.thread.join()
     assert driver.modal(bpy.context, tick) == {"FINISHED"}
     assert len(_rom_marks(scene)) == 24 and driver.reports[-1][0] == "INFO"
+
+
+def test_a_skipped_pose_is_named_and_left_unmarked(draw):
+    d, _ = draw
+    session = rom_session(d.actor, SHEETS[SHEET], np.random.default_rng([SEED, 5]), stable=DENSE_HEAD, skip=(5,))
+    scene = _scene(d)
+    s = scene.facecap
+    s.calib_collection = import_scene.create_take(scene, session.markers, "ROM skipped", set_scene_range=False)
+    try:
+        assert bpy.ops.facecap.rom_find_poses() == {"FINISHED"}
+    except RuntimeError as exc:  # refused: then the error names the pose
+        assert "eyes shut" in str(exc)
+        return
+    marks = _rom_marks(scene)  # measured on this session: named in a warning, the other 23 marked
+    assert "eyes shut" not in marks and len(marks) == 23
+    notes = RomInBackground(s, what="test", use_markers=False).wait().found.notes  # what Find Poses warned
+    assert any("not found" in n and "eyes shut" in n for n in notes), notes
 
 
 def test_a_dragged_marker_moves_the_hold_measured_and_a_stray_marker_is_named(draw):
