@@ -154,13 +154,9 @@ def _cmd_tune(args):
 
 
 def _cmd_docs_images(args):
-    from .render.docs_images import render_docs_images  # imports bpy (and bmesh) at once: only for this command
+    from .render.docs_images import docs_images_command  # imports bpy (and bmesh) at once: only for this command
 
-    written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, say=progress_line,
-                                 overwrite=args.overwrite)
-    for name, path in written.items():
-        print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)", file=console.stdout())
-    return 0
+    return docs_images_command(args, say=progress_line, out=console.stdout())
 
 
 def _cmd_rig_bench(args):
@@ -342,6 +338,7 @@ def build_parser():
     p.add_argument("--engine", choices=("workbench", "cycles"), default="workbench",
                    help="Workbench (OpenGL, software via Mesa EGL without a GPU) or Cycles on the CPU")
     p.add_argument("--solved", default=None, help="solved weights CSV of the sample take (default: retarget it)")
+    p.add_argument("--pictures", help="which, comma-separated: expressions,markers,contact_sheet,rom (default: all)")
     _overwrite_flag(p)
     command("template", _cmd_template)
     command("build-extension", _cmd_build_extension)

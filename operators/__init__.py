@@ -2,11 +2,12 @@
 
 import bpy
 
-from . import (actor, binding, calibration, export, importers, mapping, neutral, report, solve, stabilise, tuning, video,
-               video_models)
+from . import (actor, binding, calibration, export, importers, mapping, neutral, report, rom, solve, stabilise, tuning,
+               video, video_models)
 
 CLASSES = (importers.CLASSES + binding.CLASSES + stabilise.CLASSES + neutral.CLASSES + solve.CLASSES + calibration.CLASSES
-           + actor.CLASSES + mapping.CLASSES + video.CLASSES + video_models.CLASSES + tuning.CLASSES + export.CLASSES + report.CLASSES)
+           + rom.CLASSES + actor.CLASSES + mapping.CLASSES + video.CLASSES + video_models.CLASSES + tuning.CLASSES
+           + export.CLASSES + report.CLASSES)
 
 
 def register():

@@ -325,17 +325,17 @@ OPTIONS = (
       ui="facecap.calib_poses"),
     O("calibration", "stable_markers", "names", doc="Stable markers of the calibration take (default: the take's)",
       headless="the sidebar uses the take's stable markers"),
+    O("calibration", "sequence", ("str", "list"),
+      doc="semantic: a range-of-motion session in the order performed, its holds found in [calibration] markers (or "
+          "the take itself): a built-in sheet (\"facecap-24\", \"arkit-51\") or a list of ARKit names and tables of "
+          "shape = weight (optional `label`); see docs/rom.md", ui="facecap.calib_sheet"),
+    O("calibration", "holds", "table", doc="{pose label = middle frame}: where the [calibration] sequence's poses are "
+      "held, used instead of the holds found",
+      headless="the sidebar's holds are the timeline markers `ROM: <label>` that Find Poses places"),
     O("calibration", "basis", "path", doc="A stored actor library (.npz) instead of markers + poses",
       headless="the sidebar keeps library versions in the .blend (Tuning panel)"),
     O("calibration", "align", "choice", default="rigid", choices=("rigid", "similarity", "none"),
       doc="How the take's neutral is brought onto the calibration neutral", ui="facecap.calib_align"),
-    O("calibration", "sequence", ("str", "list"),
-      doc="semantic: a range-of-motion session, its poses in the order performed: \"facecap-24\", \"arkit-51\" or a "
-          "list of ARKit names and {shape = weight, label = ...} tables; the holds are found in the calibration take "
-          "(or the take itself) and the actor's shapes estimated from them (docs/rom.md)",
-      headless="the sidebar's ROM sheet chooses a built-in sheet"),
-    O("calibration", "holds", "table", doc="{pose label = middle frame}: where the ROM's poses are held, instead of "
-      "the holds found (Find Poses' timeline markers)", headless="the sidebar reads Find Poses' timeline markers"),
     # -- [mapping] (calibrated, refine, parallel) --------------------------------------------------
     O("mapping", "aliases", "bool", default=True, doc="Match names through ARKit / MediaPipe / FACS alias tables",
       ui="facecap.mapping_aliases"),

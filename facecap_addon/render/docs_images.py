@@ -1,11 +1,12 @@
 """The documentation's pictures, rendered headless from the sample character (``python -m facecap docs-images``).
 
-Three PNGs, each a grid of renders of ``sample_blends/character.blend``:
+PNGs, each a grid of renders of ``sample_blends/character.blend``:
 
 ``expressions.png``    the character at a few shape keys (or pairs of them) at weight 1
 ``markers.png``        the 68 marker points on the neutral face, coloured by region, front and side
 ``contact_sheet.png``  the demo retarget: frames of the sample take posed with the ground-truth weights
                        (top row) and with the solved weights (bottom row)
+``rom_<sheet>.png``    every pose of each built-in ROM sheet, numbered, in the order performed (``rom_images``)
 
 Renders use Blender's Workbench engine (OpenGL; headless through EGL, software rendering with Mesa's
 llvmpipe when there is no GPU) or, with ``engine="cycles"``, Cycles on the CPU (no OpenGL needed).
@@ -24,11 +25,13 @@ import numpy as np
 from ...solvers.errors import FacecapError
 from ...solvers.io.csv import read_weights_csv
 from ...solvers.io.images import read_tga, write_png
-from ...solvers.io.outputs import check_files_in
 from ...solvers.config import load_take_config
 from ..headless.demo import SAMPLE_CONFIG
 from ..headless.headless import run_take
 from .render_state import mark_rendered
+from ...solvers.io.outputs import check_files_in
+from ...solvers.rom.sheets import SHEETS
+from .rom_images import rom_sheets
 from ..scene.scene_data import vertex_group_bindings
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,6 +43,8 @@ PAD = 6
 BACKGROUND = (255, 255, 255)
 #: Tile width / height (the head is taller than wide; the caption sits under the chin).
 ASPECT = 0.8
+#: What the command renders (``pictures``): the three above, and "rom" for the ROM sheets.
+PICTURES = ("expressions", "markers", "contact_sheet", "rom")
 #: Tile height of each picture relative to ``size`` (the marker layout larger: the dots are small).
 SCALE = {"expressions": 1.0, "markers": 1.4, "contact_sheet": 0.75}
 #: Height of the view (metres; the head is 0.236 m tall with the jaw open) and of its centre, and the
@@ -80,46 +85,63 @@ def tile_size(size, picture):
     return int(round(h * ASPECT)), h
 
 
-#: The pictures ``generate`` renders
-PICTURES = ("expressions", "markers", "contact_sheet")
+def picture_files(pictures):
+    """The files the ``pictures`` write (the ROM sheets: one per built-in sheet)."""
+    return [f"{p}.png" for p in pictures if p != "rom"] + ([f"rom_{s}.png" for s in SHEETS] if "rom" in pictures else [])
 
 
-def check_pictures(out=None, solved=None, *, overwrite=False):
+def check_pictures(out=None, solved=None, *, pictures=PICTURES, overwrite=False):
     """The output policy for the pictures in ``out`` (default: the checkout's docs/images, facecap's own, whose
     pictures are replaced as they are): refused, before anything is rendered, where a file facecap did not
     write is in the way (unless ``overwrite``). Returns the folder."""
-    return check_files_in(DEFAULT_OUT if out is None else out, [f"{p}.png" for p in PICTURES], "--out", "png",
+    return check_files_in(DEFAULT_OUT if out is None else out, picture_files(pictures), "--out", "png",
                           inputs={"--solved": solved}, overwrite=overwrite, owned=(DEFAULT_OUT,))
 
 
-def render_docs_images(solved=None, out=None, *, size=280, engine="workbench", say=print, overwrite=False):
-    """``python -m facecap docs-images``: the pictures, from ``solved`` (a weights CSV) or, by default,
-    from a retarget of the sample take (weights only). Returns {name: path}."""
-    out = check_pictures(out, solved, overwrite=overwrite)
-    if solved is not None:
-        return generate(solved, out, size=size, engine=engine, say=say)
+def docs_images_command(args, *, say, out):
+    """``python -m facecap docs-images``: render what ``args`` ask (``--pictures``: comma-separated, default all)
+    and print each picture written, with its size, to ``out``; returns the exit status."""
+    pictures = PICTURES if args.pictures is None else tuple(p.strip() for p in args.pictures.split(",") if p.strip())
+    written = render_docs_images(args.solved, args.out, size=args.size, engine=args.engine, pictures=pictures, say=say,
+                                 overwrite=getattr(args, "overwrite", False))
+    for name, path in written.items():
+        print(f"  {name}: {path} ({path.stat().st_size / 1024:.0f} KB)", file=out)
+    return 0
+
+
+def render_docs_images(solved=None, out=None, *, size=280, engine="workbench", pictures=PICTURES, say=print,
+                       overwrite=False):
+    """``python -m facecap docs-images``: the ``pictures``, the contact sheet from ``solved`` (a weights CSV)
+    or, by default, from a retarget of the sample take (weights only). Returns {name: path}."""
+    unknown = [p for p in pictures if p not in PICTURES]
+    if unknown or not pictures:  # named before the output check (which lists the files they write)
+        raise FacecapError(f"docs-images: pictures must be some of {', '.join(PICTURES)}; got {', '.join(unknown)}")
+    out = check_pictures(out, solved, pictures=pictures, overwrite=overwrite)
+    if solved is not None or "contact_sheet" not in pictures:
+        return generate(solved, out, size=size, engine=engine, pictures=pictures, say=say)
     with tempfile.TemporaryDirectory(prefix="facecap-docs-") as tmp:
         say("retargeting the sample take")
         solved = Path(tmp) / "sample_take_weights_solved.csv"
         config = dataclasses.replace(load_take_config(SAMPLE_CONFIG), output_blend=None, output_report=None,
                                      output_weights=solved)
         run_take(config, quiet=True)
-        return generate(solved, out, size=size, engine=engine, say=say)
+        return generate(solved, out, size=size, engine=engine, pictures=pictures, say=say)
 
 
-def generate(solved, out=None, *, size=280, engine="workbench", say=print):
-    """Render the three pictures into ``out``; returns {name: path}.
+def generate(solved, out=None, *, size=280, engine="workbench", pictures=PICTURES, say=print):
+    """Render the pictures into ``out``; returns {name: path}.
 
     Parameters
     ----------
     solved : str or Path
-        Solved weights CSV of the sample take (``python -m facecap demo`` writes
+        Solved weights CSV of the sample take for the contact sheet (``python -m facecap demo`` writes
         ``facecap-demo/sample_take_weights_solved.csv``; ``docs-images`` retargets the take first).
     out : str or Path, optional
         Output folder (created); default ``docs/images`` of this checkout.
     size : int
         Tile height in pixels (width ``ASPECT`` times that).
     engine : {"workbench", "cycles"}
+    pictures : sequence of ``PICTURES`` names
     say : callable(str)
         Progress messages.
     """
@@ -127,19 +149,27 @@ def generate(solved, out=None, *, size=280, engine="workbench", say=print):
         raise FacecapError(f"docs-images: engine must be 'workbench' or 'cycles', got '{engine}'")
     if size < 32:
         raise FacecapError(f"docs-images: size must be at least 32 pixels, got {size}")
+    unknown = [p for p in pictures if p not in PICTURES]
+    if unknown or not pictures:
+        raise FacecapError(f"docs-images: pictures must be some of {', '.join(PICTURES)}; got {', '.join(unknown)}")
     blend = SAMPLE / "character.blend"
     if not blend.is_file():
         raise FacecapError(f"{blend}: not found (docs-images renders the sample character of a source checkout)")
     out = DEFAULT_OUT if out is None else Path(out)
-    take = _read_take(SAMPLE / "sample_take_weights.csv", Path(solved))  # a bad CSV fails before any render
+    if "contact_sheet" in pictures:  # a bad CSV fails before any render
+        take = _read_take(SAMPLE / "sample_take_weights.csv", Path(solved))
     with tempfile.TemporaryDirectory(prefix="facecap-docs-") as tmp:
         stage = _Stage(blend, engine, Path(tmp))
         written = {}
         for picture, draw in (("expressions", _expressions), ("markers", _markers),
                               ("contact_sheet", lambda *a: _contact_sheet(*a, *take))):
+            if picture not in pictures:
+                continue
             say(f"rendering {picture}")
             stage.scene.render.resolution_x, stage.scene.render.resolution_y = tile_size(size, picture)
             written[picture] = draw(stage, out / f"{picture}.png")
+        if "rom" in pictures:
+            written.update(rom_sheets(stage, out, size, compose, say))
     return written
 
 

@@ -178,15 +178,22 @@ class SolveInBackground:
         self.what = what or self.what
         self.request = request_from_scene(settings, scene, **request)
         self.size = _describe(self.request)
+        self._begin()
+
+    def _begin(self):
+        """Start the work (``_compute`` of the request built) on its worker thread."""
         self.result = self.error = None
         self.cancelled = False
         self.started = time.monotonic()
-        self.thread = threading.Thread(target=self._run, name="facecap solve", daemon=True)
+        self.thread = threading.Thread(target=self._run, name=f"facecap {self.what}", daemon=True)
         self.thread.start()
+
+    def _compute(self, request):
+        return solve(request)
 
     def _run(self):
         try:
-            self.result = solve(self.request)
+            self.result = self._compute(self.request)
         except Exception as exc:  # handed to the main thread: FacecapError reported, anything else raised
             self.error = exc
         finally:

@@ -28,7 +28,7 @@ from ...solvers.strategies.options import (
     StrategyInputs,
 )
 from ...solvers.transforms import matrix_to_euler_xyz
-from . import anim, layers
+from . import anim, layers, rom_markers
 from .import_scene import pixels_from_scene
 
 LOCATION = [("location", 0), ("location", 1), ("location", 2)]
@@ -68,6 +68,7 @@ def strategy_settings(settings):
             neutral_frames=(s.calib_neutral_first, s.calib_neutral_last),
             split=tuple(dict.fromkeys(p.name for p in s.calib_poses if p.split)),
             align=s.calib_align,
+            **rom_markers.rom_calibration(s),
         ),
         "mapping": MappingSettings(
             table=tuple((row.source, row.target, row.gain) for row in s.mapping if row.source and row.target),
@@ -229,16 +230,12 @@ def strategy_inputs(settings, strategy=None):
     strategy = strategy or settings.strategy
     inputs, notes = {}, []
     if strategy == "semantic":
+        rom_markers.check_rom(settings)  # a ROM sheet needs its take; markers that name no pose are refused
         inputs.update(_actor_inputs(settings, notes))
     if strategy in ("calibrated", "refine", "semantic"):
-        if settings.calib_source == "COLLECTION":
-            if settings.calib_collection is not None:
-                inputs["calibration"] = markers_from_empties(settings.calib_collection, [m.name for m in settings.markers],
-                                                             settings.fps)
-        elif settings.calib_path:
-            imported = import_markers(bpy.path.abspath(settings.calib_path), units=settings.calib_units)
-            inputs["calibration"] = imported.markers
-            notes.extend(imported.notes)
+        calibration = calibration_markers(settings, notes)
+        if calibration is not None:
+            inputs["calibration"] = calibration
     elif strategy in ("linear", "rbf", "pca"):
         if settings.examples_action is not None:
             if settings.target is None:
@@ -251,19 +248,40 @@ def strategy_inputs(settings, strategy=None):
     return StrategyInputs(**inputs, notes=tuple(notes))
 
 
+def calibration_markers(settings, notes):
+    """The calibration take the Solve panel names (its collection of marker empties, or a file), or None."""
+    if settings.calib_source == "COLLECTION":
+        if settings.calib_collection is None:
+            return None
+        return markers_from_empties(settings.calib_collection, [m.name for m in settings.markers], settings.fps)
+    if not settings.calib_path:
+        return None
+    imported = import_markers(bpy.path.abspath(settings.calib_path), units=settings.calib_units)
+    notes.extend(imported.notes)
+    return imported.markers
+
+
 def _actor_inputs(settings, notes):
-    """The semantic solve's knowledge of the actor from the Solve panel: a performer profile, the human template
-    ("auto": the installed one, if any; "none"; or a path)."""
+    """The semantic solve's knowledge of the actor from the Solve panel: a performer profile, the human template."""
     out = {}
     if settings.actor_profile:
         out["profile"] = Basis.load_npz(bpy.path.abspath(settings.actor_profile))
-    template = settings.actor_template.strip() or "auto"
-    if template != "none":
-        path = template_path() if template == "auto" else Path(bpy.path.abspath(template))
-        if template != "auto" or path.is_file():
-            out["template"] = HumanTemplate.load(path)
-            notes.append(f"the human template: {path}")
+    template = human_template(settings, notes)
+    if template is not None:
+        out["template"] = template
     return out
+
+
+def human_template(settings, notes):
+    """The Solve panel's human template ("auto": the installed one, if any; "none"; or a path), or None."""
+    template = settings.actor_template.strip() or "auto"
+    if template == "none":
+        return None
+    path = template_path() if template == "auto" else Path(bpy.path.abspath(template))
+    if template == "auto" and not path.is_file():
+        return None
+    notes.append(f"the human template: {path}")
+    return HumanTemplate.load(path)
 
 
 def source_channel_names(settings):

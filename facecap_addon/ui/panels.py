@@ -3,6 +3,7 @@ and Alignment), Solve (sub-panels: Strategy Inputs, Priors and Smoothing, Shapes
 
 import bpy
 
+from ..scene import rom_markers
 
 
 def _draw_rig(layout, s):
@@ -381,7 +382,10 @@ def _draw_calibration(layout, s):
     box = layout.box()
     box.label(text="Actor calibration" + (" (optional: poses measure the actor's shapes)"
                                           if s.strategy == "semantic" else ""))
-    box.prop(s, "calib_source")
+    rom = s.strategy == "semantic" and s.calib_sheet != "NONE"
+    if s.strategy == "semantic":
+        box.prop(s, "calib_sheet")
+    box.prop(s, "calib_source", **({"text": "ROM Take"} if rom else {}))
     if s.calib_source == "COLLECTION":
         box.prop(s, "calib_collection", text="Markers")
     else:
@@ -392,13 +396,27 @@ def _draw_calibration(layout, s):
     row.prop(s, "calib_neutral_first")
     row.prop(s, "calib_neutral_last")
     row.operator("facecap.calib_neutral_from_timeline", icon="TIME", text="")
-    box.label(text="Poses (name, first, last, split)")
-    _editable_list(box, "FACECAP_UL_calib_poses", s, "calib_poses", "active_calib_pose",
-                   "facecap.calib_pose_add", "facecap.calib_pose_remove", rows=3)
-    row = box.row(align=True)
-    row.prop(s, "calib_pose_name", text="")
-    row.operator("facecap.calib_pose_add", icon="TIME")
+    if rom:
+        _draw_rom(box, s)
+    else:  # poses typed as frame ranges
+        box.label(text="Poses (name, first, last, split)")
+        _editable_list(box, "FACECAP_UL_calib_poses", s, "calib_poses", "active_calib_pose",
+                       "facecap.calib_pose_add", "facecap.calib_pose_remove", rows=3)
+        row = box.row(align=True)
+        row.prop(s, "calib_pose_name", text="")
+        row.operator("facecap.calib_pose_add", icon="TIME")
     box.prop(s, "calib_align")
+
+
+def _draw_rom(box, s):
+    """The ROM session: find its poses, save the profile, and how many holds the timeline marks."""
+    row = box.row(align=True)
+    row.operator("facecap.rom_find_poses", icon="VIEWZOOM")
+    row.operator("facecap.rom_save_profile", icon="FILE_TICK")
+    marked = len(rom_markers.rom_markers(s.id_data))
+    poses = len(rom_markers.sheet_poses(s))
+    box.label(icon="MARKER_HLT", text=f"{marked} of {poses} poses marked on the timeline: drag a marker to move its "
+              "hold" if marked else "Find Poses marks each hold on the timeline ('ROM: <pose>')")
 
 
 def _draw_mapping(layout, s):

@@ -41,6 +41,14 @@ ALIGN_ITEMS = [
     ("similarity", "Similarity", "Rotate and scale the take's neutral onto the calibration neutral"),
     ("none", "None", "The take and the calibration share a head frame"),
 ]
+#: The ROM sheets (``[calibration] sequence``): none (poses typed as frame ranges), or a built-in sheet.
+ROM_SHEET_ITEMS = [
+    ("NONE", "None", "No range-of-motion session: calibration poses are frame ranges you type"),
+    ("facecap-24", "facecap-24", "A ROM of 24 natural expressions (2-3 minutes) that ask every ARKit shape; "
+     "Find Poses marks their holds in the calibration take"),
+    ("arkit-51", "arkit-51", "A ROM of one pose per ARKit shape (trained performers, about 5 minutes); "
+     "Find Poses marks their holds in the calibration take"),
+]
 CURVE_ITEMS = [
     ("linear", "Linear", "Values as they are"),
     ("smoothstep", "Smoothstep", "Ease in and out (3x^2 - 2x^3)"),
@@ -251,6 +259,8 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     calib_pose_name: StringProperty(name="Pose Name", default="jawOpen",
                                     description="Name of the next pose added from the timeline")
     calib_align: EnumProperty(items=ALIGN_ITEMS, **from_option("calibration.align", label="Align"))
+    calib_sheet: EnumProperty(items=ROM_SHEET_ITEMS, **from_option("calibration.sequence", label="ROM Sheet",
+                                                                  default="NONE"))
     # -- mapping (calibrated, refine, parallel) -----------------------------------------------
     mapping: CollectionProperty(type=FACECAP_PG_mapping)
     active_mapping: IntProperty(default=0)

@@ -1,6 +1,6 @@
 """PNG and TGA images as numpy arrays, without an imaging library (numpy and zlib only).
 
-``write_png`` writes 8-bit RGB/RGBA images byte-for-byte reproducibly (no time stamp or other
+``write_png`` writes 8-bit grey, RGB or RGBA images byte-for-byte reproducibly (no time stamp or other
 metadata), atomically. ``read_tga`` reads the uncompressed TGA files Blender renders to
 (``TARGA_RAW``), which need no decoder.
 """
@@ -14,7 +14,7 @@ from ..errors import InputFileError
 from .files import atomic_path
 
 _SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_COLOUR_TYPE = {3: 2, 4: 6}  # channels -> PNG colour type (truecolour, truecolour with alpha)
+_COLOUR_TYPE = {1: 0, 3: 2, 4: 6}  # channels -> PNG colour type (greyscale, truecolour, truecolour with alpha)
 
 
 def _chunk(kind, data):
@@ -51,26 +51,26 @@ def paeth_filter(image):
 
 
 def write_png(path, image):
-    """Write an 8-bit RGB or RGBA image as a PNG file (atomically; identical bytes for identical pixels).
+    """Write an 8-bit grey, RGB or RGBA image as a PNG file (atomically; identical bytes for identical pixels).
 
     Parameters
     ----------
     path : str or Path
-    image : (H, W, 3) or (H, W, 4) uint8, top row first
+    image : (H, W, 1), (H, W, 3) or (H, W, 4) uint8, top row first (grey: a third of RGB's bytes)
     """
     image = np.asarray(image)
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] not in _COLOUR_TYPE or 0 in image.shape:
-        raise ValueError(f"write_png needs an (H, W, 3|4) uint8 image, got {image.dtype} {image.shape}")
+        raise ValueError(f"write_png needs an (H, W, 1|3|4) uint8 image, got {image.dtype} {image.shape}")
     data = encode_png(image)
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
 
 
 def encode_png(image, level=9):
-    """The PNG file bytes of an 8-bit (H, W, 3|4) RGB(A) image, top row first."""
+    """The PNG file bytes of an 8-bit (H, W, 1|3|4) grey, RGB or RGBA image, top row first."""
     image = np.asarray(image)
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] not in _COLOUR_TYPE or 0 in image.shape:
-        raise ValueError(f"encode_png needs an (H, W, 3|4) uint8 image, got {image.dtype} {image.shape}")
+        raise ValueError(f"encode_png needs an (H, W, 1|3|4) uint8 image, got {image.dtype} {image.shape}")
     h, w, c = image.shape
     header = struct.pack(">IIBBBBB", w, h, 8, _COLOUR_TYPE[c], 0, 0, 0)
     data = zlib.compress(paeth_filter(image).tobytes(), level)

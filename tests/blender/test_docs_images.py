@@ -10,15 +10,20 @@ import pytest
 from png_pixels import png_pixels
 
 from facecap.facecap_addon.render import docs_images as di
+from facecap.facecap_addon.render import rom_images
+from facecap.solvers.rom import SHEETS
 
 SIZE = 96  # the smallest tile height at which the 2.5 mm marker dots still cover whole pixels
 SOLVED_IS_TRUTH = di.SAMPLE / "sample_take_weights.csv"  # a "solve" equal to the truth: rows must match
 #: Blender aborts (SIGABRT) when it finds no OpenGL context for Workbench, e.g. without Mesa's EGL.
 NO_GL = "Couldn't find current GLX or EGL context"
+#: The pictures of one sample take; the ROM sheets (77 renders) are tested on their own, once.
+TAKE_PICTURES = "expressions,markers,contact_sheet"
 
 
-def _docs_images(out, engine, solved=None):
-    cmd = [sys.executable, "-m", "facecap", "docs-images", "--out", str(out), "--size", str(SIZE), "--engine", engine]
+def _docs_images(out, engine, solved=None, pictures=TAKE_PICTURES):
+    cmd = [sys.executable, "-m", "facecap", "docs-images", "--out", str(out), "--size", str(SIZE), "--engine", engine,
+           "--pictures", pictures]
     if solved is not None:
         cmd += ["--solved", str(solved)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
@@ -104,7 +109,7 @@ def test_cycles_renders_without_opengl(tmp_path):
     empty.mkdir()
     env = {**os.environ, "__EGL_VENDOR_LIBRARY_DIRS": str(empty)}
     cmd = [sys.executable, "-m", "facecap", "docs-images", "--out", str(tmp_path), "--size", str(SIZE),
-           "--engine", "cycles", "--solved", str(SOLVED_IS_TRUTH)]
+           "--engine", "cycles", "--solved", str(SOLVED_IS_TRUTH), "--pictures", TAKE_PICTURES]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
     assert run.returncode == 0, run.stderr[-2000:]
     tiles = _tiles(tmp_path / "expressions.png", "expressions", 4, len(di.EXPRESSIONS))
@@ -126,3 +131,35 @@ def test_bad_solved_file_is_one_line(tmp_path):
     assert run.returncode == 1
     assert run.stderr.strip().splitlines()[-1].startswith("facecap: error: ") and "not a solve of the sample take" in run.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_rom_sheets_show_every_pose_numbered_in_the_order_performed(tmp_path):
+    """``rom_<sheet>.png``: the neutral, then every pose of the sheet in its order, each tile captioned (its number
+    and label) and showing the face moved from the neutral (measured at this size: at least 0.078 grey levels on
+    average over the face for the subtlest single shape; identical renders differ by 0)."""
+    run = _docs_images(tmp_path, "workbench", pictures="rom")
+    if run.returncode != 0 and NO_GL in run.stderr:
+        pytest.skip("Workbench needs an OpenGL context (see the workbench fixture)")
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"rom_{sheet}.png" for sheet in SHEETS)
+    tile = rom_images.tile_size(SIZE)
+    for sheet, poses in SHEETS.items():
+        columns, count = rom_images.COLUMNS[sheet], len(poses) + 1
+        page = png_pixels(tmp_path / f"rom_{sheet}.png")
+        rows = -(-count // columns)
+        assert page.shape == (rows * (tile[1] + di.PAD) + di.PAD, columns * (tile[0] + di.PAD) + di.PAD, 3)
+        tiles = [page[y0:y1, x0:x1] for y0, y1, x0, x1 in (di.tile_box(i, columns, tile) for i in range(count))]
+        face = [t[: int(t.shape[0] * 0.88)] for t in tiles]
+        for pose, f in zip(poses, face[1:]):
+            assert np.abs(f - face[0]).mean() > 0.04, (sheet, pose.label)
+        for t in tiles:  # a caption under every face
+            assert (t[int(t.shape[0] * 0.92):].min(axis=-1) < 200).sum() >= 3
+    assert rom_images.caption(1, SHEETS["facecap-24"][0]) == "1 jaw open"
+
+
+def test_unknown_pictures_are_named_before_any_render():
+    from facecap.solvers.errors import FacecapError
+
+    with pytest.raises(FacecapError, match="pictures must be some of expressions, markers, contact_sheet, rom; got "
+                                           "faces"):
+        di.generate(None, pictures=("faces",))

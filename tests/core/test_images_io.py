@@ -11,7 +11,7 @@ from facecap.solvers.io.images import read_tga, write_png
 
 
 def _decode_png(blob):
-    """A plain reference decoder (every filter type, pixel by pixel) for 8-bit RGB/RGBA PNGs."""
+    """A plain reference decoder (every filter type, pixel by pixel) for 8-bit grey/RGB/RGBA PNGs."""
     assert blob[:8] == b"\x89PNG\r\n\x1a\n"
     pos, chunks = 8, []
     while pos < len(blob):
@@ -23,7 +23,7 @@ def _decode_png(blob):
     assert [k for k, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"]  # no metadata chunks
     w, h, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", chunks[0][1])
     assert depth == 8 and interlace == 0
-    c = {2: 3, 6: 4}[colour]
+    c = {0: 1, 2: 3, 6: 4}[colour]
     raw = zlib.decompress(chunks[1][1])
     stride = w * c
     out = np.zeros((h, stride), dtype=np.int64)
@@ -49,7 +49,7 @@ def _decode_png(blob):
     return out.reshape(h, w, c).astype(np.uint8)
 
 
-@pytest.mark.parametrize("channels", [3, 4])
+@pytest.mark.parametrize("channels", [1, 3, 4])
 def test_png_round_trip(tmp_path, channels):
     rng = np.random.default_rng(3)
     image = rng.integers(0, 256, size=(7, 11, channels), dtype=np.uint8)

@@ -1,0 +1,117 @@
+"""The sidebar's range-of-motion session: the ROM take (the Solve panel's calibration take) measured against its
+sheet as a semantic solve would measure it (``solvers.strategies.rom_wiring.learn_from_rom_take``), for *Find
+Poses* (the holds found anew, marked on the timeline: ``rom_markers``) and *Save Performer Profile* (the holds of
+the ``ROM: `` markers when there are any; the actor's measured shapes written as an .npz the semantic solve reads
+as ``[actor] profile``)."""
+
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import bpy
+
+from ...solvers.capture.stable_markers import suggest_stable_markers
+from ...solvers.errors import FacecapError
+from ...solvers.io.outputs import Output, OutputError, check_outputs, is_kind
+from ...solvers.strategies.options import StrategyInputs
+from ...solvers.strategies.rom_wiring import learn_from_rom_take
+from . import rom_markers, take
+from .scene_binding import binding_from_sidebar, geometric_character
+from .scene_solve import SolveInBackground
+
+NO_ROM_TAKE = ("choose the ROM take under Actor calibration: the collection of its marker empties (import it with "
+               "File > Import) or its capture file")
+
+
+def rom_request(settings, *, use_markers):
+    """(RetargetSettings, character, StrategyInputs) that ``learn_from_rom_take`` measures the ROM take with, as
+    the Solve panel's semantic solve would: the character's shapes at the markers (bound as the solve binds them)
+    and the human template when it resolves. ``use_markers``: the holds of the ``ROM: `` markers (else found)."""
+    if not rom_markers.sheet_poses(settings):
+        raise FacecapError("choose a ROM sheet first (Actor calibration > ROM Sheet)")
+    notes = []
+    rom = take.calibration_markers(settings, notes)
+    if rom is None:
+        raise FacecapError(NO_ROM_TAKE)
+    if use_markers:
+        rom_markers.check_rom(settings)
+    rsettings = replace(take.retarget_settings(settings), strategy="semantic")
+    if not use_markers:
+        rsettings = replace(rsettings, calibration=replace(rsettings.calibration, holds=None))
+    if rsettings.auto_stable and not rsettings.calibration.stable_markers:
+        suggestion = suggest_stable_markers(rom.to_units("m"))
+        if not suggestion.ok:
+            raise FacecapError(f"the ROM take's stable markers: {suggestion.message()}; tick them in the marker list")
+        rsettings = replace(rsettings, calibration=replace(rsettings.calibration, stable_markers=suggestion.names))
+    elif len(rsettings.calibration.stable_markers or rsettings.stable_markers) < 3:
+        raise FacecapError("the ROM take is stabilised on the take's stable markers: tick at least 3 in the Take "
+                           "panel's marker list (or Auto Stable Set)")
+    inputs = StrategyInputs(calibration=rom, template=take.human_template(settings, notes), notes=tuple(notes))
+    return rsettings, _character(settings, rsettings, rom), inputs
+
+
+def _character(settings, rsettings, rom):
+    """The character's shapes where the markers sit (the prior that names the poses when no template is
+    installed), bound as the solve binds them (on the take's markers when one is imported); None for a rig."""
+    if settings.target is None or settings.rig_preset != "NONE":
+        return None
+    markers = take.markers_from_collection(settings) if settings.marker_collection is not None else None
+    if markers is None or markers.dim != 3:
+        markers = rom
+    bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings), store=False)
+    return bound.basis
+
+
+class RomInBackground(SolveInBackground):
+    """*Find Poses* or *Save Performer Profile* (``what``) beside the interface: the scene is read here, the ROM
+    take measured on a worker thread (numpy and scipy only), the scene changed only by the operator once it is
+    done (``wait`` gives the RomResult)."""
+
+    def __init__(self, settings, *, what, use_markers):
+        self.settings, self.what = settings, what
+        self.request = rom_request(settings, use_markers=use_markers)
+        rom = self.request[2].calibration
+        self.size = f"{len(self.request[0].calibration.sequence)} poses of {settings.calib_sheet} in " \
+                    f"{rom.n_frames} frames x {rom.n_markers} markers"
+        self._begin()
+
+    def _compute(self, request):
+        return learn_from_rom_take(*request)
+
+    def status(self):
+        return f"{self.what}: measuring {self.size}, {self.seconds():.0f} s; Esc cancels"
+
+
+def profile_path(filepath):
+    """The absolute .npz path of the file browser's ``filepath`` (the suffix added when missing)."""
+    path = Path(bpy.path.abspath(filepath))
+    return path if path.suffix.lower() == ".npz" else path.with_name(path.name + ".npz")
+
+
+def check_profile_output(settings, path, *, overwrite):
+    """The output policy for the profile (before any work): never the ROM take, the open .blend or the template;
+    an existing file only when facecap wrote it (a stored library), or with ``overwrite`` (the user's choice)."""
+    if not overwrite and path.is_file() and not is_kind(path, "npz"):
+        raise OutputError(f"{path}: exists and is not a performer profile or library facecap wrote; choose another "
+                          "name, or tick Overwrite in the file browser to replace it")
+    inputs = {"the open .blend": bpy.data.filepath or None}
+    if settings.calib_source == "FILE" and settings.calib_path:
+        inputs["the ROM take"] = bpy.path.abspath(settings.calib_path)
+    template = settings.actor_template.strip()
+    if template not in ("", "auto", "none"):
+        inputs["the human template"] = bpy.path.abspath(template)
+    check_outputs([Output("the performer profile", path, "npz")], {k: v for k, v in inputs.items() if v},
+                  overwrite=True)  # the file's kind is judged above, with the sidebar's words
+
+
+def save_profile(settings, result, path):
+    """Write ``result.measured`` (a RomResult's) to ``path`` atomically and make it the Solve panel's performer
+    profile (relative to the .blend, ``//...``, when it lies in the .blend's folder)."""
+    result.measured.save_npz(path)
+    settings.actor_profile = bpy.path.relpath(str(path)) if bpy.data.filepath and _below(path) else str(path)
+
+
+def _below(path):
+    """Whether ``path`` lies in the open .blend's folder (a relative path then survives moving both)."""
+    folder = os.path.dirname(bpy.path.abspath("//"))
+    return bool(folder) and os.path.commonpath([folder, os.path.abspath(path)]) == folder
