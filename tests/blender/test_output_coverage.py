@@ -56,7 +56,7 @@ NOT_WRITING = {
     "bench": ("--quick", "--accuracy", "--realism", "--landmarks", "--draws", "--clips", "--size", "--frames",
               "--batch", "--batch-takes", "--batch-jobs", "--repeat", "--clean", "--memory"),
     "bench --realism": ("--shared", "--draws", "--frames", "--targets", "--layouts", "--methods", "--exact-actor",
-                        "--real", "--first-seed", "--actors", "--docs"),
+                        "--real", "--first-seed", "--actors", "--docs", "--from-json"),
     "docs-images": ("--size", "--engine", "--solved"),
     "rig-bench": ("--capture", "--frames", "--sample-frames", "--repeat", "--reference", "--long-only"),
     "template fetch": ("--url", "--keep"),  # the download goes to facecap's cache (its temporaries cleaned)

@@ -227,5 +227,5 @@ def test_semantic_without_calibration_says_what_it_knows_and_refuses_to_write_a_
     config.write_text(config.read_text().replace("[output]\n", '[output]\nprofile = "actor.npz"\n'))
     proc = run(config)
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1
-    assert "output.profile" in proc.stderr and "calibration] poses" in proc.stderr
+    assert "output.profile" in proc.stderr and "[calibration] sequence" in proc.stderr and "poses" in proc.stderr
     assert not (tmp_path / "actor.npz").exists()

@@ -172,6 +172,8 @@ def main(argv=None):
     parser.add_argument("--docs", metavar="FOLDER", help="run the docs' plan (every tier, both actor families, every "
                         "character and layout it reports; --targets, --layouts and --methods are ignored) and write "
                         "its tables into FOLDER's accuracy.md and strategies.md (docs: between their generated markers)")
+    parser.add_argument("--from-json", metavar="FILE", help="the rows of an earlier run (its --json) instead of "
+                        "running again: print and, with --docs, write its tables")
     parser.add_argument("--overwrite", action="store_true",
                         help="let --json replace a file facecap did not write")
     args = parser.parse_args(argv)
@@ -188,8 +190,8 @@ def main(argv=None):
 
     plan = PLAN if args.docs else ((tuple(args.layouts.split(",")), tuple(args.targets.split(",")),
                                     tuple(args.methods.split(","))),)
-    rows = []
-    for layouts, targets, methods in plan:
+    rows = json.loads(Path(args.from_json).read_text())["rows"] if args.from_json else []
+    for layouts, targets, methods in () if args.from_json else plan:
         rows += run(args.shared, draws=args.draws, frames=args.frames, actors=tuple(args.actors.split(",")),
                     targets=targets, layouts=layouts, methods=methods, perturbation=perturbation,
                     first_seed=args.first_seed, progress=progress)

@@ -132,12 +132,22 @@ def tiers_markdown(summary):
     return "\n".join(lines) + "\n"
 
 
+def rom_markdown(summary, *, draws, frames):
+    """docs/rom.md's tables: the tiers, and the holds found."""
+    return (f"Medians over {draws} draws of {frames} frames, dense markers, onto the sample character:\n\n"
+            + tiers_markdown(summary) + "\nThe holds found within 5 frames of their true middles:\n\n"
+            + "\n".join(_holds(summary)) + "\n")
+
+
 def write_docs(folder, summary, *, draws, frames):
-    """Replace the generated blocks of ``folder``/accuracy.md (every table) and strategies.md (the tiers)."""
+    """Replace the generated blocks of ``folder``/accuracy.md (every table), strategies.md (the tiers) and rom.md
+    (the tiers and the holds found); returns the pages."""
     folder = Path(folder)
-    _replace(folder / "accuracy.md", docs_markdown(summary, draws=draws, frames=frames))
-    _replace(folder / "strategies.md", tiers_markdown(summary))
-    return folder / "accuracy.md", folder / "strategies.md"
+    pages = {"accuracy.md": docs_markdown(summary, draws=draws, frames=frames), "strategies.md": tiers_markdown(summary),
+             "rom.md": rom_markdown(summary, draws=draws, frames=frames)}
+    for name, text in pages.items():
+        _replace(folder / name, text)
+    return [folder / name for name in pages]
 
 
 def _replace(page, text):
