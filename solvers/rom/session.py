@@ -16,7 +16,7 @@ from ..character.basis import Basis
 from ..errors import FacecapError
 from .holds import ENTER, TOP, activity_unit, find_holds
 from .joint import fit_examples
-from .matching import align_holds
+from .matching import align_holds, cosines
 from .sheets import sheet_shapes
 
 #: Frames (s) on each side of a middle the user gave (``[calibration] holds``) when no hold found covers it.
@@ -101,66 +101,78 @@ def find_poses(take, poses, prior, *, fps, given=None):
     deltas, frames = take.deltas, np.asarray(take.frames, dtype=np.float64)
     noise = marker_noise(deltas)
     holds = find_holds(deltas, frames, fps, noise)
-    shapes = sheet_shapes(poses)
-    predicted = np.einsum("jk,kmd->jmd", asked_weights(poses, shapes), prior)
-    J = len(poses)
-    spans, middles, notes = [None] * J, np.full(J, np.nan), []
+    predicted = np.einsum("jk,kmd->jmd", asked_weights(poses, sheet_shapes(poses)), prior)
     if given is not None:
-        labels = [p.label for p in poses]
-        unknown = sorted(set(given) - set(labels))
-        if unknown:
-            raise FacecapError(f"[calibration] holds: {unknown} are not poses of the sheet; its poses: {labels}")
-        half = GIVEN_HALF_S * fps
-        for j, p in enumerate(poses):
-            if p.label not in given:
-                continue
-            m = float(given[p.label])
-            cover = [h for h in holds if h.start <= m <= h.end]
-            if cover:  # the found hold's extent, moved to where the user put its middle
-                spans[j] = tuple(np.array(cover[0].measured()) + round(m - cover[0].middle))
-            else:
-                spans[j] = (int(np.floor(m - half)), int(np.ceil(m + half)))
-            middles[j] = m
+        spans, middles, notes = _given_spans(poses, given, holds, fps)
     else:
-        measured = np.stack([_measure(deltas, frames, *h.measured())[0] for h in holds]) if holds else \
-            np.zeros((0,) + deltas.shape[1:])
-        # a pose whose predicted motion stays below what finds a hold may well leave none
-        size = np.linalg.norm(predicted, axis=2)
-        subtle = np.sort(size, axis=1)[:, -TOP:].mean(axis=1) < ENTER * activity_unit(noise, fps) \
-            if np.any(prior) else np.zeros(J, dtype=bool)
-        if not np.any(prior) and len(holds) != J:
-            raise FacecapError(f"the ROM take holds {len(holds)} expressions and the sheet has {J} poses; without a "
-                               "prior (the human template or a character with markers bound) facecap cannot tell "
-                               "which were skipped or added: give [calibration] holds (the middle frame of each)")
-        align = align_holds(measured, predicted, subtle)
-        if align.ambiguous:
-            raise FacecapError("the ROM take's holds do not follow the sheet clearly around pose(s) "
-                               f"{[poses[j].label for j in align.ambiguous]} ({len(holds)} holds found for {J} poses): "
-                               "a pose skipped, repeated or added there. Check the take, or give [calibration] holds "
-                               "(the middle frame of each pose) or a sequence as performed")
-        for j, h in enumerate(align.hold_of):
-            if h >= 0:
-                spans[j], middles[j] = holds[h].measured(), holds[h].middle
-        missed = [poses[j].label for j in align.skipped]
-        if missed:
-            notes.append(f"ROM: pose(s) not found in the take (skipped, or too subtle for the markers; their shapes "
-                         f"come from the prior): {missed}")
-        extra = [f"{holds[h].start:g}-{holds[h].end:g}" for h in align.extra]
-        if extra:
-            notes.append(f"ROM: expression(s) at frames {extra} match no pose of the sheet and are left out")
+        spans, middles, notes = _found_spans(poses, holds, predicted, deltas, frames, noise, fps)
+    J = len(poses)
     E = np.full((J,) + deltas.shape[1:], np.nan)
     counts = np.zeros((J, deltas.shape[1]))
-    score = np.full(J, np.nan)
     for j, span in enumerate(spans):
         if span is not None:
             E[j], counts[j] = _measure(deltas, frames, *span)
-            p = predicted[j].ravel()
-            if np.any(p):
-                e = np.nan_to_num(E[j]).ravel()
-                score[j] = float(e @ p / max(np.linalg.norm(e) * np.linalg.norm(p), 1e-300))
+    found = np.array([s is not None for s in spans])
+    score = np.full(J, np.nan)
+    score[found] = np.diag(cosines(E[found], predicted[found])) if np.any(prior) else np.nan
     return RomPoses(tuple(poses), tuple(None if s is None else (int(s[0]), int(s[1])) for s in spans), middles,
                     score, E, counts, tuple(take.names), take.neutral, noise, holds, tuple(notes),
                     given=given is not None)
+
+
+def _given_spans(poses, given, holds, fps):
+    """(frames measured per pose, middles, notes) where the user put the poses: around the hold found at each
+    given middle (moved there), else ``GIVEN_HALF_S`` either side of it."""
+    labels = [p.label for p in poses]
+    unknown = sorted(set(given) - set(labels))
+    if unknown:
+        raise FacecapError(f"[calibration] holds: {unknown} are not poses of the sheet; its poses: {labels}")
+    spans, middles = [None] * len(poses), np.full(len(poses), np.nan)
+    half = GIVEN_HALF_S * fps
+    for j, p in enumerate(poses):
+        if p.label not in given:
+            continue
+        m = float(given[p.label])
+        cover = [h for h in holds if h.start <= m <= h.end]
+        if cover:  # the found hold's extent, moved to where the user put its middle
+            spans[j] = tuple(np.array(cover[0].measured()) + round(m - cover[0].middle))
+        else:
+            spans[j] = (int(np.floor(m - half)), int(np.ceil(m + half)))
+        middles[j] = m
+    return spans, middles, []
+
+
+def _found_spans(poses, holds, predicted, deltas, frames, noise, fps):
+    """(frames measured per pose, middles, notes) of the ``holds`` found, named by the sheet (``align_holds``
+    against the ``predicted`` patterns); refused with the poses named when the alignment is ambiguous."""
+    J = len(poses)
+    measured = np.stack([_measure(deltas, frames, *h.measured())[0] for h in holds]) if holds else \
+        np.zeros((0,) + deltas.shape[1:])
+    if not np.any(predicted) and len(holds) != J:
+        raise FacecapError(f"the ROM take holds {len(holds)} expressions and the sheet has {J} poses; without a "
+                           "prior (the human template or a character with markers bound) facecap cannot tell "
+                           "which were skipped or added: give [calibration] holds (the middle frame of each)")
+    # a pose whose predicted motion stays below what finds a hold may well leave none
+    size = np.sort(np.linalg.norm(predicted, axis=2), axis=1)[:, -TOP:].mean(axis=1)
+    subtle = (size < ENTER * activity_unit(noise, fps)) & np.any(predicted)
+    align = align_holds(measured, predicted, subtle)
+    if align.ambiguous:
+        raise FacecapError("the ROM take's holds do not follow the sheet clearly around pose(s) "
+                           f"{[poses[j].label for j in align.ambiguous]} ({len(holds)} holds found for {J} poses): "
+                           "a pose skipped, repeated or added there. Check the take, or give [calibration] holds "
+                           "(the middle frame of each pose) or a sequence as performed")
+    spans, middles, notes = [None] * J, np.full(J, np.nan), []
+    for j, h in enumerate(align.hold_of):
+        if h >= 0:
+            spans[j], middles[j] = holds[h].measured(), holds[h].middle
+    missed = [poses[j].label for j in align.skipped]
+    if missed:
+        notes.append(f"ROM: pose(s) not found in the take (skipped, or too subtle for the markers; their shapes "
+                     f"come from the prior): {missed}")
+    extra = [f"{holds[h].start:g}-{holds[h].end:g}" for h in align.extra]
+    if extra:
+        notes.append(f"ROM: expression(s) at frames {extra} match no pose of the sheet and are left out")
+    return spans, middles, notes
 
 
 def fit_rom(found, prior, *, neutral_counts=None):
