@@ -15,7 +15,6 @@ from ..rom import find_poses, fit_rom, prior_for, sheet_shapes
 from .actor_space import character_in_actor_space, fit_template
 from .base import PreparedTake, as_target
 
-
 #: Frames at most that the ROM's neutral is detected from.
 DETECT_FRAMES = 2000
 
