@@ -9,6 +9,7 @@ the jitter, each beside the truth's. Medians over the draws, and the worst draw.
 """
 
 import argparse
+import json
 import time
 from pathlib import Path
 
