@@ -13,11 +13,14 @@ import numpy as np
 
 from ..errors import FacecapError
 from ..transforms import Similarity, fit_similarity, rotation_angle_deg
-from .surface import closest_points
+from .surface import closest_points, smooth_normals
 
 #: Cauchy weight scale (times the residuals' robust sigma) and the sigma's floor, mm.
 CAUCHY = 2.385
 SIGMA_FLOOR_MM = 0.5
+#: The refinement's steps that re-estimate the robust sigma (then it stays and the cost must fall) and how often a
+#: step that does not lower the cost is halved before the refinement stops.
+ADAPT, HALVINGS = 3, 8
 #: Standard deviation of log(scale) around its starting value (a weak prior) and the factor the
 #: refinement may move the scale by at most.
 SCALE_PRIOR = np.log(1.5)
@@ -119,11 +122,22 @@ def solve_spd(A, b):
     return x
 
 
+def _cost(r, sigma, log_s, log_s0, allow_scale):
+    """The robust cost the refinement lowers: Cauchy losses of residuals ``r`` (mm) at the robust ``sigma``, and
+    the scale's prior."""
+    c = CAUCHY * sigma
+    cost = 0.5 * c**2 * np.log1p((r / c) ** 2).sum()
+    return cost + (0.5 * ((log_s - log_s0) / SCALE_PRIOR) ** 2 if allow_scale else 0.0)
+
+
 def refine(surface, markers, start, *, unit, allow_scale=True, iterations=60, scale_range=SCALE_RANGE):
     """Robust point-to-plane ICP of (M, 3) ``markers`` onto ``surface`` from Similarity ``start``.
 
     The scale stays within ``start.scale`` divided or multiplied by ``scale_range``: a surface alone
-    does not fix it (a cloud shrunk onto a small patch always fits), only near the right one.
+    does not fix it (a cloud shrunk onto a small patch always fits), only near the right one. The robust
+    weights' scale follows the residuals for ``ADAPT`` steps, then stays, and from there a step is kept only when
+    it lowers the robust cost (halved until it does): the refinement settles in a minimum instead of wandering
+    between closest points until the step cap, where it stopped at a pose the numeric library's rounding chose.
 
     Returns (Similarity, a one-line note with iterations, the median distance and the scale).
     """
@@ -132,21 +146,36 @@ def refine(surface, markers, start, *, unit, allow_scale=True, iterations=60, sc
     R, s, t = start.rotation.copy(), float(start.scale), start.apply(c)
     log_s0 = np.log(s)
     lo, hi = log_s0 - np.log(scale_range), log_s0 + np.log(scale_range)
-    for it in range(1, iterations + 1):
+
+    def residuals(R, s, t):
         srp = s * pc @ R.T
         x = srp + t
-        tri, _, q, _ = closest_points(surface, x, candidates=CANDIDATES)
-        n = surface.normals[tri]
-        r = np.sum(n * (x - q), axis=1) / unit
-        w = _weights(r)
+        tri, bary, q, _ = closest_points(surface, x, candidates=CANDIDATES)
+        n = smooth_normals(surface.vertex_normals, surface.triangles, tri, bary)  # no jump from triangle to triangle
+        return srp, n, np.sum(n * (x - q), axis=1) / unit
+
+    sigma = None
+    srp, n, r = residuals(R, s, t)
+    for it in range(1, iterations + 1):
+        if it <= ADAPT or sigma is None:
+            sigma = max(1.4826 * float(np.median(np.abs(r))), SIGMA_FLOOR_MM)
+        w = 1.0 / (1.0 + (r / (CAUCHY * sigma)) ** 2)
         delta = _step(srp / unit, n, r, w, np.log(s), log_s0, allow_scale)
         if allow_scale and not lo <= np.log(s) + delta[6] <= hi:  # the scale goes to its bound, the rest without it
             wanted = np.log(s) + delta[6]
             delta = _step(srp / unit, n, r, w, np.log(s), log_s0, False)
             delta[6] = np.clip(wanted, lo, hi) - np.log(s)
-        R = rodrigues(delta[:3]) @ R
-        t = t + delta[3:6] * unit
-        s = float(np.exp(np.clip(np.log(s) + delta[6], lo, hi)))
+        before = _cost(r, sigma, np.log(s), log_s0, allow_scale)
+        for _ in range(HALVINGS + 1):
+            R1, t1 = rodrigues(delta[:3]) @ R, t + delta[3:6] * unit
+            s1 = float(np.exp(np.clip(np.log(s) + delta[6], lo, hi)))
+            srp1, n1, r1 = residuals(R1, s1, t1)
+            if it <= ADAPT or _cost(r1, sigma, np.log(s1), log_s0, allow_scale) <= before:
+                break
+            delta = 0.5 * delta
+        else:
+            break  # no step lowers the cost: a minimum
+        R, s, t, srp, n, r = R1, s1, t1, srp1, n1, r1
         if np.abs(delta[:3]).max() < 1e-4 and np.abs(delta[3:6]).max() < 1e-2 and abs(delta[6]) < 1e-4:
             break  # every marker moved by less than ~0.01 mm (a face is ~0.1 m across)
     sim = Similarity(scale=s, rotation=R, translation=t - s * R @ c)

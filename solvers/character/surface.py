@@ -37,6 +37,8 @@ class Surface:
     reach : float
         The largest distance from a triangle's centroid to its corners: no point of a triangle is farther
         than that from its centroid.
+    vertex_normals : ndarray (V, 3)
+        Unit normals at the vertices (the area-weighted mean of their triangles'): ``smooth_normals``.
     """
 
     vertices: np.ndarray
@@ -46,6 +48,7 @@ class Surface:
     centroids: np.ndarray
     tree: object
     reach: float
+    vertex_normals: np.ndarray = None
 
     @property
     def n_triangles(self):
@@ -100,7 +103,30 @@ def make_surface(vertices, triangles):
 
     reach = float(max(np.linalg.norm(x - centroids, axis=1).max() for x in (a, b, c)))
     return Surface(vertices, tris, normals, _vertex_triangles(len(vertices), tris), centroids, cKDTree(centroids),
-                   reach)
+                   reach, vertex_normals(vertices, tris, n))
+
+
+def vertex_normals(vertices, triangles, face_cross=None):
+    """(V, 3) unit vertex normals: the sum of the cross products (area-weighted normals) of each vertex's
+    triangles, normalised (zero for a vertex of no triangle)."""
+    tris = np.asarray(triangles, dtype=np.int64)
+    if face_cross is None:
+        a, b, c = (vertices[tris[:, k]] for k in range(3))
+        face_cross = np.cross(b - a, c - a)
+    acc = np.zeros((len(vertices), 3))
+    for k in range(3):
+        np.add.at(acc, tris[:, k], face_cross)
+    length = np.linalg.norm(acc, axis=1, keepdims=True)
+    return np.divide(acc, length, out=np.zeros_like(acc), where=length > 0)
+
+
+def smooth_normals(normals, triangles, triangle, barycentric):
+    """Unit normals (N, 3) at barycentric points, interpolated from the vertex ``normals`` (V, 3): continuous across
+    edges, so a point-to-plane residual does not jump when its closest point moves to the next triangle (nor with
+    which of two triangles the rounding of an edge's closest point picks)."""
+    n = interpolate(normals, triangles, triangle, barycentric)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 def _vertex_triangles(n_vertices, tris):
@@ -255,4 +281,4 @@ def interpolate(values, triangles, triangle, barycentric):
 
 
 __all__ = ["Surface", "closest_on_triangles", "closest_points", "interpolate", "make_surface", "nearest_triangles",
-           "triangulate"]
+           "smooth_normals", "triangulate", "vertex_normals"]

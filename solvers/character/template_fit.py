@@ -17,7 +17,7 @@ import numpy as np
 
 from ..transforms import Similarity
 from .alignment import CAUCHY, rodrigues
-from .surface import closest_on_triangles, interpolate, make_surface, nearest_triangles
+from .surface import closest_on_triangles, interpolate, make_surface, nearest_triangles, smooth_normals, vertex_normals
 
 #: Steps at most; the cost's relative decrease below which the fit has settled.
 MAX_STEPS, SETTLED = 200, 1e-10
@@ -51,9 +51,9 @@ class _State:
         best = np.argmin(d2, axis=1)
         rows = np.arange(M) * k + best
         self.tri, self.bary = candidates[np.arange(M), best], bary[rows]
-        a, b, c = (corners[rows, i] for i in range(3))
-        n = np.cross(b - a, c - a)
-        self.n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        # normals interpolated from the vertices': no jump between triangles (nor with which of two the rounding of
+        # an edge's closest point picks), so the cost is smooth and its minimum the same in every numeric library
+        self.n = smooth_normals(vertex_normals(verts, model.triangles), model.triangles, self.tri, self.bary)
         self.r = np.sum(self.n * (x - q[rows]), axis=1) / unit
         cost, self.w = _cauchy(self.r)
         self.cost = float(cost.sum() + 0.5 * ridge * coeffs @ coeffs + 0.5 * (log_s / SCALE_SD) ** 2)
