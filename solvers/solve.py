@@ -71,6 +71,8 @@ def solve_job(request):
     if request.controls:
         names = character.shape_names if hasattr(character, "shape_names") else _names(character)
         settings = replace(settings, locks=tuple(settings.locks) + locks_from_controls(request.controls, names))
+    if rig is not None and request.markers is not None:  # locks and bounds in control values -> the columns'
+        settings = rig.column_settings(settings, request.markers.n_frames)
     if request.footage is not None:
         if request.corrections is not None:
             raise FacecapError("tuning a video take from corrections is not supported yet; use the shape controls")
@@ -79,10 +81,13 @@ def solve_job(request):
         fps = request.footage.info.fps
         return job.then(lambda result: _with_controls(result, request, fps))
 
+    # a nonlinear rig solve refits the head against the rig itself (solvers.rig.head), not the linear solve
+    linear_settings = replace(settings, fine_iterations=0) if rig is not None and rig.defers_head_refits else settings
+
     def steps():
-        result = retarget(request.markers, character, settings, inputs=inputs)
+        result = retarget(request.markers, character, linear_settings, inputs=inputs)
         if corrections is not None:
-            tuned = retune_take(request.markers, character, settings, inputs, corrections, mu=request.mu,
+            tuned = retune_take(request.markers, character, linear_settings, inputs, corrections, mu=request.mu,
                                 base=result, parent=request.parent)
             result = replace(tuned.result, retune=tuned)
         yield None
@@ -90,7 +95,7 @@ def solve_job(request):
             result = yield from rig.finish_steps(result, request.markers, settings)
         return _with_controls(result, request, _take_fps(request))
 
-    return Job(steps(), 1 + (rig.steps if rig is not None else 0), what="solve")
+    return Job(steps(), 1 + (rig.steps_for(settings) if rig is not None else 0), what="solve")
 
 
 def _names(character):

@@ -80,10 +80,10 @@ def write_take(folder, mesh, controls, values, *, seed=5):
 
 
 def take_config(folder, name, obj, *, markers="take.csv", source='units = "mm"\nfps = 60\n', stable=STABLE,
-                neutral=(1, 50), rig="", extra="", outputs=""):
-    """A take config in ``folder`` solving ``markers`` onto ``obj`` of ``folder/rig.blend``."""
+                neutral=(1, 50), rig="", extra="", outputs="", blend="rig.blend"):
+    """A take config in ``folder`` solving ``markers`` onto ``obj`` of ``folder/<blend>``."""
     path = Path(folder) / f"{name}.toml"
-    path.write_text(f'[target]\nblend = "rig.blend"\nobject = "{obj}"\n[source]\nmarkers = "{markers}"\n{source}'
+    path.write_text(f'[target]\nblend = "{blend}"\nobject = "{obj}"\n[source]\nmarkers = "{markers}"\n{source}'
                     f'[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = {list(neutral)}\n{extra}{rig}'
                     f'[output]\nweights = "{name}.csv"\n{outputs}')
     return load_take_config(path)

@@ -3,12 +3,21 @@
 Over the control offsets u (F, C) of a take::
 
     minimise  1/2 sum_f sum_p c_fp (x_p(u_f) + e_fp - d_fp)^2       data (x: the model; e: a defect)
-              + 1/2 r ||u||^2 + sum l1_k u_fk                         ridge; L1 on one-sided controls
+              + 1/2 r ||u||^2 + sum l1_k z_fk                         ridge; L1 on one-sided controls
               + 1/2 u' (mu1 D1'D1 + mu2 D2'D2) u                      the engine's temporal term
     subject to lower <= u <= upper, locked offsets held
 
+where z = g(u) is each control's *response* (``RigModel.response``: how much of its full effect it
+gives, in the units of its offset; z = u for a control moving the points linearly). The sparsity
+acts on what a control does, as it acts on a shape-key weight: on u itself its constant pull would
+pin at rest a slider that drives its shape through smoothstep or pow, whose flat start the markers
+cannot answer (the ridge's pull vanishes at rest, so it stays on u, where the step is well posed).
+
 with the priors in units of the mean squared column of the model's secant basis, like the linear
-engine's ``relative=True``, so the same ``[solve]`` values mean the same thing. Started from the
+engine's ``relative=True``, so the same ``[solve]`` values mean the same thing. A ``RigTarget`` solves
+the normalised model (``RigModel.normalised``: each control in units of its span), so that unit is
+the mean squared effect of a control moved through its range and the priors weigh every control by
+its range, whatever its own units. Started from the
 linear solve, each iteration linearises every frame (``RigModel.jacobian``), fixes the controls
 held at a bound by their gradient, and solves the damped normal equations of the whole take at
 once: frame-major they are a band of width 2C (the temporal term couples frame f with f +- 2), a
@@ -63,10 +72,11 @@ class _Problem:
 
     def cost(self, u, r=None):
         r = self.residual(u) if r is None else r
+        z, _ = self.model.response(u)
         diag, off1, off2 = self.temporal
         smooth = (diag[:, None] * u * u).sum() + 2 * (off1[:, None] * u[1:] * u[:-1]).sum() \
             + 2 * (off2[:, None] * u[2:] * u[:-2]).sum()
-        return 0.5 * float((self.c * r * r).sum() + self.ridge * (u * u).sum() + smooth) + float((self.l1 * u).sum())
+        return 0.5 * float((self.c * r * r).sum() + self.ridge * (u * u).sum() + smooth) + float((self.l1 * z).sum())
 
     def temporal_mul(self, u):
         diag, off1, off2 = self.temporal
@@ -84,7 +94,8 @@ class _Problem:
         line search checks the true objective), so it may be formed in float32 and kept for frames
         whose controls moved less than ``reuse`` (of each control's span) since it was formed."""
         F, C = u.shape
-        g = self.model.jacobian_t_dot(u, self.c * r) + self.ridge * u + self.temporal_mul(u) + self.l1
+        _, dz = self.model.response(u)
+        g = self.model.jacobian_t_dot(u, self.c * r) + self.ridge * u + self.temporal_mul(u) + self.l1 * dz
         if self.H is None:
             self.H, self.u_at_H = np.empty((F, C, C)), u.copy()
             stale = np.arange(F)
@@ -136,7 +147,8 @@ def solve_nonlinear(model, deltas, **options):
 
 
 def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, locks=None, regularisation=1e-3,
-                      sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-5, hessian=np.float64, reuse=0.0):
+                      sparsity=0.0, smoothing=(0.0, 0.3), max_iter=20, tol=1e-5, hessian=np.float64, reuse=0.0,
+                      bounds=None):
     """``solve_nonlinear`` as a generator that yields the iteration number after each Gauss-Newton
     step (so a job can report progress and stop between steps) and returns the NonlinearResult.
 
@@ -150,6 +162,7 @@ def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, loc
     regularisation, sparsity, smoothing : the ``[solve]`` priors, relative to the basis scale
     max_iter, tol : Gauss-Newton iterations at most; stop when the objective falls by less than
         ``tol`` of itself
+    bounds : (lower, upper) (C,) raw control values instead of the model's limits
     hessian, reuse : the dtype the Gauss-Newton blocks are formed in, and how far (share of each
         control's span) a frame's controls may move before its block is formed again (0: every
         iteration). The gradient and the objective stay exact float64 either way.
@@ -171,7 +184,8 @@ def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, loc
     if start.shape != (F, C):
         raise FacecapError(f"rig solve: start must have shape ({F}, {C}); got {start.shape}")
     unit = basis_scale(model.basis().matrix())
-    lower, upper = model.lower - model.rest, model.upper - model.rest
+    lower, upper = (model.lower, model.upper) if bounds is None else (np.asarray(b, dtype=np.float64) for b in bounds)
+    lower, upper = lower - model.rest, upper - model.rest
     l1 = np.where(lower >= 0, float(sparsity) * unit, 0.0)
     mu1, mu2 = (float(v) * unit for v in smoothing)
     temporal = temporal_operator(F, mu1, mu2)

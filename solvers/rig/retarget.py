@@ -7,16 +7,26 @@ the rig) or a ``PoseLibrary`` (the poses are the columns; any strategy solves th
 weights become control values). ``finish`` turns the pipeline's ``RetargetResult`` over the
 columns into one over the controls: ``shape_names`` are the control names, ``weights`` the raw
 control values, the residuals those of the final solve, and ``info["rig"]`` says what was done.
+
+A probed rig's columns are its controls' offsets from rest in units of each control's span
+(``RigModel.normalised``): a bone moving in metres, one turning in radians and a 0..1 slider each
+run over about -1..1, so the solve's priors (regularisation, sparsity, smoothing, relative to the
+mean squared column like every solve's) weigh each control by its range, never by its effect per
+unit of its own. What crosses into the solve in control values (corrections, locks, bounds) is
+converted on the way in (``offsets_of``, ``column_settings``) and the controls on the way out.
 """
 
+import glob
 import time
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
-from ..character.shape_options import resolve_locks
+from ..character.shape_options import resolve_bounds, resolve_locks
 from ..errors import FacecapError
 from ..pipeline import stages
+from . import head
 from .nonlinear import iterate_nonlinear
 from .poses import PoseLibrary
 
@@ -73,17 +83,48 @@ class RigTarget:
     def control_names(self):
         return self.model.control_names if self.method == "probed" else self.library.control_names
 
-    @property
-    def character(self):
-        """The Basis the pipeline solves: the model's secant basis, or the poses."""
-        return self.model.basis() if self.method == "probed" else self.library_basis
+    @cached_property
+    def unit_model(self):
+        """The model over each control's offset in units of its span (probed)."""
+        return self.model.normalised()
 
     @property
-    def steps(self):
-        """Job steps ``finish_steps`` may take (for a progress bar)."""
+    def character(self):
+        """The Basis the pipeline solves: the normalised model's secant basis, or the poses."""
+        return self.unit_model.basis() if self.method == "probed" else self.library_basis
+
+    def to_columns(self, values, name):
+        """Control values -> the solve's column values for control ``name`` (probed)."""
+        k = self.model.control_names.index(name)
+        return (np.asarray(values, dtype=np.float64) - self.model.rest[k]) / self.model.span[k]
+
+    def column_settings(self, settings, n_frames):
+        """``settings`` with its locks and bounds (control values) in the solve's columns (probed)."""
+        if self.method != "probed" or not (settings.locks or settings.bounds):
+            return settings
+        names, model = self.model.control_names, self.model
+        locks = resolve_locks(names, settings.locks, n_frames=n_frames) if settings.locks else None
+        held = [] if locks is None else [(glob.escape(n), self.to_columns(locks[..., k], n)) for k, n in
+                                         enumerate(names) if not np.isnan(locks[..., k]).all()]
+        bounds = ()
+        if settings.bounds:
+            lo, hi = resolve_bounds(names, model.lower, model.upper, settings.bounds)
+            bounds = tuple((glob.escape(n), float(self.to_columns(a, n)), float(self.to_columns(b, n)))
+                           for n, a, b in zip(names, lo, hi))
+        return replace(settings, locks=tuple((p, v if np.ndim(v) else float(v)) for p, v in held), bounds=bounds)
+
+    @property
+    def defers_head_refits(self):
+        """Whether the head refits of hierarchical stabilisation are done by the nonlinear solve,
+        against the rig model (``solvers.rig.head``), instead of by the pipeline's linear solve."""
+        return self.method == "probed" and self.nonlinear and not self.model.is_linear()
+
+    def steps_for(self, settings):
+        """Job steps ``finish_steps`` may take with ``settings`` (for a progress bar)."""
         if self.method == "poses" or not self.nonlinear:
             return 1
-        return self.max_iter * (1 + self.refine_rounds) + 1
+        refits = settings.fine_iterations if self.defers_head_refits else 0
+        return self.max_iter * (1 + refits + self.refine_rounds) + 1
 
     def offsets_of(self, controls):
         """Corrections in control values {frame: {control: value}} -> the solve's column values (probed)."""
@@ -91,8 +132,9 @@ class RigTarget:
             return None
         if self.method != "probed":
             raise FacecapError("tuning from corrections needs [rig] method = \"probed\" (the controls are the columns)")
-        rest = dict(zip(self.model.control_names, self.model.rest))
-        return {f: {n: v - rest.get(n, 0.0) for n, v in row.items()} for f, row in controls.items()}
+        known = set(self.model.control_names)
+        return {f: {n: (float(self.to_columns(v, n)) if n in known else v) for n, v in row.items()}
+                for f, row in controls.items()}
 
     def finish_steps(self, result, markers, settings):
         """Generator: the pipeline's ``result`` over the columns -> a RetargetResult over the controls."""
@@ -104,7 +146,7 @@ class RigTarget:
             return replace(result, shape_names=self.library.control_names, weights=controls,
                            source_weights=result.weights, source_names=self.library.pose_names,
                            info={**result.info, "rig": info}, timings={**result.timings, "rig": time.perf_counter() - t0})
-        model, u = self.model, np.asarray(result.weights, dtype=np.float64)
+        model = self.model
         info = {"method": "probed", "nonlinear": False, **self.info}
         out = result
         if self.nonlinear and not model.is_linear() and _markers_3d(result, markers):
@@ -112,13 +154,15 @@ class RigTarget:
             info.update(solve_info)
         else:
             yield None
-        weights = model.controls(out.weights)
+        weights = model.controls(np.asarray(out.weights, dtype=np.float64) * model.span)
         timings = {**result.timings, "rig": round(time.perf_counter() - t0, 6)}
         return replace(out, shape_names=model.control_names, weights=weights, info={**out.info, "rig": info},
                        timings=timings)
 
     def _refine(self, result, markers, settings):
-        model = self.model.subset_markers(result.marker_names)
+        model = self.unit_model.subset_markers(result.marker_names)
+        # [solve] bounds (in the columns' units already) replace the rig's limits, as in the linear solve
+        bounds = resolve_bounds(model.control_names, model.lower, model.upper, settings.bounds)
         deltas = character_deltas(result, settings)
         F = deltas.shape[0]
         solved = np.isfinite(result.weights).all(axis=1)
@@ -126,14 +170,24 @@ class RigTarget:
         locks = resolve_locks(model.control_names, settings.locks, n_frames=F)
         locks = None if np.isnan(locks).all() else locks
         priors = dict(regularisation=settings.regularisation, sparsity=settings.sparsity, smoothing=settings.smoothing,
-                      locks=locks, max_iter=self.max_iter)
+                      locks=locks, max_iter=self.max_iter, bounds=bounds)
         fast = {} if self.reference else {"hessian": np.float32, "reuse": HESSIAN_REUSE}
         nl = yield from iterate_nonlinear(model, deltas, start=start, **priors, **fast)
-        info = {"nonlinear": True, "iterations": nl.iterations, "converged": nl.converged,
+        iterations, converged = nl.iterations, nl.converged
+        stab = result.stabilise
+        for _ in range(settings.fine_iterations if self.defers_head_refits else 0):
+            stab = head.refit(model, nl.offsets, result, stab, markers, settings)
+            deltas = character_deltas(replace(result, stabilise=stab), settings)
+            nl = yield from iterate_nonlinear(model, deltas, start=nl.offsets, **priors, **fast)
+            iterations, converged = iterations + nl.iterations, nl.converged
+        result = replace(result, stabilise=stab)
+        info = {"nonlinear": True, "iterations": iterations, "converged": converged,
                 "linear_residual_mm": _mean_mm(result.residual_rms[solved]),
                 "model_residual_mm": _mean_mm(nl.residual_rms[solved])}
         u, rms, refined = nl.offsets, nl.residual_rms.copy(), 0
-        evaluate, changed = self.evaluate, None
+        span = self.model.span
+        evaluate = None if self.evaluate is None else (lambda v: self.evaluate(v * span))
+        changed = None
         for _ in range(self.refine_rounds if evaluate is not None else 0):
             defect, bad = rig_defect(evaluate, model, u, self.model.marker_names, result.marker_names, self.refine_mm,
                                      self.refine_stride, frames=changed)

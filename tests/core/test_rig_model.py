@@ -12,7 +12,7 @@ from facecap.solvers.engine import solve_bounded
 from facecap.solvers.errors import ConfigError, FacecapError
 from facecap.solvers.pipeline import RetargetSettings
 from facecap.solvers.rig import PoseLibrary, RigModel, RigTarget, fit_model, probe_rig, solve_nonlinear
-from facecap.solvers.rig.model import features
+from facecap.solvers.rig.fit import features
 from facecap.solvers.solve import SolveRequest, solve
 from facecap.solvers.tools.synthetic.synth import performance_weights, synthesize_take
 
@@ -161,7 +161,11 @@ def test_nonlinear_solve_keeps_the_temporal_term_locks_and_bounds():
 def test_linear_solve_of_the_secant_basis_is_the_engine_solve():
     model = random_model(cubic=False)
     basis = model.basis()
-    np.testing.assert_allclose(basis.deltas, model.linear + model.square * 1.0)  # span 1 towards +1
+    # each control's effect at the end of its range (+-1) that moves the points most, over that offset
+    up, down = model.linear + model.square, -model.linear + model.square
+    bigger = (up ** 2).sum(axis=(1, 2)) >= (down ** 2).sum(axis=(1, 2))
+    assert bigger.any() and not bigger.all()
+    np.testing.assert_allclose(basis.deltas, np.where(bigger[:, None, None], up, -down))
     assert np.array_equal(basis.lower, model.lower) and np.array_equal(basis.upper, model.upper)
     d = model.deltas(np.full((3, 6), 0.5))
     res = solve_bounded(basis.matrix(), d.reshape(3, -1), lower=basis.lower, upper=basis.upper)
