@@ -36,6 +36,7 @@ class SolveRequest:
     fps : frame rate for the controls' smoothing (default: the take's)
     rig : solvers.rig.RigTarget when the character is a rig: its basis is solved, then its controls
         (shape names are then control names: corrections, controls and locks name controls)
+    notes : warnings of building the request (shape keys left out...), put before the solve's
     """
 
     character: object
@@ -51,6 +52,7 @@ class SolveRequest:
     controls: dict = None
     fps: float = None
     rig: object = None
+    notes: tuple = ()
 
 
 def solve(request, progress=None):
@@ -109,6 +111,8 @@ def _take_fps(request):
 
 
 def _with_controls(result, request, fps):
+    if request.notes:
+        result = replace(result, warnings=tuple(dict.fromkeys(tuple(request.notes) + tuple(result.warnings))))
     if not request.controls:
         return result
     fps = request.fps or fps

@@ -62,6 +62,9 @@ class RigEvaluator:
         self.folded = None if reference else self._fold()
         self.mode = "numpy"
         self.evaluations = 0
+        self._driven = [self.blocks[k] for k in self._live_blocks(drivers_only=True)] if self.blocks else []
+        self._driven_rest = np.array([b.value for b in self._driven])
+        self._driven_moved = np.zeros(len(self._driven), dtype=bool)
         saved = self.current()
         try:
             self.neutral = self._points_blender(self.rest())
@@ -154,11 +157,14 @@ class RigEvaluator:
                 put(float(v))
 
     # -- the folded skin: per-bone sums of the sampled vertices --------------------------------------
-    def _live_blocks(self):
+    def _live_blocks(self, drivers_only=False):
         """Indices of the shape keys whose value can change while evaluating: a control's or driven."""
         ad = self.key.animation_data if self.key is not None else None
         moved = {d.data_path for d in ad.drivers} if ad is not None else set()
-        moved |= {c.path for c in self.controls if c.owner == self.key}
+        if drivers_only:
+            moved -= {c.path for c in self.controls if c.owner == self.key}
+        else:
+            moved |= {c.path for c in self.controls if c.owner == self.key}
         return [k for k, b in enumerate(self.blocks) if b.path_from_id("value") in moved]
 
     def _fold(self):
@@ -304,6 +310,9 @@ class RigEvaluator:
                         out[i] = self._points()
                     else:
                         out[i] = self._points_blender(row)
+                    if self._driven:
+                        values = np.array([b.value for b in self._driven])
+                        self._driven_moved |= np.abs(values - self._driven_rest) > 1e-6
                     if progress is not None and i % 64 == 63 and progress(i + 1, len(values)) is False:
                         raise FacecapError("rig evaluation cancelled")
         finally:
@@ -313,6 +322,11 @@ class RigEvaluator:
             update()
         self.evaluations += len(values)
         return out
+
+    def still_driven(self):
+        """Names of the driven shape keys that no evaluation so far has moved from their rest value:
+        their drivers read nothing the controls move (or could not run)."""
+        return [b.name for b, moved in zip(self._driven, self._driven_moved) if not moved]
 
     def deltas(self, offsets):
         """Displacement of the bound points (N, M, 3) from the rest pose for control offsets from rest."""

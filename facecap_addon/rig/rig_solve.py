@@ -16,7 +16,8 @@ from ...solvers.errors import ConfigError, FacecapError
 from ...solvers.pipeline.binding import from_record
 from ...solvers.rig import PoseLibrary, RigTarget, probe_rig_steps, run_steps
 from ...solvers.video.reading import Cancelled
-from ..scene import anim
+from ..scene import anim, layers
+from . import drivers
 from .rig_eval import RigEvaluator
 from .rig_keying import key_controls
 from .rig_target import driver_pairs, preset_controls, spec_controls
@@ -91,7 +92,7 @@ def rig_binding(mesh, markers, settings, binding):
     if mesh.data.shape_keys is None:
         raise FacecapError(f"[binding] mode \"{binding.mode}\" binds on a mesh with shape keys; '{mesh.name}' has "
                            "none: name vertex groups after the markers instead")
-    bound = geometric_character(mesh, markers, settings, binding, rebind=True)
+    bound = geometric_character(mesh, markers, settings, binding, rebind=True, driven=True)
     sampling, _, _ = from_record(bound.record, len(mesh.data.vertices), markers.names)
     return {n: (np.asarray(c, dtype=np.intp), np.asarray(w, dtype=np.float64)) for n, (c, w) in sampling.items()}
 
@@ -143,14 +144,31 @@ def build_rig_target_steps(mesh, marker_names, rig_settings, *, say=None, bindin
                                                n_random=rig_settings.probes, chunk=chunk)
     info.update(report.as_dict())
     info["seconds"] = round(time.perf_counter() - t0, 3)
+    notes = rig_notes(mesh, controls, evaluator)
     if say is not None:
         say(f"rig: {len(controls)} controls probed with {report.probes} poses in {info['seconds']:.1f} s "
             f"({len(report.pairs)} pairwise terms; model error {report.holdout_rms * 1e3:.3f} mm on held-out poses)")
     evaluate = evaluator.deltas if rig_settings.refine else None
     stride = max(1, -(-int(n_frames or 0) // REFINE_EVALUATIONS))
     target = RigTarget("probed", model=model, nonlinear=rig_settings.nonlinear, evaluate=evaluate,
-                       refine_stride=stride, info=info, reference=reference)
+                       refine_stride=stride, info=info, reference=reference, notes=notes)
     return target, controls
+
+
+def rig_notes(mesh, controls, evaluator):
+    """Warnings on the rig's drivers once probed: those Blender could not run (named once, with how
+    to trust the file), and the driven shape keys no control moved (left out of the solve)."""
+    notes = []
+    broken = drivers.unrunnable(_driver_ids(mesh, controls))
+    if broken:
+        notes.append(drivers.unrunnable_note(broken))
+    named = {path for _, path, _, _ in broken}
+    still = [n for n in evaluator.still_driven() if layers.shape_path(n) not in named]
+    if still:
+        notes.append(f"{len(still)} driven shape key(s) of '{mesh.name}' do not move with the rig's controls (their "
+                      f"drivers read nothing the controls move): left out of the solve: "
+                      f"{', '.join(still[:8])}{'...' if len(still) > 8 else ''}")
+    return tuple(notes)
 
 
 def key_rig(rig_settings, mesh, result, action_name, *, take_name=""):

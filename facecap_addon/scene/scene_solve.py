@@ -22,6 +22,7 @@ from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve, solve_job
 from ...solvers.video.reading import Cancelled
 from . import anim, layers, take
+from ..rig.drivers import left_out_note
 from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
@@ -42,6 +43,7 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     rsettings = replace(take.retarget_settings(settings), strategy=strategy)
     if settings.rig_preset != "NONE" and footage is None:
         return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu, controls=controls)
+    driven = left_out_note(settings.target)
     if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
@@ -57,7 +59,8 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     version = load_version(scene, settings.library_active) if settings.library_active and footage is None else None
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
-                        parent=settings.library_active or "", controls=controls, fps=settings.fps)
+                        parent=settings.library_active or "", controls=controls, fps=settings.fps,
+                        notes=(driven,) if driven else ())
 
 
 def rig_settings(settings):

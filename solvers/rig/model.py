@@ -152,7 +152,7 @@ class RigModel:
         """(6C + Q, M * D): every fixed vector a column of the Jacobian is a combination of."""
         C = self.n_controls
         own = [self.linear, self.square, self.cube, *self.negative]
-        return np.vstack([a.reshape(C, -1) for a in own] + [self.pair_deltas.reshape(len(self.pairs), -1)])
+        return np.vstack([a.reshape(C, -1) for a in own] + [self.pair_deltas.reshape(len(self.pairs), self.linear[0].size)])
 
     def _pair_factors(self, u):
         """(fa, dfa, fb, dfb) (F, Q) of the pair terms at offsets ``u``."""

@@ -52,6 +52,8 @@ class RigTarget:
     refine_stride : the rig is evaluated on every n-th frame of a refinement round (1: every frame)
     max_iter : Gauss-Newton iterations per solve
     info : what building the target found (probing report), carried into ``info["rig"]``
+    notes : warnings of building the target (drivers that could not run, driven shapes left out),
+        added to the result's
     reference : the slow path the fast one is checked against: Gauss-Newton blocks formed in float64
         on every frame at every iteration, and each refinement round a solve of the whole take (the
         fast path forms them in float32, keeps a frame's block while its controls barely move, and
@@ -70,6 +72,7 @@ class RigTarget:
     max_iter: int = 20
     info: dict = field(default_factory=dict)
     reference: bool = False
+    notes: tuple = ()
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -145,6 +148,7 @@ class RigTarget:
             yield None
             return replace(result, shape_names=self.library.control_names, weights=controls,
                            source_weights=result.weights, source_names=self.library.pose_names,
+                           warnings=tuple(self.notes) + tuple(result.warnings),
                            info={**result.info, "rig": info}, timings={**result.timings, "rig": time.perf_counter() - t0})
         model = self.model
         info = {"method": "probed", "nonlinear": False, **self.info}
@@ -157,7 +161,7 @@ class RigTarget:
         weights = model.controls(np.asarray(out.weights, dtype=np.float64) * model.span)
         timings = {**result.timings, "rig": round(time.perf_counter() - t0, 6)}
         return replace(out, shape_names=model.control_names, weights=weights, info={**out.info, "rig": info},
-                       timings=timings)
+                       timings=timings, warnings=tuple(self.notes) + tuple(out.warnings))
 
     def _refine(self, result, markers, settings):
         model = self.unit_model.subset_markers(result.marker_names)
