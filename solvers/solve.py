@@ -83,8 +83,14 @@ def solve_job(request):
         fps = request.footage.info.fps
         return job.then(lambda result: _with_controls(result, request, fps))
 
-    # a nonlinear rig solve refits the head against the rig itself (solvers.rig.head), not the linear solve
-    linear_settings = replace(settings, fine_iterations=0) if rig is not None and rig.defers_head_refits else settings
+    # a nonlinear rig solve refits the head against the rig itself (solvers.rig.head), not against the
+    # linear solve, and starts from frames solved alone with the ridge only (its Gauss-Newton steps
+    # carry the temporal term and the sparsity; a retune keeps the priors it learns with)
+    linear_settings = settings
+    if rig is not None and rig.defers_head_refits:
+        linear_settings = replace(settings, fine_iterations=0)
+        if corrections is None:
+            linear_settings = replace(linear_settings, smoothing=(0.0, 0.0), sparsity=0.0)
 
     def steps():
         result = retarget(request.markers, character, linear_settings, inputs=inputs)

@@ -74,6 +74,7 @@ def write_take(folder, mesh, controls, values, *, seed=5):
     """The marker take of the rig on ``mesh`` performing ``values`` (F, C) -> (evaluator, bound points)."""
     evaluator = RigEvaluator(mesh, controls, [g.name for g in mesh.vertex_groups])
     points = evaluator.evaluate(values)
+    evaluator.close()
     take = synthesize_points(evaluator.marker_names, points, values, stable=STABLE, seed=seed)
     write_markers(Path(folder) / "take.csv", take.markers)
     return evaluator, points

@@ -19,6 +19,7 @@ from ...solvers.video.reading import Cancelled
 from ..scene import anim, layers
 from . import drivers
 from .rig_eval import RigEvaluator
+from .rig_proxy import remove_proxies
 from .rig_keying import key_controls
 from .rig_target import driver_pairs, preset_controls, spec_controls
 from ..scene.scene_binding import geometric_character
@@ -134,6 +135,7 @@ def build_rig_target_steps(mesh, marker_names, rig_settings, *, say=None, bindin
             raise FacecapError(f"[rig] poses: no action named '{rig_settings.poses}'")
         library = pose_library(action, controls)
         deltas = evaluator.deltas(library.poses - rest)
+        evaluator.close()
         basis = library.basis(evaluator.marker_names, evaluator.neutral, deltas)
         info.update(poses=len(library.pose_names), seconds=round(time.perf_counter() - t0, 3))
         return RigTarget("poses", library=library, library_basis=basis, info=info), controls
@@ -173,7 +175,9 @@ def rig_notes(mesh, controls, evaluator):
 
 def key_rig(rig_settings, mesh, result, action_name, *, take_name=""):
     """Key ``result`` (over the controls of ``rig_settings``) as the solve layer of the IDs the
-    controls live on; returns the first new action (the one with the diagnostics)."""
+    controls live on; returns the first new action (the one with the diagnostics). The solve is
+    over: the proxies its evaluations used are removed first."""
+    remove_proxies()
     return key_controls(rig_controls(rig_settings, mesh), result, action_name, take_name=take_name)[0]
 
 

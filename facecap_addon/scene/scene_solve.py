@@ -23,6 +23,7 @@ from ...solvers.solve import SolveRequest, solve, solve_job
 from ...solvers.video.reading import Cancelled
 from . import anim, layers, take
 from ..rig.drivers import left_out_note
+from ..rig.rig_proxy import remove_proxies
 from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
@@ -223,16 +224,18 @@ class RigSolveSession:
         self._steps = self._run(settings, markers, rsettings, rig, sampling, request)
 
     def _run(self, settings, markers, rsettings, rig, sampling, request):
-        target, _ = yield from build_rig_target_steps(settings.target, markers.names, rig, binding=sampling,
-                                                      n_frames=markers.n_frames, chunk=PROBE_CHUNK)
-        job = solve_job(_rig_solve_request(settings, markers, rsettings, target, **request))
-        self.stage = "solving"
+        job = None
         try:
+            target, _ = yield from build_rig_target_steps(settings.target, markers.names, rig, binding=sampling,
+                                                          n_frames=markers.n_frames, chunk=PROBE_CHUNK)
+            job = solve_job(_rig_solve_request(settings, markers, rsettings, target, **request))
+            self.stage = "solving"
             while not job.step():
                 yield job.done, job.total
         finally:
-            if job.result is None:
+            if job is not None and job.result is None:
                 job.cancel()
+            remove_proxies()  # the rig's evaluations are over (or stopped)
         return job.result
 
     @property

@@ -28,6 +28,8 @@ def predicted(model, u, result, stab, settings):
 def refit(model, u, result, stab, markers, settings):
     """``stab`` refitted on ``result.marker_names`` against the rig's prediction at ``u``;
     ``markers``: the raw take (MarkerSet)."""
-    metres = markers.to_units("m") if markers.units != "m" else markers
+    names = list(stab.markers.names)  # the take's usable markers, as the pipeline stabilised them
+    metres = markers.subset(names) if list(markers.names) != names else markers
+    metres = metres.to_units("m") if metres.units != "m" else metres
     return refit_head(stab, list(result.marker_names), [predicted(model, u, result, stab, settings)], metres,
                       settings)

@@ -33,13 +33,14 @@ from ..errors import FacecapError
 def halves(u, kink):
     """(p, n, dp, dn): the positive and negative halves of offsets ``u`` (F, C) (p + n = u), blended
     over ``kink`` (C,) about rest, and their derivatives; where ``kink`` is 0, p = u and n = 0."""
-    split = np.asarray(kink) > 0
-    if not split.any():
+    split = np.flatnonzero(np.asarray(kink) > 0)
+    if not split.size:
         return u, np.zeros_like(u), np.ones_like(u), np.zeros_like(u)
-    eps = np.where(split, kink, 1.0)
-    root = np.sqrt(u * u + eps * eps)
-    p = np.where(split, 0.5 * (u + root - eps), u)
-    dp = np.where(split, 0.5 * (1.0 + u / root), 1.0)
+    p, dp = u.copy(), np.ones_like(u)
+    us, eps = u[..., split], np.asarray(kink)[split]
+    root = np.sqrt(us * us + eps * eps)
+    p[..., split] = 0.5 * (us + root - eps)
+    dp[..., split] = 0.5 * (1.0 + us / root)
     return p, u - p, dp, 1.0 - dp
 
 
@@ -156,10 +157,15 @@ class RigModel:
 
     def _pair_factors(self, u):
         """(fa, dfa, fb, dfb) (F, Q) of the pair terms at offsets ``u``."""
-        a, b = self.pairs[:, 0], self.pairs[:, 1]
-        fa, dfa = factors(u[:, a], self.kink[a], self.pair_sides[:, 0])
-        fb, dfb = factors(u[:, b], self.kink[b], self.pair_sides[:, 1])
-        return fa, dfa, fb, dfb
+        out = []
+        for k in (0, 1):
+            c, sides = self.pairs[:, k], self.pair_sides[:, k]
+            f, df = u[:, c], np.ones((u.shape[0], len(c)))
+            halved = np.flatnonzero(sides)  # the others: the offset itself
+            if halved.size:
+                f[:, halved], df[:, halved] = factors(f[:, halved], self.kink[c[halved]], sides[halved])
+            out += [f, df]
+        return tuple(out)
 
     def deltas(self, u):
         """The bound points' displacement (F, M, D) for control offsets ``u`` (F, C)."""

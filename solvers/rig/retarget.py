@@ -35,6 +35,16 @@ METHODS = ("probed", "poses")
 HESSIAN_REUSE = 0.02
 #: Frames each side of a refined frame that are solved again with it.
 REFINE_PAD = 8
+#: Gauss-Newton iterations at most of a solve started from the one before (after a head refit, a
+#: refinement round): the data moved a little.
+WARM_ITER = 5
+#: A solve that another follows (a head refit, a refinement round) stops once a step lowers the
+#: objective by less than this share of it; the last one by less than ``FINAL_TOL``.
+LOOSE_TOL, FINAL_TOL = 1e-3, 1e-4
+#: A frame is refined through the rig where the rig's defect exceeds this share of the solve's
+#: residual there (and ``refine_mm``): on a capture the model does not fit to a small part of a
+#: millimetre, refining every frame would not change what the markers say.
+REFINE_SHARE = 0.1
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,7 +137,7 @@ class RigTarget:
         if self.method == "poses" or not self.nonlinear:
             return 1
         refits = settings.fine_iterations if self.defers_head_refits else 0
-        return self.max_iter * (1 + refits + self.refine_rounds) + 1
+        return self.max_iter + min(self.max_iter, WARM_ITER) * (refits + self.refine_rounds) + 1
 
     def offsets_of(self, controls):
         """Corrections in control values {frame: {control: value}} -> the solve's column values (probed)."""
@@ -164,43 +174,48 @@ class RigTarget:
                        timings=timings, warnings=tuple(self.notes) + tuple(out.warnings))
 
     def _refine(self, result, markers, settings):
+        """The nonlinear solve from the linear one, the head refitted against it and solved again
+        (``settings.fine_iterations`` times), then frames refined through the rig: a generator of
+        Gauss-Newton steps returning (result, info)."""
         model = self.unit_model.subset_markers(result.marker_names)
         # [solve] bounds (in the columns' units already) replace the rig's limits, as in the linear solve
         bounds = resolve_bounds(model.control_names, model.lower, model.upper, settings.bounds)
         deltas = character_deltas(result, settings)
         F = deltas.shape[0]
         solved = np.isfinite(result.weights).all(axis=1)
-        start = np.where(solved[:, None], result.weights, 0.0)
         locks = resolve_locks(model.control_names, settings.locks, n_frames=F)
         locks = None if np.isnan(locks).all() else locks
         priors = dict(regularisation=settings.regularisation, sparsity=settings.sparsity, smoothing=settings.smoothing,
                       locks=locks, max_iter=self.max_iter, bounds=bounds)
         fast = {} if self.reference else {"hessian": np.float32, "reuse": HESSIAN_REUSE}
-        nl = yield from iterate_nonlinear(model, deltas, start=start, **priors, **fast)
-        iterations, converged = nl.iterations, nl.converged
+        refits = settings.fine_iterations if self.defers_head_refits else 0
+        evaluate = None if self.evaluate is None else (lambda v, span=self.model.span: self.evaluate(v * span))
+        rounds = self.refine_rounds if evaluate is not None else 0
+        warm = {"max_iter": min(self.max_iter, WARM_ITER), "tol": FINAL_TOL}
+        first = {"tol": LOOSE_TOL if refits or rounds else FINAL_TOL}
+        nl = yield from iterate_nonlinear(model, deltas, start=np.where(solved[:, None], result.weights, 0.0),
+                                          **priors, **first, **fast)
+        iterations = nl.iterations
         stab = result.stabilise
-        for _ in range(settings.fine_iterations if self.defers_head_refits else 0):
+        for _ in range(refits):
             stab = head.refit(model, nl.offsets, result, stab, markers, settings)
             deltas = character_deltas(replace(result, stabilise=stab), settings)
-            nl = yield from iterate_nonlinear(model, deltas, start=nl.offsets, **priors, **fast)
-            iterations, converged = iterations + nl.iterations, nl.converged
+            nl = yield from iterate_nonlinear(model, deltas, start=nl.offsets, **{**priors, **warm}, **fast)
+            iterations += nl.iterations
         result = replace(result, stabilise=stab)
-        info = {"nonlinear": True, "iterations": iterations, "converged": converged,
-                "linear_residual_mm": _mean_mm(result.residual_rms[solved]),
+        info = {"nonlinear": True, "linear_residual_mm": _mean_mm(result.residual_rms[solved]),
                 "model_residual_mm": _mean_mm(nl.residual_rms[solved])}
-        u, rms, refined = nl.offsets, nl.residual_rms.copy(), 0
-        span = self.model.span
-        evaluate = None if self.evaluate is None else (lambda v: self.evaluate(v * span))
-        changed = None
-        for _ in range(self.refine_rounds if evaluate is not None else 0):
+        u, rms, refined, last, changed = nl.offsets, nl.residual_rms.copy(), 0, nl, None
+        for _ in range(rounds):
             defect, bad = rig_defect(evaluate, model, u, self.model.marker_names, result.marker_names, self.refine_mm,
-                                     self.refine_stride, frames=changed)
+                                     self.refine_stride, frames=changed, residual=REFINE_SHARE * rms)
             if not bad.any():
                 break
             refined = max(refined, int(bad.sum()))
             if self.reference:
-                nl = yield from iterate_nonlinear(model, deltas, start=u, defect=defect, **priors)
-                u, rms = nl.offsets, nl.residual_rms
+                last = yield from iterate_nonlinear(model, deltas, start=u, defect=defect, **priors)
+                u, rms = last.offsets, last.residual_rms
+                iterations += last.iterations
                 continue
             # only windows around the refined frames are solved again; their edges are held, which
             # decouples them exactly (the temporal term reaches two frames)
@@ -210,14 +225,20 @@ class RigTarget:
             if locks is not None:
                 sub_locks[:] = np.broadcast_to(locks, (F, model.n_controls))[idx]
             sub_locks[held[idx]] = u[idx][held[idx]]
-            nl = yield from iterate_nonlinear(model, deltas[idx], start=u[idx], defect=defect[idx],
-                                              **{**priors, "locks": sub_locks}, **fast)
-            u[idx], rms[idx], changed = nl.offsets, nl.residual_rms, window
+            last = yield from iterate_nonlinear(model, deltas[idx], start=u[idx], defect=defect[idx],
+                                                **{**priors, "locks": sub_locks, **warm}, **fast)
+            u[idx], rms[idx], changed = last.offsets, last.residual_rms, window
+            iterations += last.iterations
+        info.update(iterations=iterations, converged=bool(last.converged), last_step_drop=float(last.last_drop))
         if evaluate is not None:
             info["refined_frames"] = refined
         u[~solved] = np.nan
         rms = np.where(solved, rms, np.nan)
-        return replace(result, weights=u, residual_rms=rms), info
+        notes = () if last.converged else (
+            f"rig solve: the Gauss-Newton steps stopped at their limit ({last.iterations}) while the last one still "
+            f"lowered the objective by {100 * last.last_drop:.2f}% (settled is under {100 * FINAL_TOL:g}%): the "
+            f"controls may still move a little; [rig] refine = false or fewer frames take fewer steps",)
+        return replace(result, weights=u, residual_rms=rms, warnings=tuple(result.warnings) + notes), info
 
 
 def _markers_3d(result, markers):
@@ -230,12 +251,13 @@ def _mean_mm(values):
     return round(float(values.mean() * 1e3), 6) if values.size else None
 
 
-def rig_defect(evaluate, model, u, all_markers, used, refine_mm, stride=1, frames=None):
-    """What the real rig adds to ``model`` at offsets ``u`` (F, C), on the frames where it matters:
-    (defect (F, M, D) zero elsewhere, those frames (F,) bool). The rig is evaluated on every
-    ``stride``-th frame (and the last) and the defect interpolated between them: the controls move
-    smoothly, and so does what the model misses. ``frames`` (F,) bool: only these (the rest
-    is taken as under the threshold), sampled on the same grid plus the ends of each run."""
+def rig_defect(evaluate, model, u, all_markers, used, refine_mm, stride=1, frames=None, residual=None):
+    """What the real rig adds to ``model`` at offsets ``u`` (F, C), on the frames where it matters
+    (above ``refine_mm`` and ``residual`` (F,) metres, RMS over the markers): (defect (F, M, D) zero
+    elsewhere, those frames (F,) bool). The rig is evaluated on every ``stride``-th frame (and the
+    last) and the defect interpolated between them: the controls move smoothly, and so does what the
+    model misses. ``frames`` (F,) bool: only these (the rest is taken as under the threshold),
+    sampled on the same grid plus the ends of each run."""
     idx = [list(all_markers).index(n) for n in used]
     F = u.shape[0]
     at = np.unique(np.r_[np.arange(0, F, max(int(stride), 1)), F - 1])
@@ -252,6 +274,8 @@ def rig_defect(evaluate, model, u, all_markers, used, refine_mm, stride=1, frame
     defect = ((1.0 - w) * sampled[left] + w * sampled[right]).reshape((F,) + real.shape[1:])
     size = np.sqrt((defect ** 2).sum(axis=2).mean(axis=1))
     bad = size > refine_mm * 1e-3
+    if residual is not None:
+        bad &= size > np.nan_to_num(residual, nan=np.inf)
     if frames is not None:
         bad &= frames
     defect[~bad] = 0.0
