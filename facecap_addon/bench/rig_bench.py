@@ -112,12 +112,14 @@ def control_rig_figures(folder, frames, say):
         sliders = rig_samples.sliders_for_weights(names, weights)
         write_take(sub, mesh, controls, sliders)
         bpy.ops.wm.save_as_mainfile(filepath=str(sub / "rig.blend"))
+        mesh.data.shape_keys.animation_data_clear()  # the same face's plain keys: no driver sets them
+        bpy.ops.wm.save_as_mainfile(filepath=str(sub / "plain.blend"))
         rig = '[rig]\npreset = "arkit_sliders"\nobject = "FaceControls"\n'
         if not correctives:
             t0 = time.perf_counter()
             solved = run_take(take_config(sub, "rig", "Face", rig=rig), quiet=True)[0]
             seconds = time.perf_counter() - t0
-            plain = run_take(take_config(sub, "plain", "Face"), quiet=True)[0]
+            plain = run_take(take_config(sub, "plain", "Face", blend="plain.blend"), quiet=True)[0]
             out["control_rig"] = {"controls_rmse": rmse(columns(solved, names), sliders),
                                   "shape_keys_rmse": rmse(columns(plain, names), weights), "seconds": seconds}
             say(f"control rig: controls RMSE {out['control_rig']['controls_rmse']:.4f}, plain shape keys "

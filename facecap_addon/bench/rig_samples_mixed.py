@@ -43,6 +43,7 @@ KEYS = {
     "mouthSmileLeft": ("mouth.loc_z", 1, "smoothstep"), "mouthSmileRight": ("mouth.loc_z", 1, "smoothstep"),
     "mouthFrownLeft": ("mouth.loc_z", -1, "pow"), "mouthFrownRight": ("mouth.loc_z", -1, "pow"),
     "jawOpen": ("jaw.loc_z", -1, "smoothstep"), "mouthClose": ("jaw.loc_z", 1, "clamp"),
+    "jawForward": ("jaw.loc_z", 1, "sin"),
     "browOuterUpLeft": ("brow.L.loc_z", 1, "sin"), "browDownLeft": ("brow.L.loc_z", -1, "pow"),
     "browOuterUpRight": ("brow.R.loc_z", 1, "sin"), "browDownRight": ("brow.R.loc_z", -1, "pow"),
     "eyeBlinkLeft": ("lid.L.rot_x", 1, "smoothstep"), "eyeWideLeft": ("lid.L.rot_x", -1, "clamp"),

@@ -302,3 +302,84 @@ def test_probing_steps_report_progress_and_stop_when_closed():
                                         chunk=7, progress=lambda d, t: done.append((d, t)) or True)
     assert done[-1][0] == report.probes == chunked_report.probes and len(done) > 5
     np.testing.assert_allclose(chunked.linear, model_all.linear, atol=1e-15)
+
+
+def _in_units(model, scale):
+    """``model`` with control k measured in units ``1 / scale[k]`` of its own (a slider turned into
+    metres, radians...): offsets and limits times scale, each term divided by its power of it."""
+    s = np.asarray(scale, dtype=np.float64)
+    a, b = model.pairs[:, 0], model.pairs[:, 1]
+    powers = [s[:, None, None] ** k for k in (1, 2, 3)]
+    return RigModel(model.control_names, model.marker_names, model.neutral, model.linear / powers[0],
+                    model.square / powers[1], model.cube / powers[2], model.pairs,
+                    model.pair_deltas / (s[a] * s[b])[:, None, None], model.rest * s, model.lower * s,
+                    model.upper * s, np.stack([n / p for n, p in zip(model.negative, powers)]), model.kink * s,
+                    model.pair_sides)
+
+
+def test_the_solved_controls_do_not_depend_on_each_controls_units(corrective_rig):
+    """Regression (issue 39): the priors were scaled by the controls' mean effect per unit, so a rig
+    whose bones move in metres and turn in radians beside 0..1 sliders pinned the sliders. The same
+    rig with some controls in other units (x0.01, x0.4, x100) gives the same controls, converted."""
+    model = corrective_rig
+    weights = performance_weights(model.control_names, 300, seed=4)
+    take = take_of(model, weights)
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 50))
+    scale = np.ones(model.n_controls)
+    names = list(model.control_names)
+    for name, s in (("jawOpen", 0.01), ("mouthSmileLeft", 0.4), ("browInnerUp", 100.0), ("eyeBlinkLeft", 0.01)):
+        scale[names.index(name)] = s
+    plain, scaled = (solve(SolveRequest(character=None, settings=settings, markers=take.markers,
+                                        rig=RigTarget("probed", model=m))) for m in (model, _in_units(model, scale)))
+    np.testing.assert_allclose(scaled.weights / scale, plain.weights, atol=1e-6)
+    error = np.sqrt(np.nanmean((plain.weights - weights) ** 2, axis=0))
+    assert error[names.index("browInnerUp")] < 0.05, error  # not pinned at rest
+
+
+def _joystick_rig():
+    """A rig of 3 controls on 6 points: c0 a joystick (up: a smoothstep of shape A; down: a clamp of
+    shape B), c1 a slider (sin of shape C), c2 a slider; a corrective on (c0 down) x (c1)."""
+    rng = np.random.default_rng(5)
+    A, B, C, E, fix = (rng.normal(size=(6, 3)) * 0.004 for _ in range(5))
+
+    def evaluate(u):
+        up, down = np.clip(u[:, 0], 0, 1), np.clip(-u[:, 0], 0, 1)
+        s1 = np.sin(np.clip(u[:, 1], 0, 1) * np.pi / 2)
+        w = [up * up * (3 - 2 * up), np.clip(1.25 * down, 0, 1), s1, u[:, 2], down * u[:, 1]]
+        return sum(wk[:, None, None] * d[None] for wk, d in zip(w, (A, B, C, E, fix)))
+    return evaluate
+
+
+def test_a_joystick_is_modelled_per_side_with_its_corrective_on_one_quadrant():
+    evaluate = _joystick_rig()
+    names, markers = ("c0", "c1", "c2"), tuple(f"m{i}" for i in range(6))
+    model, report = probe_rig(evaluate, names, markers, np.zeros((6, 3)), rest=np.zeros(3),
+                              lower=np.array([-1.0, 0.0, 0.0]), upper=np.ones(3), n_random=300)
+    assert report.split == ("c0",)
+    assert [tuple(p) for p in report.pairs] == [("c0-", "c1")]
+    u = np.random.default_rng(1).uniform([-1, 0, 0], [1, 1, 1], size=(200, 3))
+    size = np.abs(evaluate(u)).max()
+    assert np.abs(model.deltas(u) - evaluate(u)).max() < 0.03 * size  # a cubic each side: smoothstep exact
+    J = model.jacobian(u[:4])
+    h = 1e-6
+    for i in range(3):
+        step = np.zeros((4, 3))
+        step[:, i] = h
+        fd = (model.deltas(u[:4] + step) - model.deltas(u[:4] - step)).reshape(4, -1) / (2 * h)
+        np.testing.assert_allclose(J[:, :, i], fd, atol=1e-8)
+    np.testing.assert_allclose(model.jacobian_t_dot(u[:4], np.ones((4, 18))), J.sum(axis=1), atol=1e-12)
+    up, down = model.along(0, [1.0])[0], model.along(0, [-1.0])[0]
+    more = up if (up ** 2).sum() >= (down ** 2).sum() else -down  # the side that moves the points most
+    np.testing.assert_allclose(model.secant()[0], more)
+
+
+def test_a_rig_solve_that_does_not_settle_says_why(corrective_rig):
+    model = corrective_rig
+    weights = performance_weights(model.control_names, 200, seed=4)
+    take = take_of(model, weights)
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 50))
+    result = solve(SolveRequest(character=None, settings=settings, markers=take.markers,
+                                rig=RigTarget("probed", model=model, max_iter=1)))
+    info = result.info["rig"]
+    assert not info["converged"] and info["last_step_drop"] > 1e-4
+    assert any("stopped at their limit" in w for w in result.warnings), result.warnings
