@@ -26,7 +26,7 @@ bench [--quick] [--accuracy] [--batch] [--memory] [--landmarks] [--clean]
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 template fetch | convert PATH install the optional human template: download ICT-FaceKit, or convert a download
                               (zip or folder); hash-checked; `template info`: where it is (docs/strategies.md)
-rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
+rig-bench [--capture FILE]    the test rigs' figures (control, mixed bone/slider, Rigify face and human rigs)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
                               and platform, with the locked scipy/OpenCV wheels (docs/install.md)
 landmark-models               put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
@@ -202,7 +202,7 @@ def _cmd_docs_images(args):
 
 
 def _cmd_rig_bench(args):
-    from .bench.rig_bench import rig_bench  # imports bpy at once: only for this command
+    from .bench.rig_bench_run import rig_bench  # imports bpy at once: only for this command
 
     figures = rig_bench(capture=args.capture, frames=args.frames, sample_frames=args.sample_frames, docs=args.docs,
                         repeat=args.repeat, reference=args.reference, long_only=args.long_only, say=progress_line)
@@ -237,8 +237,8 @@ def _cmd_bench(args):
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
         print(_bench_line(row), flush=True)
-    print(_bench_line(bench_keying(frames=frames)), flush=True)
-    print(_bench_line(bench_cli_retarget(frames=frames)), flush=True)
+    for row in (bench_keying(frames=frames), *bench_cli_retarget(frames=frames)):  # issue 39's take stage by stage
+        print(_bench_line(row), flush=True)
     return 0
 
 
@@ -255,7 +255,7 @@ def _cmd_landmark_models(args):
 
 
 def _bench_line(row):
-    ratio = f"{row['ratio']:.0f}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
+    ratio = f"{row['ratio']:.3g}x vs {row['baseline_seconds']:.1f} s baseline" if row.get("ratio") else "no baseline"
     return f"{row['name']}: {row['seconds']:.3f} s median; {ratio}; goal {row['goal']}; {row['note']}"
 
 
@@ -311,9 +311,9 @@ COMMANDS = {
               "with its ratio and goal."),
     "docs-images": ("render the documentation's pictures from the sample character",
                     "Render the documentation's pictures (docs/images) from the sample character, headless."),
-    "rig-bench": ("the test rigs' figures (control rig, correctives, Rigify face from a capture)",
-                  "Solve the test rigs (a control rig with correctives, a bone-only face, a Rigify face) from known "
-                  "control curves and a real capture, and print their figures as JSON."),
+    "rig-bench": ("the test rigs' figures (control, mixed bone/slider, Rigify face and human rigs)",
+                  "Solve the test rigs (a control rig with correctives, a rig mixing bones and sliders, a Rigify face, "
+                  "the whole Rigify human) from known control curves and a real capture; print their figures as JSON."),
     "template": ("install the optional human template (download ICT-FaceKit or convert a copy); where it is", None),
     "build-extension": ("build the Blender extension zips (per Blender generation and platform)", None),
     "landmark-models": ("put the face-landmark models into the facecap cache (outside Blender)",

@@ -8,6 +8,7 @@ per frame on the same take's deltas with the same ridge, timed in the same run. 
 """
 
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -21,7 +22,8 @@ from ...solvers.character.basis import Basis
 from ...solvers.engine import basis_scale
 from ...solvers.io.csv import write_markers_csv
 from ...solvers.tools.bench.bench import bvls_loop
-from .bench import ROOT, _cli_env
+
+ROOT = Path(__file__).resolve().parents[2]
 
 SHAPES = ("eyeBlinkLeft", "eyeBlinkRight", "eyeSquintLeft", "eyeSquintRight", "eyeWideLeft", "eyeWideRight", "jawOpen",
           "jawLeft", "mouthClose", "mouthPressLeft", "mouthPressRight", "mouthStretchLeft", "mouthStretchRight",
@@ -32,6 +34,11 @@ LEFT_OUT = ("forehead_L", "forehead_R", "cheekbone_L", "cheekbone_R", "jaw_L", "
             "jaw_front_L", "jaw_front_R", "nose_side_L", "nose_side_R", "chin_L", "chin_R", "nose_tip_C")
 #: The stages of the report's ``timings_s`` shown, in order.
 STAGES = ("read", "load_character", "stabilise", "solve", "key", "total")
+
+
+def cli_env():
+    """The environment of a ``python -m facecap`` child: this one without PYTHONPATH."""
+    return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
 
 
 def _character(folder, markers):
@@ -88,7 +95,7 @@ def bench_cli_stages(frames=36000, repeat=3):
         for _ in range(repeat):
             t0 = time.perf_counter()
             proc = subprocess.run([sys.executable, "-m", "facecap", "retarget", "--config", str(config), "--replace"],
-                                  capture_output=True, text=True, env=_cli_env())
+                                  capture_output=True, text=True, env=cli_env())
             walls.append(time.perf_counter() - t0)
             if proc.returncode != 0:
                 raise RuntimeError((proc.stderr.strip().splitlines() or ["no output"])[-1])

@@ -251,16 +251,3 @@ def render_rigify(blend, face_name, result, path, *, count=5, size=(190, 216)):
     path.parent.mkdir(parents=True, exist_ok=True)
     write_png(path, compose(tiles, len(tiles)))
     return path
-
-
-def rig_bench(*, capture=None, frames=3600, sample_frames=600, docs=None, repeat=1, reference=False, long_only=False,
-              say=print):
-    """The figures of every test rig (a dict, also printed through ``say``); ``long_only``: only the
-    long Rigify take (time and accuracy)."""
-    with tempfile.TemporaryDirectory(prefix="facecap-rig-bench-") as tmp:
-        figures = {} if long_only else control_rig_figures(tmp, sample_frames, say)
-        rigify = Path(tmp) / "rigify"
-        rigify.mkdir()
-        figures["rigify"] = rigify_figures(rigify, None if long_only else capture, frames, say, docs, repeat=repeat,
-                                           reference=reference, long_only=long_only)
-    return figures
