@@ -10,7 +10,7 @@ import numpy as np
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..facecap_addon.scene import layers, scene_solve, tuning_scene
+from ..facecap_addon.scene import scene_solve, tuning_scene
 from ..solvers.character.shape_controls import load_preset, save_preset
 from ..solvers.errors import FacecapError
 from ..solvers.tuning.retune import fit_gain_offset
@@ -18,9 +18,7 @@ from .solve import SolveJobOperator
 
 
 def _solved(context):
-    s = context.scene.facecap
-    key = getattr(getattr(s.target, "data", None), "shape_keys", None)
-    return key is not None and layers.solved_action(key) is not None
+    return tuning_scene.solved(context.scene.facecap)
 
 
 def _add_frames(settings, frames):
@@ -68,8 +66,7 @@ class FACECAP_OT_tuning_add_edited(bpy.types.Operator):
 
     def execute(self, context):
         settings = context.scene.facecap
-        key = settings.target.data.shape_keys
-        frames = layers.edited_frames(key, tuning_scene.shape_names(settings.target))
+        frames = tuning_scene.edited_frames(settings)
         new = _add_frames(settings, frames)
         tuning_scene.sync_markers(context.scene)
         self.report({"INFO"}, f"{len(new)} edited frame(s) added ({len(frames)} edited in all)")
@@ -219,9 +216,8 @@ class FACECAP_OT_fit_gain_offset(SolveJobOperator, bpy.types.Operator):
     def _start(self, context):
         settings = context.scene.facecap
         corrections = tuning_scene.corrections(settings)
-        names = tuning_scene.shape_names(settings.target)
         frames = sorted(corrections)
-        solve, _ = layers.layer_values(settings.target.data.shape_keys, names, frames)
+        names, solve, _ = tuning_scene.channel_values(settings, frames)
         gain, offset = fit_gain_offset(solve, {i: np.array([corrections[f][n] for n in names])
                                                for i, f in enumerate(frames)})
         # solved with the fitted controls before they are written: Esc leaves the shape list as it was
@@ -255,7 +251,7 @@ class FACECAP_OT_jump_worst(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.facecap
         try:
-            frames, residual = tuning_scene.residual_curve(settings.target.data.shape_keys)
+            frames, residual = tuning_scene.residual_curve(tuning_scene.diagnostics_owner(settings))
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

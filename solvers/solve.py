@@ -94,13 +94,16 @@ def solve_job(request):
 
     def steps():
         result = retarget(request.markers, character, linear_settings, inputs=inputs)
+        solved_with = character
         if corrections is not None:
             tuned = retune_take(request.markers, character, linear_settings, inputs, corrections, mu=request.mu,
                                 base=result, parent=request.parent)
             result = replace(tuned.result, retune=tuned)
+            if tuned.changed:
+                solved_with = apply_version(tuned.version, character, inputs, linear_settings)[0]
         yield None
-        if rig is not None:
-            result = yield from rig.finish_steps(result, request.markers, settings)
+        if rig is not None:  # a library version (chosen, or the retune's) moves the rig model too
+            result = yield from rig.with_columns(solved_with).finish_steps(result, request.markers, settings)
         return _with_controls(result, request, _take_fps(request))
 
     return Job(steps(), 1 + (rig.steps_for(settings) if rig is not None else 0), what="solve")

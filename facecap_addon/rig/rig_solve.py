@@ -12,6 +12,7 @@ import time
 import bpy
 import numpy as np
 
+from ...solvers.config.rig import RigSettings
 from ...solvers.errors import ConfigError, FacecapError
 from ...solvers.pipeline.binding import from_record
 from ...solvers.rig import PoseLibrary, RigTarget, probe_rig_steps, run_steps
@@ -23,6 +24,16 @@ from .rig_proxy import remove_proxies
 from .rig_keying import key_controls
 from .rig_target import driver_pairs, preset_controls, spec_controls
 from ..scene.scene_binding import geometric_character
+
+
+def rig_settings(settings):
+    """``RigSettings`` of the Solve panel's rig target (``settings``: the scene's facecap settings;
+    None: the shape keys)."""
+    if settings.rig_preset == "NONE":
+        return None
+    return RigSettings(preset=settings.rig_preset, object=settings.rig_object.name if settings.rig_object else None,
+                       method=settings.rig_method, poses=settings.rig_poses.name if settings.rig_poses else None,
+                       nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
 
 
 def rig_controls(rig_settings, mesh):

@@ -16,7 +16,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...solvers.config.rig import RigSettings
 from ...solvers.errors import FacecapError
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve, solve_job
@@ -24,7 +23,7 @@ from ...solvers.video.reading import Cancelled
 from . import anim, layers, take
 from ..rig.drivers import left_out_note
 from ..rig.rig_proxy import remove_proxies
-from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding
+from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding, rig_settings
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -62,15 +61,6 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
                         flow=flow, version=version, corrections=corrections, mu=mu,
                         parent=settings.library_active or "", controls=controls, fps=settings.fps,
                         notes=(driven,) if driven else ())
-
-
-def rig_settings(settings):
-    """``RigSettings`` of the Solve panel's rig target (None: the shape keys)."""
-    if settings.rig_preset == "NONE":
-        return None
-    return RigSettings(preset=settings.rig_preset, object=settings.rig_object.name if settings.rig_object else None,
-                       method=settings.rig_method, poses=settings.rig_poses.name if settings.rig_poses else None,
-                       nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
 
 
 def _rig_inputs(settings, markers, rsettings):

@@ -245,7 +245,7 @@ class RigModel:
         hi, lo = self.upper - self.rest, self.lower - self.rest
         out = np.zeros((C, 2, 3))
         out[:, :, 0] = 1.0  # a control that moves nothing: its offset
-        secant_end = self._secant_ends()
+        secant_end = self.secant_ends()
         for i in range(C):
             sides = ((0, hi[i], (self.linear, self.square, self.cube)), (1, lo[i], tuple(self.negative))) \
                 if self.split[i] else ((0, secant_end[i], (self.linear, self.square, self.cube)),)
@@ -273,7 +273,7 @@ class RigModel:
             dz = dz + (a[:, 1, 0] + 2 * a[:, 1, 1] * n + 3 * a[:, 1, 2] * n * n) * dn
         return z, dz
 
-    def _secant_ends(self):
+    def secant_ends(self):
         """(C,) the end of each control's range that moves the points most (the larger limit on a tie)."""
         hi, lo = self.upper - self.rest, self.lower - self.rest
         out = np.zeros(self.n_controls)
@@ -288,7 +288,7 @@ class RigModel:
         (the larger limit on a tie), divided by that offset: a joystick's side that moves its
         shape most, not an idle one."""
         out = np.zeros_like(self.linear)
-        for i, end in enumerate(self._secant_ends()):
+        for i, end in enumerate(self.secant_ends()):
             if end != 0:
                 out[i] = self.along(i, [end])[0] / end
         return out

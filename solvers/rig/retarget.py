@@ -64,6 +64,9 @@ class RigTarget:
     info : what building the target found (probing report), carried into ``info["rig"]``
     notes : warnings of building the target (drivers that could not run, driven shapes left out),
         added to the result's
+    tuned : ndarray (C, M, D), optional: what a library version (a retune, *Use Library Version*)
+        changed of the columns the linear solve sees; the nonlinear model takes it as a change of
+        each control's first-order term (``with_columns``)
     reference : the slow path the fast one is checked against: Gauss-Newton blocks formed in float64
         on every frame at every iteration, and each refinement round a solve of the whole take (the
         fast path forms them in float32, keeps a frame's block while its controls barely move, and
@@ -83,6 +86,7 @@ class RigTarget:
     info: dict = field(default_factory=dict)
     reference: bool = False
     notes: tuple = ()
+    tuned: object = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -98,8 +102,37 @@ class RigTarget:
 
     @cached_property
     def unit_model(self):
-        """The model over each control's offset in units of its span (probed)."""
-        return self.model.normalised()
+        """The model over each control's offset in units of its span (probed), with ``tuned``."""
+        model = self.model.normalised()
+        if self.tuned is None:
+            return model
+        # a change of a control's column is a gain on its whole own response (a retune's usual
+        # answer) plus what remains, added to its first-order term on the side of its secant
+        secant = model.secant().reshape(model.n_controls, -1)
+        change = self.tuned.reshape(model.n_controls, -1)
+        norm = np.einsum("cp,cp->c", secant, secant)
+        gain = 1.0 + np.where(norm > 0, np.einsum("cp,cp->c", change, secant) / np.where(norm > 0, norm, 1.0), 0.0)
+        rest = (change - (gain - 1.0)[:, None] * secant).reshape(self.tuned.shape)
+        g = gain[:, None, None]
+        linear, square, cube, negative = model.linear * g, model.square * g, model.cube * g, model.negative * g
+        down = model.split & (model.secant_ends() < 0)
+        linear[~down] += rest[~down]
+        negative[0, down] += rest[down]
+        return replace(model, linear=linear, square=square, cube=cube, negative=negative)
+
+    def with_columns(self, basis):
+        """This target solving the columns ``basis`` (a library version of ``character``: a retune's,
+        or the one the animator chose) instead of its own, the nonlinear model's first-order terms
+        moved to match; itself when they are its own."""
+        if self.method != "probed" or basis is None:
+            return self
+        own = self.model.normalised().basis()
+        if basis.shape_names != own.shape_names or basis.marker_names != own.marker_names:
+            return self
+        change = np.asarray(basis.deltas) - own.deltas
+        if not np.any(change):
+            return self
+        return replace(self, tuned=change)
 
     @property
     def character(self):

@@ -20,6 +20,7 @@ from facecap.facecap_addon.bench.rig_samples import add_driver, marker_points
 from facecap.facecap_addon.headless.headless import run_take
 from facecap.facecap_addon.rig import rig_proxy, rig_target
 from facecap.facecap_addon.rig.rig_eval import RigEvaluator
+from facecap.facecap_addon.scene import tuning_scene
 
 FRAMES = 400
 
@@ -169,3 +170,99 @@ def test_rigify_human_is_evaluated_through_a_proxy_of_its_face_with_the_same_poi
     fast.close()
     assert not [o for o in bpy.data.objects if rig_proxy.TAG in o.keys()]
     assert not [a for a in bpy.data.armatures if rig_proxy.TAG in a.keys()]
+
+
+@pytest.fixture(scope="module")
+def slider_rig(tmp_path_factory):
+    """ARKit sliders driving the sample character's keys: a take of known sliders, saved."""
+    from facecap.facecap_addon.bench import rig_samples
+    from facecap.solvers.tools.synthetic.synth import performance_weights
+
+    folder = tmp_path_factory.mktemp("slider_rig")
+    mesh = open_character()
+    ctrl = rig_samples.build_control_rig(mesh, correctives=False)
+    controls = rig_target.preset_controls("arkit_sliders", mesh, ctrl)
+    names = [c.name for c in controls]
+    truth = rig_samples.sliders_for_weights(names, performance_weights(names, 240, seed=4))
+    write_take(folder, mesh, controls, truth)
+    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+    return folder, names, truth
+
+
+@pytest.mark.parametrize("operator", ["retune", "fit_gain_offset"])
+def test_retune_and_fit_gain_onto_a_rig_in_the_sidebar_with_progress_and_esc(slider_rig, operator):
+    """Onto a rig target the tuning loop reads the controls' layers: the animator's correction on a
+    slider is a tuning frame (Add Edited Frames); Retune / Fit Gain and Offset run in steps (status bar,
+    Esc leaves everything as it was) and, left to finish, the solve moves towards the correction and the
+    animator's layer continues without it."""
+    from types import SimpleNamespace
+
+    from facecap.facecap_addon.scene import layers, scene_solve
+    from facecap.operators import tuning
+    from facecap.operators.solve import FACECAP_OT_solve
+    from tests.blender.scene_fixtures import modal_driver
+
+    folder, names, truth = slider_rig
+    bpy.ops.wm.open_mainfile(filepath=str(folder / "rig.blend"))
+    context = bpy.context
+    assert bpy.ops.facecap.import_markers(filepath=str(folder / "take.csv"), units="mm", fps=60.0) == {"FINISHED"}
+    s = context.scene.facecap
+    s.target, ctrl = bpy.data.objects["Face"], bpy.data.objects["FaceControls"]
+    bpy.ops.facecap.set_neutral(first=1, last=50)
+    s.rig_preset, s.rig_object, s.rig_probes = "arkit_sliders", ctrl, 100
+    tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+
+    def run(cls, session):
+        driver = modal_driver(cls)(session)
+        driver.consume = True
+        for _ in range(3000):
+            state = driver.modal(context, tick)
+            if state != {"RUNNING_MODAL"}:
+                return driver, state
+        raise AssertionError("did not finish")
+
+    _, state = run(FACECAP_OT_solve, scene_solve.start_session(s, context.scene))
+    assert state == {"FINISHED"}
+    assert bpy.ops.facecap.refresh_shapes() == {"FINISHED"} and "jawOpen" in [i.name for i in s.shapes]
+    solve = layers.solved_action(ctrl)
+    frames = np.arange(1, len(truth) + 1)
+    solved = tuning_values(s, frames)[:, [list(tuning_scene.channels(s)).index(n) for n in names]]
+    worst = np.argsort(-np.sqrt(np.mean((solved - truth) ** 2, axis=1)))[:4]
+    for row in worst:  # the animator sets the worst frames right, keyed on the layer above the solve
+        context.scene.frame_set(int(frames[row]))
+        for k, n in enumerate(names):
+            ctrl[n] = float(truth[row, k])
+            ctrl.keyframe_insert(f'["{n}"]', frame=int(frames[row]))  # Blender keys what makes it play so
+    assert bpy.ops.facecap.tuning_add_edited() == {"FINISHED"}
+    s.tune_auto_mu = False  # the library follows the corrections (leave-one-frame-out may keep it)
+    assert sorted(t.frame for t in s.tuning_frames) == sorted(int(frames[r]) for r in worst)
+    before_error = np.sqrt(np.mean((solved[worst] - truth[worst]) ** 2))
+    cls = {"retune": tuning.FACECAP_OT_retune, "fit_gain_offset": tuning.FACECAP_OT_fit_gain_offset}[operator]
+    snapshot = lambda: (len(s.library_versions), [(i.gain, i.offset) for i in s.shapes],  # noqa: E731
+                        layers.solved_action(ctrl).name, ctrl.animation_data.action.name)
+    before = snapshot()
+    driver = modal_driver(cls)(cls._start(modal_driver(cls), context))
+    while driver._session.done == 0:
+        assert driver.modal(context, tick) == {"RUNNING_MODAL"}
+    assert "probing the rig" in driver._session.status() or "solving" in driver._session.status()
+    assert driver.modal(context, esc) == {"CANCELLED"} and snapshot() == before
+    driver, state = run(cls, cls._start(modal_driver(cls), context))
+    assert state == {"FINISHED"}, driver.reports
+    after = snapshot()
+    assert after[2] != solve.name and after[3].endswith("tuned")  # a new solve layer; the correction taken in
+    resolved = tuning_values(s, frames)[:, [list(tuning_scene.channels(s)).index(n) for n in names]]
+    after_error = np.sqrt(np.mean((resolved[worst] - truth[worst]) ** 2))
+    if operator == "retune":  # the library kept or changed as leave-one-frame-out says; each frame's error shown
+        assert driver.reports[-1][1].startswith("Retune: corrected frames RMS"), driver.reports
+        errors = {t.frame: t.error for t in s.tuning_frames}
+        for row in worst:
+            want = np.sqrt(np.mean((resolved[row] - truth[row]) ** 2))
+            assert errors[int(frames[row])] == pytest.approx(want, rel=1e-3, abs=1e-6)
+    else:  # every control's gain and offset fitted to the corrections: they come nearer
+        assert after[1] != before[1]
+        assert after_error < 0.9 * before_error, (after_error, before_error)
+
+
+def tuning_values(settings, frames):
+    """The solve layer's control values (F, C) at ``frames``, as the tuning loop reads them."""
+    return tuning_scene.channel_values(settings, frames)[1]

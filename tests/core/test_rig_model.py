@@ -383,3 +383,17 @@ def test_a_rig_solve_that_does_not_settle_says_why(corrective_rig):
     info = result.info["rig"]
     assert not info["converged"] and info["last_step_drop"] > 1e-4
     assert any("stopped at their limit" in w for w in result.warnings), result.warnings
+
+
+def test_a_library_version_of_a_rig_moves_its_nonlinear_model_too(corrective_rig):
+    """A retune (or a chosen version) changes the columns the linear solve sees; the Gauss-Newton
+    model takes the change as each control's first-order term, so the nonlinear solve keeps it."""
+    target = RigTarget("probed", model=corrective_rig)
+    basis = target.character
+    k = basis.shape_names.index("jawOpen")
+    deltas = basis.deltas.copy()
+    deltas[k] *= 1.2
+    tuned = target.with_columns(Basis(basis.shape_names, basis.marker_names, basis.neutral, deltas, basis.lower,
+                                      basis.upper))
+    np.testing.assert_allclose(tuned.character.deltas, deltas, atol=1e-12)
+    assert target.with_columns(basis) is target
