@@ -101,6 +101,10 @@ def make_proxy(armature, names):
     proxy.name = proxy.data.name = f"{armature.name} (facecap proxy)"
     proxy[TAG] = proxy.data[TAG] = armature.name
     _point_at(proxy, armature)
+    for id_data in (proxy, proxy.data):  # drivers of the bones left out would only fail
+        for fc in _drivers(id_data):
+            if _bones_in(fc.data_path) - need:
+                id_data.animation_data.drivers.remove(fc)
     with linked(proxy, armature):
         view_layer = bpy.context.view_layer
         previous = view_layer.objects.active
@@ -111,10 +115,6 @@ def make_proxy(armature, names):
             edit.remove(bone)
         bpy.ops.object.mode_set(mode="OBJECT")
         view_layer.objects.active = previous
-    for id_data in (proxy, proxy.data):  # drivers of the bones left out would only fail
-        for fc in _drivers(id_data):
-            if _bones_in(fc.data_path) - set(proxy.pose.bones.keys()):
-                id_data.animation_data.drivers.remove(fc)
     return proxy
 
 

@@ -229,7 +229,7 @@ def iterate_nonlinear(model, deltas, *, start, confidence=None, defect=None, loc
         improved = False
         ab, damp = _band(H, temporal, free, prob.ridge)  # built once: a retry only damps its diagonal more
         added = 0.0
-        for _ in range(8):
+        for _ in range(14):  # damping up to 1e5 x its floor: in the end a scaled gradient step
             ab[-1] += (damping - added) * damp
             added = damping
             step = _step(solveh_banded, ab, np.where(free, -g, 0.0).reshape(-1)).reshape(F, C)

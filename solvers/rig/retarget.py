@@ -28,6 +28,7 @@ from ..errors import FacecapError
 from ..pipeline import stages
 from . import head
 from .nonlinear import iterate_nonlinear
+from .start import curved_start
 from .poses import PoseLibrary
 
 METHODS = ("probed", "poses")
@@ -226,7 +227,10 @@ class RigTarget:
         rounds = self.refine_rounds if evaluate is not None else 0
         warm = {"max_iter": min(self.max_iter, WARM_ITER), "tol": FINAL_TOL}
         first = {"tol": LOOSE_TOL if refits or rounds else FINAL_TOL}
-        nl = yield from iterate_nonlinear(model, deltas, start=np.where(solved[:, None], result.weights, 0.0),
+        start = curved_start(model, deltas, regularisation=settings.regularisation, lower=bounds[0] - model.rest,
+                             upper=bounds[1] - model.rest, locks=locks)
+        start = result.weights if start is None else start
+        nl = yield from iterate_nonlinear(model, deltas, start=np.where(solved[:, None], start, 0.0),
                                           **priors, **first, **fast)
         iterations = nl.iterations
         stab = result.stabilise
