@@ -244,18 +244,22 @@ class RigModel:
         C = self.n_controls
         hi, lo = self.upper - self.rest, self.lower - self.rest
         out = np.zeros((C, 2, 3))
-        out[:, :, 0] = 1.0  # a control that moves nothing: its offset
+        out[:, :, 0] = 1.0  # a control that moves nothing, or not steadily one way: its offset
         secant_end = self.secant_ends()
+        largest = max(float(np.sum(self.along(i, [t]) ** 2)) for i in range(C) for t in (hi[i], lo[i]))
         for i in range(C):
             sides = ((0, hi[i], (self.linear, self.square, self.cube)), (1, lo[i], tuple(self.negative))) \
                 if self.split[i] else ((0, secant_end[i], (self.linear, self.square, self.cube)),)
             for k, end, terms in sides:
-                if end == 0:
-                    continue
-                e = self.along(i, [end])[0].ravel()
+                e = self.along(i, [end])[0].ravel() if end != 0 else np.zeros(1)
                 norm = float(e @ e)
-                if norm > 0:
-                    out[i, k] = [end * float(t[i].ravel() @ e) / norm for t in terms]
+                if norm <= 1e-9 * largest:  # unseen (a fit of noise): its offset
+                    continue
+                a = np.array([end * float(t[i].ravel() @ e) / norm for t in terms])
+                t = np.linspace(0.0, end, 33)
+                slope = (a[0] + 2 * a[1] * t + 3 * a[2] * t * t) * np.sign(end)
+                if slope.min() >= -0.05 * abs(a[0] + a[1] * end + a[2] * end * end):  # rising towards the end
+                    out[i, k] = a
         return out
 
     def response(self, u):
