@@ -418,3 +418,23 @@ def test_a_curved_control_starts_on_its_own_curve_not_its_secant():
     held = curved_start(model, evaluate(u), regularisation=1e-6, lower=model.lower, upper=model.upper,
                         locks=np.array([np.nan, 0.25, np.nan]))
     np.testing.assert_array_equal(held[:, 1], 0.25)
+
+
+def test_a_control_that_moves_nothing_stays_at_rest(corrective_rig):
+    """Regression: the response of a control no marker sees was fitted noise, and the sparsity acting
+    on it pushed the control off rest (tongueOut of the control rig sat at 0.3)."""
+    model = corrective_rig
+    k = model.control_names.index("tongueOut")
+    rng = np.random.default_rng(9)
+    noise = [rng.normal(size=model.linear[k].shape) * 1e-9 for _ in range(3)]
+    linear, square, cube = model.linear.copy(), model.square.copy(), model.cube.copy()
+    linear[k], square[k], cube[k] = noise[0], -noise[1] * 50, noise[2] * 30  # a wavy response of nothing
+    noisy = RigModel(model.control_names, model.marker_names, model.neutral, linear, square, cube, model.pairs,
+                     model.pair_deltas, model.rest, model.lower, model.upper)
+    assert np.allclose(noisy._response[k], [[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    weights = performance_weights(model.control_names, 200, seed=4)
+    take = take_of(model, weights)
+    settings = RetargetSettings(stable_markers=STABLE, neutral_frames=(1, 50))
+    result = solve(SolveRequest(character=None, settings=settings, markers=take.markers,
+                                rig=RigTarget("probed", model=noisy)))
+    assert np.nanmax(np.abs(result.weights[:, k])) < 0.01
