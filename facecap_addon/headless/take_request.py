@@ -9,6 +9,7 @@ from ...solvers.errors import ConfigError
 from ...solvers.solve import SolveRequest
 from ...solvers.tuning.store import load_version, read_corrections_csv
 from ...solvers.video.flow_config import LandmarkTake
+from ..rig import drivers
 
 
 def rig_request(config, obj, take, *, tune, say, progress=None):
@@ -32,8 +33,6 @@ def with_driven_keys(config, obj, take):
     driver reads only the mesh's own keys (correctives, in-betweens) and the solve is geometric on
     3D markers, the take is solved as the ``shape_keys`` rig (the driven keys fire through their
     drivers); otherwise they are left out of the solve (``scene_data.solvable_blocks``) and named."""
-    from ..rig import drivers  # loads bpy
-
     if config.rig is not None or take.markers is None or getattr(obj, "type", None) != "MESH":
         return config, ()
     found = drivers.driven_keys(obj)

@@ -14,8 +14,6 @@ once with how to trust the file.
 import re
 from dataclasses import dataclass
 
-import bpy
-
 #: A driver target reading a shape key's value on a Key datablock.
 _KEY_VALUE = re.compile(r'^key_blocks\[["\'](?P<name>.+)["\']\]\.value$')
 #: How to let Blender run a trusted file's Python (facecap never does it for the user).
@@ -96,6 +94,8 @@ def unrunnable(ids):
     """[(ID name, data path, expression, reason)] of the scripted drivers of ``ids`` that Blender could
     not evaluate at the last update (``reason``: "needs Python" when the expression is not one Blender
     evaluates by itself and auto-run is off, else "invalid")."""
+    import bpy  # Blender: this module is also read by scene_data, which the command line loads before it
+
     out = []
     for id_data in ids:
         for fc in _drivers_of(id_data):
@@ -122,7 +122,3 @@ def unrunnable_note(found):
     return line
 
 
-def check_drivers(ids):
-    """Update the depsgraph and return ``unrunnable_note`` for the drivers of ``ids`` (None if all run)."""
-    bpy.context.view_layer.update()
-    return unrunnable_note(unrunnable(ids))
