@@ -237,7 +237,7 @@ def _cmd_bench(args):
     frames = 3600 if args.quick else 36000
     for row in run_benchmarks(quick=args.quick):
         print(_bench_line(row), flush=True)
-    for row in (bench_keying(frames=frames), *bench_cli_retarget(frames=frames)):  # issue 39's take stage by stage
+    for row in (bench_keying(frames=frames), *bench_cli_retarget(frames=frames)):  # a smaller character's take by stage
         print(_bench_line(row), flush=True)
     return 0
 

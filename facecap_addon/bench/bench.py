@@ -114,7 +114,7 @@ def write_long_take(folder, frames):
 def bench_cli_retarget(frames=36000, repeat=3):
     """Rows: ``python -m facecap retarget`` on a long synthetic take of the sample character, process start
     to saved .blend, the median of ``repeat`` runs (one run varies by seconds on a shared machine); then
-    issue 39's take stage by stage against the plain per-frame loop (``cli_bench``)."""
+    a smaller character's take stage by stage against the plain per-frame loop (``cli_bench``)."""
     basis = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz")
     with tempfile.TemporaryDirectory(prefix="facecap-bench-") as tmp:
         tmp = Path(tmp)

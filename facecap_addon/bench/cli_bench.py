@@ -1,6 +1,6 @@
 """``bench``: the whole command-line retarget of a long take against a plain per-frame loop, stage by stage.
 
-The take of issue 39: 36,000 frames of the sample character cut to 24 of its shapes and 53 of its
+The take: 36,000 frames of the sample character cut to 24 of its shapes and 53 of its
 markers (a 48 MB CSV), solved with ``python -m facecap retarget`` from process start to saved .blend;
 the baseline is the plain loop a user would write instead, one ``scipy.optimize.lsq_linear`` (BVLS)
 per frame on the same take's deltas with the same ridge, timed in the same run. One line per stage

@@ -1,4 +1,4 @@
-"""A control rig mixing units, as users build them (issue 39): 22 controls on the sample character.
+"""A control rig mixing units, as users build them: 22 controls on the sample character.
 
 * 15 custom-property sliders on the empty ``FaceSliders`` (0..1, and ``jawSide`` from -1 to 1);
 * 7 channels of 6 control bones of the armature ``FaceJoysticks`` (they deform nothing): a 2D mouth
