@@ -85,30 +85,6 @@ def take_in_corrections(controls, frames):
     """Continue each animator layer of the controls' IDs as a copy without its keys on the controls at
     ``frames`` (the solve hits them now); the animator's actions themselves are kept unchanged (fake
     user). Returns the new actions."""
-    wanted = {round(float(f)) for f in frames}
-    made = []
-    for owner, items in _owners(controls).values():
-        ad = owner.animation_data
-        if ad is None or ad.action is None:
-            continue
-        old = ad.action
-        old.use_fake_user = True
-        slot = getattr(getattr(ad, "action_slot", None), "identifier", None)
-        new = old.copy()
-        new.name = anim.unique_action_name(f"{old.name} tuned")
-        ad.action = new
-        if anim.LAYERED_ACTIONS and slot is not None:
-            match = next((s for s in new.slots if s.identifier == slot), None)
-            if match is not None:
-                ad.action_slot = match
-        paths = {c.curve for _, c in items}
-        for fc in anim.action_fcurves(new, owner):
-            if (fc.data_path, fc.array_index) not in paths:
-                continue
-            for point in [p for p in fc.keyframe_points if round(p.co[0]) in wanted][::-1]:
-                fc.keyframe_points.remove(point, fast=True)
-            fc.update()
-            if not len(fc.keyframe_points):
-                anim.remove_fcurve(new, fc)
-        made.append(new)
-    return made
+    made = [layers.continue_without(owner, {c.curve for _, c in items}, frames)
+            for owner, items in _owners(controls).values()]
+    return [action for action in made if action is not None]

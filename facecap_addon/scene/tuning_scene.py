@@ -222,31 +222,8 @@ def take_in_corrections(settings, frames):
     if controls is not None:
         made = rig_layers.take_in_corrections(controls, frames)
         return made[0] if made else None
-    key = settings.target.data.shape_keys
-    ad = key.animation_data
-    if ad is None or ad.action is None:
-        return None
-    old = ad.action
-    old.use_fake_user = True
-    slot_name = getattr(getattr(ad, "action_slot", None), "identifier", None)
-    new = old.copy()
-    new.name = anim.unique_action_name(f"{old.name} tuned")
-    paths = {layers.shape_path(n) for n in shape_names(settings.target)}
-    wanted = {round(float(f)) for f in frames}
-    ad.action = new
-    if anim.LAYERED_ACTIONS and slot_name is not None:
-        slot = next((s for s in new.slots if s.identifier == slot_name), None)
-        if slot is not None:
-            ad.action_slot = slot
-    for fc in anim.action_fcurves(new, key):
-        if fc.data_path not in paths:
-            continue
-        for point in [p for p in fc.keyframe_points if round(p.co[0]) in wanted][::-1]:
-            fc.keyframe_points.remove(point, fast=True)
-        fc.update()
-        if not len(fc.keyframe_points):
-            anim.remove_fcurve(new, fc)
-    return new
+    curves = {(layers.shape_path(n), 0) for n in shape_names(settings.target)}
+    return layers.continue_without(settings.target.data.shape_keys, curves, frames)
 
 
 TUNE_MARKER = "tune"
