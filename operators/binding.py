@@ -25,7 +25,7 @@ class FACECAP_OT_bind_markers(bpy.types.Operator):
             markers = take.markers_from_collection(s)
             binding = scene_binding.binding_from_sidebar(s)
             bound = scene_binding.geometric_character(s.target, markers, take.retarget_settings(s), binding,
-                                                      rebind=True)
+                                                      rebind=True, driven=s.rig_preset != "NONE")
             scene_binding.draw_points(context.scene, s.target, bound.record)
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))

@@ -3,7 +3,7 @@
 import bpy
 import numpy as np
 
-from ..facecap_addon.scene import scene_solve
+from ..facecap_addon.scene import scene_solve, tuning_scene
 from ..facecap_addon.ui.greyed import needs, unless
 from ..solvers.errors import FacecapError
 from .video import ClipJobOperator  # its cancel and _stop: Blender ending the operator, the timer and status bar
@@ -106,7 +106,7 @@ class FACECAP_OT_solve(SolveJobOperator, bpy.types.Operator):
 
 
 class FACECAP_OT_refresh_shapes(bpy.types.Operator):
-    """Fill the shape list from the character's shape keys (keeps the options of shapes already listed)"""
+    """Fill the shape list from the character's shape keys, or the rig's controls with a rig as the target (keeps the options of shapes already listed)"""
 
     bl_idname = "facecap.refresh_shapes"
     bl_label = "Refresh Shapes"
@@ -119,19 +119,24 @@ class FACECAP_OT_refresh_shapes(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.facecap
         key = settings.target.data.shape_keys
-        if key is None:
+        try:
+            controls = tuning_scene.rig_channels(settings)
+        except FacecapError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        if key is None and controls is None:
             self.report({"ERROR"}, f"'{settings.target.name}' has no shape keys")
             return {"CANCELLED"}
+        rows = [(c.name, c.lower, c.upper) for c in controls] if controls is not None else \
+            [(b.name, b.slider_min, b.slider_max) for b in key.key_blocks if b != key.reference_key]
         old = {s.name: (s.lock, s.lock_value, s.lower, s.upper, s.region) for s in settings.shapes}
         settings.shapes.clear()
-        for block in key.key_blocks:
-            if block == key.reference_key:
-                continue
+        for name, lower, upper in rows:
             item = settings.shapes.add()
-            item.name = block.name
-            item.lower, item.upper = block.slider_min, block.slider_max
-            if block.name in old:
-                item.lock, item.lock_value, item.lower, item.upper, item.region = old[block.name]
+            item.name = name
+            item.lower, item.upper = lower, upper
+            if name in old:
+                item.lock, item.lock_value, item.lower, item.upper, item.region = old[name]
         self.report({"INFO"}, f"{len(settings.shapes)} shapes listed")
         return {"FINISHED"}
 

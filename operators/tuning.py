@@ -18,6 +18,10 @@ from ..solvers.tuning.retune import fit_gain_offset
 from .solve import SolveJobOperator
 
 
+def _solved(context):
+    return tuning_scene.solved(context.scene.facecap)
+
+
 def _add_frames(settings, frames):
     have = {t.frame for t in settings.tuning_frames}
     new = [int(f) for f in frames if int(f) not in have]
@@ -63,8 +67,7 @@ class FACECAP_OT_tuning_add_edited(bpy.types.Operator):
 
     def execute(self, context):
         settings = context.scene.facecap
-        key = settings.target.data.shape_keys
-        frames = layers.edited_frames(key, tuning_scene.shape_names(settings.target))
+        frames = tuning_scene.edited_frames(settings)
         new = _add_frames(settings, frames)
         tuning_scene.sync_markers(context.scene)
         self.report({"INFO"}, f"{len(new)} edited frame(s) added ({len(frames)} edited in all)")
@@ -215,9 +218,8 @@ class FACECAP_OT_fit_gain_offset(SolveJobOperator, bpy.types.Operator):
     def _start(self, context):
         settings = context.scene.facecap
         corrections = tuning_scene.corrections(settings)
-        names = tuning_scene.shape_names(settings.target)
         frames = sorted(corrections)
-        solve, _ = layers.layer_values(settings.target.data.shape_keys, names, frames)
+        names, solve, _ = tuning_scene.channel_values(settings, frames)
         gain, offset = fit_gain_offset(solve, {i: np.array([corrections[f][n] for n in names])
                                                for i, f in enumerate(frames)})
         # solved with the fitted controls before they are written: Esc leaves the shape list as it was
@@ -251,7 +253,7 @@ class FACECAP_OT_jump_worst(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.facecap
         try:
-            frames, residual = tuning_scene.residual_curve(settings.target.data.shape_keys)
+            frames, residual = tuning_scene.residual_curve(tuning_scene.diagnostics_owner(settings))
         except FacecapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

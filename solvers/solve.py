@@ -39,6 +39,7 @@ class SolveRequest:
         (shape names are then control names: corrections, controls and locks name controls)
     scores : video.fusion.FaceScores of a landmark take: the Face Landmarker's blendshape scores, combined
         per shape with the solve (``video.fusion.fuse``) before the controls
+    notes : warnings of building the request (shape keys left out...), put before the solve's
     """
 
     character: object
@@ -55,6 +56,7 @@ class SolveRequest:
     fps: float = None
     rig: object = None
     scores: object = None
+    notes: tuple = ()
 
 
 def solve(request, progress=None):
@@ -75,6 +77,8 @@ def solve_job(request):
     if request.controls:
         names = character.shape_names if hasattr(character, "shape_names") else _names(character)
         settings = replace(settings, locks=tuple(settings.locks) + locks_from_controls(request.controls, names))
+    if rig is not None and request.markers is not None:  # locks and bounds in control values -> the columns'
+        settings = rig.column_settings(settings, request.markers.n_frames)
     if request.footage is not None:
         if request.corrections is not None:
             raise FacecapError("tuning a video take from corrections is not supported yet; use the shape controls")
@@ -83,21 +87,32 @@ def solve_job(request):
         fps = request.footage.info.fps
         return job.then(lambda result: _with_controls(result, request, fps))
 
+    # a nonlinear rig solve refits the head against the rig itself (solvers.rig.head), not against the
+    # linear solve, and starts from frames solved alone with the ridge only (its Gauss-Newton steps
+    # carry the temporal term and the sparsity; a retune keeps the priors it learns with)
+    linear_settings = settings
+    if rig is not None and rig.defers_head_refits:
+        linear_settings = replace(settings, fine_iterations=0)
+        if corrections is None:
+            linear_settings = replace(linear_settings, smoothing=(0.0, 0.0), sparsity=0.0)
+
     def steps():
-        result = retarget(request.markers, character, settings, inputs=inputs)
+        result = retarget(request.markers, character, linear_settings, inputs=inputs)
+        solved_with = character
         if corrections is not None:
-            tuned = retune_take(request.markers, character, settings, inputs, corrections, mu=request.mu,
+            tuned = retune_take(request.markers, character, linear_settings, inputs, corrections, mu=request.mu,
                                 base=result, parent=request.parent)
             result = replace(tuned.result, retune=tuned)
+            if tuned.changed:
+                solved_with = apply_version(tuned.version, character, inputs, linear_settings)[0]
         yield None
-        if rig is not None:
-            result = yield from rig.finish_steps(result, request.markers, settings)
-            result = replace(result, warnings=tuple(result.warnings) + tuple(rig.info.get("warnings", ())))
+        if rig is not None:  # a library version (chosen, or the retune's) moves the rig model too
+            result = yield from rig.with_columns(solved_with).finish_steps(result, request.markers, settings)
         if request.scores is not None:
             result = _fused(result, request.scores)
         return _with_controls(result, request, _take_fps(request))
 
-    return Job(steps(), 1 + (rig.steps if rig is not None else 0), what="solve")
+    return Job(steps(), 1 + (rig.steps_for(settings) if rig is not None else 0), what="solve")
 
 
 def _names(character):
@@ -121,6 +136,8 @@ def _fused(result, scores):
 
 
 def _with_controls(result, request, fps):
+    if request.notes:
+        result = replace(result, warnings=tuple(dict.fromkeys(tuple(request.notes) + tuple(result.warnings))))
     if not request.controls:
         return result
     fps = request.fps or fps

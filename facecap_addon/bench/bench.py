@@ -21,6 +21,7 @@ from ...solvers.character.basis import Basis
 from ...solvers.io.csv import write_markers_csv
 from ...solvers.tools.bench.bench import median_time
 from ...solvers.tools.bench.peak_memory import available, run_measured
+from .cli_bench import bench_cli_stages, cli_env
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -110,18 +111,15 @@ def write_long_take(folder, frames):
     return config
 
 
-def _cli_env():
-    return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-
-
 def bench_cli_retarget(frames=36000, repeat=3):
-    """``python -m facecap retarget`` on a long synthetic take of the sample character, process start to
-    saved .blend; the median of ``repeat`` runs (one run varies by seconds on a shared machine)."""
+    """Rows: ``python -m facecap retarget`` on a long synthetic take of the sample character, process start
+    to saved .blend, the median of ``repeat`` runs (one run varies by seconds on a shared machine); then
+    a smaller character's take stage by stage against the plain per-frame loop (``cli_bench``)."""
     basis = Basis.load_npz(ROOT / "sample_blends" / "character_basis.npz")
     with tempfile.TemporaryDirectory(prefix="facecap-bench-") as tmp:
         tmp = Path(tmp)
         config = write_long_take(tmp, frames)
-        env = _cli_env()
+        env = cli_env()
 
         def once():
             # --replace: every run the same work (without it, a run adds its solve to the last one's .blend)
@@ -133,11 +131,11 @@ def bench_cli_retarget(frames=36000, repeat=3):
         seconds = median_time(once, repeat)[0]
         stages = json.loads((tmp / "report.json").read_text())["timings_s"]  # the last run's
     detail = ", ".join(f"{k} {v:.2f} s" for k, v in stages.items() if k in ("read", "load_character", "stabilise", "solve", "key", "total"))
-    return dict(
+    return [dict(
         name=f"CLI retarget {frames} frames x {basis.n_shapes} shapes x {basis.n_markers} markers (process start to saved .blend)",
         seconds=seconds, baseline_seconds=None, ratio=None, goal="< 15 s",
         note=f"median of {repeat} runs; stages of the last: {detail}",
-    )
+    )] + bench_cli_stages(frames, repeat)
 
 
 def bench_batch(takes=20, frames=720, jobs=2, repeat=3):
@@ -225,7 +223,7 @@ def bench_memory(frames=MEMORY_FRAMES):
         with tempfile.TemporaryDirectory(prefix="facecap-bench-mem-") as tmp:
             config = write_long_take(tmp, n)
             size = (Path(tmp) / "long_take.csv").stat().st_size
-            m = run_measured([sys.executable, "-m", "facecap", "retarget", "--config", str(config)], env=_cli_env())
+            m = run_measured([sys.executable, "-m", "facecap", "retarget", "--config", str(config)], env=cli_env())
         if m["returncode"] != 0:
             raise RuntimeError(f"retarget of {n} frames failed: {m['stderr'][-1] if m['stderr'] else m['returncode']}")
         if m["killed"]:

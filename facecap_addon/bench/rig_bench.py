@@ -75,16 +75,17 @@ def write_take(folder, mesh, controls, values, *, seed=5):
     """The marker take of the rig on ``mesh`` performing ``values`` (F, C) -> (evaluator, bound points)."""
     evaluator = RigEvaluator(mesh, controls, [g.name for g in mesh.vertex_groups])
     points = evaluator.evaluate(values)
+    evaluator.close()
     take = synthesize_points(evaluator.marker_names, points, values, stable=STABLE, seed=seed)
     write_markers(Path(folder) / "take.csv", take.markers)
     return evaluator, points
 
 
 def take_config(folder, name, obj, *, markers="take.csv", source='units = "mm"\nfps = 60\n', stable=STABLE,
-                neutral=(1, 50), rig="", extra="", outputs=""):
-    """A take config in ``folder`` solving ``markers`` onto ``obj`` of ``folder/rig.blend``."""
+                neutral=(1, 50), rig="", extra="", outputs="", blend="rig.blend"):
+    """A take config in ``folder`` solving ``markers`` onto ``obj`` of ``folder/<blend>``."""
     path = Path(folder) / f"{name}.toml"
-    path.write_text(f'[target]\nblend = "rig.blend"\nobject = "{obj}"\n[source]\nmarkers = "{markers}"\n{source}'
+    path.write_text(f'[target]\nblend = "{blend}"\nobject = "{obj}"\n[source]\nmarkers = "{markers}"\n{source}'
                     f'[stabilise]\nmarkers = {json.dumps(stable)}\n[neutral]\nframes = {list(neutral)}\n{extra}{rig}'
                     f'[output]\nweights = "{name}.csv"\n{outputs}')
     return load_take_config(path)
@@ -112,12 +113,14 @@ def control_rig_figures(folder, frames, say):
         sliders = rig_samples.sliders_for_weights(names, weights)
         write_take(sub, mesh, controls, sliders)
         bpy.ops.wm.save_as_mainfile(filepath=str(sub / "rig.blend"))
+        mesh.data.shape_keys.animation_data_clear()  # the same face's plain keys: no driver sets them
+        bpy.ops.wm.save_as_mainfile(filepath=str(sub / "plain.blend"))
         rig = '[rig]\npreset = "arkit_sliders"\nobject = "FaceControls"\n'
         if not correctives:
             t0 = time.perf_counter()
             solved = run_take(take_config(sub, "rig", "Face", rig=rig), quiet=True)[0]
             seconds = time.perf_counter() - t0
-            plain = run_take(take_config(sub, "plain", "Face"), quiet=True)[0]
+            plain = run_take(take_config(sub, "plain", "Face", blend="plain.blend"), quiet=True)[0]
             out["control_rig"] = {"controls_rmse": rmse(columns(solved, names), sliders),
                                   "shape_keys_rmse": rmse(columns(plain, names), weights), "seconds": seconds}
             say(f"control rig: controls RMSE {out['control_rig']['controls_rmse']:.4f}, plain shape keys "
@@ -249,21 +252,3 @@ def render_rigify(blend, face_name, result, path, *, count=5, size=(190, 216)):
     path.parent.mkdir(parents=True, exist_ok=True)
     write_png(path, compose(tiles, len(tiles)))
     return path
-
-
-def rig_bench(*, capture=None, frames=3600, sample_frames=600, docs=None, repeat=1, reference=False, long_only=False,
-              say=print, overwrite=False):
-    """The figures of every test rig (a dict, also printed through ``say``); ``long_only``: only the
-    long Rigify take (time and accuracy). ``docs``: the folder of the picture, through the output policy
-    before anything runs (the checkout's docs/images is facecap's own; elsewhere ``overwrite`` lets it replace
-    a file facecap did not write)."""
-    if docs is not None:
-        check_files_in(docs, ["rigify_face.png"], "--docs", "png", inputs={"--capture": capture}, overwrite=overwrite,
-                       owned=(DEFAULT_OUT,))
-    with tempfile.TemporaryDirectory(prefix="facecap-rig-bench-") as tmp:
-        figures = {} if long_only else control_rig_figures(tmp, sample_frames, say)
-        rigify = Path(tmp) / "rigify"
-        rigify.mkdir()
-        figures["rigify"] = rigify_figures(rigify, None if long_only else capture, frames, say, docs, repeat=repeat,
-                                           reference=reference, long_only=long_only)
-    return figures

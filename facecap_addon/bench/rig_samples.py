@@ -60,14 +60,14 @@ def sliders_for_weights(shape_names, weights):
     return np.column_stack([inv[n](weights[:, k]) for k, n in enumerate(shape_names)])
 
 
-def _coords(mesh_data, block=None):
+def mesh_coords(mesh_data, block=None):
     n = len(mesh_data.vertices)
     co = np.empty(n * 3)
     (block.data if block is not None else mesh_data.vertices).foreach_get("co", co)
     return co.reshape(n, 3)
 
 
-def _driver(id_data, path, expression, variables):
+def add_driver(id_data, path, expression, variables):
     fc = id_data.driver_add(path)
     drv = fc.driver
     drv.type = "SCRIPTED"
@@ -95,7 +95,7 @@ def build_control_rig(mesh, *, correctives=True):
         ctrl[name] = 0.0
         ctrl.id_properties_ui(name).update(min=0.0, max=1.0, soft_min=0.0, soft_max=1.0, default=0.0)
         expression = RESPONSES[ARKIT_52.index(name) % len(RESPONSES)][0]
-        _driver(key, f'key_blocks["{name}"].value', expression, {"s": (ctrl, f'["{name}"]')})
+        add_driver(key, f'key_blocks["{name}"].value', expression, {"s": (ctrl, f'["{name}"]')})
     if correctives:
         add_correctives(mesh, ctrl)
     return ctrl
@@ -104,25 +104,25 @@ def build_control_rig(mesh, *, correctives=True):
 def add_correctives(mesh, ctrl):
     """Corrective keys on products of sliders, and an in-between on ``jawOpen``."""
     key = mesh.data.shape_keys
-    base = _coords(mesh.data, key.reference_key)
+    base = mesh_coords(mesh.data, key.reference_key)
 
     def delta(name):
-        return _coords(mesh.data, key.key_blocks[name]) - base
+        return mesh_coords(mesh.data, key.key_blocks[name]) - base
 
     for name, (a, b), strength in CORRECTIVES:
         d = strength * 0.5 * (delta(a) + delta(b))
         d[:, 0] += 0.3 * np.abs(d).sum(axis=1) * np.sign(np.mean(d[:, 0]) or 1.0)
-        _add_key(mesh, name, base + d)
-        _driver(key, f'key_blocks["{name}"].value', "a*b", {"a": (ctrl, f'["{a}"]'), "b": (ctrl, f'["{b}"]')})
+        add_key(mesh, name, base + d)
+        add_driver(key, f'key_blocks["{name}"].value', "a*b", {"a": (ctrl, f'["{a}"]'), "b": (ctrl, f'["{b}"]')})
     name, source, expression, strength = INBETWEEN
     d = delta(source)
     push = np.zeros_like(d)
     push[:, 1] = -strength * np.linalg.norm(d, axis=1)  # the lips push forward half way through the opening
-    _add_key(mesh, name, base + push)
-    _driver(key, f'key_blocks["{name}"].value', expression, {"s": (ctrl, f'["{source}"]')})
+    add_key(mesh, name, base + push)
+    add_driver(key, f'key_blocks["{name}"].value', expression, {"s": (ctrl, f'["{source}"]')})
 
 
-def _add_key(mesh, name, co):
+def add_key(mesh, name, co):
     block = mesh.shape_key_add(name=name, from_mix=False)
     block.data.foreach_set("co", np.asarray(co, dtype=np.float64).ravel())
     block.slider_min, block.slider_max = 0.0, 1.0
@@ -131,7 +131,7 @@ def _add_key(mesh, name, co):
 
 def marker_points(mesh):
     """{marker: rest point} of the marker vertex groups of ``mesh`` (local space)."""
-    co = _coords(mesh.data)
+    co = mesh_coords(mesh.data)
     return {n: w @ co[idx] for n, (idx, w) in vertex_group_bindings(mesh).items()}
 
 
@@ -142,7 +142,7 @@ def skin(mesh, armature, *, sigma=0.009, mouth_z=None, eye_z=None, fallback=None
     mouth (eye) line upper and lower vertices take only bones of their side ("lip.T" / "lip.B",
     "lid.T" / "lid.B"; jaw and chin count as lower). Vertices far from every bone go to ``fallback``.
     """
-    co = _coords(mesh.data)
+    co = mesh_coords(mesh.data)
     to_mesh = np.linalg.inv(np.array(mesh.matrix_world)) @ np.array(armature.matrix_world)
     bpy.context.view_layer.update()
     bones = [b for b in armature.data.bones if b.use_deform and _at_rest(armature.pose.bones[b.name])]

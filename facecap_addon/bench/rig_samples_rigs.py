@@ -76,6 +76,17 @@ RIGIFY_KEEP = ("spine.004", "spine.005", "spine.006")
 def build_rigify_face(mesh, *, say=None):
     """(face, rig): Rigify's face fitted to ``mesh`` and generated; a shape-key-free copy of
     ``mesh`` skinned to its deforming bones. Needs the Rigify add-on that ships with Blender."""
+    return _build_rigify(mesh, say=say, head_only=True)
+
+
+def build_rigify_human(mesh, *, say=None):
+    """(face, rig): the whole Rigify human (Add > Armature > Human, 700 bones once generated) with
+    its face fitted to ``mesh``, and a copy of ``mesh`` parented to it with automatic weights, as a
+    user makes it."""
+    return _build_rigify(mesh, say=say, head_only=False)
+
+
+def _build_rigify(mesh, *, say=None, head_only=True):
     if addon_utils.check("rigify")[1] is False and not addon_utils.enable("rigify", default_set=True):
         raise FacecapError("the Rigify add-on could not be enabled (it ships with Blender as 'rigify')")
     points = marker_points(mesh)
@@ -83,15 +94,17 @@ def build_rigify_face(mesh, *, say=None):
     bpy.ops.object.armature_human_metarig_add()
     meta = bpy.context.active_object
     meta.matrix_world = np.eye(4).tolist()
-    keep = {b.name for b in meta.data.bones["spine.006"].children_recursive} | set(RIGIFY_KEEP)
     eb = _edit(meta)
-    for b in list(eb):
-        if b.name not in keep:
-            eb.remove(b)
-    eb["spine.004"].use_connect, eb["spine.004"].parent = False, None
+    if head_only:
+        keep = {b.name for b in meta.data.bones["spine.006"].children_recursive} | set(RIGIFY_KEEP)
+        for b in list(eb):
+            if b.name not in keep:
+                eb.remove(b)
+        eb["spine.004"].use_connect, eb["spine.004"].parent = False, None
     landmarks = np.array([getattr(eb[b], end) for b, end, _ in RIGIFY_LANDMARKS], dtype=np.float64)
     bpy.ops.object.mode_set(mode="OBJECT")
-    meta.pose.bones["spine.004"].rigify_parameters.connect_chain = False
+    if head_only:
+        meta.pose.bones["spine.004"].rigify_parameters.connect_chain = False
     target = np.array([points[m] for _, _, m in RIGIFY_LANDMARKS])
     sim = fit_similarity(target, landmarks)  # the face's own space -> the metarig's (at the origin)
     if say:
@@ -101,13 +114,22 @@ def build_rigify_face(mesh, *, say=None):
     if rig is None:
         raise FacecapError("Rigify generated no rig")
     meta.hide_set(True)
-    face = bone_only_copy(mesh, mesh.name + "Rigify", keep_keys=True)
-    face.parent = rig
-    face.matrix_parent_inverse = np.eye(4).tolist()
+    face = bone_only_copy(mesh, mesh.name + ("Rigify" if head_only else "Human"), keep_keys=True)
     M = np.eye(4)  # the face keeps its own units in its data; its object transform puts it on the rig
     M[:3, :3], M[:3, 3] = sim.scale * np.asarray(sim.rotation), sim.translation
+    if head_only:
+        face.parent = rig
+        face.matrix_parent_inverse = np.eye(4).tolist()
+        face.matrix_world = Matrix(M.tolist())
+        bpy.context.view_layer.update()
+        mouth, eye = face_lines(points)
+        skin(face, rig, mouth_z=mouth, eye_z=eye, fallback="DEF-spine.006", sigma=0.008)
+        return face, rig
     face.matrix_world = Matrix(M.tolist())
     bpy.context.view_layer.update()
-    mouth, eye = face_lines(points)
-    skin(face, rig, mouth_z=mouth, eye_z=eye, fallback="DEF-spine.006", sigma=0.008)
+    bpy.ops.object.select_all(action="DESELECT")
+    face.select_set(True)
+    rig.select_set(True)
+    bpy.context.view_layer.objects.active = rig
+    bpy.ops.object.parent_set(type="ARMATURE_AUTO")  # Ctrl-P > With Automatic Weights
     return face, rig

@@ -30,7 +30,7 @@ config-docs [--out PATH] [--commands PATH]
 docs-images [--out DIR]       render the documentation's pictures (docs/images) from the sample character
 template fetch | convert PATH install the optional human template: download ICT-FaceKit, or convert a download
                               (zip or folder); hash-checked; `template info`: where it is (docs/strategies.md)
-rig-bench [--capture FILE]    the test rigs' figures (control rig, correctives, Rigify face; --docs DIR: its picture)
+rig-bench [--capture FILE]    the test rigs' figures (control, mixed bone/slider, Rigify face and human rigs)
 build-extension [--out DIR]   build and validate the Blender extension zips, one per Blender generation
                               and platform, with the locked scipy/OpenCV wheels (docs/install.md)
 landmark-models [fetch|info]  put MediaPipe's face-mesh models (from the locked mediapipe wheel) into the
@@ -69,9 +69,9 @@ COMMANDS = {
               "with its ratio and goal."),
     "docs-images": ("render the documentation's pictures from the sample character",
                     "Render the documentation's pictures (docs/images) from the sample character, headless."),
-    "rig-bench": ("the test rigs' figures (control rig, correctives, Rigify face from a capture)",
-                  "Solve the test rigs (a control rig with correctives, a bone-only face, a Rigify face) from known "
-                  "control curves and a real capture, and print their figures as JSON."),
+    "rig-bench": ("the test rigs' figures (control, mixed bone/slider, Rigify face and human rigs)",
+                  "Solve the test rigs (a control rig with correctives, a rig mixing bones and sliders, a Rigify face, "
+                  "the whole Rigify human) from known control curves and a real capture; print their figures as JSON."),
     "template": ("install the optional human template (download ICT-FaceKit or convert a copy); where it is", None),
     "build-extension": ("build the Blender extension zips (per Blender generation and platform)", None),
     "landmark-models": ("put the face-landmark models into the facecap cache; fetch: the Face Landmarker bundle",

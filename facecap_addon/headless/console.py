@@ -15,8 +15,10 @@ import contextlib
 import ctypes
 import logging
 import os
+import re
 import signal
 import sys
+import tempfile
 import threading
 import warnings
 
@@ -152,6 +154,56 @@ def _is_fd1(stream):
         return stream.fileno() == 1
     except (AttributeError, OSError, ValueError):
         return False
+
+
+#: The first line of Blender's report on a driver it could not run (C code, file descriptor 2), and the
+#: lines that follow it: the target, blank lines, a syntax error's excerpt.
+_DRIVER_ERROR = re.compile(r"^\s*(BPY_driver_exec:|Error in PyDriver:)")
+_DRIVER_MORE = re.compile(r"^(\s*$|For target:|  File \"<bpy driver>\"|    |\w*Error: )")
+
+
+@contextlib.contextmanager
+def driver_errors_to_debug():
+    """Within the block (a .blend's load and the depsgraph's first update: where Blender evaluates a
+    driver for the first time, and reports one that cannot run, once), Blender's own lines about such
+    drivers become debug lines of ``blender_log`` (``--verbose`` shows them; facecap names those
+    drivers once itself, ``rig.drivers``); anything else written to stderr is written there after."""
+    try:
+        sys.stderr.flush()
+        _flush_c_stdio()
+        real = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no file descriptor 2
+        yield
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            try:
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
+            _flush_c_stdio()
+            os.dup2(real, 2)
+            os.close(real)
+            held.seek(0)
+            _sort_stderr(held.read().decode("utf-8", "backslashreplace").splitlines(keepends=True))
+
+
+def _sort_stderr(lines):
+    """Blender's driver reports to the debug log, the rest back to stderr (in order)."""
+    block, rest = False, []
+    for line in lines:
+        block = bool(_DRIVER_ERROR.match(line)) or (block and bool(_DRIVER_MORE.match(line)))
+        if block:
+            if line.strip():
+                blender_log.debug(line.rstrip())
+        else:
+            rest.append(line)
+    if rest:
+        sys.stderr.write("".join(rest))
+        sys.stderr.flush()
 
 
 def _log_lines(fd):

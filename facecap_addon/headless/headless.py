@@ -40,7 +40,7 @@ from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_
                           start_blender, target_changed)
 from .landmark_take import hold_gaze, read_landmarks, with_scores
 from ..render.review import read_review_truth, write_take_review
-from .take_request import corrections_for, rig_request, shape_names, source_fields
+from .take_request import corrections_for, rig_request, shape_names, source_fields, with_driven_keys
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
@@ -91,6 +91,8 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
     timings = {}
     take, obj, timings["read"], t_open = _read_and_open(config, say, base, quiet=quiet)
     said = len(take.notes)  # said by _read_and_open
+    config, driven = with_driven_keys(config, obj, take)
+    take.notes = tuple(take.notes) + driven
     changed = target_changed(config.target_blend) if base.mode == "added" else None
     if changed:
         take.notes = tuple(take.notes) + (changed,)
@@ -299,11 +301,14 @@ def open_target(config, say, base=None):
     bpy = start_blender()
 
     base = base or Base(config.target_blend, "new")
+    if base.path is not None and not base.path.is_file():
+        raise InputFileError(base.path, "file not found (config [target] blend)")
     if base.path is not None:
-        if not base.path.is_file():
-            raise InputFileError(base.path, "file not found (config [target] blend)")
         say(f"[2/5] opening {base.path}" + (" (adding to it)" if base.mode == "added" else ""))
-        open_blend(base.path, "the existing [output] blend" if base.mode == "added" else "[target] blend")
+    with console.driver_errors_to_debug():  # Blender's lines on drivers that cannot run: facecap names them once
+        if base.path is not None:
+            open_blend(base.path, "the existing [output] blend" if base.mode == "added" else "[target] blend")
+        bpy.context.view_layer.update()  # every driver's first evaluation
     where = "the existing [output] blend (--replace starts from [target] blend)" if base.mode == "added" \
         else base.path.name if base.path is not None else "the open file"
     check_scene_names(config, *names_in_file(config.target_object), where=where)  # before anything is solved

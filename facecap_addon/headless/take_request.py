@@ -1,10 +1,15 @@
 """Pieces of a headless take's solve request that do not need the take's character: the request of a take
-whose target is a rig, the animator's corrections, the report's source fields."""
+whose target is a rig, what to do with shape keys that drivers set, the animator's corrections, the
+report's source fields."""
 
+import dataclasses
+
+from ...solvers.config.rig import RigSettings
 from ...solvers.errors import ConfigError
 from ...solvers.solve import SolveRequest
 from ...solvers.tuning.store import load_version, read_corrections_csv
 from ...solvers.video.flow_config import LandmarkTake
+from ..rig import drivers
 
 
 def rig_request(config, obj, take, *, tune, say, progress=None):
@@ -21,6 +26,23 @@ def rig_request(config, obj, take, *, tune, say, progress=None):
                            mu=None if tuning is None else tuning.mu, parent="" if version is None else version.name,
                            controls=config.controls or None, rig=target)
     return request, {**source_fields(config, take), "rig": fields}
+
+
+def with_driven_keys(config, obj, take):
+    """(config, notes): a shape-key take onto a mesh some of whose keys drivers set. Where every such
+    driver reads only the mesh's own keys (correctives, in-betweens) and the solve is geometric on
+    3D markers, the take is solved as the ``shape_keys`` rig (the driven keys fire through their
+    drivers); otherwise they are left out of the solve (``scene_data.solvable_blocks``) and named."""
+    if config.rig is not None or take.markers is None or getattr(obj, "type", None) != "MESH":
+        return config, ()
+    found = drivers.driven_keys(obj)
+    if not found:
+        return config, ()
+    if config.settings.strategy == "geometric" and take.markers.dim == 3 and drivers.solved_through_drivers(obj):
+        note = (f"{len(found)} shape key(s) of '{obj.name}' are set by drivers on its own keys ({', '.join(sorted(found)[:6])}"
+                f"{'...' if len(found) > 6 else ''}): solved through their drivers, as [rig] preset = \"shape_keys\"")
+        return dataclasses.replace(config, rig=RigSettings(preset="shape_keys")), (note,)
+    return config, (drivers.left_out_note(obj, found),)
 
 
 def shape_names(character):

@@ -11,14 +11,20 @@ Skinning is linear in the vertices, so the bound points are folded once per eval
 deforming bone b the sampled, weighted rest vertices K_b (and one K_b per shape key that a driver or
 a control moves). A pose then costs O(markers x bones): points = sum_b R_b K_b + t_b k_b, where R_b,
 t_b is the bone's skinning matrix. While evaluating, the mesh itself is hidden from the depsgraph so
-Blender does not deform the whole mesh for nothing (numpy mode only; restored afterwards).
+Blender does not deform the whole mesh for nothing (numpy mode only; restored afterwards), and a
+big armature is evaluated through a proxy holding only the bones the bound points depend on
+(``rig_proxy``: the face of a whole Rigify human, not its 700 bones).
 """
+
+import contextlib
+import dataclasses
 
 import numpy as np
 
 from ...solvers.engine.threads import single_blas_thread
 from ...solvers.errors import FacecapError
 from ..scene.scene_data import vertex_group_bindings
+from . import rig_proxy
 
 #: Largest difference (metres) between the numpy path and Blender's evaluated mesh that is accepted.
 CHECK_TOLERANCE = 1e-6
@@ -58,10 +64,14 @@ class RigEvaluator:
                 self.sample[m, pos[v]] += wt
         self._read_shape_keys()
         self._read_skin()
+        self.proxy, self.posed, self._controls = None, self.armature, self.controls
         self._setters = [c.set if reference else c.setter() for c in self.controls]
         self.folded = None if reference else self._fold()
         self.mode = "numpy"
         self.evaluations = 0
+        self._driven = [self.blocks[k] for k in self._live_blocks(drivers_only=True)] if self.blocks else []
+        self._driven_rest = np.array([b.value for b in self._driven])
+        self._driven_moved = np.zeros(len(self._driven), dtype=bool)
         saved = self.current()
         try:
             self.neutral = self._points_blender(self.rest())
@@ -70,7 +80,32 @@ class RigEvaluator:
         finally:
             self.apply(saved)
             self.bpy.context.view_layer.update()
+        self._use_proxy()
 
+    def _use_proxy(self):
+        """Evaluate a big armature through a proxy of the bones the bound points need (numpy path;
+        not when the mesh's shape keys read the armature: the proxy would not drive them)."""
+        if self.reference or self.mode != "numpy" or self.folded is None or self.armature is None or not self.bones:
+            return
+        arm = self.armature
+        key_ad = self.key.animation_data if self.key is not None else None
+        if key_ad is not None and any(t.id in (arm, arm.data) for fc in key_ad.drivers
+                                      for v in fc.driver.variables for t in v.targets):
+            return
+        bones = list(self.bones) + [c.path.split('"')[1] for c in self.controls if c.owner == arm and '"' in c.path]
+        try:
+            proxy = rig_proxy.make_proxy(arm, bones)
+        except RuntimeError:  # edit mode refused (another object held in a mode): the whole armature
+            return
+        if proxy is None:
+            return
+        controls = [dataclasses.replace(c, owner=proxy) if c.owner == arm else c for c in self.controls]
+        if not rig_proxy.matches(proxy, arm, self.controls, controls, self.bones):
+            rig_proxy.remove_proxies()
+            return
+        self.proxy, self.posed, self._controls = proxy, proxy, controls
+        self._setters = [c.setter() for c in controls]
+        self.bone_index = [proxy.pose.bones.find(b) for b in self.bones]
     # -- reading the mesh once ---------------------------------------------------------------------
     def _read_shape_keys(self):
         me, V = self.mesh.data, self.vertices
@@ -142,7 +177,7 @@ class RigEvaluator:
 
     # -- controls ----------------------------------------------------------------------------------
     def current(self):
-        return np.array([c.get() for c in self.controls], dtype=np.float64)
+        return np.array([c.get() for c in self._controls], dtype=np.float64)
 
     def rest(self):
         return np.array([c.rest for c in self.controls], dtype=np.float64)
@@ -154,11 +189,14 @@ class RigEvaluator:
                 put(float(v))
 
     # -- the folded skin: per-bone sums of the sampled vertices --------------------------------------
-    def _live_blocks(self):
+    def _live_blocks(self, drivers_only=False):
         """Indices of the shape keys whose value can change while evaluating: a control's or driven."""
         ad = self.key.animation_data if self.key is not None else None
         moved = {d.data_path for d in ad.drivers} if ad is not None else set()
-        moved |= {c.path for c in self.controls if c.owner == self.key}
+        if drivers_only:
+            moved -= {c.path for c in self.controls if c.owner == self.key}
+        else:
+            moved |= {c.path for c in self.controls if c.owner == self.key}
         return [k for k, b in enumerate(self.blocks) if b.path_from_id("value") in moved]
 
     def _fold(self):
@@ -199,9 +237,9 @@ class RigEvaluator:
 
     def _skin_matrices(self):
         """(B, 4, 4) the deforming bones' skinning matrices in the mesh's space."""
-        n = len(self.armature.pose.bones)
+        n = len(self.posed.pose.bones)
         buf = np.empty(n * 16, dtype=np.float32)
-        self.armature.pose.bones.foreach_get("matrix", buf)
+        self.posed.pose.bones.foreach_get("matrix", buf)
         pose = buf.reshape(n, 4, 4).transpose(0, 2, 1).astype(np.float64)[self.bone_index]
         to_arm = np.linalg.inv(_matrix(self.armature.matrix_world)) @ _matrix(self.mesh.matrix_world)
         return np.linalg.inv(to_arm) @ (pose @ self.rest_inv) @ to_arm
@@ -295,7 +333,11 @@ class RigEvaluator:
         held = saved
         hidden = self._hide_mesh() if self.mode == "numpy" else None
         try:
-            with single_blas_thread():  # tiny products per pose: BLAS threads only contend
+            with contextlib.ExitStack() as stack:
+                if self.proxy is not None:  # the proxy in the scene, the original out of it
+                    stack.enter_context(rig_proxy.linked(self.proxy, self.armature))
+                stack.callback(self.apply, saved)
+                stack.enter_context(single_blas_thread())  # tiny products per pose: BLAS threads only contend
                 for i, row in enumerate(values):
                     if self.mode == "numpy":
                         self.apply(row, held)
@@ -304,15 +346,31 @@ class RigEvaluator:
                         out[i] = self._points()
                     else:
                         out[i] = self._points_blender(row)
+                    if self._driven:
+                        now = np.array([b.value for b in self._driven])
+                        self._driven_moved |= np.abs(now - self._driven_rest) > 1e-6
                     if progress is not None and i % 64 == 63 and progress(i + 1, len(values)) is False:
                         raise FacecapError("rig evaluation cancelled")
         finally:
-            self.apply(saved)
             if hidden is not None:
                 self.mesh.hide_viewport = hidden
             update()
         self.evaluations += len(values)
         return out
+
+    def close(self):
+        """Remove the proxy armature (``rig_proxy``): evaluations after it use the whole armature."""
+        if self.proxy is not None:
+            self.proxy = None
+            self.posed, self._controls = self.armature, self.controls
+            self._setters = [c.setter() for c in self.controls]
+            self.bone_index = [self.armature.pose.bones.find(b) for b in self.bones]
+            rig_proxy.remove_proxies()
+
+    def still_driven(self):
+        """Names of the driven shape keys that no evaluation so far has moved from their rest value:
+        their drivers read nothing the controls move (or could not run)."""
+        return [b.name for b, moved in zip(self._driven, self._driven_moved) if not moved]
 
     def deltas(self, offsets):
         """Displacement of the bound points (N, M, 3) from the rest pose for control offsets from rest."""

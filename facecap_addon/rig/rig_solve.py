@@ -12,16 +12,28 @@ import time
 import bpy
 import numpy as np
 
+from ...solvers.config.rig import RigSettings
 from ...solvers.errors import ConfigError, FacecapError
 from ...solvers.pipeline.binding import from_record
 from ...solvers.rig import PoseLibrary, RigTarget, probe_rig_steps, run_steps
 from ...solvers.video.reading import Cancelled
-from ..scene import anim
-from .rig_drivers import left_out_warning, unrunnable_drivers
+from ..scene import anim, layers
+from . import drivers
 from .rig_eval import RigEvaluator
+from .rig_proxy import remove_proxies
 from .rig_keying import key_controls
 from .rig_target import driver_pairs, preset_controls, spec_controls
 from ..scene.scene_binding import geometric_character
+
+
+def rig_settings(settings):
+    """``RigSettings`` of the Solve panel's rig target (``settings``: the scene's facecap settings;
+    None: the shape keys)."""
+    if settings.rig_preset == "NONE":
+        return None
+    return RigSettings(preset=settings.rig_preset, object=settings.rig_object.name if settings.rig_object else None,
+                       method=settings.rig_method, poses=settings.rig_poses.name if settings.rig_poses else None,
+                       nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
 
 
 def rig_controls(rig_settings, mesh):
@@ -92,7 +104,7 @@ def rig_binding(mesh, markers, settings, binding):
     if mesh.data.shape_keys is None:
         raise FacecapError(f"[binding] mode \"{binding.mode}\" binds on a mesh with shape keys; '{mesh.name}' has "
                            "none: name vertex groups after the markers instead")
-    bound = geometric_character(mesh, markers, settings, binding, rebind=True)
+    bound = geometric_character(mesh, markers, settings, binding, rebind=True, driven=True)
     sampling, _, _ = from_record(bound.record, len(mesh.data.vertices), markers.names)
     return {n: (np.asarray(c, dtype=np.intp), np.asarray(w, dtype=np.float64)) for n, (c, w) in sampling.items()}
 
@@ -113,9 +125,9 @@ def build_rig_target(mesh, marker_names, rig_settings, *, say=None, progress=Non
                                    chunk=4 * PROBE_CHUNK if progress is not None else None, reference=reference)
     target, controls = run_steps(
         steps, progress, lambda done, planned: Cancelled(f"rig probing cancelled after {done} of {planned} poses"))
-    left_out = unrunnable_drivers(mesh, controls)  # the rig evaluated: Blender has marked what it could not run
-    if left_out:  # never silent: the solve's warnings (and the report's ``rig`` section) name them
-        target.info.update(drivers_left_out=left_out, warnings=[left_out_warning(left_out)])
+    left_out = drivers.unrunnable(drivers.rig_ids(mesh, controls))  # the rig evaluated: Blender marked what failed
+    if left_out:  # in the report's ``rig`` section; the solve's warning is rig_notes'
+        target.info.update(drivers_left_out=[f"{owner} {what}" for owner, _, what, _ in left_out])
     return target, controls
 
 
@@ -138,6 +150,7 @@ def build_rig_target_steps(mesh, marker_names, rig_settings, *, say=None, bindin
             raise FacecapError(f"[rig] poses: no action named '{rig_settings.poses}'")
         library = pose_library(action, controls)
         deltas = evaluator.deltas(library.poses - rest)
+        evaluator.close()
         basis = library.basis(evaluator.marker_names, evaluator.neutral, deltas)
         info.update(poses=len(library.pose_names), seconds=round(time.perf_counter() - t0, 3))
         return RigTarget("poses", library=library, library_basis=basis, info=info), controls
@@ -148,19 +161,38 @@ def build_rig_target_steps(mesh, marker_names, rig_settings, *, say=None, bindin
                                                n_random=rig_settings.probes, chunk=chunk)
     info.update(report.as_dict())
     info["seconds"] = round(time.perf_counter() - t0, 3)
+    notes = rig_notes(mesh, controls, evaluator)
     if say is not None:
         say(f"rig: {len(controls)} controls probed with {report.probes} poses in {info['seconds']:.1f} s "
             f"({len(report.pairs)} pairwise terms; model error {report.holdout_rms * 1e3:.3f} mm on held-out poses)")
     evaluate = evaluator.deltas if rig_settings.refine else None
     stride = max(1, -(-int(n_frames or 0) // REFINE_EVALUATIONS))
     target = RigTarget("probed", model=model, nonlinear=rig_settings.nonlinear, evaluate=evaluate,
-                       refine_stride=stride, info=info, reference=reference)
+                       refine_stride=stride, info=info, reference=reference, notes=notes)
     return target, controls
+
+
+def rig_notes(mesh, controls, evaluator):
+    """Warnings on the rig's drivers once probed: those Blender could not run (named once, with how
+    to trust the file), and the driven shape keys no control moved (left out of the solve)."""
+    notes = []
+    broken = drivers.unrunnable(drivers.rig_ids(mesh, controls))
+    if broken:
+        notes.append(drivers.unrunnable_note(broken))
+    named = {path for _, path, _, _ in broken}
+    still = [n for n in evaluator.still_driven() if layers.shape_path(n) not in named]
+    if still:
+        notes.append(f"{len(still)} driven shape key(s) of '{mesh.name}' do not move with the rig's controls (their "
+                      f"drivers read nothing the controls move): left out of the solve: "
+                      f"{', '.join(still[:8])}{'...' if len(still) > 8 else ''}")
+    return tuple(notes)
 
 
 def key_rig(rig_settings, mesh, result, action_name, *, take_name=""):
     """Key ``result`` (over the controls of ``rig_settings``) as the solve layer of the IDs the
-    controls live on; returns the first new action (the one with the diagnostics)."""
+    controls live on; returns the first new action (the one with the diagnostics). The solve is
+    over: the proxies its evaluations used are removed first."""
+    remove_proxies()
     return key_controls(rig_controls(rig_settings, mesh), result, action_name, take_name=take_name)[0]
 
 

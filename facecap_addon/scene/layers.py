@@ -121,6 +121,36 @@ def blend(lower, upper, mode, influence):
     raise FacecapError(f"unknown NLA blend mode '{mode}'")
 
 
+def continue_without(id_data, curves, frames):
+    """Continue ``id_data``'s animator layer as a copy without its keys on ``curves`` ((data path,
+    index), ...) at ``frames``; the animator's action itself is kept unchanged (a fake user). Curves
+    left without keys are removed (an empty curve would evaluate to 0). Returns the new action, or
+    None when there is no animator layer."""
+    ad = id_data.animation_data
+    if ad is None or ad.action is None:
+        return None
+    old = ad.action
+    old.use_fake_user = True
+    slot = getattr(getattr(ad, "action_slot", None), "identifier", None)
+    new = old.copy()
+    new.name = anim.unique_action_name(f"{old.name} tuned")
+    ad.action = new
+    if anim.LAYERED_ACTIONS and slot is not None:
+        match = next((s for s in new.slots if s.identifier == slot), None)
+        if match is not None:
+            ad.action_slot = match
+    wanted = {round(float(f)) for f in frames}
+    for fc in anim.action_fcurves(new, id_data):
+        if (fc.data_path, fc.array_index) not in curves:
+            continue
+        for point in [p for p in fc.keyframe_points if round(p.co[0]) in wanted][::-1]:
+            fc.keyframe_points.remove(point, fast=True)
+        fc.update()
+        if not len(fc.keyframe_points):
+            anim.remove_fcurve(new, fc)
+    return new
+
+
 def layer_values(key, names, frames):
     """Solve layer and final (solve + animator layer) values of shapes ``names`` at ``frames``.
 

@@ -53,21 +53,22 @@ def mode_family(mode):
     return str(mode).split(" ")[0]
 
 
-def geometric_character(obj, markers, settings, binding, *, rebind=False, store=True):
+def geometric_character(obj, markers, settings, binding, *, rebind=False, store=True, driven=False):
     """The character as the geometric strategy sees it (``BoundCharacter``), bound as ``binding``
-    (BindingSettings) says.
+    (BindingSettings) says; its shapes leave out the keys drivers set unless ``driven`` (a rig's
+    binding, whose keys its drivers set).
 
     Vertex groups are read every time. A binding by position stored on ``obj`` in the same mode is
     used as it is unless ``rebind``; otherwise the markers are bound and, with ``store``, the
     binding is stored on ``obj``.
     """
     if not binding.by_position:
-        basis = basis_from_object(obj, markers.names)
+        basis = basis_from_object(obj, markers.names, driven=driven)
         table = {n: (n in basis.marker_names, None) for n in markers.names}
         missing = [n for n, (ok, _) in table.items() if not ok]
         notes = (f"{len(missing)} marker(s) have no vertex group on '{obj.name}': {missing}",) if missing else ()
         return BoundCharacter(basis, "vertex_groups", table, None, notes)
-    mesh = mesh_from_object(obj)
+    mesh = mesh_from_object(obj, driven=driven)
     record = None if rebind else stored_record(obj)
     if record is not None and mode_family(record.get("mode")) == binding.mode:
         try:
@@ -126,7 +127,7 @@ def draw_points(scene, obj, record):
         coll = bpy.data.collections.new(COLLECTION)
     if coll.name not in scene.collection.children:
         scene.collection.children.link(coll)
-    mesh = mesh_from_object(obj)
+    mesh = mesh_from_object(obj, driven=True)  # its size only
     m = len(record["names"])
     corners = np.asarray(record["corners"], dtype=np.int64).reshape(m, 3)
     bary = np.asarray(record["barycentric"], dtype=np.float64).reshape(m, 3)

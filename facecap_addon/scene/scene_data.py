@@ -6,14 +6,27 @@ import numpy as np
 from ...solvers.character.basis import Basis
 from ...solvers.character.mesh import CharacterMesh
 from ...solvers.errors import FacecapError
+from ..rig.drivers import driven_keys
 
 
 def shape_key_names(obj):
-    """Names of the solvable shape keys of ``obj`` (every key block except the reference)."""
+    """Names of the shape keys of ``obj`` (every key block except the reference)."""
     key = getattr(obj.data, "shape_keys", None)
     if key is None:
         return ()
     return tuple(b.name for b in key.key_blocks if b != key.reference_key)
+
+
+def solvable_blocks(obj, *, driven=False):
+    """The key blocks of ``obj`` a solve drives: every one but the reference and, unless ``driven``,
+    those a driver sets (``rig.drivers``: at playback the driver would override their keys)."""
+    key = obj.data.shape_keys
+    skip = set() if driven else set(driven_keys(obj))
+    blocks = [b for b in key.key_blocks if b != key.reference_key and b.name not in skip]
+    if not blocks:
+        raise FacecapError(f"every shape key of '{obj.name}' is set by a driver, which would override any key: "
+                           "solve the controls the drivers read instead ([rig]: a preset or named controls)")
+    return blocks
 
 
 def _coords(collection, n):
@@ -44,8 +57,9 @@ def vertex_group_bindings(obj, names=None):
     return bindings
 
 
-def basis_from_object(obj, marker_names=None):
-    """Sample ``obj``'s shape keys at the weighted centroids of its marker vertex groups.
+def basis_from_object(obj, marker_names=None, *, driven=False):
+    """Sample ``obj``'s shape keys (without the driven ones unless ``driven``) at the weighted
+    centroids of its marker vertex groups.
 
     Parameters
     ----------
@@ -89,9 +103,7 @@ def basis_from_object(obj, marker_names=None):
 
     neutral = sample(block_coords(ref))
     shapes, deltas, lo, hi = [], [], [], []
-    for block in key.key_blocks:
-        if block == ref:
-            continue
+    for block in solvable_blocks(obj, driven=driven):
         rel = block.relative_key if block.relative_key is not None else ref
         deltas.append(sample(block_coords(block)) - sample(block_coords(rel)))
         shapes.append(block.name)
@@ -112,9 +124,9 @@ def _group_members(obj):
     return members
 
 
-def mesh_from_object(obj):
-    """``obj``'s rest surface (reference shape key), loop triangles, vertex groups and shape keys as a
-    ``CharacterMesh`` (local space). Coordinates are read in bulk (``foreach_get``); a shape key's
+def mesh_from_object(obj, *, driven=False):
+    """``obj``'s rest surface (reference shape key), loop triangles, vertex groups and shape keys
+    (without the driven ones unless ``driven``) as a ``CharacterMesh`` (local space). Coordinates are read in bulk (``foreach_get``); a shape key's
     deltas are read when a binding asks for them, at the vertices it needs.
 
     ``mm_per_unit`` is 1000 x the scene's unit scale x the object's mean world scale.
@@ -136,7 +148,7 @@ def mesh_from_object(obj):
     names = {vg.index: vg.name for vg in obj.vertex_groups}
     groups = {names[i]: (np.asarray(idx, dtype=np.int64), np.asarray(w) / np.sum(w))
               for i, (idx, w) in _group_members(obj).items() if i in names}
-    blocks = [b for b in key.key_blocks if b != ref]
+    blocks = solvable_blocks(obj, driven=driven)
 
     def deltas_at(ids):
         ids = np.asarray(ids, dtype=np.int64)

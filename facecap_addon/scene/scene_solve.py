@@ -16,7 +16,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...solvers.config.rig import RigSettings
 from ...solvers.errors import FacecapError
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve, solve_job
@@ -24,7 +23,9 @@ from ...solvers.video.fusion import FaceScores
 from ...solvers.video.reading import Cancelled
 from ..headless.landmark_take import neutral_indices
 from . import anim, layers, take
-from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding
+from ..rig.drivers import left_out_note
+from ..rig.rig_proxy import remove_proxies
+from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding, rig_settings
 from .landmark_scores import scores_from_collection
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
@@ -45,6 +46,7 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     rsettings = replace(take.retarget_settings(settings), strategy=strategy)
     if settings.rig_preset != "NONE" and footage is None:
         return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu, controls=controls)
+    driven = left_out_note(settings.target)
     if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
@@ -61,7 +63,8 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
                         parent=settings.library_active or "", controls=controls, fps=settings.fps,
-                        scores=None if markers is None else landmark_scores(settings, markers, rsettings))
+                        scores=None if markers is None else landmark_scores(settings, markers, rsettings),
+                        notes=(driven,) if driven else ())
 
 
 def landmark_scores(settings, markers, rsettings):
@@ -73,14 +76,6 @@ def landmark_scores(settings, markers, rsettings):
     neutral = neutral_indices(rsettings, markers)
     return None if neutral is None or not len(neutral) else FaceScores(found[0], found[1], neutral)
 
-
-def rig_settings(settings):
-    """``RigSettings`` of the Solve panel's rig target (None: the shape keys)."""
-    if settings.rig_preset == "NONE":
-        return None
-    return RigSettings(preset=settings.rig_preset, object=settings.rig_object.name if settings.rig_object else None,
-                       method=settings.rig_method, poses=settings.rig_poses.name if settings.rig_poses else None,
-                       nonlinear=settings.rig_nonlinear, refine=settings.rig_refine, probes=settings.rig_probes)
 
 
 def _rig_inputs(settings, markers, rsettings):
@@ -243,16 +238,18 @@ class RigSolveSession:
         self._steps = self._run(settings, markers, rsettings, rig, sampling, request)
 
     def _run(self, settings, markers, rsettings, rig, sampling, request):
-        target, _ = yield from build_rig_target_steps(settings.target, markers.names, rig, binding=sampling,
-                                                      n_frames=markers.n_frames, chunk=PROBE_CHUNK)
-        job = solve_job(_rig_solve_request(settings, markers, rsettings, target, **request))
-        self.stage = "solving"
+        job = None
         try:
+            target, _ = yield from build_rig_target_steps(settings.target, markers.names, rig, binding=sampling,
+                                                          n_frames=markers.n_frames, chunk=PROBE_CHUNK)
+            job = solve_job(_rig_solve_request(settings, markers, rsettings, target, **request))
+            self.stage = "solving"
             while not job.step():
                 yield job.done, job.total
         finally:
-            if job.result is None:
+            if job is not None and job.result is None:
                 job.cancel()
+            remove_proxies()  # the rig's evaluations are over (or stopped)
         return job.result
 
     @property

@@ -30,6 +30,7 @@ from ...solvers.strategies.options import (
 from ...solvers.transforms import matrix_to_euler_xyz
 from . import anim, layers, rom_markers
 from .import_scene import pixels_from_scene
+from .scene_data import solvable_blocks
 
 LOCATION = [("location", 0), ("location", 1), ("location", 2)]
 
@@ -186,11 +187,12 @@ def markers_from_empties(coll, names, fps):
 
 
 def character_target(obj):
-    """The character as non-geometric strategies see it: shape-key names and slider ranges."""
+    """The character as non-geometric strategies see it: shape-key names and slider ranges (the keys
+    drivers set left out)."""
     key = getattr(obj.data, "shape_keys", None)
     if key is None or len(key.key_blocks) < 2:
         raise FacecapError(f"object '{obj.name}' has no shape keys to solve for")
-    blocks = [b for b in key.key_blocks if b != key.reference_key]
+    blocks = solvable_blocks(obj)
     return Target(tuple(b.name for b in blocks), np.array([b.slider_min for b in blocks], dtype=np.float64),
                   np.array([b.slider_max for b in blocks], dtype=np.float64))
 

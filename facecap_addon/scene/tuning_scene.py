@@ -1,5 +1,10 @@
 """The scene side of tuning: per-shape controls, library versions, the animator's corrections.
 
+What the loop tunes are the target's shape keys, or, with a rig as the target (Solve > Target), the
+rig's controls: ``channels`` names them, and the corrections, the frames the animator edited and
+the layer continued without them are read from the shape keys' layers (``layers``) or from the
+controls' (``rig.rig_layers``).
+
 Solving itself goes through ``scene_solve`` (the sidebar's side of the one solve path). Library
 versions live in the .blend: a row per version in ``settings.library_versions`` and the
 arrays (``LibraryVersion.to_arrays``) as one compressed ``.npz`` in a scene ID property (base64),
@@ -16,10 +21,61 @@ import numpy as np
 from ...solvers.character.shape_controls import ShapeControl, resolve_controls
 from ...solvers.errors import FacecapError
 from ...solvers.tuning.take import LibraryVersion
+from ..rig import rig_layers
+from ..rig.rig_solve import rig_controls, rig_settings
 from . import anim, layers, take
 
 #: scene ID property holding {version name: base64 npz}
 LIBRARY_PROP = "facecap_libraries"
+
+
+def rig_channels(settings):
+    """The rig's controls the loop tunes (``rig_target.Control``), or None when the target is its shape keys."""
+    rig = rig_settings(settings)
+    return None if rig is None else rig_controls(rig, settings.target)
+
+
+def channels(settings):
+    """Names of what the loop tunes: the rig's controls, or the target's shape keys."""
+    controls = rig_channels(settings)
+    return shape_names(settings.target) if controls is None else [c.name for c in controls]
+
+
+def channel_values(settings, frames):
+    """(names, solve (F, K), final (F, K)): the solve layer and what plays, per tuned channel, at ``frames``."""
+    frames = np.asarray(frames, dtype=np.float64)
+    controls = rig_channels(settings)
+    if controls is not None:
+        return [c.name for c in controls], *rig_layers.layer_values(controls, frames)
+    names = shape_names(settings.target)
+    return names, *layers.layer_values(settings.target.data.shape_keys, names, frames)
+
+
+def solved(settings):
+    """Whether the target (or its rig) has a solve layer to tune."""
+    if settings.target is None:
+        return False
+    if settings.rig_preset != "NONE":
+        try:
+            return rig_layers.solved(rig_channels(settings))
+        except FacecapError:  # the rig's object or controls are gone: nothing to tune
+            return False
+    key = getattr(settings.target.data, "shape_keys", None)
+    return key is not None and layers.solved_action(key) is not None
+
+
+def edited_frames(settings):
+    """Frames the animator keyed above the solve that change what plays."""
+    controls = rig_channels(settings)
+    if controls is not None:
+        return rig_layers.edited_frames(controls)
+    return layers.edited_frames(settings.target.data.shape_keys, shape_names(settings.target))
+
+
+def diagnostics_owner(settings):
+    """The ID whose solve layer carries the residual curve: the shape keys, or the rig's first control's ID."""
+    controls = rig_channels(settings)
+    return settings.target.data.shape_keys if controls is None else controls[0].owner
 
 
 def shape_names(obj):
@@ -136,21 +192,21 @@ def load_version(scene, name):
 
 # -- corrections ------------------------------------------------------------------------------------
 def corrections(settings):
-    """{frame: {shape: final weight}} at the tuning frames: what the animator says is right."""
-    key = settings.target.data.shape_keys
-    names = shape_names(settings.target)
+    """{frame: {shape or control: final value}} at the tuning frames: what the animator says is right."""
     frames = np.array(sorted({t.frame for t in settings.tuning_frames}), dtype=np.float64)
     if not frames.size:
         raise FacecapError("no tuning frames: add the frames you corrected first")
-    _, final = layers.layer_values(key, names, frames)
+    names, _, final = channel_values(settings, frames)
     return {float(f): dict(zip(names, map(float, row))) for f, row in zip(frames, final)}
 
 
 def frame_change(settings, frames):
-    """RMS over the shapes of (final - solve) at ``frames``: how much the animator changed each."""
-    key = settings.target.data.shape_keys
-    solve, final = layers.layer_values(key, shape_names(settings.target), np.asarray(frames, dtype=np.float64))
-    return np.sqrt(np.mean((final - solve) ** 2, axis=1))
+    """RMS over the shapes (a rig's controls: over their ranges) of (final - solve) at ``frames``: how
+    much the animator changed each."""
+    _, solve, final = channel_values(settings, frames)
+    controls = rig_channels(settings)
+    span = 1.0 if controls is None else np.array([max(c.upper - c.lower, 1e-12) for c in controls])
+    return np.sqrt(np.mean(((final - solve) / span) ** 2, axis=1))
 
 
 def take_in_corrections(settings, frames):
@@ -159,33 +215,15 @@ def take_in_corrections(settings, frames):
     After a retune (or a gain/offset fit) the solve itself hits the corrected frames; left in place,
     the correction offsets would count twice. The animator's action is not modified: it keeps a fake
     user and the copy (``<name> tuned``) becomes the active action. Curves left without keys are
-    removed (an empty curve would evaluate to 0). Returns the new action, or None when there is no layer.
+    removed (an empty curve would evaluate to 0). Returns the new action, or None when there is no layer
+    (a rig's: its controls' layers, each continued so; the first new action).
     """
-    key = settings.target.data.shape_keys
-    ad = key.animation_data
-    if ad is None or ad.action is None:
-        return None
-    old = ad.action
-    old.use_fake_user = True
-    slot_name = getattr(getattr(ad, "action_slot", None), "identifier", None)
-    new = old.copy()
-    new.name = anim.unique_action_name(f"{old.name} tuned")
-    paths = {layers.shape_path(n) for n in shape_names(settings.target)}
-    wanted = {round(float(f)) for f in frames}
-    ad.action = new
-    if anim.LAYERED_ACTIONS and slot_name is not None:
-        slot = next((s for s in new.slots if s.identifier == slot_name), None)
-        if slot is not None:
-            ad.action_slot = slot
-    for fc in anim.action_fcurves(new, key):
-        if fc.data_path not in paths:
-            continue
-        for point in [p for p in fc.keyframe_points if round(p.co[0]) in wanted][::-1]:
-            fc.keyframe_points.remove(point, fast=True)
-        fc.update()
-        if not len(fc.keyframe_points):
-            anim.remove_fcurve(new, fc)
-    return new
+    controls = rig_channels(settings)
+    if controls is not None:
+        made = rig_layers.take_in_corrections(controls, frames)
+        return made[0] if made else None
+    curves = {(layers.shape_path(n), 0) for n in shape_names(settings.target)}
+    return layers.continue_without(settings.target.data.shape_keys, curves, frames)
 
 
 TUNE_MARKER = "tune"

@@ -162,8 +162,27 @@ def write_text_atomic(path, text):
         tmp.write_text(text, encoding="utf-8")
 
 
+#: Lists of numbers longer than this (a report's per-frame figures) are written on one line: indented,
+#: json's pure-Python encoder took 0.47 s for the 36,000 residuals of a take's report.
+LONG_LIST = 256
+
+
 def write_json_atomic(path, data):
-    write_text_atomic(path, json.dumps(data, indent=2, default=_json_default) + "\n")
+    lists = []
+
+    def compact(value):
+        if isinstance(value, dict):
+            return {k: compact(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)) and len(value) > LONG_LIST and \
+                all(v is None or type(v) in (int, float) for v in value):
+            lists.append(json.dumps(value, allow_nan=True))
+            return f"@@facecap-list-{len(lists) - 1}@@"
+        return value
+
+    text = json.dumps(compact(data), indent=2, default=_json_default)
+    for i, encoded in enumerate(lists):
+        text = text.replace(f'"@@facecap-list-{i}@@"', encoded, 1)
+    write_text_atomic(path, text + "\n")
 
 
 def _json_default(value):

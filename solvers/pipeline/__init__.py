@@ -34,7 +34,7 @@ from .settings import STRATEGIES, RetargetSettings
 #: Strategies that sample the character's shapes at the bound points (they need a binding).
 SAMPLES_CHARACTER = ("geometric", "semantic")
 
-__all__ = ["RetargetResult", "RetargetSettings", "SAMPLES_CHARACTER", "STRATEGIES", "hold_locks", "jsonable", "retarget",
+__all__ = ["RetargetResult", "RetargetSettings", "SAMPLES_CHARACTER", "STRATEGIES", "hold_locks", "jsonable", "refit_head", "retarget",
            "shape_target"]
 
 
@@ -206,9 +206,9 @@ def _solve(strategy, handed, markers, settings, notes, timings):
         previous, used = res.weights, res.marker_names
         idx = [take.names.index(n) for n in used]
         res = replace(res, solve=None)  # the solve's deltas are not needed to predict: freed first
-        predicted = [_predicted(strategy, res, take, idx)]  # handed over: _refit_head frees it once read
+        predicted = [_predicted(strategy, res, take, idx)]  # handed over: refit_head frees it once read
         gross, res, take = take.stabilise, None, None
-        stab = _refit_head(gross, used, predicted, metres, settings)
+        stab = refit_head(gross, used, predicted, metres, settings)
         take, _ = stages.normalised(stab, settings, [])
         release_freed_memory(take.frames.size)  # long takes: the refit's freed memory, before the solve
         t_refit += time.perf_counter() - t2
@@ -230,7 +230,7 @@ def _motion(deltas):
     return float(np.sqrt(total / count)) if count else 0.0
 
 
-def _refit_head(gross, used, predicted, markers, settings):
+def refit_head(gross, used, predicted, markers, settings):
     """The take's stabilisation ``gross`` refitted on the markers ``used`` against the strategy's
     prediction of them (the array in the list ``predicted``, taken from it: the smoothing does not
     need it, so it is freed once the refit has read it)."""

@@ -7,7 +7,8 @@ semantic shape, columns of the existing solve). ``RigTarget`` carries either thr
 ``solvers.solve`` (``SolveRequest.rig``).
 """
 
-from .model import RigModel, fit_model
+from .fit import fit_model
+from .model import RigModel
 from .nonlinear import NonlinearResult, iterate_nonlinear, solve_nonlinear
 from .poses import PoseLibrary
 from .probe import ProbeReport, probe_rig, probe_rig_steps, run_steps

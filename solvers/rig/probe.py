@@ -8,9 +8,12 @@ Blender evaluates (``facecap_addon.rig.rig_eval``); this module only plans and f
    probes must predict the 3/4 probe within ``step_tol``, else the control is reported as uneven,
    its response is not a cubic there, e.g. an in-between or a clamp, and the refinement through
    the rig matters),
+   A control with two sides whose probes no single cubic through rest explains within
+   ``step_tol`` (a joystick moving one shape up and another down) is *split*: a cubic per side,
 2. tests every candidate pair (the rig's product drivers, plus, with ``find_pairs``, every two
-   controls that move a common bound point) at the corner of their spans: the pair gets a term when
-   the mixed difference x(a, b) - x(a, 0) - x(0, b) is above ``pair_tol`` of the larger one alone,
+   controls that move a common bound point) at the corner of their spans (each side of a split
+   control: a quadrant each): the pair gets a term when the mixed difference
+   x(a, b) - x(a, 0) - x(0, b) is above ``pair_tol`` of the larger one alone,
 3. adds random poses with a few controls on at once, fits the model on everything and reports its
    error on a held-out fifth of them.
 """
@@ -20,18 +23,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FacecapError
-from .model import fit_model
+from .fit import fit_model
 
 STEPS = (0.25, 0.5, 0.75, 1.0)
 #: A control's support: the points it moves by at least this share of its own largest reach.
 SUPPORT = 0.05
+#: The width (share of its span) over which a split control's two halves blend about rest.
+KINK = 0.02
 
 
 @dataclass(frozen=True)
 class ProbeReport:
-    """What probing found: probes evaluated, pairs with a term, the fit's RMS at the probes and on
-    held-out random poses (units of the bound points), controls whose checked step failed, and
-    controls that move no bound point."""
+    """What probing found: probes evaluated, pairs with a term (a split control's name ends in + or
+    - for the half the term reads), the fit's RMS at the probes and on held-out random poses (units
+    of the bound points), controls whose checked step failed, controls that move no bound point,
+    and controls modelled per side."""
 
     probes: int
     pairs: tuple
@@ -39,10 +45,12 @@ class ProbeReport:
     holdout_rms: float
     uneven: tuple
     unseen: tuple
+    split: tuple = ()
 
     def as_dict(self):
         return {"probes": self.probes, "pairs": [list(p) for p in self.pairs], "fit_rms": self.fit_rms,
-                "holdout_rms": self.holdout_rms, "uneven_controls": list(self.uneven), "unseen_controls": list(self.unseen)}
+                "holdout_rms": self.holdout_rms, "uneven_controls": list(self.uneven), "unseen_controls": list(self.unseen),
+                "split_controls": list(self.split)}
 
 
 def _axis_offsets(lower, upper):
@@ -132,28 +140,32 @@ def probe_rig_steps(evaluate, control_names, marker_names, neutral, *, rest, low
     moved = seen & (reach >= SUPPORT * reach.max(axis=1, keepdims=True))
     uneven = _uneven(axis_d, which, C, step_tol, control_names)
 
+    span = np.maximum(hi, -lo)
+    kinked = _kinked(axis_d, which, C, step_tol)
+    kink = np.where(kinked, KINK * span, 0.0)
+
     candidates = {(min(a, b), max(a, b)) for a, b in pairs if a != b}
     if find_pairs:
         overlap = moved.astype(np.float64) @ moved.T.astype(np.float64)
         candidates |= {(a, b) for a in range(C) for b in range(a + 1, C) if overlap[a, b] > 0}
-    candidates = sorted(candidates)
-    planned += len(candidates)
+    far = np.where(hi >= -lo, hi, lo)
+    end = {1: hi, -1: lo, 0: far}
+    quadrants = [(a, b, sa, sb) for a, b in sorted(candidates)
+                 for sa in ((1, -1) if kinked[a] else (0,)) for sb in ((1, -1) if kinked[b] else (0,))]
+    planned += len(quadrants)
     kept = []
-    if candidates:
-        far = np.where(hi >= -lo, hi, lo)
-        corner = np.zeros((len(candidates), C))
-        singles = {}
-        for row, (i, t) in enumerate(which):
-            if t == far[i]:
-                singles[i] = axis_d[row]
-        for q, (a, b) in enumerate(candidates):
-            corner[q, a], corner[q, b] = far[a], far[b]
+    if quadrants:
+        singles = {(i, t): axis_d[row] for row, (i, t) in enumerate(which)}
+        corner = np.zeros((len(quadrants), C))
+        for q, (a, b, sa, sb) in enumerate(quadrants):
+            corner[q, a], corner[q, b] = end[sa][a], end[sb][b]
         corner_d = yield from run(corner)
-        for q, (a, b) in enumerate(candidates):
-            mixed = np.abs(corner_d[q] - singles[a] - singles[b]).max()
-            alone = max(np.abs(singles[a]).max(), np.abs(singles[b]).max(), 1e-300)
+        for q, (a, b, sa, sb) in enumerate(quadrants):
+            one, two = singles[(a, end[sa][a])], singles[(b, end[sb][b])]
+            mixed = np.abs(corner_d[q] - one - two).max()
+            alone = max(np.abs(one).max(), np.abs(two).max(), 1e-300)
             if mixed > pair_tol * alone:
-                kept.append((a, b))
+                kept.append((a, b, sa, sb))
     else:
         corner, corner_d = np.zeros((0, C)), np.zeros((0,) + axis_d.shape[1:])
 
@@ -166,11 +178,13 @@ def probe_rig_steps(evaluate, control_names, marker_names, neutral, *, rest, low
     held[: n_random // 5] = True
     fit_u = np.vstack([axis, corner, rand[~held]])
     fit_d = np.concatenate([axis_d, corner_d, rand_d[~held]])
-    model, rms = fit_model(control_names, marker_names, neutral, fit_u, fit_d, pairs=kept, rest=rest, lower=lower,
-                           upper=upper)
+    model, rms = fit_model(control_names, marker_names, neutral, fit_u, fit_d, pairs=[q[:2] for q in kept],
+                           pair_sides=[q[2:] for q in kept], kink=kink, rest=rest, lower=lower, upper=upper)
     holdout = float(np.sqrt(np.mean((model.deltas(rand[held]) - rand_d[held]) ** 2))) if held.any() else float("nan")
-    report = ProbeReport(total[0], tuple((control_names[a], control_names[b]) for a, b in kept), rms, holdout,
-                         uneven, unseen)
+    sign = {0: "", 1: "+", -1: "-"}
+    report = ProbeReport(total[0], tuple((control_names[a] + sign[sa], control_names[b] + sign[sb])
+                                         for a, b, sa, sb in kept), rms, holdout, uneven, unseen,
+                         tuple(n for n, k in zip(control_names, kinked) if k))
     return model, report
 
 
@@ -194,3 +208,22 @@ def _uneven(axis_d, which, C, tol, names):
                 out.append(names[i])
                 break
     return tuple(out)
+
+
+def _kinked(axis_d, which, C, tol):
+    """(C,) bool: the controls with two sides whose probes no single cubic through rest explains
+    within ``tol`` of their largest displacement (their sides act differently: a cubic each)."""
+    rows = {}
+    for row, (i, t) in enumerate(which):
+        rows.setdefault(i, []).append((t, row))
+    out = np.zeros(C, dtype=bool)
+    for i, items in rows.items():
+        ts = np.array([t for t, _ in items])
+        if not (ts > 0).any() or not (ts < 0).any():
+            continue
+        Y = np.stack([axis_d[r].ravel() for _, r in items])
+        V = np.stack([ts, ts ** 2, ts ** 3], axis=1)
+        coef, *_ = np.linalg.lstsq(V, Y, rcond=None)
+        ref = np.abs(Y).max()
+        out[i] = ref > 0 and np.abs(V @ coef - Y).max() > tol * ref
+    return out
