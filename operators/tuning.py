@@ -10,7 +10,7 @@ import numpy as np
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper, ImportHelper
 
-from ..facecap_addon.scene import layers, scene_solve, tuning_scene
+from ..facecap_addon.scene import scene_solve, tuning_scene
 from ..facecap_addon.ui.greyed import needs, unless
 from ..solvers.character.shape_controls import load_preset, save_preset
 from ..solvers.errors import FacecapError

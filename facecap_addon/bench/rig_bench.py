@@ -25,12 +25,11 @@ import numpy as np
 from ...solvers.config import load_take_config
 from ...solvers.io import write_markers
 from ...solvers.io.images import read_tga, write_png
-from ...solvers.io.outputs import check_files_in
 from ...solvers.tools.synthetic.realism.real_captures import FACIAL_SING_LANDMARKS, landmarks_toml
 from ...solvers.tools.synthetic.synth import performance_weights, synthesize_points
 from . import rig_samples, rig_samples_rigs
 from ..rig import rig_target
-from ..render.docs_images import DEFAULT_OUT, compose
+from ..render.docs_images import compose
 from ..headless.headless import run_take
 from ..render.render_state import mark_rendered
 from ..rig import rig_solve

@@ -21,6 +21,7 @@ ADDON_PACKAGES = ("facecap_addon", "operators", "solvers")
 ADDON_DATA = (
     "solvers/tools/report/assets/review.css",
     "solvers/tools/report/assets/review.js",
+    "solvers/video/fusion_table.json",  # the blendshape scores' fusion with the landmark solve, per shape
 )
 
 

@@ -57,7 +57,7 @@ NOT_WRITING = {
               "--batch", "--batch-takes", "--batch-jobs", "--repeat", "--clean", "--memory"),
     "bench --realism": ("--shared", "--draws", "--frames", "--targets", "--layouts", "--methods", "--exact-actor",
                         "--real", "--first-seed", "--actors", "--docs", "--from-json"),
-    "docs-images": ("--size", "--engine", "--solved"),
+    "docs-images": ("--size", "--engine", "--solved", "--pictures"),
     "rig-bench": ("--capture", "--frames", "--sample-frames", "--repeat", "--reference", "--long-only"),
     "template fetch": ("--url", "--keep"),  # the download goes to facecap's cache (its temporaries cleaned)
     "template convert": ("source",),
