@@ -2,7 +2,7 @@
 becomes the button's tooltip (``poll_message_set``, Blender 3.0 on), so an artist reads "Pick the Character
 first" instead of guessing. The same words end the error of a script that calls the operator anyway."""
 
-from ..scene import layers
+from ..scene import tuning_scene
 
 #: What a button may need: (does the scene have it?, what to do when it does not). ``s`` is ``Scene.facecap``.
 NEEDS = {
@@ -17,8 +17,8 @@ NEEDS = {
                         "solve from phone weights"),
     "stable set": (lambda s: s.auto_stable or sum(m.stable for m in s.markers) >= 3,
                    "Tick at least 3 stable markers or Suggest Stable Markers (Stabilise panel)"),
-    "solve": (lambda s: _shape_keys(s) is not None and layers.solved_action(_shape_keys(s)) is not None,
-              "Solve and Key first: there is no solve on the Character yet"),
+    "solve": (lambda s: tuning_scene.solved(s),  # on the shape keys, or on the rig's controls with a rig preset
+              "Solve and Key first: there is no solve on the Character (or its rig) yet"),
     "tuning frames": (lambda s: len(s.tuning_frames) > 0,
                       "Add corrected frames first: Add Current Frame or Add Edited Frames (Tune panel)"),
     "shapes": (lambda s: len(s.shapes) > 0, "Refresh Shapes first (Solve panel: Shapes)"),
