@@ -140,6 +140,18 @@ def test_the_holds_of_an_imperfect_session_are_found_at_their_middles(families, 
     assert within >= 0.95 * total
 
 
+def test_a_rough_prior_does_not_slide_the_poses_along(families):
+    """68 landmarks onto the stylised sample: the character's shapes carried to the actor are a rough prior for the
+    mouth, and an extra expression plus a subtle pose skipped once named every later pose after its neighbour."""
+    family, performances = families["ict"]
+    draw = make_draw(family, performances, 103, layout="landmarks68", frames=200)
+    mesh = make_target("sample", load_ict(SHARED / "data" / "ict-facekit"))
+    character = methods.bound_character(mesh, draw, methods.base_settings(draw))
+    *_, result = methods.run_method("rom51", draw, mesh, None, character=character)
+    within, total = methods.holds_found("rom51", draw, result)
+    assert within >= 0.95 * total  # measured: 51 of 51 (an extra costing as much as a skip: 3 of 51)
+
+
 def test_a_skipped_pose_is_named_and_the_others_keep_their_holds(families):
     draw, session, rom = _rom(families, "facecap", 2, "facecap-24", skip=(5,))
     shapes = sheet_shapes(SHEETS["facecap-24"])
