@@ -28,6 +28,8 @@ import numpy as np
 from ...solvers.character.face_model import CM, ICT_AXES
 from ...solvers.config import load_take_config
 from ...solvers.io.weights import read_weights
+from ...solvers.rom import sequence_poses
+from ...solvers.tools.synthetic.realism.rom import rom_weights
 from ...solvers.video.fusion import FaceScores, FusionTable, fit_table, fuse, neutral_corrected
 from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
 from ...solvers.video.landmarks import track_landmarks
@@ -39,6 +41,14 @@ from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, sha
 
 HOLD = 45
 CHARACTER_SEED = 7
+#: The ROM clips (role "calibrate"): the sheet, filmed at this rate, with holds of 0.5-0.7 s, ramps of 0.15-0.25 s
+#: and rests of 0.3-0.45 s after a lead-in of 1.2-1.5 s (a short session: about 870 frames to render).
+ROM_SHEET, ROM_FPS = "facecap-24", 24.0
+ROM_TIMING = ((1.2, 1.5), (0.15, 0.25), (0.5, 0.7), (0.3, 0.45))
+#: Degrees of the ROM performer's slow head drift (yaw, pitch, roll).
+ROM_HEAD_DEG = (3.0, 2.0, 1.0)
+#: Live Link Face's eye angles per unit of eye-look weight (radians): yaw per (out - in), pitch per (down - up).
+LOOK_YAW, LOOK_PITCH = 0.593, 0.544
 
 
 @dataclass(frozen=True)
@@ -55,6 +65,8 @@ class Clip:
 
     @property
     def name(self):
+        if self.role == "calibrate":  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
+            return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
         return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
 
 
@@ -62,7 +74,9 @@ CLIPS = tuple(
     [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
      for seed in (21, 22) for start in (600, 2100) for az in (0.0, 30.0)]
     + [Clip("report", face, "llf_alex_rom_4.csv", start, az)
-       for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)])
+       for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)]
+    + [Clip("calibrate", face, ROM_SHEET, 38, az, frames=0)
+       for az in (0.0, 30.0) for face in ("facecap", "ict-mean")])
 
 
 def face_arrays(face, shared):
@@ -79,22 +93,51 @@ def face_arrays(face, shared):
     return neutral, quads, names, deltas
 
 
+def rom_performance(names, seed):
+    """A ROM session of :data:`ROM_SHEET` performed imperfectly (``realism.rom``: 80-100 % of each asked shape,
+    neighbours leaking in, wobbling holds) at :data:`ROM_FPS`: (weights (F, K) on ``names``, head (F, 6), gaze
+    (F, 2, 2) from the eye-look weights as Live Link Face relates them, {"performed", "holds", "given"})."""
+    rng = np.random.default_rng(seed)
+    weights, performed, holds, given = rom_weights(names, sequence_poses(ROM_SHEET), rng, fps=ROM_FPS,
+                                                   timing=ROM_TIMING)
+    F = len(weights)
+    t = np.arange(F) / ROM_FPS
+    head = np.zeros((F, 6))
+    for axis, deg in enumerate(ROM_HEAD_DEG):
+        f1, f2 = rng.uniform(0.05, 0.2, size=2)
+        head[:, axis] = np.radians(deg) * 0.5 * (np.sin(2 * np.pi * f1 * t + rng.uniform(0, 6.3))
+                                                 + np.sin(2 * np.pi * f2 * t + rng.uniform(0, 6.3)))
+    w = lambda n: weights[:, names.index(n)] if n in names else np.zeros(F)  # noqa: E731
+    gaze = np.zeros((F, 2, 2))  # the subject's right eye, then left: yaw towards their left, pitch down
+    gaze[:, 0, 0] = LOOK_YAW * (w("eyeLookInRight") - w("eyeLookOutRight"))
+    gaze[:, 1, 0] = LOOK_YAW * (w("eyeLookOutLeft") - w("eyeLookInLeft"))
+    gaze[:, 0, 1] = LOOK_PITCH * (w("eyeLookDownRight") - w("eyeLookUpRight"))
+    gaze[:, 1, 1] = LOOK_PITCH * (w("eyeLookDownLeft") - w("eyeLookUpLeft"))
+    return weights, head, gaze, {"performed": np.array(performed), "holds": holds, "given": given}
+
+
 def prepare(clip, out, character, *, log=print):
     """Render ``clip``, run its landmark take onto ``character`` (unfused) and cache what the fusion needs:
-    ``<out>/<name>.npz`` with the truth, the solve, the blendshape scores and the take's neutral frames."""
+    ``<out>/<name>.npz`` with the truth, the solve, the blendshape scores and the take's neutral frames (a ROM
+    clip also keeps its session's truth: the poses performed, their holds and the weights given)."""
     cached = out / f"{clip.name}.npz"
     if cached.is_file():
         return dict(np.load(cached))
     shared = shared_folder() / "data"
     neutral, polygons, names, deltas = face_arrays(clip.face, shared)
-    weights, head, gaze = performance(shared / "realdata" / "llf" / clip.recording, names, start=clip.start,
-                                      frames=clip.frames, hold=HOLD)
+    extra, shot = {}, Shot(distance=0.5, azimuth=clip.azimuth)
+    if clip.role == "calibrate":
+        weights, head, gaze, extra = rom_performance(names, clip.start)
+        shot = Shot(distance=0.5, azimuth=clip.azimuth, fps=ROM_FPS)
+    else:
+        weights, head, gaze = performance(shared / "realdata" / "llf" / clip.recording, names, start=clip.start,
+                                          frames=clip.frames, hold=HOLD)
     video = out / f"{clip.name}.mp4"
     t = time.perf_counter()
     if not video.is_file():  # rendered under another name first: a clip cut short is never taken as whole
         part = video.with_name(video.stem + "-part.mp4")
-        render_face_clip(part, neutral, polygons, deltas, weights, head=head, gaze=gaze,
-                         shot=Shot(distance=0.5, azimuth=clip.azimuth))
+        log(f"{clip.name}: rendering {len(weights)} frames")
+        render_face_clip(part, neutral, polygons, deltas, weights, head=head, gaze=gaze, shot=shot)
         part.replace(video)
     t_render = time.perf_counter() - t
     solved = out / f"{clip.name}.csv"
@@ -107,7 +150,7 @@ def prepare(clip, out, character, *, log=print):
     s = read_weights(solved)
     data = {"truth": weights, "truth_names": np.array(names), "solved": s.values, "solved_names": np.array(s.names),
             "scores": found.blendshapes, "score_names": np.array(found.blendshape_names),
-            "neutral": landmark_neutral(found), "render_s": t_render}
+            "neutral": landmark_neutral(found), "render_s": t_render, **extra}
     np.savez(cached, **data)
     if clip.role == "tune":
         video.unlink()  # the npz keeps what the fusion needs; a reported clip's video is kept for the speed
@@ -209,7 +252,7 @@ def speed(video, log=print):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
-    parser.add_argument("--role", choices=("tune", "report"), action="append", help="only these clips")
+    parser.add_argument("--role", choices=("tune", "report", "calibrate"), action="append", help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "
                                                           "(solvers/video/fusion_table.json)")
