@@ -45,6 +45,9 @@ CHARACTER_SEED = 7
 #: and rests of 0.3-0.45 s after a lead-in of 1.2-1.5 s (a short session: about 870 frames to render).
 ROM_SHEET, ROM_FPS = "facecap-24", 24.0
 ROM_TIMING = ((1.2, 1.5), (0.15, 0.25), (0.5, 0.7), (0.3, 0.45))
+#: The roles whose clips are ROM sessions: the tuning faces' (the reference the fusion table's faces give) and the
+#: reported faces' (each performer's calibration on each camera).
+ROM_ROLES = ("tune-rom", "calibrate")
 #: Degrees of the ROM performer's slow head drift (yaw, pitch, roll).
 ROM_HEAD_DEG = (3.0, 2.0, 1.0)
 #: Live Link Face's eye angles per unit of eye-look weight (radians): yaw per (out - in), pitch per (down - up).
@@ -65,7 +68,7 @@ class Clip:
 
     @property
     def name(self):
-        if self.role == "calibrate":  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
+        if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
             return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
         return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
 
@@ -76,7 +79,9 @@ CLIPS = tuple(
     + [Clip("report", face, "llf_alex_rom_4.csv", start, az)
        for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)]
     + [Clip("calibrate", face, ROM_SHEET, 38, az, frames=0)
-       for az in (0.0, 30.0) for face in ("facecap", "ict-mean")])
+       for az in (0.0, 30.0) for face in ("facecap", "ict-mean")]
+    + [Clip("tune-rom", f"ict-{seed}", ROM_SHEET, 40 + seed, az, frames=0)
+       for az in (0.0, 30.0) for seed in (21, 22)])
 
 
 def face_arrays(face, shared):
@@ -126,7 +131,7 @@ def prepare(clip, out, character, *, log=print):
     shared = shared_folder() / "data"
     neutral, polygons, names, deltas = face_arrays(clip.face, shared)
     extra, shot = {}, Shot(distance=0.5, azimuth=clip.azimuth)
-    if clip.role == "calibrate":
+    if clip.role in ROM_ROLES:
         weights, head, gaze, extra = rom_performance(names, clip.start)
         shot = Shot(distance=0.5, azimuth=clip.azimuth, fps=ROM_FPS)
     else:
@@ -252,7 +257,7 @@ def speed(video, log=print):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
-    parser.add_argument("--role", choices=("tune", "report", "calibrate"), action="append", help="only these clips")
+    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate"), action="append", help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "
                                                           "(solvers/video/fusion_table.json)")

@@ -1,0 +1,289 @@
+"""The performer's response on this camera, from a ROM clip filmed with it.
+
+The Face Landmarker's blendshape head reads every face and camera a little differently: one performer's full
+brow raise scores 0.5, another's smile scores 1.0 at half a smile, a 30 degree camera halves a jaw's sideways
+score. The ROM sheet (``solvers/rom/sheets.py``), performed once in front of the camera, says what each hold
+asks; the clip says what the head scored there. Per shape::
+
+    w = max(gain * c + offset, 0)      c the neutral-corrected score (fusion.neutral_corrected)
+
+fitted over the neutral and every pose found (``fit_response``) and applied where the fusion plugs it in
+(``FaceScores.response``, ``fusion.fuse``).
+
+Finding the poses reuses the marker ROM's pieces on the score vector instead of the markers: the activity of a
+frame is how far its most-moved scores are from the neutral in units of each score's noise on the neutral
+frames (``rom.holds.find_holds`` with one coordinate per score), and the holds are named by the sheet in order
+(``rom.matching.align_holds``, the asked weights as the prediction: a score is named after the shape it reads),
+a skipped pose or an extra expression named in the notes, an alignment that another would explain as well
+refused with the poses named.
+
+The fit is robust (Huber weights, so that one pose the head misreads does not set a gain) and shrinks to the
+identity (gain 1, offset 0): a shape the sheet does not ask, or whose score never moves where it is asked
+(``MIN_RESPONSE``), keeps its score as it is; gains stay within ``GAIN_RANGE``. When the ROM clip's landmark solve
+and the fusion table are given, the response is fitted within the fusion (what the score must read so that
+``a * response(c) + b * solve`` gives the asked weight), the way it is used.
+"""
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FacecapError
+from ..rom.holds import _half, find_holds
+from ..rom.matching import align_holds
+from .fusion import neutral_corrected
+
+#: The gains a response may give a score: a score that barely moves would turn noise into motion.
+GAIN_RANGE = (0.3, 3.0)
+#: The largest offset (weight units) a response may add or take away.
+MAX_OFFSET = 0.3
+#: A score that moves less than this (corrected, per unit of the weight asked) where the sheet asks its shape
+#: does not respond.
+MIN_RESPONSE = 0.05
+#: The pull towards the identity: a gain's and an offset's weight against one hold's (weight units squared).
+SHRINK_GAIN, SHRINK_OFFSET = 0.05, 0.5
+#: The neutral's weight in the fit, in holds (it is measured over many frames), and the weight of a hold whose pose
+#: does not ask the shape: what the score reads there is another expression's cross-talk, which a gain cannot undo
+#: (a smile's score that reads 0.3 in a grimace must not halve the smile's gain); it only tempers the offset.
+NEUTRAL_WEIGHT, UNASKED_WEIGHT = 3.0, 0.1
+#: Huber's threshold (weight units) and the iterations of its reweighting.
+HUBER, HUBER_STEPS = 0.1, 10
+#: The smallest noise (score units) a score is measured against: a score that rests at exactly 0 has none.
+NOISE_FLOOR = 0.03
+#: What the Face Landmarker's scores are saved under in a performer profile.
+PROFILE_KEYS = ("response_names", "response_gain", "response_offset", "response_sheet")
+
+
+@dataclass(frozen=True, eq=False)
+class ScoreResponse:
+    """Per score name, ``gain`` and ``offset`` (S,): ``w = max(gain * c + offset, 0)``; a callable
+    ``(corrected (F, S), names) -> (F, S)`` as ``FaceScores.response`` wants it. Scores it does not name pass
+    unchanged; ``sheet`` says what it was measured with."""
+
+    names: tuple
+    gain: np.ndarray
+    offset: np.ndarray
+    sheet: str = ""
+
+    def __post_init__(self):
+        gain, offset = np.asarray(self.gain, dtype=np.float64), np.asarray(self.offset, dtype=np.float64)
+        if gain.shape != (len(self.names),) or offset.shape != (len(self.names),):
+            raise FacecapError(f"a score response needs a gain and an offset per name ({len(self.names)}); got "
+                               f"{gain.shape} and {offset.shape}")
+        if not (np.isfinite(gain).all() and np.isfinite(offset).all()) or (gain <= 0).any():
+            raise FacecapError("a score response's gains must be positive and its offsets finite")
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+        object.__setattr__(self, "gain", gain)
+        object.__setattr__(self, "offset", offset)
+
+    def __call__(self, corrected, names):
+        c = np.array(corrected, dtype=np.float64)
+        mine = {n: j for j, n in enumerate(self.names)}
+        for k, name in enumerate(names):
+            j = mine.get(str(name))
+            if j is not None:
+                with np.errstate(invalid="ignore"):  # NaN (no face) stays NaN
+                    c[:, k] = np.maximum(self.gain[j] * c[:, k] + self.offset[j], 0.0)
+        return c
+
+    def changed(self, tol=1e-9):
+        """The names whose response is not the identity."""
+        return tuple(n for n, g, o in zip(self.names, self.gain, self.offset) if abs(g - 1) > tol or abs(o) > tol)
+
+    def to_arrays(self):
+        """{key: array} for a performer profile (``PROFILE_KEYS``)."""
+        return {"response_names": np.array(self.names, dtype=str), "response_gain": self.gain,
+                "response_offset": self.offset, "response_sheet": np.array(self.sheet)}
+
+    @classmethod
+    def from_arrays(cls, data, *, where="the performer profile"):
+        """The response saved by ``to_arrays`` in ``data`` (a mapping), or None when it holds none."""
+        if "response_gain" not in data:
+            return None
+        try:
+            return cls(tuple(str(n) for n in data["response_names"]), data["response_gain"],
+                       data["response_offset"], str(data["response_sheet"]) if "response_sheet" in data else "")
+        except (KeyError, ValueError, TypeError) as exc:
+            raise FacecapError(f"{where}: its score response is damaged ({exc})") from None
+
+
+@dataclass(frozen=True, eq=False)
+class ResponseFit:
+    """A fitted ``response`` (ScoreResponse) with how it was found: the sheet's ``poses``, the frames (first,
+    last) measured per pose (None: not found), every hold found (``rom.holds.Hold``), the Alignment, per shape
+    how many poses found ask it (``asked``), ``notes`` (poses skipped, expressions left out, shapes kept as
+    scored) and a one-line ``summary``."""
+
+    response: ScoreResponse
+    poses: tuple
+    frames: tuple
+    holds: tuple
+    alignment: object
+    asked: dict
+    notes: tuple
+    summary: str
+
+    def report(self):
+        """JSON-ready: the poses found and each calibrated shape's gain and offset."""
+        r = self.response
+        return {"summary": self.summary, "holds_found": len(self.holds), "notes": list(self.notes),
+                "poses": [{"label": p.label, "frames": None if f is None else [int(f[0]), int(f[1])]}
+                          for p, f in zip(self.poses, self.frames)],
+                "shapes": {n: [round(float(g), 3), round(float(o), 3)] for n, g, o in zip(r.names, r.gain, r.offset)
+                           if n in r.changed()}}
+
+
+def score_noise(scores, neutral, fps):
+    """(S,) each score's noise on the ``neutral`` frames: the robust spread of its moving mean (the activity's
+    smoothing) there, at least ``NOISE_FLOOR``."""
+    s = np.asarray(scores, dtype=np.float64)
+    half = _half(fps)
+    kernel = np.ones(2 * half + 1) / (2 * half + 1)
+    filled = np.where(np.isfinite(s), s, np.nanmedian(s[neutral], axis=0))
+    smooth = np.stack([np.convolve(np.pad(col, half, mode="edge"), kernel, mode="valid") for col in filled.T], axis=1)
+    rest = smooth[neutral]
+    mad = np.nanmedian(np.abs(rest - np.nanmedian(rest, axis=0)), axis=0)
+    return np.maximum(np.nan_to_num(1.4826 * mad), NOISE_FLOOR)
+
+
+def find_score_holds(scores, neutral, fps):
+    """The holds of a ROM clip in its blendshape ``scores`` (F, S) with ``neutral`` frame indices: the marker
+    ROM's hold finder (``rom.holds``) on the scores' deviations from their neutral level, one coordinate per
+    score, each in units of its noise there. Frames are indices 0 .. F-1."""
+    s = np.asarray(scores, dtype=np.float64)
+    s0 = np.nanmedian(s[neutral], axis=0)
+    noise = score_noise(s, neutral, fps)
+    x = ((s - s0) / noise)[:, :, None]
+    # find_holds measures smoothed 3D deltas against noise * sqrt(3 / n); ours are 1D and already per unit of
+    # the smoothed noise, so the scale that makes its unit 1
+    unit = np.sqrt((2 * _half(fps) + 1) / 3.0)
+    return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
+
+
+def fit_response(scores, names, neutral, poses, *, fps, solved=None, table=None, sheet=""):
+    """The performer's score response from a ROM clip.
+
+    Parameters
+    ----------
+    scores : (F, S) the clip's blendshape scores (NaN: no face), columns ``names`` (ARKit names)
+    neutral : indices of the clip's neutral frames (the rests between the poses)
+    poses : the sheet performed (``rom.sequence_poses``), in order
+    fps : the clip's frame rate
+    solved : (F, S) the clip's landmark solve on the same ``names`` (NaN: none), optional
+    table : FusionTable, optional: with ``solved``, the response is fitted within the fusion
+    sheet : what to call the sheet in the response (a built-in sheet's name)
+
+    Returns
+    -------
+    ResponseFit. Raises FacecapError when the clip has no neutral, no pose is found, or the holds do not follow
+    the sheet clearly (the poses named).
+    """
+    s = np.asarray(scores, dtype=np.float64)
+    names = tuple(str(n) for n in names)
+    neutral = np.asarray(neutral, dtype=np.int64)
+    if s.ndim != 2 or s.shape[1] != len(names):
+        raise FacecapError(f"`scores` must have shape (F, {len(names)}) for its names; got {s.shape}")
+    if neutral.size == 0:
+        raise FacecapError("the ROM clip's neutral frames were not found (rest between the poses, or give "
+                           "[neutral] frames)")
+    if solved is not None and np.shape(solved) != s.shape:
+        raise FacecapError(f"`solved` must have the scores' shape {s.shape}; got {np.shape(solved)}")
+    holds = find_score_holds(s, neutral, fps)
+    corrected = neutral_corrected(s, neutral)
+    asked = _asked(poses, names)
+    measured = np.stack([_median(corrected, h.measured()) for h in holds]) if holds else np.zeros((0, len(names)))
+    subtle = ~asked.any(axis=1)  # a pose whose shapes no score reads leaves nothing to find
+    align = align_holds(measured[:, :, None], asked[:, :, None], subtle)
+    if align.ambiguous:
+        raise FacecapError("the ROM clip's holds do not follow the sheet clearly around pose(s) "
+                           f"{[poses[j].label for j in align.ambiguous]} ({len(holds)} holds found for {len(poses)} "
+                           "poses): a pose skipped, repeated or added there. Check the clip, or film it again")
+    found = [j for j in range(len(poses)) if align.hold_of[j] >= 0]
+    if not found:
+        raise FacecapError(f"no pose of the sheet was found in the ROM clip ({len(holds)} holds)")
+    spans = [holds[align.hold_of[j]].measured() if align.hold_of[j] >= 0 else None for j in range(len(poses))]
+    x = np.stack([_median(corrected, spans[j]) for j in found])
+    y = asked[found]
+    x0 = np.nanmedian(corrected[neutral], axis=0)
+    l = l0 = None
+    if solved is not None and table is not None:
+        l = np.stack([_median(np.asarray(solved, dtype=np.float64), spans[j]) for j in found])
+        l0 = np.nanmedian(np.asarray(solved, dtype=np.float64)[neutral], axis=0)
+    gain, offset, kept = np.ones(len(names)), np.zeros(len(names)), []
+    for k, name in enumerate(names):
+        ask = y[:, k] > 0
+        if not ask.any():
+            continue
+        if np.nanmax((x[ask, k] - x0[k]) / y[ask, k]) < MIN_RESPONSE:
+            kept.append(name)
+            continue
+        a, b = (1.0, 0.0) if l is None else (table.score.get(name, 0.0), table.solve.get(name, 1.0))
+        if a <= 0:  # the fusion does not use this score: nothing the response could change
+            continue
+        xs, ys = np.r_[x0[k], x[:, k]], np.r_[0.0, y[:, k]]
+        if l is not None:  # what the score must read for the fused weight to be the asked one
+            ys = (ys - b * np.nan_to_num(np.r_[l0[k], l[:, k]])) / a
+        weights = np.r_[NEUTRAL_WEIGHT, np.where(ask, 1.0, UNASKED_WEIGHT)]
+        ok = np.isfinite(xs) & np.isfinite(ys)
+        gain[k], offset[k] = _robust_line(xs[ok], ys[ok], weights[ok])
+    names_found = [poses[j].label for j in found]
+    notes = []
+    missed = [poses[j].label for j in align.skipped]
+    if missed:
+        notes.append(f"ROM clip: pose(s) not found (skipped, or not seen by the camera; their shapes keep their "
+                     f"scores unless another pose asks them): {missed}")
+    if align.extra:
+        notes.append("ROM clip: expression(s) at frames "
+                     f"{[f'{holds[h].start:g}-{holds[h].end:g}' for h in align.extra]} match no pose of the sheet "
+                     "and are left out")
+    if kept:
+        notes.append(f"ROM clip: score(s) that do not move where the sheet asks them, kept as scored: {kept}")
+    response = ScoreResponse(names, gain, offset, sheet)
+    summary = (f"{len(names_found)} of {len(poses)} poses found ({len(holds)} holds in the clip); "
+               f"{len(response.changed())} scores calibrated")
+    exercised = {n: int((y[:, k] > 0).sum()) for k, n in enumerate(names)}
+    return ResponseFit(response, tuple(poses), tuple(None if f is None else (int(f[0]), int(f[1])) for f in spans),
+                       holds, align, exercised, tuple(notes), summary)
+
+
+def _asked(poses, names):
+    """(J, S) the weights each pose asks of the scores ``names`` (a pose's shapes without a score left out)."""
+    index = {n: k for k, n in enumerate(names)}
+    out = np.zeros((len(poses), len(names)))
+    for j, pose in enumerate(poses):
+        for shape, weight in pose.weights:
+            if shape in index:
+                out[j, index[shape]] = weight
+    return out
+
+
+def _median(values, span):
+    first, last = span
+    sel = values[max(0, first): last + 1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a pose without a face: NaN
+        return np.nanmedian(sel, axis=0)
+
+
+def _robust_line(x, y, w):
+    """(gain, offset) of y ~ gain * x + offset by weighted least squares with Huber reweighting, pulled towards
+    (1, 0) (``SHRINK_GAIN``, ``SHRINK_OFFSET``); the gain clamped to ``GAIN_RANGE`` (the offset refitted then)
+    and the offset to +-``MAX_OFFSET``."""
+    prior = np.array([1.0, 0.0])
+    ridge = np.diag([SHRINK_GAIN, SHRINK_OFFSET])
+    A = np.stack([x, np.ones_like(x)], axis=1)
+    huber = np.ones_like(x)
+    p = prior
+    for _ in range(HUBER_STEPS):
+        ww = w * huber
+        p = np.linalg.solve(A.T @ (ww[:, None] * A) + ridge, A.T @ (ww * y) + ridge @ prior)
+        r = np.abs(y - A @ p)
+        huber = np.where(r <= HUBER, 1.0, HUBER / np.maximum(r, 1e-12))
+    gain = float(np.clip(p[0], *GAIN_RANGE))
+    if gain != p[0]:
+        ww = w * huber
+        offset = (np.sum(ww * (y - gain * x))) / (np.sum(ww) + SHRINK_OFFSET)
+    else:
+        offset = p[1]
+    return gain, float(np.clip(offset, -MAX_OFFSET, MAX_OFFSET))
