@@ -19,17 +19,23 @@ refused with the poses named.
 
 The fit is robust (Huber weights, so that one pose the head misreads does not set a gain) and shrinks to the
 identity (gain 1, offset 0): a shape the sheet does not ask, or whose score never moves where it is asked
-(``MIN_RESPONSE``), keeps its score as it is; gains stay within ``GAIN_RANGE``. When the ROM clip's landmark solve
-and the fusion table are given, the response is fitted within the fusion (what the score must read so that
-``a * response(c) + b * solve`` gives the asked weight), the way it is used.
+(``MIN_RESPONSE``), keeps its score as it is; gains stay within ``GAIN_RANGE``.
+
+The fusion table's gains were fitted on the tuning faces' scores, whose own response is not the identity (a full
+look down scores 0.66 there too, and the table's gain on it already makes up for the mid-range). So the response
+the fusion uses is relative (``relative``): this performer's scores read as the tuning faces would score the same
+weights, ``reference^-1 o own``, with ``reference`` the same fit on the tuning faces' ROM clips, stored in the table
+(``FusionTable.reference``; ``fusion_bench --fit-rom``).
 """
 
 import warnings
+import zipfile
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import FacecapError
+from ..errors import FacecapError, InputFileError
+from ..io.files import atomic_path
 from ..rom.holds import _half, find_holds
 from ..rom.matching import align_holds
 from .fusion import neutral_corrected
@@ -161,7 +167,7 @@ def find_score_holds(scores, neutral, fps):
     return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
 
 
-def fit_response(scores, names, neutral, poses, *, fps, solved=None, table=None, sheet=""):
+def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""):
     """The performer's score response from a ROM clip.
 
     Parameters
@@ -170,8 +176,10 @@ def fit_response(scores, names, neutral, poses, *, fps, solved=None, table=None,
     neutral : indices of the clip's neutral frames (the rests between the poses)
     poses : the sheet performed (``rom.sequence_poses``), in order
     fps : the clip's frame rate
-    solved : (F, S) the clip's landmark solve on the same ``names`` (NaN: none), optional
-    table : FusionTable, optional: with ``solved``, the response is fitted within the fusion
+    reference : ScoreResponse, optional
+        The same fit on the faces the fusion table was measured on (``FusionTable.reference``): the response is
+        then this performer's relative to theirs (``reference^-1 o own``), so that the table's gains, fitted on
+        their scores, apply to this performer's. Without it the scores are calibrated to the weights asked.
     sheet : what to call the sheet in the response (a built-in sheet's name)
 
     Returns
@@ -186,15 +194,15 @@ def fit_response(scores, names, neutral, poses, *, fps, solved=None, table=None,
         raise FacecapError(f"`scores` must have shape (F, {len(names)}) for its names; got {s.shape}")
     if neutral.size == 0:
         raise FacecapError("the ROM clip's neutral frames were not found (rest between the poses, or give "
-                           "[neutral] frames)")
-    if solved is not None and np.shape(solved) != s.shape:
-        raise FacecapError(f"`solved` must have the scores' shape {s.shape}; got {np.shape(solved)}")
+                           "[calibration] neutral)")
+    if not len(poses):
+        raise FacecapError("the ROM sheet has no pose")
     holds = find_score_holds(s, neutral, fps)
     corrected = neutral_corrected(s, neutral)
     asked = _asked(poses, names)
     measured = np.stack([_median(corrected, h.measured()) for h in holds]) if holds else np.zeros((0, len(names)))
     subtle = ~asked.any(axis=1)  # a pose whose shapes no score reads leaves nothing to find
-    align = align_holds(measured[:, :, None], asked[:, :, None], subtle)
+    align = align_holds(np.nan_to_num(measured)[:, :, None], asked[:, :, None], subtle)
     if align.ambiguous:
         raise FacecapError("the ROM clip's holds do not follow the sheet clearly around pose(s) "
                            f"{[poses[j].label for j in align.ambiguous]} ({len(holds)} holds found for {len(poses)} "
@@ -203,31 +211,10 @@ def fit_response(scores, names, neutral, poses, *, fps, solved=None, table=None,
     if not found:
         raise FacecapError(f"no pose of the sheet was found in the ROM clip ({len(holds)} holds)")
     spans = [holds[align.hold_of[j]].measured() if align.hold_of[j] >= 0 else None for j in range(len(poses))]
-    x = np.stack([_median(corrected, spans[j]) for j in found])
-    y = asked[found]
-    x0 = np.nanmedian(corrected[neutral], axis=0)
-    l = l0 = None
-    if solved is not None and table is not None:
-        l = np.stack([_median(np.asarray(solved, dtype=np.float64), spans[j]) for j in found])
-        l0 = np.nanmedian(np.asarray(solved, dtype=np.float64)[neutral], axis=0)
-    gain, offset, kept = np.ones(len(names)), np.zeros(len(names)), []
-    for k, name in enumerate(names):
-        ask = y[:, k] > 0
-        if not ask.any():
-            continue
-        if np.nanmax((x[ask, k] - x0[k]) / y[ask, k]) < MIN_RESPONSE:
-            kept.append(name)
-            continue
-        a, b = (1.0, 0.0) if l is None else (table.score.get(name, 0.0), table.solve.get(name, 1.0))
-        if a <= 0:  # the fusion does not use this score: nothing the response could change
-            continue
-        xs, ys = np.r_[x0[k], x[:, k]], np.r_[0.0, y[:, k]]
-        if l is not None:  # what the score must read for the fused weight to be the asked one
-            ys = (ys - b * np.nan_to_num(np.r_[l0[k], l[:, k]])) / a
-        weights = np.r_[NEUTRAL_WEIGHT, np.where(ask, 1.0, UNASKED_WEIGHT)]
-        ok = np.isfinite(xs) & np.isfinite(ys)
-        gain[k], offset[k] = _robust_line(xs[ok], ys[ok], weights[ok])
-    names_found = [poses[j].label for j in found]
+    gain, offset, kept = _fit_shapes(np.stack([_median(corrected, spans[j]) for j in found]), asked[found],
+                                     np.nanmedian(corrected[neutral], axis=0), names)
+    own = ScoreResponse(names, gain, offset, sheet)
+    response = own if reference is None else relative(own, reference)
     notes = []
     missed = [poses[j].label for j in align.skipped]
     if missed:
@@ -239,12 +226,44 @@ def fit_response(scores, names, neutral, poses, *, fps, solved=None, table=None,
                      "and are left out")
     if kept:
         notes.append(f"ROM clip: score(s) that do not move where the sheet asks them, kept as scored: {kept}")
-    response = ScoreResponse(names, gain, offset, sheet)
-    summary = (f"{len(names_found)} of {len(poses)} poses found ({len(holds)} holds in the clip); "
+    summary = (f"{len(found)} of {len(poses)} poses found ({len(holds)} holds in the clip); "
                f"{len(response.changed())} scores calibrated")
-    exercised = {n: int((y[:, k] > 0).sum()) for k, n in enumerate(names)}
+    exercised = {n: int((asked[found][:, k] > 0).sum()) for k, n in enumerate(names)}
     return ResponseFit(response, tuple(poses), tuple(None if f is None else (int(f[0]), int(f[1])) for f in spans),
                        holds, align, exercised, tuple(notes), summary)
+
+
+def relative(own, reference):
+    """The response that reads ``own``'s scores as ``reference``'s faces would score the same weights:
+    ``reference^-1 o own`` per name (gain own/ref, offset (own - ref) / ref); the identity where either left a
+    score as it is (it did not respond, or its sheet did not ask it: the scales cannot be related)."""
+    ref = {n: (g, o) for n, g, o in zip(reference.names, reference.gain, reference.offset)}
+    changed = set(own.changed()) & set(reference.changed())
+    gain, offset = np.ones(len(own.names)), np.zeros(len(own.names))
+    for k, name in enumerate(own.names):
+        if name in changed:
+            g, o = ref[name]
+            gain[k] = np.clip(own.gain[k] / g, *GAIN_RANGE)
+            offset[k] = np.clip((own.offset[k] - o) / g, -MAX_OFFSET, MAX_OFFSET)
+    return ScoreResponse(own.names, gain, offset, own.sheet)
+
+
+def _fit_shapes(x, y, x0, names):
+    """Per score (gain, offset) from the poses found: ``x`` (J, S) what each scored, ``y`` (J, S) the weights asked,
+    ``x0`` (S,) the neutral's; and the names kept as scored because they did not respond."""
+    gain, offset, kept = np.ones(len(names)), np.zeros(len(names)), []
+    for k, name in enumerate(names):
+        ask = y[:, k] > 0
+        if not ask.any() or not np.isfinite(x0[k]):
+            continue
+        if not np.nanmax((x[ask, k] - x0[k]) / y[ask, k]) >= MIN_RESPONSE:
+            kept.append(name)
+            continue
+        xs, ys = np.r_[x0[k], x[:, k]], np.r_[0.0, y[:, k]]
+        weights = np.r_[NEUTRAL_WEIGHT, np.where(ask, 1.0, UNASKED_WEIGHT)]
+        ok = np.isfinite(xs)
+        gain[k], offset[k] = _robust_line(xs[ok], ys[ok], weights[ok])
+    return gain, offset, kept
 
 
 def _asked(poses, names):
@@ -287,3 +306,33 @@ def _robust_line(x, y, w):
     else:
         offset = p[1]
     return gain, float(np.clip(offset, -MAX_OFFSET, MAX_OFFSET))
+
+
+def save_profile(path, *, basis=None, response=None):
+    """Write a performer profile (.npz, atomically): the actor's measured shapes (``basis``, a Basis: what
+    ``Basis.save_npz`` writes) and/or the blendshape scores' ``response`` (a ScoreResponse)."""
+    if basis is None and response is None:
+        raise FacecapError("a performer profile needs measured shapes or a score response")
+    arrays = {} if response is None else response.to_arrays()
+    if basis is not None:
+        arrays.update(shape_names=np.array(basis.shape_names), marker_names=np.array(basis.marker_names),
+                      neutral=basis.neutral, deltas=basis.deltas, lower=basis.lower, upper=basis.upper)
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez_compressed(tmp, **arrays)
+
+
+def profile_contents(path):
+    """(has measured shapes, the ScoreResponse or None) of the performer profile ``path``; InputFileError naming
+    the file when it is not one."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            keys = set(z.files)
+            response = ScoreResponse.from_arrays({k: z[k] for k in PROFILE_KEYS if k in keys}, where=str(path))
+    except FileNotFoundError:
+        raise InputFileError(path, "file not found") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise InputFileError(path, f"not a performer profile (.npz written by facecap): {exc}") from None
+    shapes = {"shape_names", "marker_names", "deltas"} <= keys
+    if not shapes and response is None:
+        raise InputFileError(path, "not a performer profile: it holds neither measured shapes nor a score response")
+    return shapes, response

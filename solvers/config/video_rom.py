@@ -1,0 +1,75 @@
+"""``[calibration] video``: the performer's ROM filmed with the camera of a landmark take, which calibrates the
+Face Landmarker's blendshape scores (``solvers/video/response.py``), and ``[calibration] sequence`` on a landmark
+take without one: the take itself is the ROM."""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigError, FacecapError
+from ..rom import SHEETS, sequence_poses
+
+
+@dataclass(frozen=True)
+class VideoRom:
+    """A ROM on camera: its footage ``path`` (None: the take itself), the sheet's ``poses`` and ``sheet`` (a
+    built-in sheet's name, or "custom"), the frames of its neutral (first, last) if given."""
+
+    path: str | None
+    poses: tuple
+    sheet: str
+    neutral: tuple | None = None
+
+
+def video_rom(path, data, video):
+    """The take's VideoRom or None, from the parsed TOML ``data`` of a take whose video part is ``video`` (a
+    LandmarkTake, another video take or None). A ``[calibration] sequence`` that the ROM on camera consumes is
+    taken out of ``data`` (the marker ROM of the semantic solve does not look for it)."""
+    cal = data.get("calibration", {})
+    landmarks = video is not None and hasattr(video, "blendshapes")
+
+    def fail(key, message):
+        raise ConfigError(message, path=path, key=key)
+
+    if "video" not in cal:
+        if not (landmarks and "sequence" in cal and "markers" not in cal) or video.blendshapes == "ignore":
+            return None
+        rom = VideoRom(None, _poses(cal["sequence"], fail), _sheet(cal["sequence"]), _neutral(cal))
+        if data.get("solve", {}).get("strategy") != "semantic":
+            cal.pop("sequence")  # the geometric solve has no ROM of its own: the sequence is the scores'
+        return rom
+    if not landmarks:
+        fail("calibration.video", "the ROM on camera calibrates a landmark take's blendshape scores: give [source] "
+                                  "video with [tracking] method = \"landmarks\"")
+    if video.blendshapes == "ignore":
+        fail("calibration.video", "the ROM on camera calibrates the blendshape scores, and [tracking] blendshapes = "
+                                  "\"ignore\" leaves them out")
+    for other in ("markers", "poses", "holds", "basis"):
+        if other in cal:
+            fail(f"calibration.{other}", "give the ROM filmed ([calibration] video with sequence, its holds found "
+                                         f"in the blendshape scores) or a marker calibration ({other}), not both")
+    if "sequence" not in cal:
+        fail("calibration.sequence", "missing: the sheet the ROM on camera performs (\"facecap-24\", \"arkit-51\" "
+                                     "or a list of poses; docs/rom.md)")
+    clip = cal.pop("video")
+    if not isinstance(clip, str) or not clip.strip():
+        fail("calibration.video", f"expected a path to the ROM's footage; got {clip!r}")
+    sequence = cal.pop("sequence")
+    clip = Path(clip).expanduser()
+    clip = clip if clip.is_absolute() else (Path(path).parent / clip).resolve()
+    return VideoRom(str(clip), _poses(sequence, fail), _sheet(sequence), _neutral(cal))
+
+
+def _poses(sequence, fail):
+    try:
+        return sequence_poses(sequence, where="")
+    except FacecapError as exc:  # the key is said by fail()
+        fail("calibration.sequence", str(exc).lstrip(": "))
+
+
+def _sheet(sequence):
+    return sequence if isinstance(sequence, str) and sequence in SHEETS else "custom"
+
+
+def _neutral(cal):
+    neutral = cal.get("neutral")  # checked with the other [calibration] keys
+    return tuple(neutral) if isinstance(neutral, list) and len(neutral) == 2 else None
