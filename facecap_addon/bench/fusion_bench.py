@@ -20,7 +20,7 @@ Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip 
 import argparse
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,7 @@ from ...solvers.io.weights import read_weights
 from ...solvers.rom import sequence_poses
 from ...solvers.tools.synthetic.realism.rom import rom_weights
 from ...solvers.video.fusion import FaceScores, FusionTable, fit_table, fuse, neutral_corrected
+from ...solvers.video.response import ScoreResponse, fit_response
 from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
 from ...solvers.video.landmarks import track_landmarks
 from ...solvers.video.reading import Footage
@@ -214,9 +215,42 @@ def fit(out, *, log=print):
     return table, np.nanmean(truth, axis=0)
 
 
+def rom_fit(out, clip, reference=None):
+    """The ResponseFit of the cached ROM ``clip`` (``response.fit_response``; relative to ``reference``)."""
+    data = dict(np.load(out / f"{clip.name}.npz"))
+    return fit_response(data["scores"], [str(n) for n in data["score_names"]], data["neutral"],
+                        sequence_poses(ROM_SHEET), fps=ROM_FPS, reference=reference, sheet=ROM_SHEET)
+
+
+def fit_reference(out, *, log=print):
+    """The tuning faces' ROM response (``FusionTable.reference``): each "tune-rom" clip fitted alone, then per score
+    the median gain and offset over the clips that calibrated it; the identity for a score fewer than half of them
+    calibrated (it does not respond on these faces)."""
+    rom_clips = [c for c in CLIPS if c.role == "tune-rom"]
+    fits = [rom_fit(out, c).response for c in rom_clips]
+    names = fits[0].names
+    changed = np.array([[n in f.changed() for n in names] for f in fits])
+    gains, offsets = np.stack([f.gain for f in fits]), np.stack([f.offset for f in fits])
+    keep = changed.sum(axis=0) * 2 > len(fits)
+    gain = np.where(keep, np.nanmedian(np.where(changed, gains, np.nan), axis=0, keepdims=False), 1.0)
+    offset = np.where(keep, np.nanmedian(np.where(changed, offsets, np.nan), axis=0), 0.0)
+    log(f"ROM reference fitted on {len(fits)} clips: {int(keep.sum())} scores")
+    return ScoreResponse(names, np.nan_to_num(gain, nan=1.0), np.nan_to_num(offset), ROM_SHEET), \
+        [c.name for c in rom_clips]
+
+
+def calibration_clip(clip):
+    """The ROM clip (role "calibrate") of the reported ``clip``'s face and camera, or None."""
+    for c in CLIPS:
+        if c.role == "calibrate" and c.face == clip.face and c.azimuth == clip.azimuth:
+            return c
+    return None
+
+
 def evaluate(out, table, constant, role="report"):
     """{clip: {method: region table}} for the clips of ``role``: the landmark solve, the corrected scores, the
-    fusion and a constant (the tuning clips' mean weights on every frame)."""
+    fusion, the fusion with the performer's response from the ROM clip of the same face and camera (when it is
+    in ``out``) and a constant (the tuning clips' mean weights on every frame)."""
     names = judged_names()
     rows = {}
     for clip in CLIPS:
@@ -224,14 +258,19 @@ def evaluate(out, table, constant, role="report"):
             continue
         data = dict(np.load(out / f"{clip.name}.npz"))
         truth, solved, corrected = columns(data, names)
-        fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
-                        FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"]),
-                        table=table)
-        fused = columns({**data, "solved": fused}, names)[1]
-        rows[clip.name] = {"landmarks": region_rmse(solved, truth, names),
-                           "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names),
-                           "fused": region_rmse(fused, truth, names),
-                           "constant": region_rmse(np.broadcast_to(constant, truth.shape), truth, names)}
+        rom = calibration_clip(clip)
+        responses = {"fused": None}
+        if rom is not None and (out / f"{rom.name}.npz").is_file():
+            responses["fused + ROM"] = rom_fit(out, rom, table.reference).response
+        row = {"landmarks": region_rmse(solved, truth, names),
+               "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names)}
+        for method, response in responses.items():
+            fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
+                            FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"],
+                                       response=response), table=table)
+            row[method] = region_rmse(columns({**data, "solved": fused}, names)[1], truth, names)
+        row["constant"] = region_rmse(np.broadcast_to(constant, truth.shape), truth, names)
+        rows[clip.name] = row
     return rows
 
 
@@ -261,6 +300,8 @@ def main(argv=None):
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "
                                                           "(solvers/video/fusion_table.json)")
+    parser.add_argument("--fit-rom", action="store_true", help="fit the table's ROM reference on the tuning faces' ROM "
+                                                              "clips (role tune-rom) and write it, the gains kept")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -275,9 +316,16 @@ def main(argv=None):
             prepare(clip, out, character)
     if args.fit:
         table, constant = fit(out)
+        table = replace(table, reference=FusionTable.load().reference)
         table.save()
     else:
         table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1]
+    if args.fit_rom:
+        reference, rom_clips = fit_reference(out)
+        measured = {**table.measured_on, "rom_clips": rom_clips,
+                    "rom_command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit-rom"}
+        table = replace(table, measured_on=measured, reference=reference)
+        table.save()
     rows = evaluate(out, table, constant)
     print_tables(rows)
     videos = sorted(out.glob("report-*.mp4"))
@@ -296,14 +344,24 @@ def print_tables(rows):
             print(f"| {clip} | {method} | " + " | ".join(f"{table[k]:.3f}" for k in keys) + " |")
     for face in ("ict", "facecap"):
         mine = [m for c, m in rows.items() if f"-{face}" in c]
-        if not mine:
-            continue
-        for method in mine[0]:
-            vis = [m[method]["visible"] for m in mine]
-            brows = [m[method]["brows"] for m in mine]
-            blink = [m[method]["blink_peak"] for m in mine]
-            print(f"{face} {method}: visible median {np.median(vis):.3f} worst {np.max(vis):.3f}; brows median "
-                  f"{np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst {np.nanmin(blink):.2f}")
+        for method in dict.fromkeys(k for m in mine for k in m):
+            vis = [m[method]["visible"] for m in mine if method in m]
+            brows = [m[method]["brows"] for m in mine if method in m]
+            blink = [m[method]["blink_peak"] for m in mine if method in m]
+            print(f"{face} {method} ({len(vis)} clips): visible median {np.median(vis):.3f} worst {np.max(vis):.3f}; "
+                  f"brows median {np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst "
+                  f"{np.nanmin(blink):.2f}")
+    print()
+    print("| face | method | " + " | ".join(REGIONS) + " | visible | visible worst |")
+    print("|---|---|" + "---|" * (len(REGIONS) + 2))
+    for face in ("ict", "facecap"):
+        mine = [m for c, m in rows.items() if f"-{face}" in c]
+        for method in dict.fromkeys(k for m in mine for k in m):
+            have = [m[method] for m in mine if method in m]
+            med = [np.median([h[r] for h in have]) for r in list(REGIONS) + ["visible"]]
+            worst = max(h["visible"] for h in have)
+            print(f"| {face} | {method} ({len(have)} clips) | " + " | ".join(f"{v:.3f}" for v in med)
+                  + f" | {worst:.3f} |")
 
 
 if __name__ == "__main__":

@@ -22,8 +22,9 @@ class VideoRom:
 
 def video_rom(path, data, video):
     """The take's VideoRom or None, from the parsed TOML ``data`` of a take whose video part is ``video`` (a
-    LandmarkTake, another video take or None). A ``[calibration] sequence`` that the ROM on camera consumes is
-    taken out of ``data`` (the marker ROM of the semantic solve does not look for it)."""
+    LandmarkTake, another video take or None). On a landmark take ``[calibration] sequence`` is the ROM on
+    camera's sheet and is taken out of ``data`` (the semantic solve's marker ROM does not look for it in the
+    landmarks)."""
     cal = data.get("calibration", {})
     landmarks = video is not None and hasattr(video, "blendshapes")
 
@@ -33,10 +34,10 @@ def video_rom(path, data, video):
     if "video" not in cal:
         if not (landmarks and "sequence" in cal and "markers" not in cal) or video.blendshapes == "ignore":
             return None
-        rom = VideoRom(None, _poses(cal["sequence"], fail), _sheet(cal["sequence"]), _neutral(cal))
-        if data.get("solve", {}).get("strategy") != "semantic":
-            cal.pop("sequence")  # the geometric solve has no ROM of its own: the sequence is the scores'
-        return rom
+        if "holds" in cal:
+            fail("calibration.holds", "the holds of a ROM on camera are found in its blendshape scores")
+        sequence = cal.pop("sequence")  # on a landmark take the sequence is the scores' ROM, not a marker ROM's
+        return VideoRom(None, _poses(sequence, fail), _sheet(sequence), _neutral(cal))
     if not landmarks:
         fail("calibration.video", "the ROM on camera calibrates a landmark take's blendshape scores: give [source] "
                                   "video with [tracking] method = \"landmarks\"")

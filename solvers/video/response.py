@@ -48,7 +48,7 @@ MAX_OFFSET = 0.3
 #: does not respond.
 MIN_RESPONSE = 0.05
 #: The pull towards the identity: a gain's and an offset's weight against one hold's (weight units squared).
-SHRINK_GAIN, SHRINK_OFFSET = 0.05, 0.5
+SHRINK_GAIN, SHRINK_OFFSET = 0.02, 0.5
 #: The neutral's weight in the fit, in holds (it is measured over many frames), and the weight of a hold whose pose
 #: does not ask the shape: what the score reads there is another expression's cross-talk, which a gain cannot undo
 #: (a smile's score that reads 0.3 in a grimace must not halve the smile's gain); it only tempers the offset.
@@ -198,9 +198,12 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
     if not len(poses):
         raise FacecapError("the ROM sheet has no pose")
     holds = find_score_holds(s, neutral, fps)
+    if not holds:
+        raise FacecapError("no pose of the sheet was found in the ROM clip: its scores never leave their level on "
+                           "the neutral frames")
     corrected = neutral_corrected(s, neutral)
     asked = _asked(poses, names)
-    measured = np.stack([_median(corrected, h.measured()) for h in holds]) if holds else np.zeros((0, len(names)))
+    measured = np.stack([_median(corrected, h.measured()) for h in holds])
     subtle = ~asked.any(axis=1)  # a pose whose shapes no score reads leaves nothing to find
     align = align_holds(np.nan_to_num(measured)[:, :, None], asked[:, :, None], subtle)
     if align.ambiguous:
