@@ -13,9 +13,10 @@ fitted over the neutral and every pose found (``fit_response``) and applied wher
 Finding the poses reuses the marker ROM's pieces on the score vector instead of the markers: the activity of a
 frame is how far its most-moved scores are from the neutral in units of each score's noise on the neutral
 frames (``rom.holds.find_holds`` with one coordinate per score), and the holds are named by the sheet in order
-(``rom.matching.align_holds``, the asked weights as the prediction: a score is named after the shape it reads),
-a skipped pose or an extra expression named in the notes, an alignment that another would explain as well
-refused with the poses named.
+(``rom.matching.align_holds``; the prediction: what the reference faces score for the weights asked, below, else
+the weights asked themselves: a score is named after the shape it reads), a skipped pose or an extra expression
+named in the notes; poses whose holds another alignment would explain as well are left out of the fit and named
+(a clip where that is more than half of the sheet is refused).
 
 The fit is robust (Huber weights, so that one pose the head misreads does not set a gain) and shrinks to the
 identity (gain 1, offset 0): a shape the sheet does not ask, or whose score never moves where it is asked
@@ -184,8 +185,9 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
 
     Returns
     -------
-    ResponseFit. Raises FacecapError when the clip has no neutral, no pose is found, or the holds do not follow
-    the sheet clearly (the poses named).
+    ResponseFit. Poses whose holds could be read more than one way (``Alignment.ambiguous``: a stretch of poses
+    the camera barely sees) are left out and named, never guessed. Raises FacecapError when the clip has no
+    neutral, no pose is found, or more than half of the sheet cannot be named for sure (the poses named).
     """
     s = np.asarray(scores, dtype=np.float64)
     names = tuple(str(n) for n in names)
@@ -204,22 +206,25 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
     corrected = neutral_corrected(s, neutral)
     asked = _asked(poses, names)
     measured = np.stack([_median(corrected, h.measured()) for h in holds])
-    subtle = ~asked.any(axis=1)  # a pose whose shapes no score reads leaves nothing to find
-    align = align_holds(np.nan_to_num(measured)[:, :, None], asked[:, :, None], subtle)
-    if align.ambiguous:
-        raise FacecapError("the ROM clip's holds do not follow the sheet clearly around pose(s) "
-                           f"{[poses[j].label for j in align.ambiguous]} ({len(holds)} holds found for {len(poses)} "
-                           "poses): a pose skipped, repeated or added there. Check the clip, or film it again")
-    found = [j for j in range(len(poses)) if align.hold_of[j] >= 0]
-    if not found:
-        raise FacecapError(f"no pose of the sheet was found in the ROM clip ({len(holds)} holds)")
-    spans = [holds[align.hold_of[j]].measured() if align.hold_of[j] >= 0 else None for j in range(len(poses))]
+    predicted = asked if reference is None else expected_scores(asked, names, reference)
+    subtle = ~predicted.any(axis=1)  # a pose whose shapes no score reads leaves nothing to find
+    align = align_holds(np.nan_to_num(measured)[:, :, None], predicted[:, :, None], subtle)
+    unsure = [poses[j].label for j in align.ambiguous]
+    found = [j for j in range(len(poses)) if align.hold_of[j] >= 0 and j not in align.ambiguous]
+    if len(unsure) * 2 > len(poses) or not found:
+        raise FacecapError("the ROM clip's holds do not follow the sheet clearly" + (
+            f" around pose(s) {unsure}" if unsure else "") + f" ({len(holds)} holds found for {len(poses)} poses, "
+            f"{len(found)} named for sure): a pose skipped, repeated or added there. Check the clip, or film it again")
+    spans = [holds[align.hold_of[j]].measured() if j in found else None for j in range(len(poses))]
     gain, offset, kept = _fit_shapes(np.stack([_median(corrected, spans[j]) for j in found]), asked[found],
                                      np.nanmedian(corrected[neutral], axis=0), names)
     own = ScoreResponse(names, gain, offset, sheet)
     response = own if reference is None else relative(own, reference)
     notes = []
-    missed = [poses[j].label for j in align.skipped]
+    if unsure:
+        notes.append(f"ROM clip: the holds around pose(s) {unsure} could be read more than one way (a pose the "
+                     "camera barely sees, skipped or added there): left out of the calibration")
+    missed = [poses[j].label for j in align.skipped if j not in align.ambiguous]
     if missed:
         notes.append(f"ROM clip: pose(s) not found (skipped, or not seen by the camera; their shapes keep their "
                      f"scores unless another pose asks them): {missed}")
@@ -234,6 +239,22 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
     exercised = {n: int((asked[found][:, k] > 0).sum()) for k, n in enumerate(names)}
     return ResponseFit(response, tuple(poses), tuple(None if f is None else (int(f[0]), int(f[1])) for f in spans),
                        holds, align, exercised, tuple(notes), summary)
+
+
+def expected_scores(asked, names, reference):
+    """(J, S) what the ``reference`` faces' scores read for the weights ``asked`` (J, S) of each pose: the inverse
+    of their response per score; 0 for a score they left as scored (it did not respond, or its pose was not found
+    on their clips: a pose that only asks such scores is one the camera may not see, cheap to skip)."""
+    out = np.array(asked, dtype=np.float64)
+    ref = {n: k for k, n in enumerate(reference.names)}
+    changed = set(reference.changed())
+    for j, name in enumerate(names):
+        if name not in ref:
+            continue  # nothing known: the weight asked
+        k = ref[name]
+        out[:, j] = np.where(asked[:, j] > 0, np.maximum((asked[:, j] - reference.offset[k]) / reference.gain[k], 0.0),
+                             0.0) if name in changed else 0.0
+    return out
 
 
 def relative(own, reference):

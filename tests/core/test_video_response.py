@@ -91,6 +91,35 @@ def test_an_extra_expression_is_named_and_left_out():
     assert fit.summary.startswith("24 of 24 poses found (25 holds")
 
 
+def test_holds_that_could_be_read_two_ways_are_left_out_and_named():
+    """The camera does not see a puff or the jaw's sideways and forward motion, and reads a sideways jaw as the
+    mouth pulled left (as the 30 degree renders do): two like holds for four poses the scores cannot tell apart.
+    They are left out of the fit and named, never guessed; the other poses are found; a clip that is mostly such
+    stretches is refused."""
+    r, rest = camera(0)
+    for name in ("cheekPuff", "jawLeft", "jawRight", "jawForward"):
+        r[ARKIT_51.index(name)] = 0.0
+
+    def session(poses, seed):
+        rng = np.random.default_rng(seed)
+        weights, _, _, _ = rom_weights(ARKIT_51, poses, rng, fps=FPS)
+        seen = weights.copy()
+        seen[:, ARKIT_51.index("mouthLeft")] += 0.9 * (weights[:, ARKIT_51.index("jawLeft")]
+                                                       + weights[:, ARKIT_51.index("jawRight")])
+        return scores_of(seen, r, rest, rng), np.flatnonzero(~weights.any(axis=1))
+
+    scores, neutral = session(POSES, 1000)
+    fit = fit_response(scores, ARKIT_51, neutral, POSES, fps=FPS)
+    assert any("could be read more than one way" in n and "'jaw left', 'jaw right'" in n for n in fit.notes)
+    labels = [p.label for p in POSES]
+    assert all(fit.frames[labels.index(p)] is None for p in ("puff", "jaw left", "jaw right", "jaw forward"))
+    assert fit.frames[labels.index("mouth left")] is not None
+    assert fit.summary.startswith("20 of 24 poses found")
+    with pytest.raises(FacecapError, match="do not follow the sheet clearly around pose"):
+        fit_response(*session(POSES[13:18], 1001)[:1], ARKIT_51, session(POSES[13:18], 1001)[1], POSES[13:18],
+                     fps=FPS)
+
+
 def test_a_score_that_never_responds_and_a_score_never_asked_stay_as_scored():
     """A score dead on this camera (0 whatever the face does) is not amplified into noise; a score the sheet never
     asks (tongueOut) has nothing to be calibrated by; gains stay within GAIN_RANGE."""
