@@ -12,7 +12,13 @@ The clips are kept apart by role (:data:`CLIPS`):
 * **tune**: two ICT identities (seeds 21 and 22), windows of ``llf_alex_rom_3``: the only clips the
   fusion table is fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
 * **report**: the ICT mean face and the Face Cap head (a face never tuned on), windows of
-  ``llf_alex_rom_4`` (another recording): judged, never fitted.
+  ``llf_alex_rom_4`` (another recording): judged, never fitted;
+* **tune-rom**: the tuning identities performing the ROM sheet ``facecap-24`` (``realism.rom``: imperfectly),
+  from both cameras: the reference the performers' responses are read against (``--fit-rom`` writes it into
+  the table, its gains kept);
+* **calibrate**: each reported face performing the sheet from each reported camera (another session): its
+  response (``solvers/video/response.py``) is fitted on this clip alone and judged on that face and camera's
+  reported clips ("fused + ROM").
 
 Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip is rendered once).
 """
