@@ -27,6 +27,7 @@ import numpy as np
 
 from ..character.aliases import canonical_names
 from ..errors import FacecapError
+from .score_response import ScoreResponse
 
 TABLE_FILE = Path(__file__).resolve().parent / "fusion_table.json"
 #: The largest gain a table gives a signal: a score that barely moves in the tuning clips (eyeLookUp: 12x
@@ -37,7 +38,7 @@ MAX_GAIN = 2.0
 @dataclass(frozen=True)
 class FusionTable:
     """Per shape (ARKit names) the gains of the corrected score (``score``) and of the landmark solve (``solve``);
-    ``reference``: how the tuning faces' scores respond to a ROM sheet (a ``response.ScoreResponse``, or None),
+    ``reference``: how the tuning faces' scores respond to a ROM sheet (a ``ScoreResponse``, or None),
     which a performer's ROM clip is calibrated against (``response.fit_response``)."""
 
     score: dict
@@ -47,8 +48,6 @@ class FusionTable:
 
     @classmethod
     def load(cls, path=TABLE_FILE):
-        from .response import ScoreResponse  # response imports this module
-
         path = Path(path)
         try:
             data = json.loads(path.read_text(encoding="utf-8"))

@@ -37,9 +37,10 @@ import numpy as np
 
 from ..errors import FacecapError, InputFileError
 from ..io.files import atomic_path
-from ..rom.holds import _half, find_holds
+from ..rom.holds import find_holds, half_window
 from ..rom.matching import align_holds
 from .fusion import neutral_corrected
+from .score_response import PROFILE_KEYS, ScoreResponse
 
 #: The gains a response may give a score: a score that barely moves would turn noise into motion.
 GAIN_RANGE = (0.3, 3.0)
@@ -58,61 +59,6 @@ NEUTRAL_WEIGHT, UNASKED_WEIGHT = 3.0, 0.1
 HUBER, HUBER_STEPS = 0.1, 10
 #: The smallest noise (score units) a score is measured against: a score that rests at exactly 0 has none.
 NOISE_FLOOR = 0.03
-#: What the Face Landmarker's scores are saved under in a performer profile.
-PROFILE_KEYS = ("response_names", "response_gain", "response_offset", "response_sheet")
-
-
-@dataclass(frozen=True, eq=False)
-class ScoreResponse:
-    """Per score name, ``gain`` and ``offset`` (S,): ``w = max(gain * c + offset, 0)``; a callable
-    ``(corrected (F, S), names) -> (F, S)`` as ``FaceScores.response`` wants it. Scores it does not name pass
-    unchanged; ``sheet`` says what it was measured with."""
-
-    names: tuple
-    gain: np.ndarray
-    offset: np.ndarray
-    sheet: str = ""
-
-    def __post_init__(self):
-        gain, offset = np.asarray(self.gain, dtype=np.float64), np.asarray(self.offset, dtype=np.float64)
-        if gain.shape != (len(self.names),) or offset.shape != (len(self.names),):
-            raise FacecapError(f"a score response needs a gain and an offset per name ({len(self.names)}); got "
-                               f"{gain.shape} and {offset.shape}")
-        if not (np.isfinite(gain).all() and np.isfinite(offset).all()) or (gain <= 0).any():
-            raise FacecapError("a score response's gains must be positive and its offsets finite")
-        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
-        object.__setattr__(self, "gain", gain)
-        object.__setattr__(self, "offset", offset)
-
-    def __call__(self, corrected, names):
-        c = np.array(corrected, dtype=np.float64)
-        mine = {n: j for j, n in enumerate(self.names)}
-        for k, name in enumerate(names):
-            j = mine.get(str(name))
-            if j is not None:
-                with np.errstate(invalid="ignore"):  # NaN (no face) stays NaN
-                    c[:, k] = np.maximum(self.gain[j] * c[:, k] + self.offset[j], 0.0)
-        return c
-
-    def changed(self, tol=1e-9):
-        """The names whose response is not the identity."""
-        return tuple(n for n, g, o in zip(self.names, self.gain, self.offset) if abs(g - 1) > tol or abs(o) > tol)
-
-    def to_arrays(self):
-        """{key: array} for a performer profile (``PROFILE_KEYS``)."""
-        return {"response_names": np.array(self.names, dtype=str), "response_gain": self.gain,
-                "response_offset": self.offset, "response_sheet": np.array(self.sheet)}
-
-    @classmethod
-    def from_arrays(cls, data, *, where="the performer profile"):
-        """The response saved by ``to_arrays`` in ``data`` (a mapping), or None when it holds none."""
-        if "response_gain" not in data:
-            return None
-        try:
-            return cls(tuple(str(n) for n in data["response_names"]), data["response_gain"],
-                       data["response_offset"], str(data["response_sheet"]) if "response_sheet" in data else "")
-        except (KeyError, ValueError, TypeError) as exc:
-            raise FacecapError(f"{where}: its score response is damaged ({exc})") from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,7 +91,7 @@ def score_noise(scores, neutral, fps):
     """(S,) each score's noise on the ``neutral`` frames: the robust spread of its moving mean (the activity's
     smoothing) there, at least ``NOISE_FLOOR``."""
     s = np.asarray(scores, dtype=np.float64)
-    half = _half(fps)
+    half = half_window(fps)
     kernel = np.ones(2 * half + 1) / (2 * half + 1)
     filled = np.where(np.isfinite(s), s, np.nanmedian(s[neutral], axis=0))
     smooth = np.stack([np.convolve(np.pad(col, half, mode="edge"), kernel, mode="valid") for col in filled.T], axis=1)
@@ -164,7 +110,7 @@ def find_score_holds(scores, neutral, fps):
     x = ((s - s0) / noise)[:, :, None]
     # find_holds measures smoothed 3D deltas against noise * sqrt(3 / n); ours are 1D and already per unit of
     # the smoothed noise, so the scale that makes its unit 1
-    unit = np.sqrt((2 * _half(fps) + 1) / 3.0)
+    unit = np.sqrt((2 * half_window(fps) + 1) / 3.0)
     return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
 
 
