@@ -232,7 +232,7 @@ def fit_reference(out, *, log=print):
     """The tuning faces' ROM response (``FusionTable.reference``): each "tune-rom" clip fitted alone, then per score
     the median gain and offset over the clips that calibrated it; the identity for a score fewer than half of them
     calibrated (it does not respond on these faces)."""
-    rom_clips = [c for c in CLIPS if c.role == "tune-rom"]
+    rom_clips = [c for c in CLIPS if c.role == "tune-rom" and (out / f"{c.name}.npz").is_file()]
     fits = [rom_fit(out, c).response for c in rom_clips]
     names = fits[0].names
     changed = np.array([[n in f.changed() for n in names] for f in fits])

@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import FacecapError, InputFileError
 from ..io.files import atomic_path
 from ..rom.holds import find_holds, half_window
-from ..rom.matching import align_holds
+from ..rom.matching import Alignment, align_holds
 from .fusion import neutral_corrected
 from .score_response import PROFILE_KEYS, ScoreResponse
 
@@ -111,7 +111,9 @@ def find_score_holds(scores, neutral, fps):
     # find_holds measures smoothed 3D deltas against noise * sqrt(3 / n); ours are 1D and already per unit of
     # the smoothed noise, so the scale that makes its unit 1
     unit = np.sqrt((2 * half_window(fps) + 1) / 3.0)
-    return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
+    with warnings.catch_warnings():  # the plateau fit's trial steps may overflow; a failed fit falls back
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
 
 
 def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""):
@@ -153,8 +155,14 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
     asked = _asked(poses, names)
     measured = np.stack([_median(corrected, h.measured()) for h in holds])
     predicted = asked if reference is None else expected_scores(asked, names, reference)
-    subtle = ~predicted.any(axis=1)  # a pose whose shapes no score reads leaves nothing to find
-    align = align_holds(np.nan_to_num(measured)[:, :, None], predicted[:, :, None], subtle)
+    # a pose the reference faces' scores do not read is predicted by its asked weights (what a score named after its
+    # shapes would read); one no score names cannot be told from any other hold and is not aligned at all (matched by
+    # a cosine of 0 it would take whatever hold is near, an extra expression or a neighbour's)
+    predicted = np.where(predicted.any(axis=1, keepdims=True), predicted, asked)
+    seen = np.flatnonzero(predicted.any(axis=1))
+    unseen = [poses[j].label for j in range(len(poses)) if j not in set(seen)]
+    part = align_holds(np.nan_to_num(measured)[:, :, None], predicted[seen][:, :, None], np.zeros(len(seen), bool))
+    align = _widen(part, seen, len(poses))
     unsure = [poses[j].label for j in align.ambiguous]
     found = [j for j in range(len(poses)) if align.hold_of[j] >= 0 and j not in align.ambiguous]
     if len(unsure) * 2 > len(poses) or not found:
@@ -167,10 +175,12 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
     own = ScoreResponse(names, gain, offset, sheet)
     response = own if reference is None else relative(own, reference)
     notes = []
+    if unseen:
+        notes.append(f"ROM clip: pose(s) of shapes no blendshape score names, left out: {unseen}")
     if unsure:
         notes.append(f"ROM clip: the holds around pose(s) {unsure} could be read more than one way (a pose the "
                      "camera barely sees, skipped or added there): left out of the calibration")
-    missed = [poses[j].label for j in align.skipped if j not in align.ambiguous]
+    missed = [poses[j].label for j in align.skipped if j not in align.ambiguous and poses[j].label not in unseen]
     if missed:
         notes.append(f"ROM clip: pose(s) not found (skipped, or not seen by the camera; their shapes keep their "
                      f"scores unless another pose asks them): {missed}")
@@ -187,10 +197,19 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
                        holds, align, exercised, tuple(notes), summary)
 
 
+def _widen(align, seen, J):
+    """The Alignment of the poses ``seen`` (indices into the sheet's J poses) on the whole sheet (the others
+    unmatched)."""
+    hold_of = np.full(J, -1)
+    hold_of[seen] = align.hold_of
+    pose_of = tuple(int(seen[j]) if j >= 0 else -1 for j in align.pose_of)
+    return Alignment(pose_of, tuple(int(h) for h in hold_of), align.score, tuple(int(seen[j]) for j in align.ambiguous))
+
+
 def expected_scores(asked, names, reference):
     """(J, S) what the ``reference`` faces' scores read for the weights ``asked`` (J, S) of each pose: the inverse
     of their response per score; 0 for a score they left as scored (it did not respond, or its pose was not found
-    on their clips: a pose that only asks such scores is one the camera may not see, cheap to skip)."""
+    on their clips: a pose that only asks such scores is one the camera is not expected to see)."""
     out = np.array(asked, dtype=np.float64)
     ref = {n: k for k, n in enumerate(reference.names)}
     changed = set(reference.changed())
