@@ -1,8 +1,8 @@
 """The performer's response on this camera, from a ROM clip filmed with it.
 
-The Face Landmarker's blendshape head reads every face and camera a little differently: one performer's full
-brow raise scores 0.5, another's smile scores 1.0 at half a smile, a 30 degree camera halves a jaw's sideways
-score. The ROM sheet (``solvers/rom/sheets.py``), performed once in front of the camera, says what each hold
+The Face Landmarker's blendshape head reads every face and camera a little differently: on the project's renders
+the ICT tuning faces' full outer brow raise scores about 0.5 and the Face Cap head's nearly 1 (fitted gains 1.97
+and 1.04), a full look down about 0.5 on both. The ROM sheet (``solvers/rom/sheets.py``), performed once in front of the camera, says what each hold
 asks; the clip says what the head scored there. Per shape::
 
     w = max(gain * c + offset, 0)      c the neutral-corrected score (fusion.neutral_corrected)
@@ -22,8 +22,8 @@ The fit is robust (Huber weights, so that one pose the head misreads does not se
 identity (gain 1, offset 0): a shape the sheet does not ask, or whose score never moves where it is asked
 (``MIN_RESPONSE``), keeps its score as it is; gains stay within ``GAIN_RANGE``.
 
-The fusion table's gains were fitted on the tuning faces' scores, whose own response is not the identity (a full
-look down scores 0.66 there too, and the table's gain on it already makes up for the mid-range). So the response
+The fusion table's gains were fitted on the tuning faces' scores, whose own response is not the identity (their
+look down's gain is 1.95 too, and the table's gains already make up for it over the mid-range). So the response
 the fusion uses is relative (``relative``): this performer's scores read as the tuning faces would score the same
 weights, ``reference^-1 o own``, with ``reference`` the same fit on the tuning faces' ROM clips, stored in the table
 (``FusionTable.reference``; ``fusion_bench --fit-rom``).
