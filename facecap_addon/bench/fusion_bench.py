@@ -26,6 +26,7 @@ Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip 
 import argparse
 import os
 import time
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -238,11 +239,13 @@ def fit_reference(out, *, log=print):
     changed = np.array([[n in f.changed() for n in names] for f in fits])
     gains, offsets = np.stack([f.gain for f in fits]), np.stack([f.offset for f in fits])
     keep = changed.sum(axis=0) * 2 > len(fits)
-    gain = np.where(keep, np.nanmedian(np.where(changed, gains, np.nan), axis=0, keepdims=False), 1.0)
-    offset = np.where(keep, np.nanmedian(np.where(changed, offsets, np.nan), axis=0), 0.0)
+    gain, offset = np.ones(len(names)), np.zeros(len(names))
+    with warnings.catch_warnings():  # a kept score calibrated on some clips only: the median of those
+        warnings.simplefilter("ignore", RuntimeWarning)
+        gain[keep] = np.nanmedian(np.where(changed, gains, np.nan)[:, keep], axis=0)
+        offset[keep] = np.nanmedian(np.where(changed, offsets, np.nan)[:, keep], axis=0)
     log(f"ROM reference fitted on {len(fits)} clips: {int(keep.sum())} scores")
-    return ScoreResponse(names, np.nan_to_num(gain, nan=1.0), np.nan_to_num(offset), ROM_SHEET), \
-        [c.name for c in rom_clips]
+    return ScoreResponse(names, gain, offset, ROM_SHEET), [c.name for c in rom_clips]
 
 
 def calibration_clip(clip):
