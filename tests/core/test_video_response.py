@@ -284,3 +284,6 @@ def test_a_filmed_rom_config_writes_a_profile_of_its_response(tmp_path):
     assert c.output_profile == tmp_path / "perf.npz"
     with pytest.raises(ConfigError, match="a performer profile holds"):
         config(tmp_path, "", profile="perf.npz")
+    from facecap.solvers.config.paths import take_inputs
+
+    assert take_inputs(c)["[calibration.video]"] == tmp_path / "rom.mp4"  # no output may overwrite it
