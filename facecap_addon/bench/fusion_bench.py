@@ -361,16 +361,17 @@ def print_tables(rows):
                   f"brows median {np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst "
                   f"{np.nanmin(blink):.2f}")
     print()
-    print("| face | method | " + " | ".join(REGIONS) + " | visible | visible worst |")
+    print("| face | method | " + " | ".join(REGIONS) + " | visible | blink peak |")
     print("|---|---|" + "---|" * (len(REGIONS) + 2))
-    for face in ("ict", "facecap"):
+    for face in ("ict", "facecap"):  # per region the median over the face's clips and (in brackets) the worst
         mine = [m for c, m in rows.items() if f"-{face}" in c]
         for method in dict.fromkeys(k for m in mine for k in m):
             have = [m[method] for m in mine if method in m]
-            med = [np.median([h[r] for h in have]) for r in list(REGIONS) + ["visible"]]
-            worst = max(h["visible"] for h in have)
-            print(f"| {face} | {method} ({len(have)} clips) | " + " | ".join(f"{v:.3f}" for v in med)
-                  + f" | {worst:.3f} |")
+            cells = [f"{np.median([h[r] for h in have]):.3f} ({max(h[r] for h in have):.3f})"
+                     for r in list(REGIONS) + ["visible"]]
+            blink = [h["blink_peak"] for h in have]
+            print(f"| {face} | {method} ({len(have)} clips) | " + " | ".join(cells)
+                  + f" | {np.nanmedian(blink):.2f} ({np.nanmin(blink):.2f}) |")
 
 
 if __name__ == "__main__":
