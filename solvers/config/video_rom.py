@@ -36,7 +36,9 @@ def video_rom(path, data, video):
             return None
         if "holds" in cal:
             fail("calibration.holds", "the holds of a ROM on camera are found in its blendshape scores")
-        sequence = cal.pop("sequence")  # on a landmark take the sequence is the scores' ROM, not a marker ROM's
+        # on a landmark take the sequence is the scores' ROM: the marker ROM's hold finder does not find the poses
+        # in face-mesh landmarks (3 holds for the 24 poses of a rendered facecap-24 clip, refused as ambiguous)
+        sequence = cal.pop("sequence")
         return VideoRom(None, _poses(sequence, fail), _sheet(sequence), _neutral(cal))
     if not landmarks:
         fail("calibration.video", "the ROM on camera calibrates a landmark take's blendshape scores: give [source] "
