@@ -290,7 +290,8 @@ OPTIONS = (
       ui="op:facecap.export_review.filepath"),
     O("output", "actor_basis", "path", doc="The actor library used (refine: refined), as .npz", headless=OUTPUT_FILE),
     O("output", "profile", "path", doc="semantic: the performer profile this take's calibration measured (.npz), for "
-      "[actor] profile of later takes", headless=OUTPUT_FILE),
+      "[actor] profile of later takes; a landmark take's with [calibration] video: the blendshape scores' response",
+      headless=OUTPUT_FILE),
     O("output", "gltf", "path",
       doc="Binary glTF (.glb) for game engines: the character with its shape keys as morph targets and the "
           "take's animation (solve and animator layers baked into one action, plus the head motion when keyed)",
@@ -303,7 +304,8 @@ OPTIONS = (
       ui="facecap.head_target, facecap.head_bone"),
     # -- [actor] (semantic) ------------------------------------------------------------------------
     O("actor", "profile", "path", doc="semantic: this performer's stored profile (.npz, written by [output] profile "
-      "from a take with calibration poses)", ui="facecap.actor_profile"),
+      "from a take with calibration poses); landmark takes: its blendshape scores' response (a ROM on camera)",
+      ui="facecap.actor_profile"),
     O("actor", "template", "str", default="auto",
       doc="semantic: a human face template fitted to the actor's neutral: \"auto\" (the one `python -m facecap "
           "template convert` installed, if any), \"none\", or a path", ui="facecap.actor_template"),
@@ -328,7 +330,12 @@ OPTIONS = (
     O("calibration", "sequence", ("str", "list"),
       doc="semantic: a range-of-motion session in the order performed, its holds found in [calibration] markers (or "
           "the take itself): a built-in sheet (\"facecap-24\", \"arkit-51\") or a list of ARKit names and tables of "
-          "shape = weight (optional `label`); see docs/rom.md", ui="facecap.calib_sheet"),
+          "shape = weight (optional `label`); see docs/rom.md. A landmark take: the sheet of [calibration] video (or "
+          "of the take itself), which calibrates the blendshape scores", ui="facecap.calib_sheet"),
+    O("calibration", "video", "path",
+      doc="Landmark takes: the performer's ROM filmed with this camera ([calibration] sequence: its sheet); its "
+          "holds found in the blendshape scores calibrate each score's response (docs/video.md)",
+      headless="the sidebar's video takes use [actor] profile (a profile written by a headless ROM run)"),
     O("calibration", "holds", "table", doc="{pose label = middle frame}: where the [calibration] sequence's poses are "
       "held, used instead of the holds found",
       headless="the sidebar's holds are the timeline markers `ROM: <label>` that Find Poses places"),

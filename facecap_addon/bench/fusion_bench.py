@@ -12,7 +12,13 @@ The clips are kept apart by role (:data:`CLIPS`):
 * **tune**: two ICT identities (seeds 21 and 22), windows of ``llf_alex_rom_3``: the only clips the
   fusion table is fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
 * **report**: the ICT mean face and the Face Cap head (a face never tuned on), windows of
-  ``llf_alex_rom_4`` (another recording): judged, never fitted.
+  ``llf_alex_rom_4`` (another recording): judged, never fitted;
+* **tune-rom**: the tuning identities performing the ROM sheet ``facecap-24`` (``realism.rom``: imperfectly),
+  from both cameras: the reference the performers' responses are read against (``--fit-rom`` writes it into
+  the table, its gains kept);
+* **calibrate**: each reported face performing the sheet from each reported camera (another session): its
+  response (``solvers/video/response.py``) is fitted on this clip alone and judged on that face and camera's
+  reported clips ("fused + ROM").
 
 Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip is rendered once).
 """
@@ -20,7 +26,8 @@ Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip 
 import argparse
 import os
 import time
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +35,10 @@ import numpy as np
 from ...solvers.character.face_model import CM, ICT_AXES
 from ...solvers.config import load_take_config
 from ...solvers.io.weights import read_weights
+from ...solvers.rom import sequence_poses
+from ...solvers.tools.synthetic.realism.rom import rom_weights
 from ...solvers.video.fusion import FaceScores, FusionTable, fit_table, fuse, neutral_corrected
+from ...solvers.video.response import ScoreResponse, fit_response
 from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
 from ...solvers.video.landmarks import track_landmarks
 from ...solvers.video.reading import Footage
@@ -39,6 +49,17 @@ from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, sha
 
 HOLD = 45
 CHARACTER_SEED = 7
+#: The ROM clips (role "calibrate"): the sheet, filmed at this rate, with holds of 0.5-0.7 s, ramps of 0.15-0.25 s
+#: and rests of 0.3-0.45 s after a lead-in of 1.2-1.5 s (a short session: about 870 frames to render).
+ROM_SHEET, ROM_FPS = "facecap-24", 24.0
+ROM_TIMING = ((1.2, 1.5), (0.15, 0.25), (0.5, 0.7), (0.3, 0.45))
+#: The roles whose clips are ROM sessions: the tuning faces' (the reference the fusion table's faces give) and the
+#: reported faces' (each performer's calibration on each camera).
+ROM_ROLES = ("tune-rom", "calibrate")
+#: Degrees of the ROM performer's slow head drift (yaw, pitch, roll).
+ROM_HEAD_DEG = (3.0, 2.0, 1.0)
+#: Live Link Face's eye angles per unit of eye-look weight (radians): yaw per (out - in), pitch per (down - up).
+LOOK_YAW, LOOK_PITCH = 0.593, 0.544
 
 
 @dataclass(frozen=True)
@@ -55,6 +76,8 @@ class Clip:
 
     @property
     def name(self):
+        if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
+            return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
         return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
 
 
@@ -62,7 +85,11 @@ CLIPS = tuple(
     [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
      for seed in (21, 22) for start in (600, 2100) for az in (0.0, 30.0)]
     + [Clip("report", face, "llf_alex_rom_4.csv", start, az)
-       for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)])
+       for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)]
+    + [Clip("calibrate", face, ROM_SHEET, 38, az, frames=0)
+       for az in (0.0, 30.0) for face in ("facecap", "ict-mean")]
+    + [Clip("tune-rom", f"ict-{seed}", ROM_SHEET, 40 + seed, az, frames=0)
+       for az in (0.0, 30.0) for seed in (21, 22)])
 
 
 def face_arrays(face, shared):
@@ -79,22 +106,51 @@ def face_arrays(face, shared):
     return neutral, quads, names, deltas
 
 
+def rom_performance(names, seed):
+    """A ROM session of :data:`ROM_SHEET` performed imperfectly (``realism.rom``: 80-100 % of each asked shape,
+    neighbours leaking in, wobbling holds) at :data:`ROM_FPS`: (weights (F, K) on ``names``, head (F, 6), gaze
+    (F, 2, 2) from the eye-look weights as Live Link Face relates them, {"performed", "holds", "given"})."""
+    rng = np.random.default_rng(seed)
+    weights, performed, holds, given = rom_weights(names, sequence_poses(ROM_SHEET), rng, fps=ROM_FPS,
+                                                   timing=ROM_TIMING)
+    F = len(weights)
+    t = np.arange(F) / ROM_FPS
+    head = np.zeros((F, 6))
+    for axis, deg in enumerate(ROM_HEAD_DEG):
+        f1, f2 = rng.uniform(0.05, 0.2, size=2)
+        head[:, axis] = np.radians(deg) * 0.5 * (np.sin(2 * np.pi * f1 * t + rng.uniform(0, 6.3))
+                                                 + np.sin(2 * np.pi * f2 * t + rng.uniform(0, 6.3)))
+    w = lambda n: weights[:, names.index(n)] if n in names else np.zeros(F)  # noqa: E731
+    gaze = np.zeros((F, 2, 2))  # the subject's right eye, then left: yaw towards their left, pitch down
+    gaze[:, 0, 0] = LOOK_YAW * (w("eyeLookInRight") - w("eyeLookOutRight"))
+    gaze[:, 1, 0] = LOOK_YAW * (w("eyeLookOutLeft") - w("eyeLookInLeft"))
+    gaze[:, 0, 1] = LOOK_PITCH * (w("eyeLookDownRight") - w("eyeLookUpRight"))
+    gaze[:, 1, 1] = LOOK_PITCH * (w("eyeLookDownLeft") - w("eyeLookUpLeft"))
+    return weights, head, gaze, {"performed": np.array(performed), "holds": holds, "given": given}
+
+
 def prepare(clip, out, character, *, log=print):
     """Render ``clip``, run its landmark take onto ``character`` (unfused) and cache what the fusion needs:
-    ``<out>/<name>.npz`` with the truth, the solve, the blendshape scores and the take's neutral frames."""
+    ``<out>/<name>.npz`` with the truth, the solve, the blendshape scores and the take's neutral frames (a ROM
+    clip also keeps its session's truth: the poses performed, their holds and the weights given)."""
     cached = out / f"{clip.name}.npz"
     if cached.is_file():
         return dict(np.load(cached))
     shared = shared_folder() / "data"
     neutral, polygons, names, deltas = face_arrays(clip.face, shared)
-    weights, head, gaze = performance(shared / "realdata" / "llf" / clip.recording, names, start=clip.start,
-                                      frames=clip.frames, hold=HOLD)
+    extra, shot = {}, Shot(distance=0.5, azimuth=clip.azimuth)
+    if clip.role in ROM_ROLES:
+        weights, head, gaze, extra = rom_performance(names, clip.start)
+        shot = Shot(distance=0.5, azimuth=clip.azimuth, fps=ROM_FPS)
+    else:
+        weights, head, gaze = performance(shared / "realdata" / "llf" / clip.recording, names, start=clip.start,
+                                          frames=clip.frames, hold=HOLD)
     video = out / f"{clip.name}.mp4"
     t = time.perf_counter()
     if not video.is_file():  # rendered under another name first: a clip cut short is never taken as whole
         part = video.with_name(video.stem + "-part.mp4")
-        render_face_clip(part, neutral, polygons, deltas, weights, head=head, gaze=gaze,
-                         shot=Shot(distance=0.5, azimuth=clip.azimuth))
+        log(f"{clip.name}: rendering {len(weights)} frames")
+        render_face_clip(part, neutral, polygons, deltas, weights, head=head, gaze=gaze, shot=shot)
         part.replace(video)
     t_render = time.perf_counter() - t
     solved = out / f"{clip.name}.csv"
@@ -107,7 +163,7 @@ def prepare(clip, out, character, *, log=print):
     s = read_weights(solved)
     data = {"truth": weights, "truth_names": np.array(names), "solved": s.values, "solved_names": np.array(s.names),
             "scores": found.blendshapes, "score_names": np.array(found.blendshape_names),
-            "neutral": landmark_neutral(found), "render_s": t_render}
+            "neutral": landmark_neutral(found), "render_s": t_render, **extra}
     np.savez(cached, **data)
     if clip.role == "tune":
         video.unlink()  # the npz keeps what the fusion needs; a reported clip's video is kept for the speed
@@ -166,9 +222,44 @@ def fit(out, *, log=print):
     return table, np.nanmean(truth, axis=0)
 
 
+def rom_fit(out, clip, reference=None):
+    """The ResponseFit of the cached ROM ``clip`` (``response.fit_response``; relative to ``reference``)."""
+    data = dict(np.load(out / f"{clip.name}.npz"))
+    return fit_response(data["scores"], [str(n) for n in data["score_names"]], data["neutral"],
+                        sequence_poses(ROM_SHEET), fps=ROM_FPS, reference=reference, sheet=ROM_SHEET)
+
+
+def fit_reference(out, *, log=print):
+    """The tuning faces' ROM response (``FusionTable.reference``): each "tune-rom" clip fitted alone, then per score
+    the median gain and offset over the clips that calibrated it; the identity for a score fewer than half of them
+    calibrated (it does not respond on these faces)."""
+    rom_clips = [c for c in CLIPS if c.role == "tune-rom" and (out / f"{c.name}.npz").is_file()]
+    fits = [rom_fit(out, c).response for c in rom_clips]
+    names = fits[0].names
+    changed = np.array([[n in f.changed() for n in names] for f in fits])
+    gains, offsets = np.stack([f.gain for f in fits]), np.stack([f.offset for f in fits])
+    keep = changed.sum(axis=0) * 2 > len(fits)
+    gain, offset = np.ones(len(names)), np.zeros(len(names))
+    with warnings.catch_warnings():  # a kept score calibrated on some clips only: the median of those
+        warnings.simplefilter("ignore", RuntimeWarning)
+        gain[keep] = np.nanmedian(np.where(changed, gains, np.nan)[:, keep], axis=0)
+        offset[keep] = np.nanmedian(np.where(changed, offsets, np.nan)[:, keep], axis=0)
+    log(f"ROM reference fitted on {len(fits)} clips: {int(keep.sum())} scores")
+    return ScoreResponse(names, gain, offset, ROM_SHEET), [c.name for c in rom_clips]
+
+
+def calibration_clip(clip):
+    """The ROM clip (role "calibrate") of the reported ``clip``'s face and camera, or None."""
+    for c in CLIPS:
+        if c.role == "calibrate" and c.face == clip.face and c.azimuth == clip.azimuth:
+            return c
+    return None
+
+
 def evaluate(out, table, constant, role="report"):
     """{clip: {method: region table}} for the clips of ``role``: the landmark solve, the corrected scores, the
-    fusion and a constant (the tuning clips' mean weights on every frame)."""
+    fusion, the fusion with the performer's response from the ROM clip of the same face and camera (when it is
+    in ``out``) and a constant (the tuning clips' mean weights on every frame)."""
     names = judged_names()
     rows = {}
     for clip in CLIPS:
@@ -176,14 +267,19 @@ def evaluate(out, table, constant, role="report"):
             continue
         data = dict(np.load(out / f"{clip.name}.npz"))
         truth, solved, corrected = columns(data, names)
-        fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
-                        FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"]),
-                        table=table)
-        fused = columns({**data, "solved": fused}, names)[1]
-        rows[clip.name] = {"landmarks": region_rmse(solved, truth, names),
-                           "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names),
-                           "fused": region_rmse(fused, truth, names),
-                           "constant": region_rmse(np.broadcast_to(constant, truth.shape), truth, names)}
+        rom = calibration_clip(clip)
+        responses = {"fused": None}
+        if rom is not None and (out / f"{rom.name}.npz").is_file():
+            responses["fused + ROM"] = rom_fit(out, rom, table.reference).response
+        row = {"landmarks": region_rmse(solved, truth, names),
+               "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names)}
+        for method, response in responses.items():
+            fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
+                            FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"],
+                                       response=response), table=table)
+            row[method] = region_rmse(columns({**data, "solved": fused}, names)[1], truth, names)
+        row["constant"] = region_rmse(np.broadcast_to(constant, truth.shape), truth, names)
+        rows[clip.name] = row
     return rows
 
 
@@ -209,10 +305,12 @@ def speed(video, log=print):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
-    parser.add_argument("--role", choices=("tune", "report"), action="append", help="only these clips")
+    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate"), action="append", help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "
                                                           "(solvers/video/fusion_table.json)")
+    parser.add_argument("--fit-rom", action="store_true", help="fit the table's ROM reference on the tuning faces' ROM "
+                                                              "clips (role tune-rom) and write it, the gains kept")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -227,9 +325,16 @@ def main(argv=None):
             prepare(clip, out, character)
     if args.fit:
         table, constant = fit(out)
+        table = replace(table, reference=FusionTable.load().reference)
         table.save()
     else:
         table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1]
+    if args.fit_rom:
+        reference, rom_clips = fit_reference(out)
+        measured = {**table.measured_on, "rom_clips": rom_clips,
+                    "rom_command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit-rom"}
+        table = replace(table, measured_on=measured, reference=reference)
+        table.save()
     rows = evaluate(out, table, constant)
     print_tables(rows)
     videos = sorted(out.glob("report-*.mp4"))
@@ -248,14 +353,25 @@ def print_tables(rows):
             print(f"| {clip} | {method} | " + " | ".join(f"{table[k]:.3f}" for k in keys) + " |")
     for face in ("ict", "facecap"):
         mine = [m for c, m in rows.items() if f"-{face}" in c]
-        if not mine:
-            continue
-        for method in mine[0]:
-            vis = [m[method]["visible"] for m in mine]
-            brows = [m[method]["brows"] for m in mine]
-            blink = [m[method]["blink_peak"] for m in mine]
-            print(f"{face} {method}: visible median {np.median(vis):.3f} worst {np.max(vis):.3f}; brows median "
-                  f"{np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst {np.nanmin(blink):.2f}")
+        for method in dict.fromkeys(k for m in mine for k in m):
+            vis = [m[method]["visible"] for m in mine if method in m]
+            brows = [m[method]["brows"] for m in mine if method in m]
+            blink = [m[method]["blink_peak"] for m in mine if method in m]
+            print(f"{face} {method} ({len(vis)} clips): visible median {np.median(vis):.3f} worst {np.max(vis):.3f}; "
+                  f"brows median {np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst "
+                  f"{np.nanmin(blink):.2f}")
+    print()
+    print("| face | method | " + " | ".join(REGIONS) + " | visible | blink peak |")
+    print("|---|---|" + "---|" * (len(REGIONS) + 2))
+    for face in ("ict", "facecap"):  # per region the median over the face's clips and (in brackets) the worst
+        mine = [m for c, m in rows.items() if f"-{face}" in c]
+        for method in dict.fromkeys(k for m in mine for k in m):
+            have = [m[method] for m in mine if method in m]
+            cells = [f"{np.median([h[r] for h in have]):.3f} ({max(h[r] for h in have):.3f})"
+                     for r in list(REGIONS) + ["visible"]]
+            blink = [h["blink_peak"] for h in have]
+            print(f"| {face} | {method} ({len(have)} clips) | " + " | ".join(cells)
+                  + f" | {np.nanmedian(blink):.2f} ({np.nanmin(blink):.2f}) |")
 
 
 if __name__ == "__main__":

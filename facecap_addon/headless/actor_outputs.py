@@ -8,6 +8,7 @@ from pathlib import Path
 from ...solvers.errors import ConfigError
 from ...solvers.strategies.actor_model import profile_of
 from ...solvers.tuning.store import save_version
+from ...solvers.video.response import save_profile
 
 
 def write_actor_basis(config, result, outputs):
@@ -21,17 +22,18 @@ def write_actor_basis(config, result, outputs):
     outputs["actor_basis"] = str(config.output_actor_basis)
 
 
-def write_profile(config, result, outputs):
-    """``[output] profile``: the semantic solve's measured shapes of the actor (the config check makes sure
-    there are poses; a solve that measured none is refused here too)."""
+def write_profile(config, result, outputs, response=None):
+    """``[output] profile``: the semantic solve's measured shapes of the actor and/or (a landmark take with a ROM on
+    camera) the blendshape scores' ``response`` (the config check makes sure there is one or the other; a solve
+    that measured nothing, without a response, is refused here too)."""
     model = getattr(result.fitted, "model", None)
     profile = None if model is None else profile_of(model)
-    if profile is None:
+    if profile is None and response is None:
         raise ConfigError("a performer profile holds measured calibration poses: give [calibration] poses (and "
                           "markers, or frames of this take) with the semantic strategy", path=config.path,
                           key="output.profile")
     config.output_profile.parent.mkdir(parents=True, exist_ok=True)
-    profile.save_npz(config.output_profile)
+    save_profile(config.output_profile, basis=profile, response=response)
     outputs["profile"] = str(config.output_profile)
 
 

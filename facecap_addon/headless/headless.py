@@ -38,7 +38,7 @@ from . import console
 from .actor_outputs import store_retune, versions_folder, write_actor_basis, write_profile
 from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_blend_atomic, stamp_target,
                           start_blender, target_changed)
-from .landmark_take import hold_gaze, read_landmarks, with_scores
+from .landmark_take import hold_gaze, read_landmarks, score_response, with_scores
 from ..render.review import read_review_truth, write_take_review
 from .take_request import corrections_for, rig_request, shape_names, source_fields, with_driven_keys
 
@@ -118,7 +118,7 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
     if config.output_actor_basis is not None:
         write_actor_basis(config, result, outputs)
     if config.output_profile is not None:
-        write_profile(config, result, outputs)
+        write_profile(config, result, outputs, response=take.response if config.video_rom is not None else None)
     rom = result.info.get("rom")
     if rom:
         say(f"ROM: {rom['summary']}")
@@ -208,6 +208,7 @@ class _Take:
     cleaning: tuple = ()
     repeats: tuple = ()  # solve notes that only repeat the notes above
     landmarks: object = None  # LandmarkResult of a landmark take (pixels: the gaze)
+    response: object = None  # the blendshape scores' response of a landmark take (ROM on camera, profile)
 
     def fps(self):
         if self.markers is not None:
@@ -270,7 +271,11 @@ def read_take(config, say, *, quiet=True):
     if isinstance(config.video, LandmarkTake):
         say(f"[1/5] face landmarks in {config.video.path}")
         markers, source, notes, found = read_landmarks(config.video, inputs, say, quiet=quiet)
-        return _Take(markers=markers, inputs=inputs, source=source, notes=notes, landmarks=found)
+        response, report, more = score_response(config, found, say, quiet=quiet)
+        if report is not None:
+            source["score_response"] = report
+        return _Take(markers=markers, inputs=inputs, source=source, notes=notes + tuple(more), landmarks=found,
+                     response=response)
     if config.video is not None:
         say(f"[1/5] reading footage {config.video.path}")
         footage = Footage(config.video.path, **config.video.footage)
@@ -379,7 +384,7 @@ def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False
     if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
         request, note = hold_gaze(request, shape_names(character), take.landmarks)
         take.notes = tuple(take.notes) + ((note,) if note else ())
-        request = with_scores(request, take.landmarks, config.video)
+        request = with_scores(request, take.landmarks, config.video, take.response)
     fields = source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()

@@ -1,6 +1,7 @@
 """The headless side of a landmark take (``[tracking] method = "landmarks"``): the footage's face landmarks
-as a marker take in metres, and the character's eye-look shapes held at the irises' gaze, its blink and
-wide shapes at the lids' gap, through the solve."""
+as a marker take in metres, the character's eye-look shapes held at the irises' gaze, its blink and
+wide shapes at the lids' gap, through the solve, and the blendshape scores' response for this performer and
+camera (a ROM on camera, ``[calibration] video``, or a performer profile)."""
 
 import dataclasses
 
@@ -9,11 +10,13 @@ import numpy as np
 from ...solvers.capture.normalise import detect_neutral_frames
 from ...solvers.capture.stabilise import stabilise_rigid
 from ...solvers.pipeline.stages import neutral_ranges
+from ...solvers.errors import ConfigError, FacecapError
 from ...solvers.video.cli import run_showing_progress
-from ...solvers.video.fusion import FaceScores
+from ...solvers.video.fusion import FaceScores, FusionTable
 from ...solvers.video.gaze import gaze_locks
 from ...solvers.video.landmarks import RIGID, metric_take, track_landmarks_job
 from ...solvers.video.reading import Footage
+from ...solvers.video.response import fit_response, profile_contents
 from . import console
 
 
@@ -48,17 +51,61 @@ def neutral_indices(settings, markers):
     return np.flatnonzero(np.isin(frames, detect_neutral_frames(held)[0]))
 
 
-def with_scores(request, found, video):
+def with_scores(request, found, video, response=None):
     """``request`` carrying the Face Landmarker's blendshape scores of ``found`` (corrected by the take's neutral
-    frames and combined with the solve per shape, ``solvers/video/fusion.py``) unless the take has none or its
-    ``[tracking] blendshapes`` is "ignore"."""
+    frames, read through the performer's ``response`` if known, and combined with the solve per shape,
+    ``solvers/video/fusion.py``) unless the take has none or its ``[tracking] blendshapes`` is "ignore"."""
     if found.blendshapes is None or getattr(video, "blendshapes", "fuse") == "ignore":
         return request
     neutral = neutral_indices(request.settings, request.markers)
     if neutral is None or not len(neutral):
         return request
-    scores = FaceScores(found.blendshapes, tuple(found.blendshape_names), neutral)
+    scores = FaceScores(found.blendshapes, tuple(found.blendshape_names), neutral, response=response)
     return dataclasses.replace(request, scores=scores)
+
+
+def score_response(config, found, say, *, quiet=False):
+    """(the blendshape scores' response or None, report fields or None, notes) of a landmark take: fitted from
+    its ROM on camera (``[calibration] video``, or the take ``found`` itself when ``[calibration] sequence`` names
+    its sheet) against the tuning faces' (the fusion table's reference), else read from ``[actor] profile``."""
+    rom = config.video_rom
+    if rom is not None:
+        video = config.video
+        if rom.path is None:
+            clip = found
+        else:
+            say(f"[1/5] face landmarks in the ROM on camera {rom.path}")
+            job = track_landmarks_job(Footage(rom.path, color=True), smoothing=video.smoothing, iris=video.iris,
+                                      models=video.models, bundle=video.bundle)
+            clip = run_showing_progress(job, "ROM landmarks", quiet=quiet or console.quiet())
+        key = "calibration.video" if rom.path is not None else "calibration.sequence"
+        if clip.blendshapes is None:
+            raise ConfigError("the ROM on camera calibrates the Face Landmarker's blendshape scores, and these "
+                              "landmarks have none (the older models ran: `python -m facecap landmark-models fetch`)",
+                              path=config.path, key=key)
+        frames = clip.markers.frames
+        if rom.neutral is not None:
+            neutral = np.flatnonzero((frames >= rom.neutral[0]) & (frames <= rom.neutral[1]))
+        else:
+            neutral = landmark_neutral(clip)
+        try:
+            fit = fit_response(clip.blendshapes, clip.blendshape_names, neutral, rom.poses,
+                               fps=clip.markers.fps or 30.0, reference=FusionTable.load().reference, sheet=rom.sheet)
+        except FacecapError as exc:
+            raise ConfigError(f"{rom.path or 'the take'}: {exc}", path=config.path, key=key) from None
+        say(f"ROM on camera: {fit.summary}")
+        report = {"from": rom.path or "the take", "sheet": rom.sheet, **fit.report()}
+        return fit.response, report, fit.notes
+    if config.actor_profile_path is not None:
+        _, response = profile_contents(config.actor_profile_path)
+        name = config.actor_profile_path.name
+        if response is None:
+            return None, None, (f"[actor] profile {name} holds no blendshape response (its calibration was measured "
+                                "from markers, not a ROM on camera): the scores are fused uncalibrated; film the ROM "
+                                "and store it with [calibration] video and [output] profile",)
+        return response, {"from": str(config.actor_profile_path), "sheet": response.sheet,
+                          "shapes": len(response.changed())}, ()
+    return None, None, ()
 
 
 def landmark_neutral(found):

@@ -20,6 +20,7 @@ from ...solvers.errors import FacecapError
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve, solve_job
 from ...solvers.video.fusion import FaceScores
+from ...solvers.video.response import profile_contents
 from ...solvers.video.reading import Cancelled
 from ..headless.landmark_take import neutral_indices
 from . import anim, layers, take
@@ -69,12 +70,20 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
 
 def landmark_scores(settings, markers, rsettings):
     """The Face Landmarker's blendshape scores a landmark take keeps on its collection (``store_scores``), with
-    the take's neutral frames (given or detected as the solve detects them): FaceScores, or None."""
+    the take's neutral frames (given or detected as the solve detects them) and the response of the Solve
+    panel's performer profile, if it holds one (a ROM on camera, written headless): FaceScores, or None."""
     found = scores_from_collection(settings.marker_collection, markers.frames)
     if found is None:
         return None
     neutral = neutral_indices(rsettings, markers)
-    return None if neutral is None or not len(neutral) else FaceScores(found[0], found[1], neutral)
+    if neutral is None or not len(neutral):
+        return None
+    response = None  # the performer's response on this camera, when the Solve panel's profile holds one
+    if settings.actor_profile:
+        import bpy  # bpy: the sidebar's paths are relative to the .blend
+
+        response = profile_contents(bpy.path.abspath(settings.actor_profile))[1]
+    return FaceScores(found[0], found[1], neutral, response=response)
 
 
 

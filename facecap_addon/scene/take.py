@@ -28,6 +28,7 @@ from ...solvers.strategies.options import (
     StrategyInputs,
 )
 from ...solvers.transforms import matrix_to_euler_xyz
+from ...solvers.video.response import profile_contents
 from . import anim, layers, rom_markers
 from .import_scene import pixels_from_scene
 from .scene_data import solvable_blocks
@@ -267,7 +268,12 @@ def _actor_inputs(settings, notes):
     """The semantic solve's knowledge of the actor from the Solve panel: a performer profile, the human template."""
     out = {}
     if settings.actor_profile:
-        out["profile"] = Basis.load_npz(bpy.path.abspath(settings.actor_profile))
+        path = bpy.path.abspath(settings.actor_profile)
+        if profile_contents(path)[0]:
+            out["profile"] = Basis.load_npz(path)
+        else:
+            notes.append(f"the performer profile {Path(path).name} holds the blendshape scores' response of a ROM on "
+                         "camera and no measured shapes")
     template = human_template(settings, notes)
     if template is not None:
         out["template"] = template

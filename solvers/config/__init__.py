@@ -39,6 +39,7 @@ from .binding import parse_binding
 from .rig import parse_rig
 from .strategies import strategy_settings
 from .tuning import parse_controls, parse_tuning
+from .video_rom import video_rom
 
 
 @dataclass(frozen=True)
@@ -75,6 +76,7 @@ class TakeConfig:
     tuning: object = None  # [tuning]: TuningConfig (solvers.config.tuning)
     controls: dict = None  # [controls]: {shape or glob: ShapeControl}
     video: object = None  # [source] video + [tracking] / [flow]: VideoTake (solvers.video.flow_config)
+    video_rom: object = None  # [calibration] video / sequence of a landmark take: VideoRom (config.video_rom)
     controls_preset: Path | None = None  # [controls] preset
     output_gltf: Path | None = None  # [output] gltf: binary glTF (.glb) of the character and the take
     output_fbx: Path | None = None  # [output] fbx: the same as FBX
@@ -174,6 +176,7 @@ def load_take_config(path, data=None):
     strategy = get("solve", "strategy", ("geometric" if probed_rig else default("solve.strategy"))
                    if video_raw is None or landmarks else "linear")
     video = None if video_raw is None else part(video_take, path, video_raw, data, strategy)
+    rom_on_camera = part(video_rom, path, data, video)  # before the strategy's [calibration] is read
     if video_raw is None:
         part(_check_source, path, data, strategy)
     stable, frames = (), [1, 1]
@@ -194,7 +197,7 @@ def load_take_config(path, data=None):
     strategy_options = {}
     if not (video_raw is not None and video is None):  # a broken video take: its strategy inputs are no news
         strategy_options = part(strategy_settings, path, data, strategy, default={})
-    part(_check_profile_output, path, data, strategy)
+    part(_check_profile_output, path, data, strategy, rom_on_camera)
     outputs = {key: part(_export_path, path, key, resolve(get("output", key))) for key in EXPORT_SUFFIXES}
     tuning = part(parse_tuning, path, free.get("tuning"), base)
     controls = part(parse_controls, path, free.get("controls"), base)
@@ -251,20 +254,22 @@ def load_take_config(path, data=None):
         controls=controls,
         controls_preset=resolve(free.get("controls", {}).get("preset")),
         video=video,
+        video_rom=rom_on_camera,
         binding=binding,
         rig=rig,
     )
 
 
-def _check_profile_output(path, data, strategy):
+def _check_profile_output(path, data, strategy, rom_on_camera=None):
     """``[output] profile`` stores measured shapes of the actor: the semantic strategy with calibration poses (or a
-    stored library or profile to pass on)."""
-    if "profile" not in data.get("output", {}):
+    stored library or profile to pass on), or the blendshape scores' response from a ROM on camera."""
+    if "profile" not in data.get("output", {}) or rom_on_camera is not None:
         return
     cal, actor = data.get("calibration", {}), data.get("actor", {})
     if strategy != "semantic" or not ("poses" in cal or "sequence" in cal or "basis" in cal or "profile" in actor):
         raise ConfigError("a performer profile holds the actor's measured shapes: give [calibration] sequence (a ROM "
-                          "session) or poses (with markers, or frames of this take) and the semantic strategy",
+                          "session) or poses (with markers, or frames of this take) and the semantic strategy; for a "
+                          "landmark take, [calibration] video (the ROM on camera) and sequence",
                           path=path, key="output.profile")
 
 

@@ -53,6 +53,9 @@ def take_inputs(config):
             found[key] = Path(value)
     if getattr(config, "video", None) is not None:
         found["[source.video]"] = Path(config.video.path)
+    rom = getattr(config, "video_rom", None)
+    if rom is not None and rom.path is not None:
+        found["[calibration.video]"] = Path(rom.path)
     tuning = getattr(config, "tuning", None)
     if tuning is not None:
         for key, value in (("[tuning.corrections]", tuning.corrections), ("[tuning.library]", tuning.library)):

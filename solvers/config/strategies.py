@@ -30,6 +30,7 @@ from ..strategies.options import (
 from ..rom.sheets import sequence_poses
 from ..strategies.parallel import parallel_curve
 from ..strategies.wiring import NEEDS
+from ..video.response import profile_contents
 
 ALIGN = ("rigid", "similarity", "none")
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
@@ -329,7 +330,13 @@ def _semantic_inputs(config, need, read_markers, notes):
                                           config.calibration_units or config.units, config.calibration_fps or config.fps)
     for path, key in ((config.actor_basis_path, "actor_basis"), (config.actor_profile_path, "profile")):
         if path is not None:
-            out[key] = Basis.load_npz(need(path, f"[{'calibration] basis' if key == 'actor_basis' else 'actor] profile'}"))
+            name = f"[{'calibration] basis' if key == 'actor_basis' else 'actor] profile'}"
+            if key == "profile" and not profile_contents(need(path, name))[0]:
+                notes.append(f"[actor] profile {path.name} holds the blendshape scores' response of a ROM on camera "
+                             "and no measured shapes: the semantic solve knows this actor from the template or the "
+                             "character")
+                continue
+            out[key] = Basis.load_npz(need(path, name))
     template = config.settings.actor.template
     if template != "none":
         path = template_path() if template == "auto" else config.path.parent / template

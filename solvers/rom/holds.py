@@ -71,7 +71,7 @@ def _moving_mean(x, half):
 def activity(deltas, noise, fps):
     """(F,) the face's activity (noise units) of stabilised deltas (F, M, 3) from the neutral, with ``noise`` the
     capture's (metres RMS per coordinate, ``capture.noise.marker_noise``) at ``fps``."""
-    half = _half(fps)
+    half = half_window(fps)
     smooth = _moving_mean(deltas, half)
     dist = np.linalg.norm(smooth, axis=2)
     dist = np.where(np.isfinite(dist), dist, -np.inf)
@@ -83,13 +83,14 @@ def activity(deltas, noise, fps):
     return np.nan_to_num(level / activity_unit(noise, fps))
 
 
-def _half(fps):
+def half_window(fps):
+    """Frames on each side of a frame that the activity is smoothed over (``SMOOTH_S``)."""
     return max(1, int(round(0.5 * SMOOTH_S * fps)))
 
 
 def activity_unit(noise, fps):
     """The size (metres) of one unit of ``activity``: a smoothed 3D noise vector's."""
-    return noise * np.sqrt(3.0 / (2 * _half(fps) + 1))
+    return noise * np.sqrt(3.0 / (2 * half_window(fps) + 1))
 
 
 def _runs(mask):

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..character.aliases import canonical_names
 from ..errors import FacecapError
+from .score_response import ScoreResponse
 
 TABLE_FILE = Path(__file__).resolve().parent / "fusion_table.json"
 #: The largest gain a table gives a signal: a score that barely moves in the tuning clips (eyeLookUp: 12x
@@ -36,27 +37,40 @@ MAX_GAIN = 2.0
 
 @dataclass(frozen=True)
 class FusionTable:
-    """Per shape (ARKit names) the gains of the corrected score (``score``) and of the landmark solve (``solve``)."""
+    """Per shape (ARKit names) the gains of the corrected score (``score``) and of the landmark solve (``solve``);
+    ``reference``: how the tuning faces' scores respond to a ROM sheet (a ``ScoreResponse``, or None),
+    which a performer's ROM clip is calibrated against (``response.fit_response``)."""
 
     score: dict
     solve: dict
     measured_on: dict = field(default_factory=dict)
+    reference: object = None
 
     @classmethod
     def load(cls, path=TABLE_FILE):
         path = Path(path)
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
+            ref = data.get("rom_reference")
+            reference = None if ref is None else ScoreResponse(
+                tuple(ref["shapes"]), [v[0] for v in ref["shapes"].values()], [v[1] for v in ref["shapes"].values()],
+                ref["sheet"])
             return cls({k: float(v[0]) for k, v in data["shapes"].items()},
-                       {k: float(v[1]) for k, v in data["shapes"].items()}, data.get("measured_on", {}))
-        except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
+                       {k: float(v[1]) for k, v in data["shapes"].items()}, data.get("measured_on", {}), reference)
+        except (OSError, ValueError, KeyError, IndexError, TypeError, FacecapError) as exc:
             raise FacecapError(f"{path}: not a fusion table ({exc})") from None
 
     def save(self, path=TABLE_FILE):
         rows = ",\n".join(f'  "{k}": [{self.score[k]:.4f}, {self.solve[k]:.4f}]' for k in self.score)
         head = json.dumps({"format": "facecap-fusion-table", "measured_on": self.measured_on,
                            "columns": ["score gain a", "solve gain b"]})
-        text = head[:-1] + ', "shapes": {\n' + rows + "\n}}"
+        text = head[:-1] + ', "shapes": {\n' + rows + "\n}"
+        if self.reference is not None:
+            r = self.reference
+            refs = ",\n".join(f'  "{n}": [{g:.4f}, {o:.4f}]' for n, g, o in zip(r.names, r.gain, r.offset))
+            text += (f', "rom_reference": {{"sheet": {json.dumps(r.sheet)}, "columns": ["gain", "offset"], '
+                     f'"shapes": {{\n{refs}\n}}}}')
+        text += "}"
         tmp = Path(path).with_name(Path(path).name + ".part")
         tmp.write_text(text + "\n", encoding="utf-8")
         tmp.replace(path)

@@ -68,16 +68,18 @@ def _asked(pose, index, rng):
     return target
 
 
-def rom_weights(shape_names, poses, rng, *, fps=60.0, skip=(), extra=0):
+def rom_weights(shape_names, poses, rng, *, fps=60.0, skip=(), extra=0, timing=None):
     """Weights (F, K) of a session performing ``poses`` (skipping the indices ``skip``, adding ``extra``
     expressions of two random shapes at random places); returns (weights, performed, holds (H, 2) 1-based frame
-    numbers, given (H, K))."""
+    numbers, given (H, K)). ``timing``: (lead, ramp, hold, rest) ranges in seconds (default: ``LEAD``, ``RAMP``,
+    ``HOLD``, ``REST_S``; a rendered clip uses shorter ones)."""
+    lead, ramp, hold_s, rest_s = (LEAD, RAMP, HOLD, REST_S) if timing is None else timing
     index = {n: i for i, n in enumerate(shape_names)}
     order = [j for j in range(len(poses)) if j not in set(skip)]
     for _ in range(extra):
         order.insert(int(rng.integers(0, len(order) + 1)), -1)
     sec = lambda r: int(round(rng.uniform(*r) * fps))  # noqa: E731
-    rows = [np.zeros((max(REST, sec(LEAD)), len(shape_names)))]
+    rows = [np.zeros((max(REST, sec(lead)), len(shape_names)))]
     t = len(rows[0])
     holds, given = [], []
     for j in order:
@@ -86,7 +88,7 @@ def rom_weights(shape_names, poses, rng, *, fps=60.0, skip=(), extra=0):
         else:
             target = np.zeros(len(shape_names))
             target[rng.choice(len(shape_names), size=2, replace=False)] = rng.uniform(0.5, 1.0, size=2)
-        up, hold, down, rest = sec(RAMP), sec(HOLD), sec(RAMP), sec(REST_S)
+        up, hold, down, rest = sec(ramp), sec(hold_s), sec(ramp), sec(rest_s)
         tt = np.arange(hold) / fps
         wobble = 1.0 + WOBBLE * np.sin(2 * np.pi * rng.uniform(*WOBBLE_HZ) * tt + rng.uniform(0, 2 * np.pi))
         held = np.clip(wobble[:, None] * target[None], 0.0, 1.0)
