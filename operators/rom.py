@@ -1,13 +1,18 @@
 """The range-of-motion session of the Solve panel: *Find Poses* marks the ROM take's holds on the timeline, *Save
-Performer Profile* writes the actor's shapes measured from them for every later take of that performer."""
+Performer Profile* writes the actor's shapes measured from them for every later take of that performer. A ROM take
+tracked from video (*Track Face Landmarks*, keeping the blendshape scores) is the performer's ROM on camera: its
+poses are found in the scores and the profile holds their response on that camera."""
 
 import os
+from types import SimpleNamespace
 
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, StringProperty
 
 from ..facecap_addon.scene import rom_markers, rom_scene
 from ..solvers.errors import FacecapError
+from ..solvers.video.response import ResponseFit
 from .solve import SolveJobOperator
 
 
@@ -21,6 +26,16 @@ def why_not(context):
     if not rom_markers.has_rom_take(s):
         return rom_scene.NO_ROM_TAKE[0].upper() + rom_scene.NO_ROM_TAKE[1:]
     return None
+
+
+def camera_poses(fit, frames):
+    """The poses a ROM on camera found (a ResponseFit), as ``rom_markers.place_markers`` takes them: each pose with
+    the middle frame of its hold on the timeline (NaN: not found); ``frames``: the ROM take's frame numbers (the
+    fit's holds are indices into them)."""
+    index = np.arange(len(frames), dtype=np.float64)
+    middles = [float("nan") if f is None else float(np.interp(0.5 * (f[0] + f[1]), index, frames))
+               for f in fit.frames]
+    return SimpleNamespace(poses=fit.poses, middles=middles)
 
 
 class RomJobOperator(SolveJobOperator):
@@ -59,6 +74,14 @@ class FACECAP_OT_rom_find_poses(RomJobOperator, bpy.types.Operator):
 
     def _write(self, context, session):
         result = session.wait()
+        if isinstance(result, ResponseFit):  # a ROM on camera: the poses found in its blendshape scores
+            made = rom_markers.place_markers(context.scene, camera_poses(result, session.frames))
+            for note in result.notes:
+                self.report({"WARNING"}, note)
+            self.report({"INFO"}, f"Find Poses (ROM on camera): {result.summary}; marked "
+                                  f"'{rom_markers.PREFIX}<pose>' on the timeline: "
+                                  f"{', '.join(m.name[len(rom_markers.PREFIX):] for m in made)}")
+            return {"FINISHED"}
         found = result.found
         made = rom_markers.place_markers(context.scene, found)
         for note in found.notes:  # poses not found, expressions the sheet does not ask, by name
@@ -128,6 +151,13 @@ class FACECAP_OT_rom_save_profile(RomJobOperator, bpy.types.Operator):
         path = rom_scene.profile_path(self.filepath)
         rom_scene.check_profile_output(settings, path, overwrite=self.overwrite)  # again: a while has passed
         rom_scene.save_profile(settings, result, path)
+        if isinstance(result, ResponseFit):
+            for note in result.notes:
+                self.report({"WARNING"}, note)
+            self.report({"INFO"}, f"Saved the performer profile {path}: the blendshape scores' response on this "
+                                  f"camera ({result.summary}); every later landmark take of this performer uses it "
+                                  "(Performer Profile)")
+            return {"FINISHED"}
         found = result.found
         for note in result.notes:
             self.report({"WARNING"} if note in found.notes else {"INFO"}, note)

@@ -110,7 +110,12 @@ def score_response(config, found, say, *, quiet=False):
 
 def landmark_neutral(found):
     """Indices of the neutral frames detected in a LandmarkResult, as a landmark take's solve detects them."""
-    markers = metric_take(found, iris=False)
+    return metric_neutral(metric_take(found, iris=False))
+
+
+def metric_neutral(markers):
+    """Indices of the neutral frames detected in a landmark take already in metres (``metric_take``: the
+    sidebar's landmark takes), stabilised on its head-rigid landmarks."""
     stable = [n for n in RIGID if n in markers.names]
     held = stabilise_rigid(markers, stable).markers
     return np.flatnonzero(np.isin(markers.frames, detect_neutral_frames(held)[0]))

@@ -2,25 +2,33 @@
 sheet as a semantic solve would measure it (``solvers.strategies.rom_wiring.learn_from_rom_take``), for *Find
 Poses* (the holds found anew, marked on the timeline: ``rom_markers``) and *Save Performer Profile* (the holds of
 the ``ROM: `` markers when there are any; the actor's measured shapes written as an .npz the semantic solve reads
-as ``[actor] profile``)."""
+as ``[actor] profile``). A ROM take that keeps the Face Landmarker's blendshape scores (*Track Face Landmarks* on
+the ROM clip) is the performer's ROM on camera instead: its holds are found in the scores and the profile stores
+their response (``solvers.video.response``), which every later landmark take of that performer and camera uses."""
 
 import os
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import bpy
+import numpy as np
 
 from ...solvers.capture.stable_markers import suggest_stable_markers
 from ...solvers.errors import FacecapError
 from ...solvers.io.outputs import Output, OutputError, check_outputs, is_kind
 from ...solvers.strategies.options import StrategyInputs
 from ...solvers.strategies.rom_wiring import learn_from_rom_take
+from ...solvers.video.fusion import FusionTable
+from ...solvers.video.response import ResponseFit, fit_response
+from ...solvers.video.response import save_profile as save_response_profile
+from ..headless.landmark_take import metric_neutral
 from . import rom_markers, take
+from .landmark_scores import scores_from_collection
 from .scene_binding import binding_from_sidebar, geometric_character
 from .scene_solve import SolveInBackground
 
 NO_ROM_TAKE = ("choose the ROM take under Actor calibration: the collection of its marker empties (import it with "
-               "File > Import) or its capture file")
+               "File > Import) or its capture file; a ROM filmed: the landmark take Track Face Landmarks made of it")
 
 
 def rom_request(settings, *, use_markers):
@@ -62,6 +70,43 @@ def _character(settings, rsettings, rom):
     return bound.basis
 
 
+@dataclass(frozen=True)
+class ScoreRom:
+    """A ROM on camera as the sidebar has it: the ROM take's blendshape ``scores`` (F, S) named ``names`` at its
+    ``frames``, its ``neutral`` frame indices (detected), the sheet's ``poses`` and name, the take's ``fps``."""
+
+    scores: np.ndarray
+    names: tuple
+    frames: np.ndarray
+    neutral: np.ndarray
+    poses: tuple
+    sheet: str
+    fps: float
+
+    def fit(self):
+        """The performer's ResponseFit, read against the fusion table's reference faces."""
+        return fit_response(self.scores, self.names, self.neutral, self.poses, fps=self.fps,
+                            reference=FusionTable.load().reference, sheet=self.sheet)
+
+
+def score_rom(settings):
+    """The Solve panel's ROM take as a ROM on camera (ScoreRom) when it is a landmark take keeping blendshape scores
+    (a collection made by *Track Face Landmarks*), else None (a marker ROM: ``rom_request``)."""
+    coll = settings.calib_collection if settings.calib_source == "COLLECTION" else None
+    if coll is None or "facecap_blendshapes" not in coll:
+        return None
+    poses = rom_markers.sheet_poses(settings)
+    if not poses:
+        raise FacecapError("choose a ROM sheet first (Actor calibration > ROM Sheet)")
+    rom = take.calibration_markers(settings, [])
+    scores, names = scores_from_collection(coll, rom.frames)
+    neutral = metric_neutral(rom)
+    if not len(neutral):
+        raise FacecapError(f"the ROM take '{coll.name}' has no neutral frames to read its scores from: the clip "
+                           "should rest between the poses")
+    return ScoreRom(scores, names, rom.frames, neutral, poses, settings.calib_sheet, settings.fps or 30.0)
+
+
 class RomInBackground(SolveInBackground):
     """*Find Poses* or *Save Performer Profile* (``what``) beside the interface: the scene is read here, the ROM
     take measured on a worker thread (numpy and scipy only), the scene changed only by the operator once it is
@@ -69,14 +114,21 @@ class RomInBackground(SolveInBackground):
 
     def __init__(self, settings, *, what, use_markers):
         self.settings, self.what = settings, what
-        self.request = rom_request(settings, use_markers=use_markers)
-        rom = self.request[2].calibration
-        self.size = f"{len(self.request[0].calibration.sequence)} poses of {settings.calib_sheet} in " \
-                    f"{rom.n_frames} frames x {rom.n_markers} markers"
+        scores = score_rom(settings)
+        if scores is not None:  # a ROM on camera: its holds are found in the scores, not at the markers
+            self.request, self.frames = scores, scores.frames  # the frames: where the holds found are on the timeline
+            self.size = f"{len(scores.poses)} poses of {settings.calib_sheet} in the blendshape scores of " \
+                        f"{len(scores.frames)} frames"
+        else:
+            self.request = rom_request(settings, use_markers=use_markers)
+            rom = self.request[2].calibration
+            self.size = f"{len(self.request[0].calibration.sequence)} poses of {settings.calib_sheet} in " \
+                        f"{rom.n_frames} frames x {rom.n_markers} markers"
         self._begin()
 
     def _compute(self, request):
-        return learn_from_rom_take(*request)
+        """A ResponseFit for a ROM on camera, else the RomResult of the marker ROM."""
+        return request.fit() if isinstance(request, ScoreRom) else learn_from_rom_take(*request)
 
     def status(self):
         return f"{self.what}: measuring {self.size}, {self.seconds():.0f} s; Esc cancels"
@@ -105,9 +157,13 @@ def check_profile_output(settings, path, *, overwrite):
 
 
 def save_profile(settings, result, path):
-    """Write ``result.measured`` (a RomResult's) to ``path`` atomically and make it the Solve panel's performer
-    profile (relative to the .blend, ``//...``, when it lies in the .blend's folder)."""
-    result.measured.save_npz(path)
+    """Write ``result.measured`` (a RomResult's) or the score response (a ResponseFit's) to ``path`` atomically and
+    make it the Solve panel's performer profile (relative to the .blend, ``//...``, when it lies in the .blend's
+    folder)."""
+    if isinstance(result, ResponseFit):
+        save_response_profile(path, response=result.response)
+    else:
+        result.measured.save_npz(path)
     settings.actor_profile = bpy.path.relpath(str(path)) if bpy.data.filepath and _below(path) else str(path)
 
 

@@ -227,3 +227,60 @@ def test_save_performer_profile_serves_a_later_solve_of_the_actor(draw, tmp_path
     # measured on this draw: 0.042 with the profile (the same with the ROM), 0.207 knowing nothing
     assert with_profile < 0.6 * nothing and with_rom == pytest.approx(with_profile, abs=0.01), \
         (with_profile, with_rom, nothing)
+
+
+def test_a_rom_on_camera_marks_its_poses_and_saves_the_scores_response(tmp_path):
+    """A ROM take tracked from video (*Track Face Landmarks* keeps the blendshape scores on its collection) is the
+    performer's ROM on camera: Find Poses marks the poses found in the scores, Save Performer Profile writes their
+    response on that camera (no measured shapes) and makes it the Performer Profile, which a later landmark take's
+    scores are read through. The take here is synthetic: landmarks that move with the ROM's weights and a camera
+    whose blendshape head reads each shape at 40-90 % plus a resting level."""
+    from types import SimpleNamespace
+
+    from facecap.facecap_addon.scene import take as scene_take
+    from facecap.facecap_addon.scene.landmark_scores import store_scores
+    from facecap.solvers import MarkerSet
+    from facecap.solvers.rom import ARKIT_51
+    from facecap.solvers.tools.synthetic.realism.rom import rom_weights
+    from facecap.solvers.video.landmarks import NAMES, RIGID
+    from facecap.solvers.video.response import profile_contents
+
+    fps, rng = 30.0, np.random.default_rng(4)
+    weights, performed, holds, _ = rom_weights(ARKIT_51, SHEETS[SHEET], rng, fps=fps)
+    names = tuple(RIGID) + tuple(n for n in NAMES[:200] if n not in RIGID)[:40]
+    base = rng.normal(0.0, 0.04, (len(names), 3))
+    moving = np.zeros((len(ARKIT_51), len(names), 3))
+    moving[:, len(RIGID):] = rng.normal(0.0, 0.004, (len(ARKIT_51), len(names) - len(RIGID), 3))
+    positions = base + np.einsum("fk,kmd->fmd", weights, moving) + rng.normal(0.0, 2e-5, (len(weights),) + base.shape)
+    markers = MarkerSet(names, np.arange(1.0, len(weights) + 1), positions, fps=fps, units="m")
+    response, rest = rng.uniform(0.4, 0.9, len(ARKIT_51)), rng.uniform(0.0, 0.15, len(ARKIT_51))
+    scores = np.clip(response * weights + rest + rng.normal(0.0, 0.01, weights.shape), 0.0, 1.0)
+
+    bpy.ops.wm.open_mainfile(filepath=str(SAMPLES / "character.blend"))
+    scene = bpy.context.scene
+    coll = import_scene.create_take(scene, markers, "ROM clip landmarks")
+    import_scene.remember_take(scene, markers, Path("ROM clip landmarks"), coll)
+    store_scores(coll, SimpleNamespace(blendshapes=scores, blendshape_names=ARKIT_51, markers=markers))
+    s = scene.facecap
+    s.target, s.strategy, s.actor_template = bpy.data.objects["Face"], "semantic", "none"
+    s.calib_collection, s.calib_sheet = coll, SHEET
+    s.neutral_first, s.neutral_last = 1, int(holds[0, 0]) - 5  # the lead-in rest, for the later take below
+
+    assert bpy.ops.facecap.rom_find_poses() == {"FINISHED"}
+    marks = _rom_marks(scene)
+    labels = [SHEETS[SHEET][j].label for j in performed]
+    middles = 0.5 * (holds[:, 0] + holds[:, 1])
+    near = [label for label, m in zip(labels, middles) if label in marks and abs(marks[label] - m) <= 5]
+    assert len(near) >= 0.9 * len(labels), (sorted(set(labels) - set(near)), marks)  # no pose misnamed either
+    assert all(label in near for label in marks), marks
+
+    path = tmp_path / "performer.npz"
+    assert bpy.ops.facecap.rom_save_profile(filepath=str(path)) == {"FINISHED"}
+    shapes, got = profile_contents(path)
+    assert not shapes and got is not None and got.sheet == SHEET
+    assert bpy.path.abspath(s.actor_profile) == str(path)
+    assert len(got.changed()) >= 20  # most of the sheet's shapes are read differently by this camera
+    # a later landmark take of this performer: its scores are read through the profile's response
+    s.marker_collection = coll
+    found = scene_solve.landmark_scores(s, scene_take.markers_from_collection(s), scene_take.retarget_settings(s))
+    assert found is not None and found.response is not None and found.response.sheet == SHEET
