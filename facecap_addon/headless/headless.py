@@ -270,7 +270,7 @@ def read_take(config, say, *, quiet=True):
     inputs = load_strategy_inputs(config)
     if isinstance(config.video, LandmarkTake):
         say(f"[1/5] face landmarks in {config.video.path}")
-        markers, source, notes, found = read_landmarks(config.video, inputs, say, quiet=quiet)
+        markers, source, notes, found = read_landmarks(config.video, say, quiet=quiet)
         response, report, more = score_response(config, found, say, quiet=quiet)
         if report is not None:
             source["score_response"] = report

@@ -20,7 +20,7 @@ from ...solvers.video.response import fit_response, profile_contents
 from . import console
 
 
-def read_landmarks(video, inputs, say, *, quiet=False):
+def read_landmarks(video, say, *, quiet=False):
     """(markers in metres without the irises, source fields for the report, notes, the LandmarkResult) of
     the ``LandmarkTake`` ``video``; Ctrl-C stops between two frames (``Cancelled``: nothing written)."""
     footage = Footage(video.path, **video.footage, color=True)
@@ -31,7 +31,7 @@ def read_landmarks(video, inputs, say, *, quiet=False):
     info = footage.info
     source = {"format": "video landmarks", "units": "m", "kind": info.kind, "fps": info.fps, "width": info.width,
               "height": info.height, "scale": info.scale, "landmarks": found.report()}
-    notes = tuple(inputs.notes)
+    notes = ()  # the strategy inputs' own notes are the solve's to say (it warns with them), as for marker takes
     if not found.found.all():
         notes += (f"{int((~found.found).sum())} frame(s) without a face are gaps",)
     return metric_take(found, iris=False), source, notes, found

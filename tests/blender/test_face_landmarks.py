@@ -198,3 +198,27 @@ def test_track_writes_the_landmarks_with_their_depth(rendered):
     assert report["frame_numbering"] == "frame 1 is the first frame of the footage"
     markers = read_markers(folder / "lm.csv", units="px")
     assert markers.n_frames == 58 and markers.dim == 3
+
+
+def test_a_profile_note_is_said_once(rendered, tmp_path, caplog):
+    """A performer profile holding only a ROM on camera's response: the semantic solve says once that it measured
+    no shapes (the take's own notes and the solve's warnings used to both carry it), and the response is applied."""
+    import json
+
+    from facecap.facecap_addon.headless.headless import run_take
+    from facecap.solvers.config import load_take_config
+    from facecap.solvers.video.response import ScoreResponse, save_profile
+
+    folder, face = rendered["folder"], rendered["face"]
+    target = ict_character(tmp_path / "person.blend", face, seed=7)
+    save_profile(tmp_path / "alex.npz", response=ScoreResponse(("jawOpen",), [1.2], [0.0], "facecap-24"))
+    (tmp_path / "face.mp4").symlink_to(folder / "face.mp4")
+    config = tmp_path / "take.toml"
+    config.write_text(f'[target]\nblend = "{target.name}"\nobject = "ICT"\n[source]\nvideo = "face.mp4"\n'
+                      '[tracking]\nmethod = "landmarks"\n[actor]\nprofile = "alex.npz"\n'
+                      '[output]\nweights = "solved.csv"\nreport = "solved.json"\n', encoding="utf-8")
+    run_take(load_take_config(config), quiet=False)
+    said = [r.getMessage() for r in caplog.records if "no measured shapes" in r.getMessage()]
+    report = json.loads((tmp_path / "solved.json").read_text(encoding="utf-8"))
+    assert len(said) == 1, said
+    assert report["source"]["score_response"]["sheet"] == "facecap-24"
