@@ -71,7 +71,7 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
 def landmark_scores(settings, markers, rsettings):
     """The Face Landmarker's blendshape scores a landmark take keeps on its collection (``store_scores``), with
     the take's neutral frames (given or detected as the solve detects them) and the response of the Solve
-    panel's performer profile, if it holds one (a ROM on camera, written headless): FaceScores, or None."""
+    panel's performer profile, if it holds one (a ROM on camera): FaceScores, or None."""
     found = scores_from_collection(settings.marker_collection, markers.frames)
     if found is None:
         return None
