@@ -1,8 +1,8 @@
-"""The LK tracker on footage the project's scenario generator does not make (``outside_footage``: a 1/f noise image
-or a real photograph, a smooth warp of the whole frame, similarity head motion, MJPG), against the plain pyramidal
-LK that re-registers every frame (``reference_trackers.plain_lk``): at or below it within 0.02 px, at most 0.5 %
-lost (the issue's bar). Small clips keep the suite quick; ``python -m facecap.solvers.tools.bench.outside_footage``
-runs 960x720."""
+"""The LK tracker on footage the project's scenario generator does not make (``outside_footage``: a 1/f noise image,
+a smooth warp of the whole frame, similarity head motion, MJPG), against the plain pyramidal LK that re-registers
+every frame (``reference_trackers.plain_lk``): at or below it within 0.02 px, at most 0.5 % lost. Small clips keep
+the suite quick; ``python -m facecap.solvers.tools.bench.outside_footage`` runs 960x720. The photograph kind needs
+the bpy wheel's panoramas: tests/blender/test_tracker_photo.py."""
 
 import numpy as np
 import pytest
@@ -20,8 +20,8 @@ def _score(pos, truth):
     return float(np.median(np.where(lost, np.inf, err))), 100.0 * float(lost.mean())
 
 
-@pytest.mark.parametrize("kind", ["octaves_warp_mjpg", "photo_warp_mjpg"])
-def test_tracker_at_or_below_plain_lk_on_footage_the_generator_does_not_make(kind, tmp_path):
+def tracked_beside_plain_lk(kind, tmp_path):
+    """The tracker and the plain LK on two small clips of ``kind``: the test's assertions on the scores."""
     rows = []
     for seed in (0, 1):
         clip = outside_clip(tmp_path / f"{kind}-{seed}.avi", kind, seed=seed, size=(640, 480), frames=40, points=32)
@@ -31,6 +31,10 @@ def test_tracker_at_or_below_plain_lk_on_footage_the_generator_does_not_make(kin
         print(f"{kind} seed {seed}: ours {ours[0]:.3f} px, {ours[1]:.2f} % lost; plain {plain[0]:.3f} px, "
               f"{plain[1]:.2f} % lost")
     ours_px, plain_px = np.median([r[0][0] for r in rows]), np.median([r[1][0] for r in rows])
-    assert ours_px <= plain_px + 0.02
+    assert ours_px <= plain_px + 0.02, (ours_px, plain_px)
     assert max(r[0][1] for r in rows) <= 0.5
     assert ours_px < 2.0  # the clips are trackable: a broken generator would fail both trackers alike
+
+
+def test_tracker_at_or_below_plain_lk_on_footage_the_generator_does_not_make(tmp_path):
+    tracked_beside_plain_lk("octaves_warp_mjpg", tmp_path)  # measured 0.352, 0.537 px vs 0.407, 0.587; none lost

@@ -51,19 +51,27 @@ def octaves_image(width, height, rng):
     return np.clip(128 + 45 * img, 0, 255).astype(np.uint8)
 
 
+def photographs():
+    """The studio-light panoramas the bpy wheel ships (sorted), or [] where bpy is not installed."""
+    spec = importlib.util.find_spec("bpy")
+    if not (spec and spec.origin):
+        return []
+    return sorted(Path(spec.origin).parent.glob("*/datafiles/studiolights/world/*.exr"))
+
+
 def photo_image(width, height, rng):
-    """A crop of one of the panoramas in the bpy wheel (studio lights), grey, 8-bit; octaves without bpy."""
+    """A crop of one of the panoramas in the bpy wheel (studio lights), grey, 8-bit. Without them the photo kinds
+    cannot be made (another texture would be another kind): RuntimeError."""
     import cv2  # OpenCV: imported on first use
 
-    spec = importlib.util.find_spec("bpy")
-    files = sorted(Path(spec.origin).parent.glob("*/datafiles/studiolights/world/*.exr")) if spec and spec.origin \
-        else []
+    files = photographs()
     if not files:
-        return octaves_image(width, height, rng)
+        raise RuntimeError("the photo kinds crop a studio-light panorama of the bpy wheel: install bpy (the "
+                           "[blender] extra) or leave them out")
     os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
     hdr = cv2.imread(str(files[int(rng.integers(len(files)))]), cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
     if hdr is None:
-        return octaves_image(width, height, rng)
+        raise RuntimeError(f"OpenCV could not read the panorama {files[0].parent} (OpenEXR support)")
     grey = cv2.cvtColor(hdr.astype(np.float32), cv2.COLOR_BGR2GRAY)
     h, w = grey.shape
     crop = grey[h // 4: h // 4 + h // 2, :]
@@ -173,6 +181,11 @@ def bench_outside(*, kinds=tuple(KINDS), seeds=(0, 1, 2), size=(960, 720), frame
         lost = np.isnan(err)
         return float(np.median(np.where(lost, np.inf, err))), 100.0 * float(lost.mean())
 
+    if not photographs():
+        left = [k for k in kinds if KINDS[k]["texture"] == "photo"]
+        if left:
+            log(f"left out (they need the bpy wheel's photographs): {', '.join(left)}")
+        kinds = tuple(k for k in kinds if k not in left)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for kind in kinds:
