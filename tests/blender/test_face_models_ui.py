@@ -10,7 +10,7 @@ from ict_release_copy import serve_release
 from scene_fixtures import draw_panel
 from shared_data import FACE_LANDMARKER, require
 
-from facecap.operators import actor, video_models
+from facecap.operators import downloads, video_models
 from facecap.solvers.video.landmarker_bundle import bundle_path
 
 
@@ -22,10 +22,10 @@ def test_download_face_models_beside_the_interface(empty_scene, tmp_path, monkey
     monkeypatch.delenv("FACECAP_FACE_LANDMARKER", raising=False)
     assert ("operator", "facecap.download_face_models") in draw_panel("FACECAP_PT_video").calls
     with serve_release(require(FACE_LANDMARKER)) as url:
-        monkeypatch.setattr(actor, "_online_access", lambda: False)
+        monkeypatch.setattr(downloads, "online_access", lambda: False)
         with pytest.raises(RuntimeError, match="online access is off.*in a browser"):
             bpy.ops.facecap.download_face_models(url=f"{url}/ict.zip")
-        monkeypatch.setattr(actor, "_online_access", lambda: True)
+        monkeypatch.setattr(downloads, "online_access", lambda: True)
 
         op = video_models.FACECAP_OT_download_face_models
 
@@ -39,7 +39,7 @@ def test_download_face_models_beside_the_interface(empty_scene, tmp_path, monkey
                 self.reports.append((kind.pop(), message))
 
         tick, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
-        driver = Driver(video_models._FetchJob(f"{url}/slow.zip"))
+        driver = Driver(video_models.FaceModelsDownload(f"{url}/slow.zip"))
         while driver._job.done == 0:
             time.sleep(0.05)
         assert driver.modal(bpy.context, tick) == {"RUNNING_MODAL"}

@@ -299,7 +299,7 @@ def test_download_template_beside_the_interface(scene, tmp_path, monkeypatch):
     from ict_release_copy import serve_release, write_ict_release
     from shared_data import ICT_FACEKIT, require
 
-    from facecap.operators import actor
+    from facecap.operators import actor, downloads
     from facecap.solvers.character.template import TEMPLATE_DIGEST, HumanTemplate, template_path
 
     monkeypatch.setenv("FACECAP_DATA", str(tmp_path / "data"))
@@ -310,10 +310,10 @@ def test_download_template_beside_the_interface(scene, tmp_path, monkeypatch):
         for path in sorted(folder.rglob("*")):
             z.write(path, path.relative_to(tmp_path).as_posix())
     with serve_release(archive) as url:
-        monkeypatch.setattr(actor, "_online_access", lambda: False)
+        monkeypatch.setattr(downloads, "online_access", lambda: False)
         with pytest.raises(RuntimeError, match="online access is off"):
             bpy.ops.facecap.download_template(url=f"{url}/ict.zip")
-        monkeypatch.setattr(actor, "_online_access", lambda: True)
+        monkeypatch.setattr(downloads, "online_access", lambda: True)
 
         class Driver:  # the operator's modal methods on a plain object, as Blender would call them
             modal, cancel, _stop = (actor.FACECAP_OT_download_template.modal, actor.FACECAP_OT_download_template.cancel,
