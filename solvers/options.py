@@ -337,7 +337,7 @@ OPTIONS = (
           "holds found in the blendshape scores calibrate each score's response (docs/video.md)",
       headless="the sidebar's video takes use [actor] profile (a profile written by a headless ROM run)"),
     O("calibration", "holds", "table", doc="{pose label = middle frame}: where the [calibration] sequence's poses are "
-      "held, used instead of the holds found",
+      "held, used instead of the holds found (a ROM on camera too: frame numbers of its clip)",
       headless="the sidebar's holds are the timeline markers `ROM: <label>` that Find Poses places"),
     O("calibration", "basis", "path", doc="A stored actor library (.npz) instead of markers + poses",
       headless="the sidebar keeps library versions in the .blend (Tuning panel)"),

@@ -88,9 +88,11 @@ def score_response(config, found, say, *, quiet=False):
             neutral = np.flatnonzero((frames >= rom.neutral[0]) & (frames <= rom.neutral[1]))
         else:
             neutral = landmark_neutral(clip)
+        given = None if rom.holds is None else given_indices(rom.holds, frames, config.path)
         try:
             fit = fit_response(clip.blendshapes, clip.blendshape_names, neutral, rom.poses,
-                               fps=clip.markers.fps or 30.0, reference=FusionTable.load().reference, sheet=rom.sheet)
+                               fps=clip.markers.fps or 30.0, reference=FusionTable.load().reference, sheet=rom.sheet,
+                               given=given)
         except FacecapError as exc:
             raise ConfigError(f"{rom.path or 'the take'}: {exc}", path=config.path, key=key) from None
         say(f"ROM on camera: {fit.summary}")
@@ -106,6 +108,23 @@ def score_response(config, found, say, *, quiet=False):
         return response, {"from": str(config.actor_profile_path), "sheet": response.sheet,
                           "shapes": len(response.changed())}, ()
     return None, None, ()
+
+
+def given_indices(holds, frames, config_path=None):
+    """{label: index into ``frames``} of ``holds`` ((label, frame number), ...: ``[calibration] holds`` or the
+    ``ROM: `` timeline markers, ``config_path`` None); an error naming the pose when a frame is outside the ROM
+    clip (ConfigError naming the key when it comes from a config)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    out = {}
+    for label, frame in holds:
+        if not frames[0] <= frame <= frames[-1]:
+            message = f"'{label}' is placed at frame {frame:g}, outside the ROM clip (frames {frames[0]:g}-" \
+                      f"{frames[-1]:g})"
+            if config_path is None:
+                raise FacecapError(f"the timeline marker 'ROM: {label}': {message}; drag it onto the ROM take")
+            raise ConfigError(message, path=config_path, key="calibration.holds")
+        out[label] = float(np.interp(frame, frames, np.arange(len(frames), dtype=np.float64)))
+    return out
 
 
 def landmark_neutral(found):

@@ -3,8 +3,9 @@ sheet as a semantic solve would measure it (``solvers.strategies.rom_wiring.lear
 Poses* (the holds found anew, marked on the timeline: ``rom_markers``) and *Save Performer Profile* (the holds of
 the ``ROM: `` markers when there are any; the actor's measured shapes written as an .npz the semantic solve reads
 as ``[actor] profile``). A ROM take that keeps the Face Landmarker's blendshape scores (*Track Face Landmarks* on
-the ROM clip) is the performer's ROM on camera instead: its holds are found in the scores and the profile stores
-their response (``solvers.video.response``), which every later landmark take of that performer and camera uses."""
+the ROM clip) is the performer's ROM on camera instead: its holds are found in the scores (or taken at the ``ROM: ``
+markers, as for markers) and the profile stores their response (``solvers.video.response``), which every later
+landmark take of that performer and camera uses."""
 
 import os
 from dataclasses import dataclass, replace
@@ -21,7 +22,7 @@ from ...solvers.strategies.rom_wiring import learn_from_rom_take
 from ...solvers.video.fusion import FusionTable
 from ...solvers.video.response import ResponseFit, fit_response
 from ...solvers.video.response import save_profile as save_response_profile
-from ..headless.landmark_take import metric_neutral
+from ..headless.landmark_take import given_indices, metric_neutral
 from . import rom_markers, take
 from .landmark_scores import scores_from_collection
 from .scene_binding import binding_from_sidebar, geometric_character
@@ -73,7 +74,8 @@ def _character(settings, rsettings, rom):
 @dataclass(frozen=True)
 class ScoreRom:
     """A ROM on camera as the sidebar has it: the ROM take's blendshape ``scores`` (F, S) named ``names`` at its
-    ``frames``, its ``neutral`` frame indices (detected), the sheet's ``poses`` and name, the take's ``fps``."""
+    ``frames``, its ``neutral`` frame indices (detected), the sheet's ``poses`` and name, the take's ``fps``, and
+    ``given``: {pose label: frame index} of the ``ROM: `` markers (None: the holds are found in the scores)."""
 
     scores: np.ndarray
     names: tuple
@@ -82,16 +84,18 @@ class ScoreRom:
     poses: tuple
     sheet: str
     fps: float
+    given: dict | None = None
 
     def fit(self):
         """The performer's ResponseFit, read against the fusion table's reference faces."""
         return fit_response(self.scores, self.names, self.neutral, self.poses, fps=self.fps,
-                            reference=FusionTable.load().reference, sheet=self.sheet)
+                            reference=FusionTable.load().reference, sheet=self.sheet, given=self.given)
 
 
-def score_rom(settings):
+def score_rom(settings, *, use_markers=False):
     """The Solve panel's ROM take as a ROM on camera (ScoreRom) when it is a landmark take keeping blendshape scores
-    (a collection made by *Track Face Landmarks*), else None (a marker ROM: ``rom_request``)."""
+    (a collection made by *Track Face Landmarks*), else None (a marker ROM: ``rom_request``). ``use_markers``: the
+    poses are measured at the ``ROM: `` markers when there are any (else found)."""
     coll = settings.calib_collection if settings.calib_source == "COLLECTION" else None
     if coll is None or "facecap_blendshapes" not in coll:
         return None
@@ -104,7 +108,12 @@ def score_rom(settings):
     if not len(neutral):
         raise FacecapError(f"the ROM take '{coll.name}' has no neutral frames to read its scores from: the clip "
                            "should rest between the poses")
-    return ScoreRom(scores, names, rom.frames, neutral, poses, settings.calib_sheet, settings.fps or 30.0)
+    given = None
+    if use_markers:
+        rom_markers.check_rom(settings)
+        holds = rom_markers.marker_holds(settings.id_data, poses)
+        given = None if holds is None else given_indices(holds, rom.frames)
+    return ScoreRom(scores, names, rom.frames, neutral, poses, settings.calib_sheet, settings.fps or 30.0, given)
 
 
 class RomInBackground(SolveInBackground):
@@ -114,8 +123,8 @@ class RomInBackground(SolveInBackground):
 
     def __init__(self, settings, *, what, use_markers):
         self.settings, self.what = settings, what
-        scores = score_rom(settings)
-        if scores is not None:  # a ROM on camera: its holds are found in the scores, not at the markers
+        scores = score_rom(settings, use_markers=use_markers)
+        if scores is not None:  # a ROM on camera: its holds are found in the scores, or placed by the markers
             self.request, self.frames = scores, scores.frames  # the frames: where the holds found are on the timeline
             self.size = f"{len(scores.poses)} poses of {settings.calib_sheet} in the blendshape scores of " \
                         f"{len(scores.frames)} frames"

@@ -144,8 +144,12 @@ def _sequence(cal, fail):
     except FacecapError as exc:  # the key is said by fail(): the message keeps the item
         fail("calibration.sequence", str(exc).lstrip(": "))
     holds = cal.get("holds")
-    if holds is None:
-        return poses, None
+    return poses, None if holds is None else check_holds(holds, poses, fail)
+
+
+def check_holds(holds, poses, fail):
+    """``[calibration] holds`` ({pose label = middle frame}) checked against the sequence's ``poses``:
+    ((label, frame), ...); ``fail(key, message)`` raises."""
     labels = {p.label for p in poses}
     if not isinstance(holds, dict) or not holds:
         fail("calibration.holds", 'expected a table of pose label = middle frame, e.g. { "jaw open" = 212 }')
@@ -154,7 +158,7 @@ def _sequence(cal, fail):
             fail("calibration.holds", f"'{label}' is not a pose of the sequence; its poses: {sorted(labels)}")
         if not _number(frame) or not np.isfinite(frame):
             fail("calibration.holds", f"the middle frame of '{label}' must be a number; got {frame!r}")
-    return poses, tuple((label, float(frame)) for label, frame in holds.items())
+    return tuple((label, float(frame)) for label, frame in holds.items())
 
 
 def _table(table, keyed_by, fail):

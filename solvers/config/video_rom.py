@@ -7,17 +7,20 @@ from pathlib import Path
 
 from ..errors import ConfigError, FacecapError
 from ..rom import SHEETS, sequence_poses
+from .strategies import check_holds
 
 
 @dataclass(frozen=True)
 class VideoRom:
     """A ROM on camera: its footage ``path`` (None: the take itself), the sheet's ``poses`` and ``sheet`` (a
-    built-in sheet's name, or "custom"), the frames of its neutral (first, last) if given."""
+    built-in sheet's name, or "custom"), the frames of its neutral (first, last) if given, and ``holds``: ((pose
+    label, middle frame), ...) where the user placed poses (``[calibration] holds``; None: found in the scores)."""
 
     path: str | None
     poses: tuple
     sheet: str
     neutral: tuple | None = None
+    holds: tuple | None = None
 
 
 def video_rom(path, data, video):
@@ -34,19 +37,18 @@ def video_rom(path, data, video):
     if "video" not in cal:
         if not (landmarks and "sequence" in cal and "markers" not in cal) or video.blendshapes == "ignore":
             return None
-        if "holds" in cal:
-            fail("calibration.holds", "the holds of a ROM on camera are found in its blendshape scores")
         # on a landmark take the sequence is the scores' ROM: the marker ROM's hold finder does not find the poses
         # in face-mesh landmarks (3 holds for the 24 poses of a rendered facecap-24 clip, refused as ambiguous)
         sequence = cal.pop("sequence")
-        return VideoRom(None, _poses(sequence, fail), _sheet(sequence), _neutral(cal))
+        poses = _poses(sequence, fail)
+        return VideoRom(None, poses, _sheet(sequence), _neutral(cal), _holds(cal, poses, fail))
     if not landmarks:
         fail("calibration.video", "the ROM on camera calibrates a landmark take's blendshape scores: give [source] "
                                   "video with [tracking] method = \"landmarks\"")
     if video.blendshapes == "ignore":
         fail("calibration.video", "the ROM on camera calibrates the blendshape scores, and [tracking] blendshapes = "
                                   "\"ignore\" leaves them out")
-    for other in ("markers", "poses", "holds", "basis"):
+    for other in ("markers", "poses", "basis"):
         if other in cal:
             fail(f"calibration.{other}", "give the ROM filmed ([calibration] video with sequence, its holds found "
                                          f"in the blendshape scores) or a marker calibration ({other}), not both")
@@ -59,7 +61,8 @@ def video_rom(path, data, video):
     sequence = cal.pop("sequence")
     clip = Path(clip).expanduser()
     clip = clip if clip.is_absolute() else (Path(path).parent / clip).resolve()
-    return VideoRom(str(clip), _poses(sequence, fail), _sheet(sequence), _neutral(cal))
+    poses = _poses(sequence, fail)
+    return VideoRom(str(clip), poses, _sheet(sequence), _neutral(cal), _holds(cal, poses, fail))
 
 
 def _poses(sequence, fail):
@@ -67,6 +70,12 @@ def _poses(sequence, fail):
         return sequence_poses(sequence, where="")
     except FacecapError as exc:  # the key is said by fail()
         fail("calibration.sequence", str(exc).lstrip(": "))
+
+
+def _holds(cal, poses, fail):
+    """``[calibration] holds`` of the ROM on camera (taken out of ``cal``: the marker ROM does not read them)."""
+    holds = cal.pop("holds", None)
+    return None if holds is None else check_holds(holds, poses, fail)
 
 
 def _sheet(sequence):

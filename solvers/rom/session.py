@@ -103,7 +103,7 @@ def find_poses(take, poses, prior, *, fps, given=None):
     holds = find_holds(deltas, frames, fps, noise)
     predicted = np.einsum("jk,kmd->jmd", asked_weights(poses, sheet_shapes(poses)), prior)
     if given is not None:
-        spans, middles, notes = _given_spans(poses, given, holds, fps)
+        spans, middles, notes = given_spans(poses, given, holds, fps)
     else:
         spans, middles, notes = _found_spans(poses, holds, predicted, deltas, frames, noise, fps)
     J = len(poses)
@@ -120,7 +120,7 @@ def find_poses(take, poses, prior, *, fps, given=None):
                     given=given is not None)
 
 
-def _given_spans(poses, given, holds, fps):
+def given_spans(poses, given, holds, fps):
     """(frames measured per pose, middles, notes) where the user put the poses: around the hold found at each
     given middle (moved there), else ``GIVEN_HALF_S`` either side of it."""
     labels = [p.label for p in poses]

@@ -39,6 +39,7 @@ from ..errors import FacecapError, InputFileError
 from ..io.files import atomic_path
 from ..rom.holds import find_holds, half_window
 from ..rom.matching import Alignment, align_holds
+from ..rom.session import given_spans
 from .fusion import neutral_corrected
 from .score_response import PROFILE_KEYS, ScoreResponse
 
@@ -64,7 +65,8 @@ NOISE_FLOOR = 0.03
 @dataclass(frozen=True, eq=False)
 class ResponseFit:
     """A fitted ``response`` (ScoreResponse) with how it was found: the sheet's ``poses``, the frames (first,
-    last) measured per pose (None: not found), every hold found (``rom.holds.Hold``), the Alignment, per shape
+    last) measured per pose (None: not found), every hold found (``rom.holds.Hold``), the Alignment (None: the
+    poses were placed by the user), per shape
     how many poses found ask it (``asked``), ``notes`` (poses skipped, expressions left out, shapes kept as
     scored) and a one-line ``summary``."""
 
@@ -116,7 +118,7 @@ def find_score_holds(scores, neutral, fps):
         return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
 
 
-def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""):
+def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet="", given=None):
     """The performer's score response from a ROM clip.
 
     Parameters
@@ -130,6 +132,10 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
         then this performer's relative to theirs (``reference^-1 o own``), so that the table's gains, fitted on
         their scores, apply to this performer's. Without it the scores are calibrated to the weights asked.
     sheet : what to call the sheet in the response (a built-in sheet's name)
+    given : {pose label: middle frame index}, optional
+        Where the user put the poses (``[calibration] holds``, the ``ROM: `` timeline markers after Find Poses):
+        only those poses are measured, there (around the hold found at each middle, moved there), and nothing is
+        named by the sheet's order.
 
     Returns
     -------
@@ -148,11 +154,49 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
     if not len(poses):
         raise FacecapError("the ROM sheet has no pose")
     holds = find_score_holds(s, neutral, fps)
+    corrected = neutral_corrected(s, neutral)
+    asked = _asked(poses, names)
+    if given:
+        spans, _, _ = given_spans(poses, given, holds, fps)
+        found = [j for j in range(len(poses)) if spans[j] is not None]
+        align, unsure, unseen = None, [], []
+    else:
+        align, spans, found, unsure, unseen = _named_holds(holds, corrected, asked, poses, names, reference)
+    gain, offset, kept = _fit_shapes(np.stack([_median(corrected, spans[j]) for j in found]), asked[found],
+                                     np.nanmedian(corrected[neutral], axis=0), names)
+    own = ScoreResponse(names, gain, offset, sheet)
+    response = own if reference is None else relative(own, reference)
+    notes = []
+    if unseen:
+        notes.append(f"ROM clip: pose(s) of shapes no blendshape score names, left out: {unseen}")
+    if unsure:
+        notes.append(f"ROM clip: the holds around pose(s) {unsure} could be read more than one way (a pose the "
+                     "camera barely sees, skipped or added there): left out of the calibration")
+    missed = [] if align is None else [poses[j].label for j in align.skipped
+                                       if j not in align.ambiguous and poses[j].label not in unseen]
+    if missed:
+        notes.append(f"ROM clip: pose(s) not found (skipped, or not seen by the camera; their shapes keep their "
+                     f"scores unless another pose asks them): {missed}")
+    if align is not None and align.extra:
+        notes.append("ROM clip: expression(s) at frames "
+                     f"{[f'{holds[h].start:g}-{holds[h].end:g}' for h in align.extra]} match no pose of the sheet "
+                     "and are left out")
+    if kept:
+        notes.append(f"ROM clip: score(s) that do not move where the sheet asks them, kept as scored: {kept}")
+    where = f"{len(found)} of {len(poses)} poses where they were placed" if given else \
+        f"{len(found)} of {len(poses)} poses found ({len(holds)} holds in the clip)"
+    summary = f"{where}; {len(response.changed())} scores calibrated"
+    exercised = {n: int((asked[found][:, k] > 0).sum()) for k, n in enumerate(names)}
+    return ResponseFit(response, tuple(poses), tuple(None if f is None else (int(f[0]), int(f[1])) for f in spans),
+                       holds, align, exercised, tuple(notes), summary)
+
+
+def _named_holds(holds, corrected, asked, poses, names, reference):
+    """(Alignment, measured frames per pose, poses found, poses left out as ambiguous, poses no score names) of the
+    ``holds`` found, named by the sheet in order against what the reference faces would score."""
     if not holds:
         raise FacecapError("no pose of the sheet was found in the ROM clip: its scores never leave their level on "
                            "the neutral frames")
-    corrected = neutral_corrected(s, neutral)
-    asked = _asked(poses, names)
     measured = np.stack([_median(corrected, h.measured()) for h in holds])
     predicted = asked if reference is None else expected_scores(asked, names, reference)
     # a pose the reference faces' scores do not read is predicted by its asked weights (what a score named after its
@@ -170,31 +214,7 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
             f" around pose(s) {unsure}" if unsure else "") + f" ({len(holds)} holds found for {len(poses)} poses, "
             f"{len(found)} named for sure): a pose skipped, repeated or added there. Check the clip, or film it again")
     spans = [holds[align.hold_of[j]].measured() if j in found else None for j in range(len(poses))]
-    gain, offset, kept = _fit_shapes(np.stack([_median(corrected, spans[j]) for j in found]), asked[found],
-                                     np.nanmedian(corrected[neutral], axis=0), names)
-    own = ScoreResponse(names, gain, offset, sheet)
-    response = own if reference is None else relative(own, reference)
-    notes = []
-    if unseen:
-        notes.append(f"ROM clip: pose(s) of shapes no blendshape score names, left out: {unseen}")
-    if unsure:
-        notes.append(f"ROM clip: the holds around pose(s) {unsure} could be read more than one way (a pose the "
-                     "camera barely sees, skipped or added there): left out of the calibration")
-    missed = [poses[j].label for j in align.skipped if j not in align.ambiguous and poses[j].label not in unseen]
-    if missed:
-        notes.append(f"ROM clip: pose(s) not found (skipped, or not seen by the camera; their shapes keep their "
-                     f"scores unless another pose asks them): {missed}")
-    if align.extra:
-        notes.append("ROM clip: expression(s) at frames "
-                     f"{[f'{holds[h].start:g}-{holds[h].end:g}' for h in align.extra]} match no pose of the sheet "
-                     "and are left out")
-    if kept:
-        notes.append(f"ROM clip: score(s) that do not move where the sheet asks them, kept as scored: {kept}")
-    summary = (f"{len(found)} of {len(poses)} poses found ({len(holds)} holds in the clip); "
-               f"{len(response.changed())} scores calibrated")
-    exercised = {n: int((asked[found][:, k] > 0).sum()) for k, n in enumerate(names)}
-    return ResponseFit(response, tuple(poses), tuple(None if f is None else (int(f[0]), int(f[1])) for f in spans),
-                       holds, align, exercised, tuple(notes), summary)
+    return align, spans, found, unsure, unseen
 
 
 def _widen(align, seen, J):

@@ -284,3 +284,15 @@ def test_a_rom_on_camera_marks_its_poses_and_saves_the_scores_response(tmp_path)
     s.marker_collection = coll
     found = scene_solve.landmark_scores(s, scene_take.markers_from_collection(s), scene_take.retarget_settings(s))
     assert found is not None and found.response is not None and found.response.sheet == SHEET
+    # the ROM: markers the user keeps (dragged or not) are where the poses are measured, as for a marker ROM
+    keep = {"ROM: jaw open", "ROM: smile"}
+    for m in [m for m in scene.timeline_markers if m.name.startswith("ROM: ") and m.name not in keep]:
+        scene.timeline_markers.remove(m)
+    placed = tmp_path / "placed.npz"
+    assert bpy.ops.facecap.rom_save_profile(filepath=str(placed)) == {"FINISHED"}
+    _, few = profile_contents(placed)
+    asked = {shape for p in SHEETS[SHEET] if "ROM: " + p.label in keep for shape, _ in p.weights}
+    assert few.changed() and set(few.changed()) <= asked, (few.changed(), asked)
+    scene.timeline_markers["ROM: smile"].frame = len(weights) + 50
+    with pytest.raises(RuntimeError, match="'ROM: smile'.*outside the ROM clip"):
+        bpy.ops.facecap.rom_save_profile(filepath=str(tmp_path / "outside.npz"))

@@ -83,6 +83,28 @@ def test_a_skipped_pose_is_named_and_the_others_keep_their_holds():
     assert (fit.response.gain[blink], fit.response.offset[blink]) == (1.0, 0.0)
 
 
+def test_poses_placed_by_the_user_are_measured_there_and_nowhere_else():
+    """Holds given ({label: frame index}, what [calibration] holds and the dragged ``ROM: `` markers give): only
+    those poses are measured, around the hold found at each middle; a marker dragged onto another pose's hold
+    measures that hold (the user is followed, not second-guessed)."""
+    scores, neutral, _, _ = rom_clip(3)
+    found = fit_response(scores, ARKIT_51, neutral, POSES, fps=FPS)
+    middle = {p.label: 0.5 * (f[0] + f[1]) for p, f in zip(POSES, found.frames)}
+    given = {label: middle[label] for label in ("jaw open", "smile", "eyes shut")}
+    placed = fit_response(scores, ARKIT_51, neutral, POSES, fps=FPS, given=given)
+    assert placed.summary.startswith("3 of 24 poses where they were placed")
+    assert [p.label for p, f in zip(POSES, placed.frames) if f is not None] == ["jaw open", "smile", "eyes shut"]
+    for label in given:
+        j = [p.label for p in POSES].index(label)
+        assert abs(0.5 * sum(placed.frames[j]) - middle[label]) <= 1.0
+    jaw = ARKIT_51.index("jawOpen")
+    assert placed.response.gain[jaw] == pytest.approx(found.response.gain[jaw], rel=0.1)
+    assert "browInnerUp" not in placed.response.changed()  # no placed pose asks it
+    # "smile" dragged onto the jaw's hold: what is measured there is the jaw's, so the smile's score reads nothing
+    wrong = fit_response(scores, ARKIT_51, neutral, POSES, fps=FPS, given={"smile": middle["jaw open"]})
+    assert "mouthSmileLeft" not in wrong.response.changed() and any("kept as scored" in n for n in wrong.notes)
+
+
 def test_an_extra_expression_is_named_and_left_out():
     scores, neutral, _, performed = rom_clip(8, extra=1)
     assert -1 in performed
@@ -253,6 +275,24 @@ def test_a_marker_profile_on_a_video_take_says_what_it_lacks(tmp_path):
         profile_contents(tmp_path / "junk.npz")
 
 
+def test_holds_in_the_config_place_the_poses_of_a_rom_on_camera(tmp_path):
+    """[calibration] holds on a landmark take's ROM: frame numbers of the clip (frame 1 first), only those poses
+    measured; a frame outside the clip is refused naming the key and the pose."""
+    from facecap.facecap_addon.headless.landmark_take import score_response
+
+    scores, neutral, _, _ = rom_clip(3)
+    found = fit_response(scores, ARKIT_51, neutral, POSES, fps=FPS)
+    jaw = 1 + 0.5 * sum(found.frames[0])  # "jaw open", as a frame number
+    take = config(tmp_path, f'[calibration]\nsequence = "facecap-24"\nneutral = [1, 30]\nholds = {{"jaw open" = {jaw}}}\n')
+    assert take.video_rom.holds == (("jaw open", jaw),)
+    response, report, _ = score_response(take, landmarks_of(scores), lambda _m: None)
+    assert report["summary"].startswith("1 of 24 poses where they were placed")
+    assert "jawOpen" in response.changed() and "mouthSmileLeft" not in response.changed()
+    late = config(tmp_path, '[calibration]\nsequence = "facecap-24"\nneutral = [1, 30]\nholds = {smile = 99999}\n')
+    with pytest.raises(ConfigError, match=r"\[calibration.holds\] 'smile' is placed at frame 99999, outside the ROM"):
+        score_response(late, landmarks_of(scores), lambda _m: None)
+
+
 @pytest.mark.parametrize("take, extra, key, match", [
     (TAKE.replace('method = "landmarks"', 'method = "dis"'), '[calibration]\nvideo = "rom.mp4"\nsequence = '
      '"facecap-24"\n', "calibration.video", "calibrates a landmark take's blendshape scores"),
@@ -263,8 +303,10 @@ def test_a_marker_profile_on_a_video_take_says_what_it_lacks(tmp_path):
     (TAKE, '[calibration]\nvideo = ""\nsequence = "facecap-24"\n', "calibration.video", "expected a file name"),
     (TAKE.replace('method = "landmarks"', 'method = "landmarks"\nblendshapes = "ignore"'),
      '[calibration]\nvideo = "rom.mp4"\nsequence = "facecap-24"\n', "calibration.video", "leaves them out"),
-    (TAKE, '[calibration]\nsequence = "facecap-24"\nholds = {smile = 40}\n', "calibration.holds",
-     "found in its blendshape scores"),
+    (TAKE, '[calibration]\nsequence = "facecap-24"\nholds = {grin = 40}\n', "calibration.holds",
+     "'grin' is not a pose of the sequence"),
+    (TAKE, '[calibration]\nvideo = "rom.mp4"\nsequence = "facecap-24"\nholds = {smile = "x"}\n', "calibration.holds",
+     "must be a number"),
 ])
 def test_rom_on_camera_config_errors_name_the_key(tmp_path, take, extra, key, match):
     from facecap.solvers.config import load_take_config
