@@ -418,7 +418,7 @@ OPTIONS = (
     O("tracking", "bundle", "path", doc="Landmarks: the Face Landmarker bundle (default: installed by `landmark-models "
       "fetch`, else the older models)", headless="the sidebar uses the installed bundle"),
     O("tracking", "blendshapes", "choice", default="fuse", choices=("fuse", "ignore"),
-      doc="Landmarks: combine the Face Landmarker's blendshape scores with the solve per shape (docs/video.md)",
+      doc="Landmarks: combine the Face Landmarker's blendshape scores with the solve (the fusion map; docs/video.md)",
       headless="the sidebar always combines them"),
     O("tracking", "region", "floats", length=4, low=0.0, high=1e6,
       doc="Face region [x, y, w, h] in pixels (default: the frame)",

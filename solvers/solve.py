@@ -38,7 +38,7 @@ class SolveRequest:
     rig : solvers.rig.RigTarget when the character is a rig: its basis is solved, then its controls
         (shape names are then control names: corrections, controls and locks name controls)
     scores : video.fusion.FaceScores of a landmark take: the Face Landmarker's blendshape scores, combined
-        per shape with the solve (``video.fusion.fuse``) before the controls
+        with the solve (``video.fusion.fuse``) before the controls
     notes : warnings of building the request (shape keys left out...), put before the solve's
     """
 
@@ -126,7 +126,7 @@ def _take_fps(request):
 
 
 def _fused(result, scores):
-    """``result`` with the blendshape scores combined into its weights, shape by shape (``video.fusion``)."""
+    """``result`` with the blendshape scores combined into its weights (``video.fusion``)."""
     weights, names = fuse(result.weights, result.shape_names, scores)
     if not names:
         return result

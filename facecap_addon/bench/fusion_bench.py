@@ -10,7 +10,10 @@ beside the solve, so that the fusion (``solvers/video/fusion.py``) can be fitted
 The clips are kept apart by role (:data:`CLIPS`):
 
 * **tune**: two ICT identities (seeds 21 and 22), windows of ``llf_alex_rom_3``: the only clips the
-  fusion table is fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
+  per-shape fusion table is fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
+* **tune-random**: the same identities firing every shape independently of the others (``random_performance``):
+  with the tune and tune-rom clips, what the fusion map is fitted on (``--fit`` writes ``fusion_map.npz``, its
+  ridge chosen by leaving each identity out);
 * **report**: the ICT mean face and the Face Cap head (a face never tuned on), windows of
   ``llf_alex_rom_4`` (another recording): judged, never fitted;
 * **tune-rom**: the tuning identities performing the ROM sheet ``facecap-24`` (``realism.rom``: imperfectly),
@@ -37,7 +40,8 @@ from ...solvers.config import load_take_config
 from ...solvers.io.weights import read_weights
 from ...solvers.rom import sequence_poses
 from ...solvers.tools.synthetic.realism.rom import rom_weights
-from ...solvers.video.fusion import FaceScores, FusionTable, fit_table, fuse, neutral_corrected
+from ...solvers.video.fusion import MAP_FILE_NAME, TABLE_FILE, FaceScores, FusionTable, fit_map, fit_table, fuse, \
+    neutral_corrected
 from ...solvers.video.response import ScoreResponse, fit_response
 from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
 from ...solvers.video.landmarks import track_landmarks
@@ -76,6 +80,8 @@ class Clip:
 
     @property
     def name(self):
+        if self.role == "tune-random":  # ``start`` is the draw's seed
+            return f"{self.role}-{self.face}-{self.start}-az{self.azimuth:.0f}"
         if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
             return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
         return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
@@ -89,7 +95,15 @@ CLIPS = tuple(
     + [Clip("calibrate", face, ROM_SHEET, 38, az, frames=0)
        for az in (0.0, 30.0) for face in ("facecap", "ict-mean")]
     + [Clip("tune-rom", f"ict-{seed}", ROM_SHEET, 40 + seed, az, frames=0)
-       for az in (0.0, 30.0) for seed in (21, 22)])
+       for az in (0.0, 30.0) for seed in (21, 22)]
+    + [Clip("tune-random", f"ict-{seed}", "random", 80 + seed + draw, az)
+       for seed in (21, 22) for draw in (0, 10) for az in (0.0, 30.0)])
+#: The roles the fusion map is fitted on: the tuning faces' performances, ROM sessions and random activations.
+MAP_ROLES = ("tune", "tune-rom", "tune-random")
+#: Directions a face cannot take at once: a random activation leaves out the one whose opposite is active.
+OPPOSITE = {**{f"eyeLook{a}{s}": f"eyeLook{b}{s}" for s in ("Left", "Right")
+               for a, b in (("In", "Out"), ("Out", "In"), ("Up", "Down"), ("Down", "Up"))},
+            "jawLeft": "jawRight", "jawRight": "jawLeft", "mouthLeft": "mouthRight", "mouthRight": "mouthLeft"}
 
 
 def face_arrays(face, shared):
@@ -106,15 +120,41 @@ def face_arrays(face, shared):
     return neutral, quads, names, deltas
 
 
-def rom_performance(names, seed):
-    """A ROM session of :data:`ROM_SHEET` performed imperfectly (``realism.rom``: 80-100 % of each asked shape,
-    neighbours leaking in, wobbling holds) at :data:`ROM_FPS`: (weights (F, K) on ``names``, head (F, 6), gaze
-    (F, 2, 2) from the eye-look weights as Live Link Face relates them, {"performed", "holds", "given"})."""
+def random_performance(names, seed, frames, *, fps=30.0):
+    """Every judged shape fired at random, each independently of the others (``frames`` after :data:`HOLD` frames of
+    a relaxed face): an event every 2-7 frames takes the next shape of a random order of them all (and half the
+    time its other side) and eases it to a level of 0.3-1 for 6-20 frames, so that about five overlap; no habit ties one shape to another, unlike a
+    performance or the ROM sheet's expressions. The fusion map learns from these what the head misreads.
+    Returns (weights (F, K), head (F, 6), gaze (F, 2, 2)) as :func:`rom_performance` makes them."""
     rng = np.random.default_rng(seed)
-    weights, performed, holds, given = rom_weights(names, sequence_poses(ROM_SHEET), rng, fps=ROM_FPS,
-                                                   timing=ROM_TIMING)
+    F = HOLD + frames
+    judged = [k for k, n in enumerate(names) if n in set(judged_names())]
+    index = {n: k for k, n in enumerate(names)}
+    weights = np.zeros((F, len(names)))
+    t, order = HOLD, []
+    while t < F:
+        if not order:  # every shape in turn, in a new random order each round: none is left out of a clip
+            order = list(rng.permutation(judged))
+        k = int(order.pop())
+        ramp, hold = int(rng.integers(4, 9)), int(rng.integers(6, 21))
+        up = 0.5 - 0.5 * np.cos(np.pi * np.arange(1, ramp + 1) / (ramp + 1))
+        level = rng.uniform(0.3, 1.0) * np.r_[up, np.ones(hold), up[::-1]]
+        span = slice(t, min(F, t + len(level)))
+        side = names[k][:-4] + ("Right" if names[k].endswith("Left") else "Left")
+        for kk in [k] + ([index[side]] if side in index and rng.random() < 0.5 else []):
+            other = index.get(OPPOSITE.get(names[kk], ""))
+            if other is None or not weights[span, other].any():
+                weights[span, kk] = np.maximum(weights[span, kk], level[: span.stop - span.start])
+        t += int(rng.integers(2, 8))
+    head, gaze = _head_and_gaze(weights, names, rng, fps)
+    return weights, head, gaze
+
+
+def _head_and_gaze(weights, names, rng, fps):
+    """A slow head drift (:data:`ROM_HEAD_DEG`) and the eyes' turn from the eye-look weights as Live Link Face
+    relates them: (head (F, 6), gaze (F, 2, 2))."""
     F = len(weights)
-    t = np.arange(F) / ROM_FPS
+    t = np.arange(F) / fps
     head = np.zeros((F, 6))
     for axis, deg in enumerate(ROM_HEAD_DEG):
         f1, f2 = rng.uniform(0.05, 0.2, size=2)
@@ -126,6 +166,17 @@ def rom_performance(names, seed):
     gaze[:, 1, 0] = LOOK_YAW * (w("eyeLookOutLeft") - w("eyeLookInLeft"))
     gaze[:, 0, 1] = LOOK_PITCH * (w("eyeLookDownRight") - w("eyeLookUpRight"))
     gaze[:, 1, 1] = LOOK_PITCH * (w("eyeLookDownLeft") - w("eyeLookUpLeft"))
+    return head, gaze
+
+
+def rom_performance(names, seed):
+    """A ROM session of :data:`ROM_SHEET` performed imperfectly (``realism.rom``: 80-100 % of each asked shape,
+    neighbours leaking in, wobbling holds) at :data:`ROM_FPS`: (weights (F, K) on ``names``, head (F, 6), gaze
+    (F, 2, 2) from the eye-look weights as Live Link Face relates them, {"performed", "holds", "given"})."""
+    rng = np.random.default_rng(seed)
+    weights, performed, holds, given = rom_weights(names, sequence_poses(ROM_SHEET), rng, fps=ROM_FPS,
+                                                   timing=ROM_TIMING)
+    head, gaze = _head_and_gaze(weights, names, rng, ROM_FPS)
     return weights, head, gaze, {"performed": np.array(performed), "holds": holds, "given": given}
 
 
@@ -142,6 +193,8 @@ def prepare(clip, out, character, *, log=print):
     if clip.role in ROM_ROLES:
         weights, head, gaze, extra = rom_performance(names, clip.start)
         shot = Shot(distance=0.5, azimuth=clip.azimuth, fps=ROM_FPS)
+    elif clip.role == "tune-random":
+        weights, head, gaze = random_performance(names, clip.start, clip.frames)
     else:
         weights, head, gaze = performance(shared / "realdata" / "llf" / clip.recording, names, start=clip.start,
                                           frames=clip.frames, hold=HOLD)
@@ -165,7 +218,7 @@ def prepare(clip, out, character, *, log=print):
             "scores": found.blendshapes, "score_names": np.array(found.blendshape_names),
             "neutral": landmark_neutral(found), "render_s": t_render, **extra}
     np.savez(cached, **data)
-    if clip.role == "tune":
+    if clip.role in ("tune", "tune-random"):
         video.unlink()  # the npz keeps what the fusion needs; a reported clip's video is kept for the speed
     log(f"{clip.name}: rendered in {t_render:.0f} s")
     return data
@@ -210,7 +263,7 @@ def region_rmse(got, truth, names):
 
 
 def fit(out, *, log=print):
-    """Fit the fusion table on the tuning clips in ``out``; returns it (not saved)."""
+    """Fit the fusion table on the tuning clips in ``out``; returns it (not saved) and the constant baseline."""
     names = judged_names()
     parts = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in CLIPS if c.role == "tune"]
     truth, solved, corrected = (np.concatenate(p) for p in zip(*parts))
@@ -220,6 +273,47 @@ def fit(out, *, log=print):
                                    "command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit"})
     log(f"fusion table fitted on {len(tuned)} clips, {len(truth)} frames")
     return table, np.nanmean(truth, axis=0)
+
+
+#: The ridges the fusion map is chosen among (per clip, towards the per-shape table).
+MAP_RIDGES = (3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
+
+
+def fit_cross(out, table, *, log=print):
+    """The fusion map on the tuning faces' clips, performances and ROM sessions alike (``tune`` and ``tune-rom``):
+    its ridge chosen by leaving each tuning identity out in turn (the median visible RMSE of its clips, the larger
+    ridge on a tie to 3 decimals); returns (the map, what it was measured on)."""
+    names = judged_names()
+    clips = [c for c in CLIPS if c.role in MAP_ROLES]
+    parts = {c.name: columns(dict(np.load(out / f"{c.name}.npz")), names) for c in clips}
+    faces = sorted({c.face for c in clips})
+    scores = {}
+    for lam in MAP_RIDGES:
+        errs = []
+        for face in faces:
+            held = [c for c in clips if c.face == face]
+            cross = fit_map([parts[c.name] for c in clips if c.face != face], names, lam)
+            tab = replace(table, map=cross)
+            for c in held:
+                truth, solved, corrected = parts[c.name]
+                errs.append(region_rmse(_map_only(tab, solved, corrected, names), truth, names)["visible"])
+        scores[lam] = round(float(np.median(errs)), 3)
+    best = min(scores.values())
+    lam = max(k for k, v in scores.items() if v == best)
+    log("fusion map: leave-one-identity-out visible RMSE per ridge " + ", ".join(f"{k:g}: {v:.3f}"
+                                                                                for k, v in scores.items())
+        + f"; chosen {lam:g}")
+    measured = {"map_clips": [c.name for c in clips], "map_ridge": lam, "map_ridge_cv": {f"{k:g}": v for k, v in
+                                                                                          scores.items()}}
+    return fit_map(list(parts.values()), names, lam), measured
+
+
+def _map_only(table, solved, corrected, names):
+    """The fused weights of cached columns (on the map's ``names``, the scores already corrected) through
+    ``table``'s map, every input had (NaN read as 0)."""
+    S = len(names)
+    W = table.map.weights(table, np.ones(S, bool), np.ones(S, bool))
+    return np.clip(np.nan_to_num(np.concatenate([corrected, solved], axis=1)) @ W, 0.0, 1.0)
 
 
 def rom_fit(out, clip, reference=None):
@@ -258,7 +352,7 @@ def calibration_clip(clip):
 
 def evaluate(out, table, constant, role="report"):
     """{clip: {method: region table}} for the clips of ``role``: the landmark solve, the corrected scores, the
-    fusion, the fusion with the performer's response from the ROM clip of the same face and camera (when it is
+    fusion per shape (the table alone), the fusion through the map, the latter with the performer's response from the ROM clip of the same face and camera (when it is
     in ``out``) and a constant (the tuning clips' mean weights on every frame)."""
     names = judged_names()
     rows = {}
@@ -268,15 +362,15 @@ def evaluate(out, table, constant, role="report"):
         data = dict(np.load(out / f"{clip.name}.npz"))
         truth, solved, corrected = columns(data, names)
         rom = calibration_clip(clip)
-        responses = {"fused": None}
+        methods = {"fused per shape": (None, False), "fused": (None, True)}
         if rom is not None and (out / f"{rom.name}.npz").is_file():
-            responses["fused + ROM"] = rom_fit(out, rom, table.reference).response
+            methods["fused + ROM"] = (rom_fit(out, rom, table.reference).response, True)
         row = {"landmarks": region_rmse(solved, truth, names),
                "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names)}
-        for method, response in responses.items():
+        for method, (response, cross) in methods.items():
             fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
                             FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"],
-                                       response=response), table=table)
+                                       response=response), table=table, cross=cross)
             row[method] = region_rmse(columns({**data, "solved": fused}, names)[1], truth, names)
         row["constant"] = region_rmse(np.broadcast_to(constant, truth.shape), truth, names)
         rows[clip.name] = row
@@ -305,10 +399,11 @@ def speed(video, log=print):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
-    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate"), action="append", help="only these clips")
+    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate", "tune-random"), action="append",
+                        help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
-    parser.add_argument("--fit", action="store_true", help="fit the fusion table on the tuning clips and write it "
-                                                          "(solvers/video/fusion_table.json)")
+    parser.add_argument("--fit", action="store_true", help="fit the fusion table and its map on the tuning clips and "
+                                                          "write them (solvers/video/fusion_table.json, fusion_map.npz)")
     parser.add_argument("--fit-rom", action="store_true", help="fit the table's ROM reference on the tuning faces' ROM "
                                                               "clips (role tune-rom) and write it, the gains kept")
     args = parser.parse_args(argv)
@@ -325,8 +420,11 @@ def main(argv=None):
             prepare(clip, out, character)
     if args.fit:
         table, constant = fit(out)
-        table = replace(table, reference=FusionTable.load().reference)
+        cross, measured = fit_cross(out, table)
+        table = replace(table, reference=FusionTable.load().reference, map=cross,
+                        measured_on={**FusionTable.load().measured_on, **table.measured_on, **measured})
         table.save()
+        cross.save(TABLE_FILE.with_name(MAP_FILE_NAME))
     else:
         table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1]
     if args.fit_rom:

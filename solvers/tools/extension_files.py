@@ -22,6 +22,7 @@ ADDON_DATA = (
     "solvers/tools/report/assets/review.css",
     "solvers/tools/report/assets/review.js",
     "solvers/video/fusion_table.json",  # the blendshape scores' fusion with the landmark solve, per shape
+    "solvers/video/fusion_map.npz",  # and its map across shapes
 )
 
 

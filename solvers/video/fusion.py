@@ -1,26 +1,32 @@
-"""Two signals from one video, combined per shape: the Face Landmarker's blendshape scores and facecap's
-solve from the landmarks.
+"""Two signals from one video, combined: the Face Landmarker's blendshape scores and facecap's solve from the
+landmarks.
 
 They fail on different shapes (docs/video.md): the blendshape head reads brow raises, ``browInnerUp``,
 the look down, the jaw's sideways and forward motion and lip presses that the landmarks barely move; the
-landmark solve is better on the jaw opening, the lower lip, smiles and blinks. Per shape::
+landmark solve is better on the jaw opening, the lower lip, smiles and blinks. And each misreads one shape as
+another (the head's lower-lip score rises with the jaw, its frown with a stretch). So every fused shape is read
+from the corrected scores and solved weights of its half of the face (``face_half``)::
 
-    c = (s - s0) / (1 - s0)          the score s corrected by its level s0 on the take's neutral frames
-    c = response(c)                  the performer's response on this camera (a later ROM calibration; identity)
-    w = a * c + b * l                l the landmark solve's weight; a, b >= 0 from the fusion table
+    c = (s - s0) / (1 - s0)          each score s corrected by its level s0 on the take's neutral frames
+    c = response(c)                  the performer's response on this camera (a ROM calibration; identity)
+    w = W' [c, l]                    l the landmark solve's weights, W the fusion map
     w = clip(w, lower, upper)
 
-``a`` and ``b`` are measured, not chosen: ``python -m facecap.facecap_addon.bench.fusion_bench --fit`` fits them by
-non-negative least squares per shape on rendered clips with known weights (two ICT identities, two
-cameras, one recording; ``fusion_table.json`` beside this module says which) and never on the clips it
-reports. The result keeps the landmark take's own path onto the character: the semantic solve's weights
-are the actor's activations keyed on the character's shapes of the same name (``strategies/semantic``),
-and the fused weight of a shape replaces its solved one by that name (aliases matched as ``parallel``
-matches them); shapes without a score (``tongueOut``, a character's own shapes) keep the solve.
+The map ``W`` (``CrossMap``) is ridge regression towards the per-shape table (``w_k = a_k c_k + b_k l_k``, ``a``
+and ``b`` >= 0 fitted per shape by ``fit_table``): the off-diagonal terms only undo the cross-talk the tuning
+clips show within a half of the face. It is kept as the tuning clips' normal equations (``fusion_map.npz``), so a take whose character
+lacks some ARKit shapes gets the map solved for the inputs it has. Both are measured, not chosen: ``python -m
+facecap.facecap_addon.bench.fusion_bench --fit`` fits them on rendered clips with known weights (two ICT
+identities, two cameras, windows of one recording and the same faces performing the ROM sheet, so that the map
+learns the head's cross-talk rather than one performance's habits; ``fusion_table.json`` says which clips) and never
+on the clips it reports. The result keeps the landmark take's own path onto the character: the semantic solve's
+weights are the actor's activations keyed on the character's shapes of the same name (``strategies/semantic``),
+and the fused weight of a shape replaces its solved one by that name (aliases matched as ``parallel`` matches
+them); shapes without a score (``tongueOut``, a character's own shapes) keep the solve.
 """
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +36,8 @@ from ..errors import FacecapError
 from .score_response import ScoreResponse
 
 TABLE_FILE = Path(__file__).resolve().parent / "fusion_table.json"
+#: The fusion map beside its table (``CrossMap``).
+MAP_FILE_NAME = "fusion_map.npz"
 #: The largest gain a table gives a signal: a score that barely moves in the tuning clips (eyeLookUp: 12x
 #: unbounded) would turn another face's noise into motion.
 MAX_GAIN = 2.0
@@ -39,12 +47,14 @@ MAX_GAIN = 2.0
 class FusionTable:
     """Per shape (ARKit names) the gains of the corrected score (``score``) and of the landmark solve (``solve``);
     ``reference``: how the tuning faces' scores respond to a ROM sheet (a ``ScoreResponse``, or None),
-    which a performer's ROM clip is calibrated against (``response.fit_response``)."""
+    which a performer's ROM clip is calibrated against (``response.fit_response``); ``map``: the fusion map
+    (``CrossMap``, or None: per shape only), loaded from ``fusion_map.npz`` beside the table."""
 
     score: dict
     solve: dict
     measured_on: dict = field(default_factory=dict)
     reference: object = None
+    map: object = None
 
     @classmethod
     def load(cls, path=TABLE_FILE):
@@ -55,10 +65,12 @@ class FusionTable:
             reference = None if ref is None else ScoreResponse(
                 tuple(ref["shapes"]), [v[0] for v in ref["shapes"].values()], [v[1] for v in ref["shapes"].values()],
                 ref["sheet"])
-            return cls({k: float(v[0]) for k, v in data["shapes"].items()},
-                       {k: float(v[1]) for k, v in data["shapes"].items()}, data.get("measured_on", {}), reference)
+            table = cls({k: float(v[0]) for k, v in data["shapes"].items()},
+                        {k: float(v[1]) for k, v in data["shapes"].items()}, data.get("measured_on", {}), reference)
         except (OSError, ValueError, KeyError, IndexError, TypeError, FacecapError) as exc:
             raise FacecapError(f"{path}: not a fusion table ({exc})") from None
+        beside = path.with_name(MAP_FILE_NAME)
+        return replace(table, map=CrossMap.load(beside)) if beside.is_file() else table
 
     def save(self, path=TABLE_FILE):
         rows = ",\n".join(f'  "{k}": [{self.score[k]:.4f}, {self.solve[k]:.4f}]' for k in self.score)
@@ -74,6 +86,88 @@ class FusionTable:
         tmp = Path(path).with_name(Path(path).name + ".part")
         tmp.write_text(text + "\n", encoding="utf-8")
         tmp.replace(path)
+
+
+@dataclass(frozen=True, eq=False)
+class CrossMap:
+    """The fusion map: each shape of ``names`` (ARKit) from the corrected scores and the solved weights of ``names``
+    in its half of the face (inputs: the scores, then the solve), by ridge regression towards the per-shape table. Kept as the tuning
+    clips' normal equations, each clip weighing the same: ``gram`` (2S, 2S) the inputs' mean products, ``moment``
+    (2S, S) the inputs' with the truth, ``ridge`` the pull towards the table (the clips' count times lambda)."""
+
+    names: tuple
+    gram: np.ndarray
+    moment: np.ndarray
+    ridge: float
+
+    def allowed(self):
+        """(2S, S) which inputs may read each shape: its own score and solve, and those of its half of the face."""
+        half = np.array([face_half(n) for n in self.names])
+        same = half[:, None] == half[None, :]
+        return np.r_[same, same]
+
+    def weights(self, table, have_score, have_solve):
+        """(P, S) the map for the inputs a take has (``have_score``, ``have_solve``: (S,) bools; P the count of
+        inputs had, scores first), solved from the normal equations with the others left out; 0 for an input
+        another half of the face (``allowed``)."""
+        S = len(self.names)
+        prior = np.zeros((2 * S, S))
+        prior[np.arange(S), np.arange(S)] = [table.score.get(n, 0.0) for n in self.names]
+        prior[S + np.arange(S), np.arange(S)] = [table.solve.get(n, 1.0) for n in self.names]
+        use = np.flatnonzero(np.r_[np.asarray(have_score, bool), np.asarray(have_solve, bool)])
+        allowed = self.allowed()[use]
+        out = np.zeros((use.size, S))
+        for j in range(S):
+            rows = np.flatnonzero(allowed[:, j])
+            u = use[rows]
+            A = self.gram[np.ix_(u, u)] + self.ridge * np.eye(u.size)
+            out[rows, j] = np.linalg.solve(A, self.moment[u, j] + self.ridge * prior[u, j])
+        return out
+
+    @classmethod
+    def load(cls, path):
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                names = tuple(str(n) for n in z["names"])
+                out = cls(names, np.asarray(z["gram"], np.float64), np.asarray(z["moment"], np.float64),
+                          float(z["ridge"]))
+        except (OSError, ValueError, KeyError, EOFError) as exc:
+            raise FacecapError(f"{path}: not a fusion map ({exc})") from None
+        S = len(out.names)
+        if out.gram.shape != (2 * S, 2 * S) or out.moment.shape != (2 * S, S) or not out.ridge > 0:
+            raise FacecapError(f"{path}: a fusion map of {S} shapes needs a ({2 * S}, {2 * S}) gram and a "
+                               f"({2 * S}, {S}) moment and a positive ridge")
+        return out
+
+    def save(self, path):
+        """Write atomically (``.part`` then renamed)."""
+        path = Path(path)
+        tmp = path.with_name(path.stem + ".part.npz")
+        np.savez_compressed(tmp, names=np.array(self.names, dtype=str), gram=self.gram, moment=self.moment,
+                            ridge=np.float64(self.ridge))
+        tmp.replace(path)
+
+
+def face_half(name):
+    """"upper" (brows, lids, gaze: ARKit ``brow*`` and ``eye*``) or "lower" (cheeks, nose, jaw, mouth, tongue).
+    What the head misreads stays within a half (a lower lid's score moves with a squint, a lip's with the jaw);
+    what goes with what across the halves (a frown with raised brows) is how the tuning faces performed, not
+    how the head reads, and the map leaves it out."""
+    return "upper" if name.startswith(("brow", "eye")) else "lower"
+
+
+def fit_map(clips, names, lam):
+    """The fusion map from tuning ``clips``: [(truth, solved, corrected) each (F, S) on ARKit ``names``], each clip
+    weighing the same whatever its length; ``lam`` the ridge per clip (towards the table the map is solved with).
+    NaN inputs count as 0 (a score or a shape a clip lacks); NaN truth frames are left out."""
+    S = len(names)
+    gram, moment = np.zeros((2 * S, 2 * S)), np.zeros((2 * S, S))
+    for truth, solved, corrected in clips:
+        ok = np.isfinite(truth).all(axis=1)
+        X = np.nan_to_num(np.concatenate([corrected, solved], axis=1)[ok])
+        gram += X.T @ X / max(ok.sum(), 1)
+        moment += X.T @ truth[ok] / max(ok.sum(), 1)
+    return CrossMap(tuple(names), gram, moment, lam * len(clips))
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,24 +195,27 @@ def neutral_corrected(scores, neutral):
     return np.clip((s - s0) / (1.0 - s0), 0.0, None)
 
 
-def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, upper=1.0):
-    """The solve's ``weights`` (F, K) on ``shape_names`` combined per shape with ``scores`` (FaceScores).
+def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, upper=1.0, cross=True):
+    """The solve's ``weights`` (F, K) on ``shape_names`` combined with ``scores`` (FaceScores).
 
     Parameters
     ----------
-    table : FusionTable (default: the measured one, ``fusion_table.json``)
+    table : FusionTable (default: the measured one, ``fusion_table.json`` and its map)
     response : callable(corrected (F, S), names) -> (F, S), optional
         The performer's response calibration (per shape gain/offset or monotone curve for this performer and
         camera), applied to the neutral-corrected scores before they are combined: the one place it plugs in
         (default: ``scores.response``).
     lower, upper : scalar or (K,) bounds of the character's shapes
+    cross : read the shapes the table's map names through the map (every score and solved weight); False: each
+        shape from its own score and solve only (the per-shape table, as without a map)
 
     Returns
     -------
     (weights (F, K), list of the fused shape names)
     """
     table = FusionTable.load() if table is None else table
-    w = np.array(weights, dtype=np.float64)
+    solve = np.array(weights, dtype=np.float64)
+    w = solve.copy()
     if len(scores.values) != len(w):
         raise FacecapError(f"the blendshape scores have {len(scores.values)} frames; the solve has {len(w)}")
     corrected = neutral_corrected(scores.values, scores.neutral)
@@ -128,17 +225,45 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
     column = {n: j for j, n in enumerate(scores.names)}
     lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (w.shape[1],))
     hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (w.shape[1],))
+    arkit = []  # the character's shapes' ARKit names, through the alias tables (None: not one ARKit shape)
+    for name in shape_names:
+        names = canonical_names(name)
+        arkit.append(names[0] if len(names) == 1 else None)
+    mapped = {}
+    if cross and table.map is not None and any(n in column for n in table.map.names):
+        mapped = _through_map(table, corrected, column, solve, arkit)
     fused = []
     for k, name in enumerate(shape_names):
-        arkit = canonical_names(name)  # the character's name for an ARKit shape, through the alias tables
-        if len(arkit) != 1 or arkit[0] not in column or arkit[0] not in table.score:
+        if arkit[k] in mapped:
+            seen, values = mapped[arkit[k]]
+            w[seen, k] = np.clip(values, lo[k], hi[k])
+        elif arkit[k] in column and arkit[k] in table.score:
+            a, b = table.score[arkit[k]], table.solve[arkit[k]]
+            c = corrected[:, column[arkit[k]]]
+            seen = np.isfinite(c)  # frames without a face keep the solve (a gap stays a gap)
+            w[seen, k] = np.clip(a * c[seen] + b * np.nan_to_num(solve[seen, k]), lo[k], hi[k])
+        else:
             continue
-        a, b = table.score[arkit[0]], table.solve[arkit[0]]
-        c = corrected[:, column[arkit[0]]]
-        seen = np.isfinite(c)  # frames without a face keep the solve (a gap stays a gap)
-        w[seen, k] = np.clip(a * c[seen] + b * np.nan_to_num(w[seen, k]), lo[k], hi[k])
         fused.append(name)
     return w, fused
+
+
+def _through_map(table, corrected, column, solve, arkit):
+    """{ARKit name: (frames with a face, values there)} of every shape the map names, from the scores it has and
+    the character's solved shapes of its names (the first by that name)."""
+    names = table.map.names
+    have_score = np.array([n in column for n in names])
+    solve_of = {}
+    for k, n in enumerate(arkit):
+        solve_of.setdefault(n, k)
+    have_solve = np.array([n in solve_of for n in names])
+    W = table.map.weights(table, have_score, have_solve)
+    scored = corrected[:, [column[n] for n, h in zip(names, have_score) if h]]
+    seen = np.isfinite(scored).all(axis=1)  # frames without a face keep the solve
+    X = np.concatenate([scored[seen], np.nan_to_num(solve[np.ix_(seen, [solve_of[n] for n, h in zip(names, have_solve)
+                                                                       if h])])], axis=1)
+    values = X @ W
+    return {n: (seen, values[:, j]) for j, n in enumerate(names)}
 
 
 def fit_table(truth, solved, corrected, names, *, measured_on=None):

@@ -9,7 +9,7 @@ import pytest
 from facecap.solvers.extension_builds import BUILDS
 from facecap.solvers.tools.build_extension import fetch_assets, read_assets
 from facecap.solvers.video.face_models import MODEL_FILES
-from facecap.solvers.video.fusion import TABLE_FILE
+from facecap.solvers.video.fusion import MAP_FILE_NAME, TABLE_FILE
 
 
 @pytest.mark.parametrize("build, platform", [(b.name, p) for b in BUILDS for p in b.platforms])
@@ -22,8 +22,9 @@ def test_each_zip_carries_the_face_landmark_models(extension_zips, build, platfo
         for asset, data in expected.items():
             assert z.read(asset.target) == data, asset.target
         assert not [n for n in z.namelist() if "mediapipe" in n.lower() and not n.endswith("LICENSE-mediapipe.txt")]
-        # the Face Landmarker bundle is downloaded, not shipped; what runs it and the fusion table are
+        # the Face Landmarker bundle is downloaded, not shipped; what runs it and the fusion table and map are
         assert z.read("solvers/video/fusion_table.json") == TABLE_FILE.read_bytes()
+        assert z.read("solvers/video/fusion_map.npz") == TABLE_FILE.with_name(MAP_FILE_NAME).read_bytes()
         assert "solvers/video/tflite_graph.py" in z.namelist()
         assert not [n for n in z.namelist() if n.endswith(".task")]
     assert b"Apache License" in expected[next(a for a in assets if a.target.endswith(".txt"))]

@@ -1,0 +1,31 @@
+"""The fusion benchmark's clips (facecap_addon/bench/fusion_bench.py): what the fusion map is fitted on."""
+
+import numpy as np
+
+from facecap.facecap_addon.bench import fusion_bench as fb
+from facecap.facecap_addon.bench.landmark_bench import shared_folder
+
+
+def test_random_activations_fire_every_shape_on_its_own():
+    """The random-activation clips: a relaxed start (the take's neutral), then about five shapes at once, each
+    fired independently of the others (their correlations average about 0), never two opposite
+    directions at once; over the tuning clips every judged shape fires."""
+    names = list(fb.face_arrays("ict-21", shared_folder() / "data")[2])
+    clips = [c for c in fb.CLIPS if c.role == "tune-random"]
+    assert len(clips) >= 8 and {c.face for c in clips} == {"ict-21", "ict-22"} and {c.azimuth for c in clips} == {0, 30}
+    fired = set()
+    for clip in clips:
+        weights, head, gaze = fb.random_performance(names, clip.start, clip.frames)
+        assert weights.shape == (fb.HOLD + clip.frames, len(names)) and head.shape == (len(weights), 6)
+        assert not weights[: fb.HOLD].any() and 0.0 <= weights.min() and weights.max() <= 1.0
+        active = (weights[fb.HOLD:] > 0.05).sum(axis=1)
+        assert 3.0 <= active.mean() <= 8.0, active.mean()
+        for a, b in fb.OPPOSITE.items():
+            if a in names and b in names:
+                assert not np.any((weights[:, names.index(a)] > 0) & (weights[:, names.index(b)] > 0)), (a, b)
+        fired |= {n for k, n in enumerate(names) if weights[:, k].max() > 0.3}
+        moving = weights[fb.HOLD:, weights[fb.HOLD:].std(axis=0) > 0]
+        corr = np.corrcoef(moving.T)
+        pairs = corr[~np.eye(len(corr), dtype=bool)]
+        assert abs(pairs.mean()) < 0.05, pairs.mean()  # no shape drawn along with the others
+    assert set(fb.judged_names()) <= fired, set(fb.judged_names()) - fired
