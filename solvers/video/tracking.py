@@ -145,7 +145,7 @@ class LKTracker:
     HISTORY = 30  # frames of per-point statistics
 
     def __init__(self, ref_image, ref_points, *, win_size=21, levels=3, fb_threshold=1.0, reregister=True,
-                 reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0, photometric=True):
+                 reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0, photometric=True, min_eig=1e-5):
         self.cv2 = cv2 = opencv()
         self.win = (int(win_size), int(win_size))
         self.levels = int(levels)
@@ -154,6 +154,10 @@ class LKTracker:
         self.reregister, self.reseed = bool(reregister), bool(reseed)
         self.photometric = bool(photometric)
         self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 0.001)
+        # LK's own status fails a window whose gradient energy is below a fixed level (OpenCV's 1e-4), on smooth
+        # 1/f texture in MJPG most of them, though their estimates are as good as the rest: the forward-backward and
+        # appearance checks judge each point against its own measured noise; this only refuses flat patches
+        self.min_eig = float(min_eig)
         self.ref_pts = np.asarray(ref_points, np.float32).reshape(-1, 2)
         self.ref_pyr = self._pyramid(ref_image)
         self.ref_hp = self._highpass(ref_image)
@@ -186,11 +190,11 @@ class LKTracker:
         cv2 = self.cv2
         if init is None:
             out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, None, winSize=self.win, maxLevel=self.levels,
-                                                  criteria=self.criteria)
+                                                  criteria=self.criteria, minEigThreshold=self.min_eig)
         else:
             out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, np.ascontiguousarray(init, np.float32).copy(),
                                                   winSize=self.win, maxLevel=self.levels, criteria=self.criteria,
-                                                  flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+                                                  flags=cv2.OPTFLOW_USE_INITIAL_FLOW, minEigThreshold=self.min_eig)
         return out.reshape(-1, 2), st.reshape(-1).astype(bool)
 
     def _patches(self, img, pts):
