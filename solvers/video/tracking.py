@@ -145,7 +145,8 @@ class LKTracker:
     HISTORY = 30  # frames of per-point statistics
 
     def __init__(self, ref_image, ref_points, *, win_size=21, levels=3, fb_threshold=1.0, reregister=True,
-                 reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0, photometric=True):
+                 reseed=True, patch_radius=6, fb_factor=5.0, appearance_factor=3.0, photometric=True,
+                 fallback_min_eig=1e-5):
         self.cv2 = cv2 = opencv()
         self.win = (int(win_size), int(win_size))
         self.levels = int(levels)
@@ -154,6 +155,12 @@ class LKTracker:
         self.reregister, self.reseed = bool(reregister), bool(reseed)
         self.photometric = bool(photometric)
         self.criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 0.001)
+        # LK's own status fails a window whose gradient energy is below a fixed level (OpenCV's 1e-4): on smooth 1/f
+        # texture in MJPG most of them, though their estimates are as good as the rest. Where no estimate passed,
+        # the point is tried again with this floor and the forward-backward and appearance checks judge it against
+        # its own measured noise; where one passed, nothing changes (on lossless footage the weaker registrations
+        # it lets through would be mixed into better ones). None: no second try
+        self.fallback_min_eig = None if fallback_min_eig is None else float(fallback_min_eig)
         self.ref_pts = np.asarray(ref_points, np.float32).reshape(-1, 2)
         self.ref_pyr = self._pyramid(ref_image)
         self.ref_hp = self._highpass(ref_image)
@@ -182,15 +189,15 @@ class LKTracker:
         # OpenCV's Python binding does not accept prebuilt pyramids here, so LK builds its own.
         return img
 
-    def _lk(self, pyr_a, pyr_b, pts, init=None):
+    def _lk(self, pyr_a, pyr_b, pts, init=None, min_eig=1e-4):
         cv2 = self.cv2
         if init is None:
             out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, None, winSize=self.win, maxLevel=self.levels,
-                                                  criteria=self.criteria)
+                                                  criteria=self.criteria, minEigThreshold=min_eig)
         else:
             out, st, _ = cv2.calcOpticalFlowPyrLK(pyr_a, pyr_b, pts, np.ascontiguousarray(init, np.float32).copy(),
                                                   winSize=self.win, maxLevel=self.levels, criteria=self.criteria,
-                                                  flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+                                                  flags=cv2.OPTFLOW_USE_INITIAL_FLOW, minEigThreshold=min_eig)
         return out.reshape(-1, 2), st.reshape(-1).astype(bool)
 
     def _patches(self, img, pts):
@@ -228,25 +235,26 @@ class LKTracker:
             pooled = np.nanmedian(hist) if np.isfinite(hist).any() else fallback
         return np.where(np.isfinite(own) & (np.isfinite(hist).sum(axis=0) >= 5), own, pooled)
 
-    def _checked(self, a, b, src, init, back_init):
+    def _checked(self, a, b, src, init, back_init, min_eig=1e-4):
         """LK a -> b from ``src`` (started at ``init``) and back; (positions, forward-backward error)."""
-        fwd, st = self._lk(a, b, src, init)
-        back, st2 = self._lk(b, a, fwd, back_init)
+        fwd, st = self._lk(a, b, src, init, min_eig)
+        back, st2 = self._lk(b, a, fwd, back_init, min_eig)
         fb = np.linalg.norm(back - src, axis=1)
         fb[~(st & st2 & self._inside(fwd))] = np.inf
         return fwd, fb
 
-    def _combined(self, idx, p_raw, fb_raw, p_hp, fb_hp):
+    def _combined(self, idx, p_raw, fb_raw, p_hp, fb_hp, record=True):
         """The direct registrations on the image and on its detail image as two measurements of the points
         ``idx``: weighted by the inverse square of each one's typical forward-backward error at that point (its
         noise, measured over the last frames), or the one that passed where the other failed. Detail images win
         where shading misleads LK (lighting drift), the image itself where the detail is mostly codec noise (a
         1/f texture in MJPG); neither is chosen frame by frame on its patch match (that lost to the plain LK on
-        footage nobody tuned for)."""
-        row = self.frame_no % self.HISTORY
-        self.fb_raw_hist[row], self.fb_hp_hist[row] = np.nan, np.nan
-        self.fb_raw_hist[row, idx] = np.where(np.isfinite(fb_raw), fb_raw, np.nan)
-        self.fb_hp_hist[row, idx] = np.where(np.isfinite(fb_hp), fb_hp, np.nan)
+        footage nobody tuned for). ``record``: the errors go into the points' history (not a second try's)."""
+        if record:
+            row = self.frame_no % self.HISTORY
+            self.fb_raw_hist[row], self.fb_hp_hist[row] = np.nan, np.nan
+            self.fb_raw_hist[row, idx] = np.where(np.isfinite(fb_raw), fb_raw, np.nan)
+            self.fb_hp_hist[row, idx] = np.where(np.isfinite(fb_hp), fb_hp, np.nan)
         t_hp, t_raw = self._typical(self.fb_hp_hist, 1.0)[idx], self._typical(self.fb_raw_hist, 1.0)[idx]
         w = (t_raw**2 / np.maximum(t_hp**2 + t_raw**2, 1e-12))[:, None]
         ok_raw, ok_hp = np.isfinite(fb_raw), np.isfinite(fb_hp)
@@ -254,6 +262,28 @@ class LKTracker:
         p = np.where(both, w * p_hp + (1 - w) * p_raw, np.where(ok_hp[:, None], p_hp, p_raw))
         fb = np.where(both[:, 0], w[:, 0] * fb_hp + (1 - w[:, 0]) * fb_raw, np.where(ok_hp, fb_hp, fb_raw))
         return p.astype(np.float32), fb
+
+    def _estimates(self, img, cur, which, was_ok, fb_limit, p_c, fb_c, p_d, fb_d, min_eig=None):
+        """Fill the continuous (``p_c``, ``fb_c``) and direct (``p_d``, ``fb_d``) estimates of the points ``which``
+        (n,) bools; returns (ok_c, ok_d) of every point. ``min_eig``: a second try at a lower floor for LK's status
+        (not recorded in the points' history), else OpenCV's."""
+        first = min_eig is None
+        eig = 1e-4 if first else min_eig
+        idx = np.flatnonzero(which & was_ok)
+        if idx.size:
+            p_c[idx], fb_c[idx] = self._checked(self.prev_pyr, cur, self.pos[idx], None, self.pos[idx], eig)
+        ok_c = fb_c < fb_limit
+        want = which & (True if self.reregister else (~ok_c & self.reseed))
+        if want.any():
+            init = np.where(ok_c[:, None], p_c, self._predict() if (~ok_c).any() else p_c)
+            idx = np.flatnonzero(want & np.isfinite(init[:, 0]))
+            p_d[idx], fb_d[idx] = self._checked(self.ref_pyr, cur, self.ref_pts[idx], init[idx], self.ref_pts[idx], eig)
+            if self.photometric:  # the same registration on detail images, combined with it per point
+                p_h, fb_h = self._checked(self.ref_hp, self._highpass(img), self.ref_pts[idx], init[idx],
+                                          self.ref_pts[idx], eig)
+                p_d[idx], fb_d[idx] = self._combined(idx, p_d[idx], fb_d[idx], p_h, fb_h, record=first)
+        ok_d = fb_d < np.where(ok_c | self.reregister, fb_limit, 0.5 * fb_limit)  # re-acquiring: a closer match
+        return ok_c, ok_d
 
     def step(self, img):
         """Track into ``img``; returns positions (M, 2) (NaN = lost), confidence (M,), re-acquired mask."""
@@ -264,22 +294,13 @@ class LKTracker:
         fb_limit = np.maximum(self.fb, self.fb_factor * fb_typ)
         p_c = np.full((n, 2), np.nan, np.float32)
         fb_c = np.full(n, np.inf)
-        if was_ok.any():
-            idx = np.flatnonzero(was_ok)
-            p_c[idx], fb_c[idx] = self._checked(self.prev_pyr, cur, self.pos[idx], None, self.pos[idx])
-        ok_c = fb_c < fb_limit
         p_d = np.full((n, 2), np.nan, np.float32)
         fb_d = np.full(n, np.inf)
-        want = np.ones(n, bool) if self.reregister else (~ok_c & self.reseed)
-        if want.any():
-            init = np.where(ok_c[:, None], p_c, self._predict() if (~ok_c).any() else p_c)
-            idx = np.flatnonzero(want & np.isfinite(init[:, 0]))
-            p_d[idx], fb_d[idx] = self._checked(self.ref_pyr, cur, self.ref_pts[idx], init[idx], self.ref_pts[idx])
-            if self.photometric:  # the same registration on detail images, combined with it per point
-                p_h, fb_h = self._checked(self.ref_hp, self._highpass(img), self.ref_pts[idx], init[idx],
-                                          self.ref_pts[idx])
-                p_d[idx], fb_d[idx] = self._combined(idx, p_d[idx], fb_d[idx], p_h, fb_h)
-        ok_d = fb_d < np.where(ok_c | self.reregister, fb_limit, 0.5 * fb_limit)  # re-acquiring: a closer match
+        ok_c, ok_d = self._estimates(img, cur, np.ones(n, bool), was_ok, fb_limit, p_c, fb_c, p_d, fb_d)
+        lost = ~(ok_c | ok_d)
+        if self.fallback_min_eig is not None and lost.any():
+            ok_c, ok_d = self._estimates(img, cur, lost, was_ok, fb_limit, p_c, fb_c, p_d, fb_d,
+                                         min_eig=self.fallback_min_eig)
         err_typ = self._typical(self.err_hist, np.inf)
         e_c = np.where(ok_c, self._patch_error(img, np.nan_to_num(p_c)), np.inf)
         e_d = np.where(ok_d, self._patch_error(img, np.nan_to_num(p_d)), np.inf)

@@ -32,6 +32,9 @@ KINDS = {
     "photo_warp_mjpg": dict(texture="photo", codec="MJPG", quality=75, warp=6.0, motion=(3.0, 0.04, 0.02)),
     "octaves_strong_warp_mjpg": dict(texture="octaves", codec="MJPG", quality=60, warp=12.0,
                                      motion=(5.0, 0.06, 0.03)),
+    # the stress kind without the codec: what a lower LK eigenvalue floor must not spoil where the detail is intact
+    "octaves_strong_warp_ffv1": dict(texture="octaves", codec="FFV1", quality=None, warp=12.0,
+                                     motion=(5.0, 0.06, 0.03)),
 }
 
 
@@ -190,7 +193,8 @@ def bench_outside(*, kinds=tuple(KINDS), seeds=(0, 1, 2), size=(960, 720), frame
     with tempfile.TemporaryDirectory() as d:
         for kind in kinds:
             for seed in seeds:
-                clip = outside_clip(Path(d) / f"{kind}-{seed}.avi", kind, seed=seed, size=size, frames=frames)
+                suffix = ".avi" if KINDS[kind]["codec"] == "MJPG" else ".mkv"
+                clip = outside_clip(Path(d) / f"{kind}-{seed}{suffix}", kind, seed=seed, size=size, frames=frames)
                 ours = score(track_points(str(clip.path), points=clip.seeds).markers.positions, clip.truth)
                 plain = score(plain_lk(clip.path, clip.seeds), clip.truth)
                 rows.append((kind, seed, ours, plain))
