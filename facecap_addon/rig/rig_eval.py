@@ -84,8 +84,9 @@ class RigEvaluator:
         self._use_proxy()
 
     def _use_proxy(self):
-        """Evaluate a big armature through a proxy of the bones the bound points need (numpy path;
-        not when the mesh's shape keys read the armature: the proxy would not drive them)."""
+        """Evaluate the armature through a proxy of the bones the bound points need (numpy path; a
+        small one only when every control is on it; not when the mesh's shape keys read the armature:
+        the proxy would not drive them)."""
         if self.reference or self.mode != "numpy" or self.folded is None or self.armature is None or not self.bones:
             return
         arm = self.armature
@@ -95,7 +96,7 @@ class RigEvaluator:
             return
         bones = list(self.bones) + [c.path.split('"')[1] for c in self.controls if c.owner == arm and '"' in c.path]
         try:
-            proxy = rig_proxy.make_proxy(arm, bones)
+            proxy = rig_proxy.make_proxy(arm, bones, alone=all(c.owner == arm for c in self.controls))
         except RuntimeError:  # edit mode refused (another object held in a mode): the whole armature
             return
         if proxy is None:

@@ -8,8 +8,9 @@ instead of the original, and no custom shapes (drawing only). It lives in a scen
 update walks every node of the depsgraph it is in, and the user's holds far more than the rig (the
 Rigify human's, with the original hidden, 12,000 operations: the metarig still points at the rig,
 which brings its 706 bones and 220 widget objects back; the head-only rig's 5,900); the proxy's
-own holds about 1,100. ``evaluating`` gives the update to call. It is checked against the original
-on a few poses when made, and is dropped if they differ.
+own holds about 1,100. So a proxy pays even when it keeps most bones, if every control is on the
+armature (``alone``: the user's scene is then not updated at all). ``evaluating`` gives the update to
+call. It is checked against the original on a few poses when made, and is dropped if they differ.
 
 Proxies and their scenes are tagged (``TAG``); ``remove_proxies`` deletes every one, before keying
 or when a solve stops, so none reaches a saved file.
@@ -25,7 +26,8 @@ import numpy as np
 TAG = "facecap_rig_proxy"
 #: Proxies are made (``rig-bench`` turns them off to time the whole armature in the same run).
 USE = True
-#: A proxy is made only when it leaves out at least this share of the armature's bones.
+#: A proxy is made only when it leaves out at least this share of the armature's bones, or when it is
+#: evaluated ``alone`` (its own scene then spares the update of the user's, whatever it leaves out).
 WORTH = 0.3
 #: Largest difference of a deforming bone's matrix (scene units) between the proxy and the original.
 TOLERANCE = 1e-6
@@ -93,11 +95,11 @@ def _point_at(proxy, original):
                     t.target = proxy
 
 
-def make_proxy(armature, names):
+def make_proxy(armature, names, *, alone=False):
     """A proxy of ``armature`` keeping ``names`` and what they need, in a scene of its own, or None
-    when it would not pay."""
+    when it would not pay (``alone``: it will be evaluated without the user's scene)."""
     need = needed_bones(armature, names)
-    if not USE or len(need) > (1.0 - WORTH) * len(armature.pose.bones):
+    if not USE or (not alone and len(need) > (1.0 - WORTH) * len(armature.pose.bones)):
         return None
     proxy = armature.copy()
     proxy.data = armature.data.copy()

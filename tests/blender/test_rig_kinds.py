@@ -207,6 +207,11 @@ def test_rigify_human_proxy_is_evaluated_alone_in_its_own_scene(rigify_human):
     assert not rig.hide_viewport and not face.hide_viewport
     fast.close()
     assert not [s for s in bpy.data.scenes if rig_proxy.TAG in s.keys()]
+    every = [b.name for b in rig.pose.bones]
+    assert rig_proxy.make_proxy(rig, every) is None  # it would leave nothing out
+    whole = rig_proxy.make_proxy(rig, every, alone=True)  # its own scene pays by itself
+    assert whole is not None and len(whole.pose.bones) == len(rig.pose.bones)
+    rig_proxy.remove_proxies()
 
     mixed = bones + rig_target.shape_key_controls(face)[:2]
     values = np.hstack([values, np.random.default_rng(4).uniform(0, 1, size=(len(values), 2))])
