@@ -2,7 +2,9 @@
 
 * the cost of one pose while probing (CPU, the median of ``repeat`` runs of 200 random poses) on the
   head-only Rigify face and on the whole human, in the same run, and on the human without the proxy
-  armature (``rig_proxy``: the whole armature evaluated, as before);
+  armature (``rig_proxy``: the whole armature evaluated, as before); the three take turns, a run of
+  each per round (each saved once and opened again), and the human's ratio to the head-only rig is
+  the median of the rounds' ratios, so that the machine's load falls on both alike;
 * the real capture c3dorg_29_Facial-Sing solved onto the human's face and onto the same face's shape
   keys: wall and CPU time, the time of each stage (probing, the solve), the mean marker residual.
 """
@@ -45,25 +47,42 @@ def pose_cost(face, rig, markers, *, poses=200, repeat=3, proxy=True):
             "deforming_bones": len(evaluator.bones)}
 
 
+def _take_turns(cases, markers, repeat):
+    """``pose_cost`` of each case (name -> (blend, face, rig, proxy)), one run of each per round."""
+    runs = {name: [] for name in cases}
+    for _ in range(repeat):
+        for name, (blend, face, rig, proxy) in cases.items():
+            bpy.ops.wm.open_mainfile(filepath=str(blend))
+            runs[name].append(pose_cost(bpy.data.objects[face], bpy.data.objects[rig], markers, repeat=1,
+                                        proxy=proxy))
+    return {name: dict(r[0], ms=statistics.median(x["ms"] for x in r), runs_ms=[x["ms"] for x in r])
+            for name, r in runs.items()}
+
+
 def human_figures(folder, capture, say, *, repeat=3):
     """The head-only rig and the whole human: cost per pose, and Facial-Sing onto the human."""
     folder = Path(folder)
-    out = {}
     mesh = open_character()
     markers = list(marker_points(mesh))
     face, rig = rig_samples_rigs.build_rigify_face(mesh)
-    out["head_only"] = pose_cost(face, rig, markers, repeat=repeat)
+    head = (folder / "head_only.blend", face.name, rig.name)
+    bpy.ops.wm.save_as_mainfile(filepath=str(head[0]))
     mesh = open_character()
     face, rig = rig_samples_rigs.build_rigify_human(mesh)
     face_name = face.name
-    out["human"] = pose_cost(face, rig, markers, repeat=repeat)
-    out["human_whole_armature"] = pose_cost(face, rig, markers, repeat=repeat, proxy=False)
-    out["ratio"] = out["human"]["ms"] / out["head_only"]["ms"]
+    human = (folder / "rig.blend", face.name, rig.name)
+    bpy.ops.wm.save_as_mainfile(filepath=str(human[0]))
+    out = _take_turns({"head_only": (*head, True), "human": (*human, True), "human_whole_armature": (*human, False)},
+                      markers, repeat)
+    # paired by round: the load of the shared machine moves both runs of a round alike
+    out["round_ratios"] = [h / f for h, f in zip(out["human"]["runs_ms"], out["head_only"]["runs_ms"])]
+    out["ratio"] = statistics.median(out["round_ratios"])
+    rounds = ", ".join(f"{r:.2f}" for r in out["round_ratios"])
     say(f"rigify human: {out['human']['ms']:.2f} ms CPU a pose ({out['human']['evaluated_bones']} of "
         f"{out['human']['bones']} bones evaluated) against {out['head_only']['ms']:.2f} ms on the head-only rig "
-        f"({out['ratio']:.2f}x); the whole armature {out['human_whole_armature']['ms']:.2f} ms "
-        f"({out['human_whole_armature']['ms'] / out['head_only']['ms']:.2f}x); medians of {repeat}")
-    bpy.ops.wm.save_as_mainfile(filepath=str(folder / "rig.blend"))
+        f"({out['ratio']:.2f}x, the median of the rounds' ratios {rounds}); "
+        f"the whole armature {out['human_whole_armature']['ms']:.2f} ms "
+        f"({out['human_whole_armature']['ms'] / out['head_only']['ms']:.2f}x); medians of {repeat} rounds")
     if capture is None:
         return out
     sing = dict(markers=str(capture), source="", stable=FACIAL_SING_STABLE, neutral=(1, 100), extra=FACIAL_SING_BINDING)

@@ -33,5 +33,5 @@ def rig_bench(*, capture=None, frames=3600, sample_frames=600, docs=None, repeat
         if not long_only:
             human = Path(tmp) / "human"
             human.mkdir()
-            figures["human"] = human_figures(human, capture, say, repeat=max(repeat, 3))
+            figures["human"] = human_figures(human, capture, say, repeat=max(repeat, 5))
     return figures

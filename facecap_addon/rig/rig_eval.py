@@ -13,7 +13,8 @@ a control moves). A pose then costs O(markers x bones): points = sum_b R_b K_b +
 t_b is the bone's skinning matrix. While evaluating, the mesh itself is hidden from the depsgraph so
 Blender does not deform the whole mesh for nothing (numpy mode only; restored afterwards), and a
 big armature is evaluated through a proxy holding only the bones the bound points depend on
-(``rig_proxy``: the face of a whole Rigify human, not its 700 bones).
+(``rig_proxy``: the face of a whole Rigify human, not its 700 bones), in a scene of its own: when
+every control is on the armature the user's scene is not updated at all while evaluating.
 """
 
 import contextlib
@@ -83,8 +84,9 @@ class RigEvaluator:
         self._use_proxy()
 
     def _use_proxy(self):
-        """Evaluate a big armature through a proxy of the bones the bound points need (numpy path;
-        not when the mesh's shape keys read the armature: the proxy would not drive them)."""
+        """Evaluate the armature through a proxy of the bones the bound points need (numpy path; a
+        small one only when every control is on it; not when the mesh's shape keys read the armature:
+        the proxy would not drive them)."""
         if self.reference or self.mode != "numpy" or self.folded is None or self.armature is None or not self.bones:
             return
         arm = self.armature
@@ -94,7 +96,7 @@ class RigEvaluator:
             return
         bones = list(self.bones) + [c.path.split('"')[1] for c in self.controls if c.owner == arm and '"' in c.path]
         try:
-            proxy = rig_proxy.make_proxy(arm, bones)
+            proxy = rig_proxy.make_proxy(arm, bones, alone=all(c.owner == arm for c in self.controls))
         except RuntimeError:  # edit mode refused (another object held in a mode): the whole armature
             return
         if proxy is None:
@@ -104,6 +106,7 @@ class RigEvaluator:
             rig_proxy.remove_proxies()
             return
         self.proxy, self.posed, self._controls = proxy, proxy, controls
+        self._alone = all(c.owner == proxy for c in controls)  # nothing to update in the user's scene
         self._setters = [c.setter() for c in controls]
         self.bone_index = [proxy.pose.bones.find(b) for b in self.bones]
     # -- reading the mesh once ---------------------------------------------------------------------
@@ -321,6 +324,8 @@ class RigEvaluator:
         Returns the setting to put back, or None."""
         if self.reference or self.folded is None or self.folded["live"].size or self.mesh.hide_viewport:
             return None
+        if self.proxy is not None and self._alone:  # the user's scene is not updated: nothing to hide
+            return None
         self.mesh.hide_viewport = True
         return False
 
@@ -334,8 +339,9 @@ class RigEvaluator:
         hidden = self._hide_mesh() if self.mode == "numpy" else None
         try:
             with contextlib.ExitStack() as stack:
-                if self.proxy is not None:  # the proxy in the scene, the original out of it
-                    stack.enter_context(rig_proxy.linked(self.proxy, self.armature))
+                if self.proxy is not None:  # the proxy's own scene (and the user's, not alone)
+                    update = stack.enter_context(rig_proxy.evaluating(self.proxy, self.armature,
+                                                                      alone=self._alone))
                 stack.callback(self.apply, saved)
                 stack.enter_context(single_blas_thread())  # tiny products per pose: BLAS threads only contend
                 for i, row in enumerate(values):

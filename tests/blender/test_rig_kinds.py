@@ -172,6 +172,59 @@ def test_rigify_human_is_evaluated_through_a_proxy_of_its_face_with_the_same_poi
     assert not [a for a in bpy.data.armatures if rig_proxy.TAG in a.keys()]
 
 
+def _updated_scenes(evaluator, values):
+    """Names of the scenes whose depsgraph Blender updated while ``evaluator`` evaluated ``values``."""
+    seen = set()
+
+    def note(scene, depsgraph):
+        seen.add(scene.name)
+    bpy.app.handlers.depsgraph_update_post.append(note)
+    try:
+        evaluator.evaluate(values)
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(note)
+    return seen
+
+
+def test_rigify_human_proxy_is_evaluated_alone_in_its_own_scene(rigify_human):
+    """Each update walks the whole depsgraph it is in: the user's holds the hidden original too (the metarig
+    points at it) with its 220 widget objects. The proxy's own scene holds the proxy and nothing else (no
+    custom shapes), the user's scene is not updated while probing, and the points are the original's; with a
+    control elsewhere too (a shape key of the face) both scenes are updated, still with the same points."""
+    face, rig, markers = rigify_human
+    bones = rig_target.preset_controls("rigify_face", face, rig)
+    values = np.random.default_rng(3).uniform([c.lower for c in bones], [c.upper for c in bones], size=(20, len(bones)))
+    fast, ref = (RigEvaluator(face, bones, markers, reference=r) for r in (False, True))
+    scene = bpy.context.scene
+    own = [s for s in bpy.data.scenes if rig_proxy.TAG in s.keys()]
+    assert len(own) == 1 and own[0] != scene and fast.proxy.name not in scene.objects
+    own[0].view_layers[0].update()
+    held = [i.name for i in own[0].view_layers[0].depsgraph.ids if isinstance(i, bpy.types.Object)]
+    assert held == [fast.proxy.name]
+    assert all(pb.custom_shape is None for pb in fast.proxy.pose.bones)
+    assert _updated_scenes(fast, values) == {own[0].name}
+    np.testing.assert_allclose(fast.evaluate(values), ref.evaluate(values), atol=1e-9)
+    assert not rig.hide_viewport and not face.hide_viewport
+    fast.close()
+    assert not [s for s in bpy.data.scenes if rig_proxy.TAG in s.keys()]
+    every = [b.name for b in rig.pose.bones]
+    assert rig_proxy.make_proxy(rig, every) is None  # it would leave nothing out
+    whole = rig_proxy.make_proxy(rig, every, alone=True)  # its own scene pays by itself
+    assert whole is not None and len(whole.pose.bones) == len(rig.pose.bones)
+    rig_proxy.remove_proxies()
+
+    mixed = bones + rig_target.shape_key_controls(face)[:2]
+    values = np.hstack([values, np.random.default_rng(4).uniform(0, 1, size=(len(values), 2))])
+    fast, ref = (RigEvaluator(face, mixed, markers, reference=r) for r in (False, True))
+    assert fast.proxy is not None
+    own = next(s for s in bpy.data.scenes if rig_proxy.TAG in s.keys())
+    assert _updated_scenes(fast, values) == {own.name, scene.name}
+    np.testing.assert_allclose(fast.evaluate(values), ref.evaluate(values), atol=1e-9)
+    assert not rig.hide_viewport and not face.hide_viewport
+    fast.close()
+    assert not [s for s in bpy.data.scenes if rig_proxy.TAG in s.keys()]
+
+
 @pytest.fixture(scope="module")
 def slider_rig(tmp_path_factory):
     """ARKit sliders driving the sample character's keys: a take of known sliders, saved."""
