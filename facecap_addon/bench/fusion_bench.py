@@ -123,9 +123,9 @@ def face_arrays(face, shared):
 def random_performance(names, seed, frames, *, fps=30.0):
     """Every judged shape fired at random, each independently of the others (``frames`` after :data:`HOLD` frames of
     a relaxed face): an event every 2-7 frames takes the next shape of a random order of them all (and half the
-    time its other side) and eases it to a level of 0.3-1 for 6-20 frames, so that about five overlap; no habit ties one shape to another, unlike a
-    performance or the ROM sheet's expressions. The fusion map learns from these what the head misreads.
-    Returns (weights (F, K), head (F, 6), gaze (F, 2, 2)) as :func:`rom_performance` makes them."""
+    time its other side) and eases it to a level of 0.3-1 for 6-20 frames, so that about five overlap; no habit ties
+    one shape to another, unlike a performance or the ROM sheet's expressions. The fusion map learns from these what
+    the head misreads. Returns (weights (F, K), head (F, 6), gaze (F, 2, 2)) as :func:`rom_performance` makes them."""
     rng = np.random.default_rng(seed)
     F = HOLD + frames
     judged = [k for k, n in enumerate(names) if n in set(judged_names())]

@@ -14,8 +14,8 @@ from the corrected scores and solved weights of its half of the face (``face_hal
 
 The map ``W`` (``CrossMap``) is ridge regression towards the per-shape table (``w_k = a_k c_k + b_k l_k``, ``a``
 and ``b`` >= 0 fitted per shape by ``fit_table``): the off-diagonal terms only undo the cross-talk the tuning
-clips show within a half of the face. It is kept as the tuning clips' normal equations (``fusion_map.npz``), so a take whose character
-lacks some ARKit shapes gets the map solved for the inputs it has. Both are measured, not chosen: ``python -m
+clips show within a half of the face. It is kept as the tuning clips' normal equations (``fusion_map.npz``), so a
+take whose character lacks some ARKit shapes gets the map solved for the inputs it has. Both are measured, not chosen: ``python -m
 facecap.facecap_addon.bench.fusion_bench --fit`` fits them on rendered clips with known weights (two ICT
 identities, two cameras, windows of one recording and the same faces performing the ROM sheet, so that the map
 learns the head's cross-talk rather than one performance's habits; ``fusion_table.json`` says which clips) and never
@@ -91,9 +91,10 @@ class FusionTable:
 @dataclass(frozen=True, eq=False)
 class CrossMap:
     """The fusion map: each shape of ``names`` (ARKit) from the corrected scores and the solved weights of ``names``
-    in its half of the face (inputs: the scores, then the solve), by ridge regression towards the per-shape table. Kept as the tuning
-    clips' normal equations, each clip weighing the same: ``gram`` (2S, 2S) the inputs' mean products, ``moment``
-    (2S, S) the inputs' with the truth, ``ridge`` the pull towards the table (the clips' count times lambda)."""
+    in its half of the face (inputs: the scores, then the solve), by ridge regression towards the per-shape table.
+    Kept as the tuning clips' normal equations, each clip weighing the same: ``gram`` (2S, 2S) the inputs' mean
+    products, ``moment`` (2S, S) the inputs' with the truth, ``ridge`` the pull towards the table (the clips' count
+    times lambda)."""
 
     names: tuple
     gram: np.ndarray

@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 
 from facecap.solvers.errors import FacecapError
-from facecap.solvers.video.fusion import MAP_FILE_NAME, FaceScores, FusionTable, fit_map, fit_table, fuse, neutral_corrected
+from facecap.solvers.video.fusion import (
+    MAP_FILE_NAME,
+    FaceScores,
+    FusionTable,
+    fit_map,
+    fit_table,
+    fuse,
+    neutral_corrected,
+)
 
 
 def test_scores_are_corrected_by_their_level_on_the_neutral_frames():

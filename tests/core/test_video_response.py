@@ -283,7 +283,8 @@ def test_holds_in_the_config_place_the_poses_of_a_rom_on_camera(tmp_path):
     scores, neutral, _, _ = rom_clip(3)
     found = fit_response(scores, ARKIT_51, neutral, POSES, fps=FPS)
     jaw = 1 + 0.5 * sum(found.frames[0])  # "jaw open", as a frame number
-    take = config(tmp_path, f'[calibration]\nsequence = "facecap-24"\nneutral = [1, 30]\nholds = {{"jaw open" = {jaw}}}\n')
+    take = config(tmp_path, '[calibration]\nsequence = "facecap-24"\nneutral = [1, 30]\n'
+                  f'holds = {{"jaw open" = {jaw}}}\n')
     assert take.video_rom.holds == (("jaw open", jaw),)
     response, report, _ = score_response(take, landmarks_of(scores), lambda _m: None)
     assert report["summary"].startswith("1 of 24 poses where they were placed")
