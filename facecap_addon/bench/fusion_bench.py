@@ -29,8 +29,7 @@ Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip 
 import argparse
 import os
 import time
-import warnings
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,66 +39,36 @@ from ...solvers.config import load_take_config
 from ...solvers.io.weights import read_weights
 from ...solvers.rom import sequence_poses
 from ...solvers.tools.synthetic.realism.rom import rom_weights
-from ...solvers.video.fusion import MAP_FILE_NAME, TABLE_FILE, FaceScores, FusionTable, fit_map, fit_table, fuse, \
-    neutral_corrected
-from ...solvers.video.response import ScoreResponse, fit_response
+from ...solvers.video.fusion import MAP_FILE_NAME, TABLE_FILE, FaceScores, FusionTable, fuse
 from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
 from ...solvers.video.landmarks import track_landmarks
 from ...solvers.video.reading import Footage
 from ..headless.headless import run_take
 from ..headless.landmark_take import landmark_neutral
 from ..render.face_footage import Shot, render_face_clip
+from .fusion_clips import (
+    CLIPS,
+    HOLD,
+    ROM_FPS,
+    ROM_ROLES,
+    ROM_SHEET,
+    ROM_TIMING,
+    calibration_clip,
+    columns,
+    judged_names,
+    region_rmse,
+    rom_fit,
+)
+from .fusion_fit import fit, fit_cross, fit_reference, smoothing_check
 from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, shared_folder
 
-HOLD = 45
 CHARACTER_SEED = 7
-#: The ROM clips (role "calibrate"): the sheet, filmed at this rate, with holds of 0.5-0.7 s, ramps of 0.15-0.25 s
-#: and rests of 0.3-0.45 s after a lead-in of 1.2-1.5 s (a short session: about 870 frames to render).
-ROM_SHEET, ROM_FPS = "facecap-24", 24.0
-ROM_TIMING = ((1.2, 1.5), (0.15, 0.25), (0.5, 0.7), (0.3, 0.45))
-#: The roles whose clips are ROM sessions: the tuning faces' (the reference the fusion table's faces give) and the
-#: reported faces' (each performer's calibration on each camera).
-ROM_ROLES = ("tune-rom", "calibrate")
 #: Degrees of the ROM performer's slow head drift (yaw, pitch, roll).
 ROM_HEAD_DEG = (3.0, 2.0, 1.0)
 #: Live Link Face's eye angles per unit of eye-look weight (radians): yaw per (out - in), pitch per (down - up).
 LOOK_YAW, LOOK_PITCH = 0.593, 0.544
 
 
-@dataclass(frozen=True)
-class Clip:
-    """One rendered clip: its role, the face ("ict-mean", "ict-<seed>" or "facecap"), the recording's window and
-    the camera's azimuth (degrees)."""
-
-    role: str
-    face: str
-    recording: str
-    start: int
-    azimuth: float
-    frames: int = 240
-
-    @property
-    def name(self):
-        if self.role == "tune-random":  # ``start`` is the draw's seed
-            return f"{self.role}-{self.face}-{self.start}-az{self.azimuth:.0f}"
-        if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
-            return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
-        return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
-
-
-CLIPS = tuple(
-    [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
-     for seed in (21, 22) for start in (600, 2100) for az in (0.0, 30.0)]
-    + [Clip("report", face, "llf_alex_rom_4.csv", start, az)
-       for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)]
-    + [Clip("calibrate", face, ROM_SHEET, 38, az, frames=0)
-       for az in (0.0, 30.0) for face in ("facecap", "ict-mean")]
-    + [Clip("tune-rom", f"ict-{seed}", ROM_SHEET, 40 + seed, az, frames=0)
-       for az in (0.0, 30.0) for seed in (21, 22)]
-    + [Clip("tune-random", f"ict-{seed}", "random", 80 + seed + draw, az)
-       for seed in (21, 22) for draw in (0, 10) for az in (0.0, 30.0)])
-#: The roles the fusion map is fitted on: the tuning faces' performances, ROM sessions and random activations.
-MAP_ROLES = ("tune", "tune-rom", "tune-random")
 #: Directions a face cannot take at once: a random activation leaves out the one whose opposite is active.
 OPPOSITE = {**{f"eyeLook{a}{s}": f"eyeLook{b}{s}" for s in ("Left", "Right")
                for a, b in (("In", "Out"), ("Out", "In"), ("Up", "Down"), ("Down", "Up"))},
@@ -224,132 +193,6 @@ def prepare(clip, out, character, *, log=print):
     return data
 
 
-def columns(data, names):
-    """(truth, solve, corrected scores) (F, len(names)) of a cached clip on ARKit ``names``, from the hold on
-    (NaN where a side has no such shape)."""
-    def pick(values, have):
-        have = [str(n) for n in have]
-        out = np.full((len(values), len(names)), np.nan)
-        for j, n in enumerate(names):
-            if n in have:
-                out[:, j] = values[:, have.index(n)]
-        return out
-
-    corrected = neutral_corrected(data["scores"], data["neutral"])
-    return (pick(data["truth"], data["truth_names"])[HOLD:], pick(data["solved"], data["solved_names"])[HOLD:],
-            pick(corrected, data["score_names"])[HOLD:])
-
-
-def judged_names():
-    return [n for shapes in REGIONS.values() for n in shapes]
-
-
-def region_rmse(got, truth, names):
-    """{region: weights RMSE, "visible": over every judged shape} (shapes the truth lacks left out)."""
-    out, every = {}, []
-    for region, shapes in REGIONS.items():
-        errs = [np.nanmean((got[:, names.index(s)] - truth[:, names.index(s)]) ** 2) for s in shapes
-                if np.isfinite(truth[:, names.index(s)]).any()]
-        every += errs
-        out[region] = float(np.sqrt(np.mean(errs)))
-    out["visible"] = float(np.sqrt(np.mean(every)))
-    peaks = []
-    for side in ("Left", "Right"):
-        j = names.index(f"eyeBlink{side}")
-        closed = truth[:, j] > 0.7
-        peaks.append(float(np.nanmax(got[closed, j])) if closed.any() else float("nan"))
-    out["blink_peak"] = float(np.nanmin(peaks)) if np.isfinite(peaks).any() else float("nan")
-    return out
-
-
-def fit(out, *, log=print):
-    """Fit the fusion table on the tuning clips in ``out``; returns it (not saved) and the constant baseline."""
-    names = judged_names()
-    parts = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in CLIPS if c.role == "tune"]
-    truth, solved, corrected = (np.concatenate(p) for p in zip(*parts))
-    tuned = [c.name for c in CLIPS if c.role == "tune"]
-    table = fit_table(np.nan_to_num(truth), solved, corrected, names,
-                      measured_on={"clips": tuned, "frames": int(len(truth)),
-                                   "command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit"})
-    log(f"fusion table fitted on {len(tuned)} clips, {len(truth)} frames")
-    return table, np.nanmean(truth, axis=0)
-
-
-#: The ridges the fusion map is chosen among (per clip, towards the per-shape table).
-MAP_RIDGES = (3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
-
-
-def fit_cross(out, table, *, log=print):
-    """The fusion map on the tuning faces' clips, performances and ROM sessions alike (``tune`` and ``tune-rom``):
-    its ridge chosen by leaving each tuning identity out in turn (the median visible RMSE of its clips, the larger
-    ridge on a tie to 3 decimals); returns (the map, what it was measured on)."""
-    names = judged_names()
-    clips = [c for c in CLIPS if c.role in MAP_ROLES]
-    parts = {c.name: columns(dict(np.load(out / f"{c.name}.npz")), names) for c in clips}
-    faces = sorted({c.face for c in clips})
-    scores = {}
-    for lam in MAP_RIDGES:
-        errs = []
-        for face in faces:
-            held = [c for c in clips if c.face == face]
-            cross = fit_map([parts[c.name] for c in clips if c.face != face], names, lam)
-            tab = replace(table, map=cross)
-            for c in held:
-                truth, solved, corrected = parts[c.name]
-                errs.append(region_rmse(_map_only(tab, solved, corrected, names), truth, names)["visible"])
-        scores[lam] = round(float(np.median(errs)), 3)
-    best = min(scores.values())
-    lam = max(k for k, v in scores.items() if v == best)
-    log("fusion map: leave-one-identity-out visible RMSE per ridge " + ", ".join(f"{k:g}: {v:.3f}"
-                                                                                for k, v in scores.items())
-        + f"; chosen {lam:g}")
-    measured = {"map_clips": [c.name for c in clips], "map_ridge": lam, "map_ridge_cv": {f"{k:g}": v for k, v in
-                                                                                          scores.items()}}
-    return fit_map(list(parts.values()), names, lam), measured
-
-
-def _map_only(table, solved, corrected, names):
-    """The fused weights of cached columns (on the map's ``names``, the scores already corrected) through
-    ``table``'s map, every input had (NaN read as 0)."""
-    S = len(names)
-    W = table.map.weights(table, np.ones(S, bool), np.ones(S, bool))
-    return np.clip(np.nan_to_num(np.concatenate([corrected, solved], axis=1)) @ W, 0.0, 1.0)
-
-
-def rom_fit(out, clip, reference=None):
-    """The ResponseFit of the cached ROM ``clip`` (``response.fit_response``; relative to ``reference``)."""
-    data = dict(np.load(out / f"{clip.name}.npz"))
-    return fit_response(data["scores"], [str(n) for n in data["score_names"]], data["neutral"],
-                        sequence_poses(ROM_SHEET), fps=ROM_FPS, reference=reference, sheet=ROM_SHEET)
-
-
-def fit_reference(out, *, log=print):
-    """The tuning faces' ROM response (``FusionTable.reference``): each "tune-rom" clip fitted alone, then per score
-    the median gain and offset over the clips that calibrated it; the identity for a score fewer than half of them
-    calibrated (it does not respond on these faces)."""
-    rom_clips = [c for c in CLIPS if c.role == "tune-rom" and (out / f"{c.name}.npz").is_file()]
-    fits = [rom_fit(out, c).response for c in rom_clips]
-    names = fits[0].names
-    changed = np.array([[n in f.changed() for n in names] for f in fits])
-    gains, offsets = np.stack([f.gain for f in fits]), np.stack([f.offset for f in fits])
-    keep = changed.sum(axis=0) * 2 > len(fits)
-    gain, offset = np.ones(len(names)), np.zeros(len(names))
-    with warnings.catch_warnings():  # a kept score calibrated on some clips only: the median of those
-        warnings.simplefilter("ignore", RuntimeWarning)
-        gain[keep] = np.nanmedian(np.where(changed, gains, np.nan)[:, keep], axis=0)
-        offset[keep] = np.nanmedian(np.where(changed, offsets, np.nan)[:, keep], axis=0)
-    log(f"ROM reference fitted on {len(fits)} clips: {int(keep.sum())} scores")
-    return ScoreResponse(names, gain, offset, ROM_SHEET), [c.name for c in rom_clips]
-
-
-def calibration_clip(clip):
-    """The ROM clip (role "calibrate") of the reported ``clip``'s face and camera, or None."""
-    for c in CLIPS:
-        if c.role == "calibrate" and c.face == clip.face and c.azimuth == clip.azimuth:
-            return c
-    return None
-
-
 def evaluate(out, table, constant, role="report"):
     """{clip: {method: region table}} for the clips of ``role``: the landmark solve, the corrected scores, the
     fusion per shape (the table alone), the fusion through the map, the latter with the performer's response from the ROM clip of the same face and camera (when it is
@@ -362,17 +205,19 @@ def evaluate(out, table, constant, role="report"):
         data = dict(np.load(out / f"{clip.name}.npz"))
         truth, solved, corrected = columns(data, names)
         rom = calibration_clip(clip)
-        methods = {"fused per shape": (None, False), "fused": (None, True)}
+        methods = {"fused per shape": (None, False, True), "fused, not smoothed": (None, True, False),
+                   "fused": (None, True, True)}
         if rom is not None and (out / f"{rom.name}.npz").is_file():
-            methods["fused + ROM"] = (rom_fit(out, rom, table.reference).response, True)
+            methods["fused + ROM"] = (rom_fit(out, rom, table.reference).response, True, True)
         row = {"landmarks": region_rmse(solved, truth, names),
                "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names)}
-        for method, (response, cross) in methods.items():
+        for method, (response, cross, smooth) in methods.items():
             fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
                             FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"],
-                                       response=response), table=table, cross=cross)
+                                       response=response, fps=clip.fps, smoothing=smooth), table=table, cross=cross)
             row[method] = region_rmse(columns({**data, "solved": fused}, names)[1], truth, names)
         row["constant"] = region_rmse(np.broadcast_to(constant, truth.shape), truth, names)
+        row["truth"] = region_rmse(truth, truth, names)  # its jitter: how rough a real performance is
         rows[clip.name] = row
     return rows
 
@@ -404,6 +249,8 @@ def main(argv=None):
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table and its map on the tuning clips and "
                                                           "write them (solvers/video/fusion_table.json, fusion_map.npz)")
+    parser.add_argument("--smoothing", action="store_true", help="compare the fused weights' smoothing widths on the "
+                                                                "tuning clips (how fusion.SMOOTHING_S was chosen)")
     parser.add_argument("--fit-rom", action="store_true", help="fit the table's ROM reference on the tuning faces' ROM "
                                                               "clips (role tune-rom) and write it, the gains kept")
     args = parser.parse_args(argv)
@@ -433,6 +280,8 @@ def main(argv=None):
                     "rom_command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit-rom"}
         table = replace(table, measured_on=measured, reference=reference)
         table.save()
+    if args.smoothing:
+        smoothing_check(out, table)
     rows = evaluate(out, table, constant)
     print_tables(rows)
     videos = sorted(out.glob("report-*.mp4"))
@@ -443,7 +292,7 @@ def main(argv=None):
 
 def print_tables(rows):
     """Per clip and method the region RMSEs, then the medians and worst cases over the clips."""
-    keys = list(REGIONS) + ["visible", "blink_peak"]
+    keys = list(REGIONS) + ["visible", "blink_peak", "jitter"]
     print("| clip | method | " + " | ".join(keys) + " |")
     print("|---|---|" + "---|" * len(keys))
     for clip, methods in rows.items():
@@ -455,12 +304,13 @@ def print_tables(rows):
             vis = [m[method]["visible"] for m in mine if method in m]
             brows = [m[method]["brows"] for m in mine if method in m]
             blink = [m[method]["blink_peak"] for m in mine if method in m]
+            jit = [m[method]["jitter"] for m in mine if method in m]
             print(f"{face} {method} ({len(vis)} clips): visible median {np.median(vis):.3f} worst {np.max(vis):.3f}; "
                   f"brows median {np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst "
-                  f"{np.nanmin(blink):.2f}")
+                  f"{np.nanmin(blink):.2f}; jitter median {np.median(jit):.4f}")
     print()
-    print("| face | method | " + " | ".join(REGIONS) + " | visible | blink peak |")
-    print("|---|---|" + "---|" * (len(REGIONS) + 2))
+    print("| face | method | " + " | ".join(REGIONS) + " | visible | blink peak | jitter |")
+    print("|---|---|" + "---|" * (len(REGIONS) + 3))
     for face in ("ict", "facecap"):  # per region the median over the face's clips and (in brackets) the worst
         mine = [m for c, m in rows.items() if f"-{face}" in c]
         for method in dict.fromkeys(k for m in mine for k in m):
@@ -468,8 +318,9 @@ def print_tables(rows):
             cells = [f"{np.median([h[r] for h in have]):.3f} ({max(h[r] for h in have):.3f})"
                      for r in list(REGIONS) + ["visible"]]
             blink = [h["blink_peak"] for h in have]
+            jit = [h["jitter"] for h in have]
             print(f"| {face} | {method} ({len(have)} clips) | " + " | ".join(cells)
-                  + f" | {np.nanmedian(blink):.2f} ({np.nanmin(blink):.2f}) |")
+                  + f" | {np.nanmedian(blink):.2f} ({np.nanmin(blink):.2f}) | {np.median(jit):.4f} ({max(jit):.4f}) |")
 
 
 if __name__ == "__main__":

@@ -54,13 +54,15 @@ def neutral_indices(settings, markers):
 def with_scores(request, found, video, response=None):
     """``request`` carrying the Face Landmarker's blendshape scores of ``found`` (corrected by the take's neutral
     frames, read through the performer's ``response`` if known, and combined with the solve per shape,
-    ``solvers/video/fusion.py``) unless the take has none or its ``[tracking] blendshapes`` is "ignore"."""
+    ``solvers/video/fusion.py``, smoothed over time with ``[tracking] smoothing``) unless the take has none or its
+    ``[tracking] blendshapes`` is "ignore"."""
     if found.blendshapes is None or getattr(video, "blendshapes", "fuse") == "ignore":
         return request
     neutral = neutral_indices(request.settings, request.markers)
     if neutral is None or not len(neutral):
         return request
-    scores = FaceScores(found.blendshapes, tuple(found.blendshape_names), neutral, response=response)
+    scores = FaceScores(found.blendshapes, tuple(found.blendshape_names), neutral, response=response,
+                        fps=request.markers.fps, smoothing=bool(video.smoothing))
     return dataclasses.replace(request, scores=scores)
 
 

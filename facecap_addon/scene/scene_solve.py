@@ -83,7 +83,9 @@ def landmark_scores(settings, markers, rsettings):
         import bpy  # bpy: the sidebar's paths are relative to the .blend
 
         response = profile_contents(bpy.path.abspath(settings.actor_profile))[1]
-    return FaceScores(found[0], found[1], neutral, response=response)
+    # the Video panel's Smoothing filters the fused weights' jitter as it does the landmarks'
+    return FaceScores(found[0], found[1], neutral, response=response, fps=markers.fps,
+                      smoothing=bool(settings.video.landmark_smoothing))
 
 
 

@@ -117,6 +117,10 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
     markers = markers_from_collection(settings)
     scores = landmark_scores(settings, markers, replace(retarget_settings(settings), strategy="semantic"))
     assert scores.values.shape == (58, 52) and np.isfinite(scores.values).all()
+    assert scores.fps == markers.fps > 0 and scores.smoothing  # the fused weights smoothed as the landmarks are
+    settings.video.landmark_smoothing = False
+    assert not landmark_scores(settings, markers, retarget_settings(settings)).smoothing
+    settings.video.landmark_smoothing = True
     assert 0 < len(scores.neutral) and max(scores.neutral) < REST  # detected in the relaxed start
     assert settings.actor_template == "none"  # "auto" would fit the human template to the detector's points
     empties = settings.marker_collection.objects
@@ -156,6 +160,7 @@ def test_a_four_section_config_retargets_the_footage_onto_another_person(rendere
     report = json.loads((folder / "solved.json").read_text(encoding="utf-8"))
     fused = report["strategy_info"]["fusion"]["shapes"]  # the bundle's scores combined with the solve
     assert "browInnerUp" in fused and "jawOpen" in fused and len(fused) >= 40
+    assert report["strategy_info"]["fusion"]["smoothing_s"] == pytest.approx(1 / 30, abs=1e-4)  # [tracking] smoothing
     solved = read_weights(folder / "solved.csv")
     truth = rendered["weights"]
     got = {n: solved.values[:, solved.names.index(n)] for n in face.shape_names if n in solved.names}

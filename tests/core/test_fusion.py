@@ -6,12 +6,14 @@ import pytest
 from facecap.solvers.errors import FacecapError
 from facecap.solvers.video.fusion import (
     MAP_FILE_NAME,
+    SMOOTHING_S,
     FaceScores,
     FusionTable,
     fit_map,
     fit_table,
     fuse,
     neutral_corrected,
+    smooth_runs,
 )
 
 
@@ -59,6 +61,51 @@ def test_fuse_combines_per_shape_by_the_table_and_keeps_the_rest():
     assert w2[:5, 0].max() == pytest.approx(0.8)  # the character's bound
     with pytest.raises(FacecapError, match="5 frames; the solve has 6"):
         fuse(solve, names, FaceScores(scores[:5], names, np.array([0])), table=table)
+
+
+def _jitter(x):
+    return float(np.mean(np.abs(np.diff(x, 2, axis=0))))
+
+
+def test_fused_weights_are_smoothed_over_time_but_blinks_gaps_and_holds_are_kept():
+    """With the take's frame rate the fused weights lose the per-frame scores' jitter (a Gaussian of SMOOTHING_S),
+    a held pose keeps its level, no frame is smoothed across a gap (a frame without a face), blinks stay sharp
+    (a 3-frame blink keeps its peak), and ``smoothing=False`` or an unknown rate leaves the weights as fused."""
+    rng = np.random.default_rng(3)
+    F = 240
+    t = np.arange(F) / 30.0
+    level = 0.3 + 0.25 * np.sin(2 * np.pi * 0.4 * t)  # a smile that comes and goes
+    level[:20] = 0.0  # after a rest
+    level[20:35] = np.linspace(0.0, level[35], 15)
+    level[150:190] = level[150]  # and holds
+    blink = np.zeros(F)
+    blink[100:103] = [0.5, 1.0, 0.5]
+    names = ("mouthSmileLeft", "eyeBlinkLeft")
+    scores = np.stack([level, blink], axis=1) + rng.normal(0.0, 0.03, (F, 2)) * np.array([1.0, 0.0])
+    scores[60:63] = np.nan  # three frames without a face
+    scores[:, 0] = np.clip(scores[:, 0], 0.0, 1.0)
+    table = FusionTable({"mouthSmileLeft": 1.0, "eyeBlinkLeft": 1.0}, {"mouthSmileLeft": 0.0, "eyeBlinkLeft": 0.0})
+    solve = np.full((F, 2), 0.25)
+    rest = np.arange(20)
+    raw, _ = fuse(solve, names, FaceScores(scores, names, rest, fps=30.0, smoothing=False), table=table)
+    smooth, fused = fuse(solve, names, FaceScores(scores, names, rest, fps=30.0), table=table)
+    unknown, _ = fuse(solve, names, FaceScores(scores, names, rest), table=table)
+    assert fused == list(names)
+    np.testing.assert_array_equal(unknown, raw)  # no frame rate: nothing to smooth by
+    seen = np.isfinite(scores[:, 0])
+    assert _jitter(smooth[seen, 0]) < 0.45 * _jitter(raw[seen, 0])  # the scores' chatter: less than half left
+    err = lambda w: np.sqrt(np.mean((w[seen, 0] - level[seen]) ** 2))  # noqa: E731
+    assert err(smooth) < 0.8 * err(raw)  # nearer the performance, not only smoother
+    assert abs(np.mean(smooth[158:182, 0]) - level[150]) < 0.01  # the hold keeps its level
+    np.testing.assert_array_equal(smooth[:, 1], raw[:, 1])  # the blink as fused
+    assert smooth[101, 1] == pytest.approx(1.0)
+    np.testing.assert_allclose(smooth[60:63], solve[60:63])  # the gap keeps the solve
+    # either side of the gap is smoothed on its own: a jump across it is not blurred into the other side
+    values = np.r_[np.zeros(20), np.ones(20)]
+    split = np.r_[np.ones(20, bool), np.zeros(5, bool), np.ones(20, bool)]
+    np.testing.assert_allclose(smooth_runs(values, split, SMOOTHING_S * 30.0), values, atol=1e-12)
+    joined = smooth_runs(values, np.ones(40, bool), SMOOTHING_S * 30.0)
+    assert 0.0 < joined[19] < 0.5 < joined[20] < 1.0
 
 
 def test_fit_table_recovers_known_gains_and_round_trips(tmp_path):

@@ -1,0 +1,123 @@
+"""The fusion benchmark's clips and what is measured on them (``fusion_bench``: the roles, how they are rendered and
+what they are for): each clip's name, role and frame rate, the cached columns of a clip, the region table and the
+jitter of weights, and a ROM clip's response. Shared by the benchmark and its fits (``fusion_fit``)."""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...solvers.rom import sequence_poses
+from ...solvers.video.fusion import neutral_corrected
+from ...solvers.video.response import fit_response
+from ..render.face_footage import Shot
+from .landmark_bench import REGIONS
+
+#: Frames of a relaxed face before each performance (its neutral); the judged frames start after them.
+HOLD = 45
+#: The ROM clips (role "calibrate"): the sheet, filmed at this rate, with holds of 0.5-0.7 s, ramps of 0.15-0.25 s
+#: and rests of 0.3-0.45 s after a lead-in of 1.2-1.5 s (a short session: about 870 frames to render).
+ROM_SHEET, ROM_FPS = "facecap-24", 24.0
+ROM_TIMING = ((1.2, 1.5), (0.15, 0.25), (0.5, 0.7), (0.3, 0.45))
+#: The roles whose clips are ROM sessions: the tuning faces' (the reference the fusion table's faces give) and the
+#: reported faces' (each performer's calibration on each camera).
+ROM_ROLES = ("tune-rom", "calibrate")
+
+@dataclass(frozen=True)
+class Clip:
+    """One rendered clip: its role, the face ("ict-mean", "ict-<seed>" or "facecap"), the recording's window and
+    the camera's azimuth (degrees)."""
+
+    role: str
+    face: str
+    recording: str
+    start: int
+    azimuth: float
+    frames: int = 240
+
+    @property
+    def fps(self):
+        """The clip's frame rate: a ROM session's :data:`ROM_FPS`, else the renderer's default (``Shot``)."""
+        return ROM_FPS if self.role in ROM_ROLES else Shot().fps
+
+    @property
+    def name(self):
+        if self.role == "tune-random":  # ``start`` is the draw's seed
+            return f"{self.role}-{self.face}-{self.start}-az{self.azimuth:.0f}"
+        if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
+            return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
+        return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
+
+
+CLIPS = tuple(
+    [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
+     for seed in (21, 22) for start in (600, 2100) for az in (0.0, 30.0)]
+    + [Clip("report", face, "llf_alex_rom_4.csv", start, az)
+       for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)]
+    + [Clip("calibrate", face, ROM_SHEET, 38, az, frames=0)
+       for az in (0.0, 30.0) for face in ("facecap", "ict-mean")]
+    + [Clip("tune-rom", f"ict-{seed}", ROM_SHEET, 40 + seed, az, frames=0)
+       for az in (0.0, 30.0) for seed in (21, 22)]
+    + [Clip("tune-random", f"ict-{seed}", "random", 80 + seed + draw, az)
+       for seed in (21, 22) for draw in (0, 10) for az in (0.0, 30.0)])
+#: The roles the fusion map is fitted on: the tuning faces' performances, ROM sessions and random activations.
+MAP_ROLES = ("tune", "tune-rom", "tune-random")
+def columns(data, names):
+    """(truth, solve, corrected scores) (F, len(names)) of a cached clip on ARKit ``names``, from the hold on
+    (NaN where a side has no such shape)."""
+    def pick(values, have):
+        have = [str(n) for n in have]
+        out = np.full((len(values), len(names)), np.nan)
+        for j, n in enumerate(names):
+            if n in have:
+                out[:, j] = values[:, have.index(n)]
+        return out
+
+    corrected = neutral_corrected(data["scores"], data["neutral"])
+    return (pick(data["truth"], data["truth_names"])[HOLD:], pick(data["solved"], data["solved_names"])[HOLD:],
+            pick(corrected, data["score_names"])[HOLD:])
+
+
+def judged_names():
+    return [n for shapes in REGIONS.values() for n in shapes]
+
+
+def region_rmse(got, truth, names):
+    """{region: weights RMSE, "visible": over every judged shape} (shapes the truth lacks left out)."""
+    out, every = {}, []
+    for region, shapes in REGIONS.items():
+        errs = [np.nanmean((got[:, names.index(s)] - truth[:, names.index(s)]) ** 2) for s in shapes
+                if np.isfinite(truth[:, names.index(s)]).any()]
+        every += errs
+        out[region] = float(np.sqrt(np.mean(errs)))
+    out["visible"] = float(np.sqrt(np.mean(every)))
+    peaks = []
+    for side in ("Left", "Right"):
+        j = names.index(f"eyeBlink{side}")
+        closed = truth[:, j] > 0.7
+        peaks.append(float(np.nanmax(got[closed, j])) if closed.any() else float("nan"))
+    out["blink_peak"] = float(np.nanmin(peaks)) if np.isfinite(peaks).any() else float("nan")
+    out["jitter"] = jitter(got[:, [names.index(s) for shapes in REGIONS.values() for s in shapes]])
+    return out
+
+
+def jitter(weights):
+    """How rough weights (F, K) are over time: the mean |second difference| (NaN frames left out): what an animator
+    sees as chatter (a performance's truth: about 0.004 at 30 frames/s)."""
+    second = np.abs(np.diff(np.asarray(weights, dtype=np.float64), 2, axis=0))
+    return float(np.nanmean(second)) if np.isfinite(second).any() else float("nan")
+
+
+def rom_fit(out, clip, reference=None):
+    """The ResponseFit of the cached ROM ``clip`` (``response.fit_response``; relative to ``reference``)."""
+    data = dict(np.load(out / f"{clip.name}.npz"))
+    return fit_response(data["scores"], [str(n) for n in data["score_names"]], data["neutral"],
+                        sequence_poses(ROM_SHEET), fps=ROM_FPS, reference=reference, sheet=ROM_SHEET)
+
+
+def calibration_clip(clip):
+    """The ROM clip (role "calibrate") of the reported ``clip``'s face and camera, or None."""
+    for c in CLIPS:
+        if c.role == "calibrate" and c.face == clip.face and c.azimuth == clip.azimuth:
+            return c
+    return None

@@ -1,0 +1,126 @@
+"""The fits of the fusion benchmark (``fusion_bench --fit``, ``--fit-rom``, ``--smoothing``): the fusion table and
+its map on the tuning clips, the ROM reference on the tuning faces' ROM sessions, and the comparison the fused
+weights' smoothing was chosen by. Only tuning clips are read here (roles ``tune``, ``tune-rom``, ``tune-random``)."""
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from ...solvers.video.fusion import UNSMOOTHED, fit_map, fit_table, smooth_runs
+from ...solvers.video.response import ScoreResponse
+from .fusion_clips import CLIPS, MAP_ROLES, ROM_SHEET, columns, jitter, judged_names, region_rmse, rom_fit
+
+
+def fit(out, *, log=print):
+    """Fit the fusion table on the tuning clips in ``out``; returns it (not saved) and the constant baseline."""
+    names = judged_names()
+    parts = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in CLIPS if c.role == "tune"]
+    truth, solved, corrected = (np.concatenate(p) for p in zip(*parts))
+    tuned = [c.name for c in CLIPS if c.role == "tune"]
+    table = fit_table(np.nan_to_num(truth), solved, corrected, names,
+                      measured_on={"clips": tuned, "frames": int(len(truth)),
+                                   "command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit"})
+    log(f"fusion table fitted on {len(tuned)} clips, {len(truth)} frames")
+    return table, np.nanmean(truth, axis=0)
+
+
+#: The ridges the fusion map is chosen among (per clip, towards the per-shape table).
+MAP_RIDGES = (3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
+
+
+def fit_cross(out, table, *, log=print):
+    """The fusion map on the tuning faces' clips, performances and ROM sessions alike (``tune`` and ``tune-rom``):
+    its ridge chosen by leaving each tuning identity out in turn (the median visible RMSE of its clips, the larger
+    ridge on a tie to 3 decimals); returns (the map, what it was measured on)."""
+    names = judged_names()
+    clips = [c for c in CLIPS if c.role in MAP_ROLES]
+    parts = {c.name: columns(dict(np.load(out / f"{c.name}.npz")), names) for c in clips}
+    faces = sorted({c.face for c in clips})
+    scores = {}
+    for lam in MAP_RIDGES:
+        errs = []
+        for face in faces:
+            held = [c for c in clips if c.face == face]
+            cross = fit_map([parts[c.name] for c in clips if c.face != face], names, lam)
+            tab = replace(table, map=cross)
+            for c in held:
+                truth, solved, corrected = parts[c.name]
+                errs.append(region_rmse(_map_only(tab, solved, corrected, names), truth, names)["visible"])
+        scores[lam] = round(float(np.median(errs)), 3)
+    best = min(scores.values())
+    lam = max(k for k, v in scores.items() if v == best)
+    log("fusion map: leave-one-identity-out visible RMSE per ridge " + ", ".join(f"{k:g}: {v:.3f}"
+                                                                                for k, v in scores.items())
+        + f"; chosen {lam:g}")
+    measured = {"map_clips": [c.name for c in clips], "map_ridge": lam, "map_ridge_cv": {f"{k:g}": v for k, v in
+                                                                                          scores.items()}}
+    return fit_map(list(parts.values()), names, lam), measured
+
+
+def _map_only(table, solved, corrected, names):
+    """The fused weights of cached columns (on the map's ``names``, the scores already corrected) through
+    ``table``'s map, every input had (NaN read as 0)."""
+    S = len(names)
+    W = table.map.weights(table, np.ones(S, bool), np.ones(S, bool))
+    return np.clip(np.nan_to_num(np.concatenate([corrected, solved], axis=1)) @ W, 0.0, 1.0)
+
+
+#: The smoothing widths (frames at 30 frames/s) ``--smoothing`` compares on the tuning clips.
+SMOOTHING_FRAMES = (0.0, 0.5, 0.7, 1.0, 1.5, 2.0)
+
+
+def smoothing_check(out, table, *, log=print):
+    """How the fused weights' smoothing over time (``fusion.SMOOTHING_S``) was chosen, on the tuning clips only: each
+    tuning identity's performance clips fused through a map fitted without that identity (as ``fit_cross`` judges
+    its ridge), smoothed by each width of :data:`SMOOTHING_FRAMES` (blinks left sharp, as ``fuse`` does), their
+    jitter against their truth's, the visible RMSE and the blink peaks (medians, worst). The width at which the
+    fused weights are as rough as the truth is the one to keep."""
+    names = judged_names()
+    lam = table.measured_on.get("map_ridge", 0.03)
+    clips = [c for c in CLIPS if c.role in MAP_ROLES]
+    parts = {c.name: columns(dict(np.load(out / f"{c.name}.npz")), names) for c in clips}
+    sharp = np.array([n in UNSMOOTHED for n in names])
+    rows = {s: [] for s in SMOOTHING_FRAMES}
+    truth_jitter = []
+    for face in sorted({c.face for c in clips}):
+        tab = replace(table, map=fit_map([parts[c.name] for c in clips if c.face != face], names, lam))
+        for c in clips:
+            if c.role != "tune" or c.face != face:
+                continue
+            truth, solved, corrected = parts[c.name]
+            fused = _map_only(tab, solved, corrected, names)
+            truth_jitter.append(jitter(truth))
+            for sigma in SMOOTHING_FRAMES:
+                smooth = fused.copy()
+                if sigma > 0:
+                    every = np.ones(len(fused), dtype=bool)
+                    for j in np.flatnonzero(~sharp):
+                        smooth[:, j] = smooth_runs(fused[:, j], every, sigma)
+                rows[sigma].append(region_rmse(np.clip(smooth, 0.0, 1.0), truth, names))
+    log(f"smoothing on the tuning clips ({len(truth_jitter)}, each identity through a map fitted without it): "
+        f"truth jitter {np.median(truth_jitter):.4f}")
+    for sigma, got in rows.items():
+        vis, jit, blink = ([g[k] for g in got] for k in ("visible", "jitter", "blink_peak"))
+        log(f"  sigma {sigma:g} frames: jitter {np.median(jit):.4f} ({max(jit):.4f}), visible {np.median(vis):.4f} "
+            f"({max(vis):.4f}), blink peak {np.nanmedian(blink):.2f} ({np.nanmin(blink):.2f})")
+    return rows
+
+
+def fit_reference(out, *, log=print):
+    """The tuning faces' ROM response (``FusionTable.reference``): each "tune-rom" clip fitted alone, then per score
+    the median gain and offset over the clips that calibrated it; the identity for a score fewer than half of them
+    calibrated (it does not respond on these faces)."""
+    rom_clips = [c for c in CLIPS if c.role == "tune-rom" and (out / f"{c.name}.npz").is_file()]
+    fits = [rom_fit(out, c).response for c in rom_clips]
+    names = fits[0].names
+    changed = np.array([[n in f.changed() for n in names] for f in fits])
+    gains, offsets = np.stack([f.gain for f in fits]), np.stack([f.offset for f in fits])
+    keep = changed.sum(axis=0) * 2 > len(fits)
+    gain, offset = np.ones(len(names)), np.zeros(len(names))
+    with warnings.catch_warnings():  # a kept score calibrated on some clips only: the median of those
+        warnings.simplefilter("ignore", RuntimeWarning)
+        gain[keep] = np.nanmedian(np.where(changed, gains, np.nan)[:, keep], axis=0)
+        offset[keep] = np.nanmedian(np.where(changed, offsets, np.nan)[:, keep], axis=0)
+    log(f"ROM reference fitted on {len(fits)} clips: {int(keep.sum())} scores")
+    return ScoreResponse(names, gain, offset, ROM_SHEET), [c.name for c in rom_clips]
