@@ -217,3 +217,25 @@ def test_the_shipped_map_covers_the_table_and_was_fitted_on_tuning_clips_only():
     assert all(c.startswith("tune-") for c in clips) and any(c.startswith("tune-rom-") for c in clips)
     assert len(t.measured_on["map_ridge_cv"]) >= 3 and t.map.ridge == pytest.approx(
         t.measured_on["map_ridge"] * len(clips))
+
+
+def test_a_landmark_take_fuses_at_its_frame_rate_and_smooths_as_its_tracking_says():
+    """The headless landmark take hands the fusion the take's frame rate and ``[tracking] smoothing``: on (the
+    default) the fused weights are smoothed, ``smoothing = false`` leaves them as unfiltered as the landmarks."""
+    from types import SimpleNamespace
+
+    from facecap.facecap_addon.headless.landmark_take import with_scores
+    from facecap.solvers.markers import MarkerSet
+    from facecap.solvers.pipeline.settings import RetargetSettings
+    from facecap.solvers.solve import SolveRequest
+
+    F = 30
+    markers = MarkerSet(("a",), np.arange(1, F + 1, dtype=np.float64), np.zeros((F, 1, 3)), fps=24.0, units="m")
+    settings = RetargetSettings(stable_markers=(), neutral_frames=(1, 5))
+    request = SolveRequest(character=("browInnerUp",), settings=settings, markers=markers)
+    found = SimpleNamespace(blendshapes=np.zeros((F, 1)), blendshape_names=("browInnerUp",))
+    for smoothing in (True, False):
+        scores = with_scores(request, found, SimpleNamespace(smoothing=smoothing, blendshapes="fuse")).scores
+        assert scores.fps == 24.0 and scores.smoothing is smoothing
+        np.testing.assert_array_equal(scores.neutral, np.arange(5))  # [neutral] frames 1-5
+    assert with_scores(request, found, SimpleNamespace(smoothing=True, blendshapes="ignore")).scores is None
