@@ -39,8 +39,9 @@ TABLE_FILE = Path(__file__).resolve().parent / "fusion_table.json"
 #: The fusion map beside its table (``CrossMap``).
 MAP_FILE_NAME = "fusion_map.npz"
 #: The fused weights' smoothing over time (Gaussian sigma, seconds): each frame's scores come from its own landmarks,
-#: so the fused weights jitter (mean |second difference| 0.009 on the tuning clips against their truth's 0.0042);
-#: one frame at 30 frames/s makes them as rough as the truth there (0.0040-0.0043, the visible RMSE 0.1139 -> 0.1133).
+#: so the fused weights jitter (mean |second difference| 0.0090 on the tuning clips against their truth's 0.0042);
+#: one frame at 30 frames/s makes them as rough as the truth there (0.0040; visible RMSE 0.1139 -> 0.1133;
+#: ``fusion_bench --smoothing``).
 SMOOTHING_S = 1.0 / 30.0
 #: Shapes left unsmoothed: a blink closes and opens in a few frames, and the smoothing took 0.05-0.1 off its peak.
 UNSMOOTHED = frozenset(("eyeBlinkLeft", "eyeBlinkRight"))
