@@ -149,6 +149,9 @@ class FACECAP_OT_track_face_landmarks(ClipJobOperator, bpy.types.Operator):
 
     smoothing: bpy.props.BoolProperty(name="Smoothing", default=True,
                                       description="Filter the detector's jitter (zero lag, fast lip motion kept)")
+    solve: bpy.props.BoolProperty(name="Solve After", default=False,
+                                  description="Then solve the landmarks onto the Solve panel's character and key "
+                                              "them (Solve and Key), as the four-section config does")
 
     def _start(self, context):
         scene = context.scene
@@ -164,6 +167,25 @@ class FACECAP_OT_track_face_landmarks(ClipJobOperator, bpy.types.Operator):
         use_landmark_defaults(scene.facecap)
         self.report({"INFO"}, f"{session.result.summary()}; added as '{coll.name}' (stable: the head-rigid landmarks, "
                               "neutral: detected, binding: nearest, human template: none)")
+        if self.solve:
+            self._solve(context)
+
+    def _solve(self, context):
+        """Solve and Key the new take: run to completion from scripts, modal (its own progress, Esc) in the UI.
+        The landmarks stay in the scene whatever the solve says."""
+        if not bpy.ops.facecap.solve.poll():
+            self.report({"WARNING"}, "Tracked, not solved: choose the character in the Solve panel, then Solve and "
+                                     "Key")
+            return
+        ui = not bpy.app.background and context.window is not None
+        try:  # an operator that reports an error raises here when called from Python
+            done = bpy.ops.facecap.solve("INVOKE_DEFAULT" if ui else "EXEC_DEFAULT")
+        except RuntimeError as exc:
+            done, why = {"CANCELLED"}, str(exc).strip()
+        else:
+            why = "its message above"
+        if done == {"CANCELLED"}:
+            self.report({"WARNING"}, f"Tracked; the solve stopped ({why}): the landmark take is kept")
 
 
 class FACECAP_OT_solve_clip_flow(ClipJobOperator, bpy.types.Operator):

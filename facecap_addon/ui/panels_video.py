@@ -28,7 +28,10 @@ class FACECAP_PT_video(FacecapPanel, bpy.types.Panel):
         box = layout.box()
         box.label(text="Without markers: the face's landmarks")
         box.prop(v, "landmark_smoothing")
-        box.operator("facecap.track_face_landmarks", icon="USER").smoothing = v.landmark_smoothing
+        row = box.row(align=True)
+        row.operator("facecap.track_face_landmarks", icon="USER").smoothing = v.landmark_smoothing
+        op = row.operator("facecap.track_face_landmarks", text="Track and Solve", icon="PLAY")
+        op.smoothing, op.solve = v.landmark_smoothing, True
         if not _face_models_installed():
             box.operator("facecap.download_face_models", icon="URL")
         box = layout.box()

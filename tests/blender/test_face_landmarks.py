@@ -128,6 +128,30 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
     assert nose.location.y < eye.location.y  # the face looks down -Y, like the characters
 
 
+def test_track_and_solve_keys_the_character_in_one_step(rendered, empty_scene):
+    """*Track and Solve* (Video panel): the landmarks tracked, then solved onto the Solve panel's character and keyed
+    (the jaw opens where the clip's does); without a character the take is still added and the operator says
+    what is missing."""
+    from facecap.facecap_addon.scene import anim
+    from facecap.facecap_addon.scene.layers import solved_action
+
+    ict_character(rendered["folder"] / "person-one-step.blend", rendered["face"], seed=7)  # Blender starts afresh
+    scene, obj = bpy.context.scene, bpy.data.objects["ICT"]
+    scene.active_clip = bpy.data.movieclips.load(str(rendered["path"]))
+    assert bpy.ops.facecap.track_face_landmarks(solve=True) == {"FINISHED"}  # no character yet: tracked only
+    assert scene.facecap.take_name == "face.mp4 landmarks" and len(scene.facecap.markers) == 468
+    assert solved_action(obj.data.shape_keys) is None
+    scene.facecap.target = obj
+    assert bpy.ops.facecap.track_face_landmarks(solve=True) == {"FINISHED"}
+    key = obj.data.shape_keys
+    action = solved_action(key)  # the solve layer
+    assert action is not None and key.animation_data.action is None  # the animator's own layer left alone
+    jaw = [fc for fc in anim.action_fcurves(action, key) if fc.data_path == 'key_blocks["jawOpen"].value']
+    assert len(jaw) == 1 and len(jaw[0].keyframe_points) == 58
+    values = [jaw[0].evaluate(f) for f in range(1, 59)]
+    assert max(values[25:28]) >= 0.5 and max(values[2:REST - 2]) <= 0.1, values  # the jaw's event, then the rest
+
+
 def test_cancelling_track_face_landmarks_leaves_the_scene_untouched(rendered, empty_scene):
     from facecap.facecap_addon.scene.video_scene import ClipLandmarks
     from facecap.solvers.video import Cancelled
