@@ -16,6 +16,8 @@ The clips are kept apart by role (:data:`CLIPS`):
   ridge chosen by leaving each identity out);
 * **report**: the ICT mean face and the Face Cap head (a face never tuned on), windows of
   ``llf_alex_rom_4`` (another recording): judged, never fitted;
+* **report-others**: the same faces and cameras performing two other people's recordings (``OTHERS``): judged,
+  never fitted; every other clip is one performer's (Alex), so these say what the fusion learnt of him;
 * **tune-rom**: the tuning identities performing the ROM sheet ``facecap-24`` (``realism.rom``: imperfectly),
   from both cameras: the reference the performers' responses are read against (``--fit-rom`` writes it into
   the table, its gains kept);
@@ -165,7 +167,8 @@ def prepare(clip, out, character, *, log=print):
     elif clip.role == "tune-random":
         weights, head, gaze = random_performance(names, clip.start, clip.frames)
     else:
-        weights, head, gaze = performance(shared / "realdata" / "llf" / clip.recording, names, start=clip.start,
+        recording = shared / "realdata" / (clip.recording if "/" in clip.recording else f"llf/{clip.recording}")
+        weights, head, gaze = performance(recording, names, start=clip.start,
                                           frames=clip.frames, hold=HOLD)
     video = out / f"{clip.name}.mp4"
     t = time.perf_counter()
@@ -244,7 +247,8 @@ def speed(video, log=print):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
-    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate", "tune-random"), action="append",
+    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate", "tune-random", "report-others"),
+                        action="append",
                         help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
     parser.add_argument("--fit", action="store_true", help="fit the fusion table and its map on the tuning clips and "
@@ -284,6 +288,10 @@ def main(argv=None):
         smoothing_check(out, table)
     rows = evaluate(out, table, constant)
     print_tables(rows)
+    others = [c for c in CLIPS if c.role == "report-others"]
+    if all((out / f"{c.name}.npz").is_file() for c in others):
+        print(f"\nOther performers ({', '.join(sorted({c.recording for c in others}))}): the same faces and cameras")
+        print_tables(evaluate(out, table, constant, role="report-others"))
     videos = sorted(out.glob("report-*.mp4"))
     if videos and args.speed:
         speed(videos[0])

@@ -46,8 +46,14 @@ class Clip:
             return f"{self.role}-{self.face}-{self.start}-az{self.azimuth:.0f}"
         if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
             return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
+        if self.role == "report-others":  # named by the performer (llf_<performer>_...)
+            return f"{self.role}-{self.face}-{Path(self.recording).stem.split('_')[1]}-{self.start}-az{self.azimuth:.0f}"
         return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
 
+
+#: Live Link Face recordings of two other performers (``../shared/data/realdata/edge-cases``: their rows are off the
+#: frame grid, which the clips do not use; read by row): (recording, first row, frames at 30 frames/s).
+OTHERS = (("edge-cases/llf_jmtechart_MySlate_3.csv", 0, 160), ("edge-cases/llf_sentien_recording.csv", 800, 240))
 
 CLIPS = tuple(
     [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
@@ -59,7 +65,9 @@ CLIPS = tuple(
     + [Clip("tune-rom", f"ict-{seed}", ROM_SHEET, 40 + seed, az, frames=0)
        for az in (0.0, 30.0) for seed in (21, 22)]
     + [Clip("tune-random", f"ict-{seed}", "random", 80 + seed + draw, az)
-       for seed in (21, 22) for draw in (0, 10) for az in (0.0, 30.0)])
+       for seed in (21, 22) for draw in (0, 10) for az in (0.0, 30.0)]
+    + [Clip("report-others", face, recording, start, az, frames=frames)
+       for face in ("ict-mean", "facecap") for recording, start, frames in OTHERS for az in (0.0, 30.0)])
 #: The roles the fusion map is fitted on: the tuning faces' performances, ROM sessions and random activations.
 MAP_ROLES = ("tune", "tune-rom", "tune-random")
 def columns(data, names):

@@ -1,5 +1,7 @@
 """The fusion benchmark's clips (facecap_addon/bench/fusion_bench.py): what the fusion map is fitted on."""
 
+from pathlib import Path
+
 import numpy as np
 
 from facecap.facecap_addon.bench import fusion_bench as fb
@@ -29,3 +31,22 @@ def test_random_activations_fire_every_shape_on_its_own():
         pairs = corr[~np.eye(len(corr), dtype=bool)]
         assert abs(pairs.mean()) < 0.05, pairs.mean()  # no shape drawn along with the others
     assert set(fb.judged_names()) <= fired, set(fb.judged_names()) - fired
+
+
+def test_other_performers_are_judged_never_fitted_and_their_windows_fit_their_recordings():
+    """The ``report-others`` clips: both reported faces and cameras performing two recordings of people other than
+    the one every tuning clip performs, never among the roles anything is fitted on, named by the performer, each
+    window inside its recording (read by row at 30 frames/s from the recording's 60)."""
+    from facecap.facecap_addon.bench import fusion_clips as fc
+    from facecap.solvers.io.weights import read_weights
+
+    others = [c for c in fb.CLIPS if c.role == "report-others"]
+    assert {c.face for c in others} == {"ict-mean", "facecap"} and {c.azimuth for c in others} == {0, 30}
+    assert "report-others" not in fc.MAP_ROLES and len({c.name for c in fb.CLIPS}) == len(fb.CLIPS)
+    tuned = {c.recording for c in fb.CLIPS if c.role in fc.MAP_ROLES}
+    for clip in others:
+        assert clip.recording not in tuned and "alex" not in clip.recording
+        assert f"{clip.face}-{Path(clip.recording).stem.split('_')[1]}-" in clip.name  # named by the performer
+        track = read_weights(shared_folder() / "data" / "realdata" / clip.recording)
+        step = max(1, int(round(track.fps / clip.fps)))
+        assert clip.start + step * clip.frames <= len(track.values), clip.name
