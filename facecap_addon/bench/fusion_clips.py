@@ -47,7 +47,8 @@ class Clip:
         if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
             return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
         if self.role == "report-others":  # named by the performer (llf_<performer>_...)
-            return f"{self.role}-{self.face}-{Path(self.recording).stem.split('_')[1]}-{self.start}-az{self.azimuth:.0f}"
+            performer = Path(self.recording).stem.split("_")[1]
+            return f"{self.role}-{self.face}-{performer}-{self.start}-az{self.azimuth:.0f}"
         return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
 
 
