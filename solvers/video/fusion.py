@@ -262,20 +262,21 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
 
 
 def smooth_runs(values, seen, sigma):
-    """``values`` (one per True of ``seen``, (F,) bools) smoothed by a Gaussian of ``sigma`` frames within each run
-    of consecutive seen frames (no frame is smoothed across a gap; a run's ends repeat its first and last value)."""
+    """``values`` (one row per True of ``seen``, (F,) bools; (n,) or (n, K)) smoothed by a Gaussian of ``sigma``
+    frames within each run of consecutive seen frames (no frame is smoothed across a gap; a run's ends repeat its
+    first and last value). Every run at once: each offset of the kernel reads its neighbour clipped to the run."""
     values = np.asarray(values, dtype=np.float64)
     half = int(np.ceil(3 * sigma))
-    if half < 1 or len(values) < 2:
+    n = len(values)
+    if half < 1 or n < 2:
         return values
     kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
     kernel /= kernel.sum()
-    out = np.empty_like(values)
-    run = np.cumsum(np.r_[True, np.diff(np.flatnonzero(seen)) != 1])  # the run of each seen frame
-    for r in np.unique(run):
-        x = values[run == r]
-        out[run == r] = np.convolve(np.pad(x, half, mode="edge"), kernel, mode="valid")
-    return out
+    starts = np.r_[0, np.flatnonzero(np.diff(np.flatnonzero(seen)) != 1) + 1]  # where each run of seen frames starts
+    run = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, n]))
+    first, last = starts[run], np.r_[starts[1:], n][run] - 1
+    rows = np.arange(n)
+    return sum(k * values[np.clip(rows + offset, first, last)] for offset, k in zip(range(-half, half + 1), kernel))
 
 
 def _through_map(table, corrected, column, solve, arkit):

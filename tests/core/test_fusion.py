@@ -106,6 +106,8 @@ def test_fused_weights_are_smoothed_over_time_but_blinks_gaps_and_holds_are_kept
     np.testing.assert_allclose(smooth_runs(values, split, SMOOTHING_S * 30.0), values, atol=1e-12)
     joined = smooth_runs(values, np.ones(40, bool), SMOOTHING_S * 30.0)
     assert 0.0 < joined[19] < 0.5 < joined[20] < 1.0
+    both = smooth_runs(np.stack([values, values[::-1]], axis=1), split, 1.0)  # columns at once, as one by one
+    np.testing.assert_allclose(both[:, 1], smooth_runs(values[::-1], split, 1.0), atol=1e-12)
 
 
 def test_fit_table_recovers_known_gains_and_round_trips(tmp_path):
