@@ -33,6 +33,7 @@ import numpy as np
 
 from ..character.aliases import canonical_names
 from ..errors import FacecapError
+from ..io.files import atomic_path, write_text_atomic
 from .score_response import ScoreResponse
 
 TABLE_FILE = Path(__file__).resolve().parent / "fusion_table.json"
@@ -90,9 +91,7 @@ class FusionTable:
             text += (f', "rom_reference": {{"sheet": {json.dumps(r.sheet)}, "columns": ["gain", "offset"], '
                      f'"shapes": {{\n{refs}\n}}}}')
         text += "}"
-        tmp = Path(path).with_name(Path(path).name + ".part")
-        tmp.write_text(text + "\n", encoding="utf-8")
-        tmp.replace(path)
+        write_text_atomic(path, text + "\n")
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,12 +147,10 @@ class CrossMap:
         return out
 
     def save(self, path):
-        """Write atomically (``.part`` then renamed)."""
-        path = Path(path)
-        tmp = path.with_name(path.stem + ".part.npz")
-        np.savez_compressed(tmp, names=np.array(self.names, dtype=str), gram=self.gram, moment=self.moment,
-                            ridge=np.float64(self.ridge))
-        tmp.replace(path)
+        """Write atomically (``io.files.atomic_path``)."""
+        with atomic_path(Path(path), suffix=".npz") as tmp:
+            np.savez_compressed(tmp, names=np.array(self.names, dtype=str), gram=self.gram, moment=self.moment,
+                                ridge=np.float64(self.ridge))
 
 
 def face_half(name):
