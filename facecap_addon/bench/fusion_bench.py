@@ -300,7 +300,7 @@ def main(argv=None):
 
 def print_tables(rows):
     """Per clip and method the region RMSEs, then the medians and worst cases over the clips."""
-    keys = list(REGIONS) + ["visible", "blink_peak", "jitter"]
+    keys = list(REGIONS) + ["visible", "blink_peak", "jitter", "pinned"]
     print("| clip | method | " + " | ".join(keys) + " |")
     print("|---|---|" + "---|" * len(keys))
     for clip, methods in rows.items():
@@ -313,9 +313,11 @@ def print_tables(rows):
             brows = [m[method]["brows"] for m in mine if method in m]
             blink = [m[method]["blink_peak"] for m in mine if method in m]
             jit = [m[method]["jitter"] for m in mine if method in m]
+            pin = [m[method]["pinned"] for m in mine if method in m]
             print(f"{face} {method} ({len(vis)} clips): visible median {np.median(vis):.3f} worst {np.max(vis):.3f}; "
                   f"brows median {np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst "
-                  f"{np.nanmin(blink):.2f}; jitter median {np.median(jit):.4f}")
+                  f"{np.nanmin(blink):.2f}; jitter median {np.median(jit):.4f}; at 1: median {np.median(pin):.2f} % "
+                  f"worst {np.max(pin):.2f} %")
     print()
     print("| face | method | " + " | ".join(REGIONS) + " | visible | blink peak | jitter |")
     print("|---|---|" + "---|" * (len(REGIONS) + 3))

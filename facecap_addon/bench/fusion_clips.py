@@ -106,8 +106,18 @@ def region_rmse(got, truth, names):
         closed = truth[:, j] > 0.7
         peaks.append(float(np.nanmax(got[closed, j])) if closed.any() else float("nan"))
     out["blink_peak"] = float(np.nanmin(peaks)) if np.isfinite(peaks).any() else float("nan")
-    out["jitter"] = jitter(got[:, [names.index(s) for shapes in REGIONS.values() for s in shapes]])
+    judged = got[:, [names.index(s) for shapes in REGIONS.values() for s in shapes]]
+    out["jitter"] = jitter(judged)
+    out["pinned"] = pinned(judged)
     return out
+
+
+def pinned(weights):
+    """The share (%) of a clip's judged weights (F, K) at their upper bound 1: a shape held flat at its full extent,
+    which an animator sees (a performance's truth: 0 %). NaN samples left out."""
+    w = np.asarray(weights, dtype=np.float64)
+    ok = np.isfinite(w)
+    return float(100.0 * np.mean(w[ok] >= 0.999)) if ok.any() else float("nan")
 
 
 def jitter(weights):

@@ -50,3 +50,12 @@ def test_other_performers_are_judged_never_fitted_and_their_windows_fit_their_re
         track = read_weights(shared_folder() / "data" / "realdata" / clip.recording)
         step = max(1, int(round(track.fps / clip.fps)))
         assert clip.start + step * clip.frames <= len(track.values), clip.name
+
+
+def test_pinned_counts_the_weights_held_at_their_full_extent():
+    """The bench's "at 1" figure: the share of judged samples at >= 0.999, NaN left out."""
+    from facecap.facecap_addon.bench.fusion_clips import pinned
+
+    w = np.array([[1.0, 0.5], [0.9995, np.nan], [0.2, 0.0], [0.998, 1.0]])
+    assert pinned(w) == 100.0 * 3 / 7
+    assert np.isnan(pinned(np.full((2, 2), np.nan)))
