@@ -29,6 +29,8 @@ MERGE_S, MIN_S = 0.15, 0.5
 PAD_S = 0.2
 #: The frames measured for a pose: this share of its hold, about its middle.
 MEASURED = 0.6
+#: The plateau fit's ramp grid: steps across the excursion at first, the finest step (frames), rounds at most.
+PLATEAU_GRID, PLATEAU_STEP, PLATEAU_ROUNDS = 60, 1.0 / 32, 6
 
 
 @dataclass(frozen=True)
@@ -142,44 +144,76 @@ def _smoothstep(x):
     return x * x * (3.0 - 2.0 * x)
 
 
-def _trapezoid(p, t):
-    """A * rise * fall: ramps (smoothstep) starting at p[1] over p[2] frames and at p[3] over p[4] frames."""
-    amp, r0, ru, f0, fd = p
-    return amp * _smoothstep((t - r0) / ru) * (1.0 - _smoothstep((t - f0) / fd))
+def _ramp(t, ramp, rising):
+    """A smooth ramp over ``t`` from ``ramp[0]`` to ``ramp[1]``: 0 -> 1 when ``rising``, else 1 -> 0."""
+    x = _smoothstep((t - ramp[0]) / (ramp[1] - ramp[0]))
+    return x if rising else 1.0 - x
 
 
-def _trapezoid_jacobian(p, t):
-    """(T, 5) derivatives of ``_trapezoid`` by its parameters."""
-    amp, r0, ru, f0, fd = p
-    xr, xf = (t - r0) / ru, (t - f0) / fd
-    rise, fall = _smoothstep(xr), 1.0 - _smoothstep(xf)
-    dr = np.where((xr > 0) & (xr < 1), 6.0 * xr * (1.0 - xr), 0.0)  # the smoothstep's slope
-    df = np.where((xf > 0) & (xf < 1), 6.0 * xf * (1.0 - xf), 0.0)
-    return np.stack([rise * fall, -amp * fall * dr / ru, -amp * fall * dr * xr / ru,
-                     amp * rise * df / fd, amp * rise * df * xf / fd], axis=1)
+def _best_ramp(amp, t, other, bounds, rising, step, around=None):
+    """The ramp (start, end), on a grid of ``step`` frames within ``bounds`` (or 9 x 9 steps ``around`` a ramp),
+    that best fits ``amp`` as A * ramp * ``other`` (A > 0 by least squares): the largest explained share
+    <m, amp>^2 / <m, m>. Ramps are at least a frame long; ties go to the first on the grid."""
+    lo, hi = bounds
+    if around is None:
+        s, e = np.meshgrid(np.arange(lo, hi + 0.5 * step, step), np.arange(lo, hi + 0.5 * step, step),
+                           indexing="ij")
+    else:
+        k = np.arange(-4, 5) * step
+        s, e = np.meshgrid(around[0] + k, around[1] + k, indexing="ij")
+    s, e = s.ravel(), e.ravel()
+    keep = (e - s >= 1.0) & (s >= lo) & (e <= hi)
+    s, e = s[keep], e[keep]
+    if s.size == 0:
+        return around
+    x = _smoothstep((t[None] - s[:, None]) / (e - s)[:, None])
+    m = (x if rising else 1.0 - x) * other[None]
+    mm, my = np.einsum("gt,gt->g", m, m), m @ amp
+    explained = np.where((mm > 0) & (my > 0), my * my / np.maximum(mm, 1e-300), -np.inf)
+    i = int(np.argmax(explained))
+    return float(s[i]), float(e[i])
+
+
+def _fit_ramp(amp, t, other, bounds, rising):
+    """``_best_ramp`` coarse to fine: ~``PLATEAU_GRID`` steps across ``bounds``, then each step a quarter of the
+    last about the best, down to ``PLATEAU_STEP`` frames."""
+    step = max(0.25, (bounds[1] - bounds[0]) / PLATEAU_GRID)
+    best = _best_ramp(amp, t, other, bounds, rising, step)
+    while best is not None and step > PLATEAU_STEP:
+        step /= 4.0
+        best = _best_ramp(amp, t, other, bounds, rising, step, around=best)
+    return best
 
 
 def _plateau(amp):
-    """(first, last) fractional indices of the held plateau of an excursion's amplitude curve ``amp``: a
-    trapezoid with smooth ramps fitted by least squares to every frame (its top is the hold; a threshold on a
-    subtle pose's noisy curve would cut it anywhere), started from the curve's half-maximum crossings."""
-    from scipy.optimize import least_squares  # scipy: loaded when a ROM take is read
+    """(first, last) fractional indices of the held plateau of an excursion's amplitude curve ``amp``: the top of
+    a trapezoid with smooth ramps, A * rise * fall, fitted by least squares to every frame (a threshold on a
+    subtle pose's noisy curve would cut it anywhere), started from the curve's half-maximum crossings.
 
-    t = np.arange(len(amp), dtype=np.float64)
+    The ramps are searched on grids (each given the other, until neither moves), not by a local optimiser:
+    Levenberg-Marquardt here moved the hold by up to 7 frames when the curve changed in its 13th digit, or when
+    only its memory alignment did (its steps differ in the last bit), so a ROM's calibration was not
+    reproducible from run to run. A grid's best changes only on an exact tie."""
+    amp = np.asarray(amp, dtype=np.float64)
+    n = len(amp)
+    t = np.arange(n, dtype=np.float64)
     top = float(np.percentile(amp, 95))
     above = np.flatnonzero(_moving_mean(amp, 3) >= 0.5 * top)
     if top <= 0 or above.size == 0:
-        return 0.0, float(len(amp) - 1)
+        return 0.0, float(n - 1)
     ramp = max(2.0, 0.1 * (above[-1] - above[0]))
-    # the ramps' lengths as logarithms (always positive); Levenberg-Marquardt with the analytic Jacobian
-    start = np.array([top, above[0] - 0.5 * ramp, np.log(ramp), above[-1] - 0.5 * ramp, np.log(ramp)])
-    unlog = lambda q: np.array([q[0], q[1], np.exp(q[2]), q[3], np.exp(q[4])])  # noqa: E731
-    scale = lambda q: np.array([1.0, 1.0, np.exp(q[2]), 1.0, np.exp(q[4])])  # noqa: E731
-    fit = least_squares(lambda q: _trapezoid(unlog(q), t) - amp, start, method="lm",
-                        jac=lambda q: _trapezoid_jacobian(unlog(q), t) * scale(q))
-    _, r0, ru, f0, _ = unlog(fit.x)
-    first, last = r0 + ru, f0
-    if not (fit.success and 0.0 <= first <= last <= len(amp) - 1):
+    rise = (above[0] - 0.5 * ramp, above[0] + 0.5 * ramp)
+    fall = (above[-1] - 0.5 * ramp, above[-1] + 0.5 * ramp)
+    lo, hi = -0.25 * n, 1.25 * (n - 1)  # a ramp may begin or end outside the excursion's frames
+    for _ in range(PLATEAU_ROUNDS):
+        new_rise = _fit_ramp(amp, t, _ramp(t, fall, False), (lo, fall[0]), True)
+        new_fall = None if new_rise is None else _fit_ramp(amp, t, _ramp(t, new_rise, True), (new_rise[1], hi),
+                                                           False)
+        if new_fall is None or (new_rise, new_fall) == (rise, fall):
+            break
+        rise, fall = new_rise, new_fall
+    first, last = rise[1], fall[0]
+    if not 0.0 <= first <= last <= n - 1:
         return float(above[0]), float(above[-1])
     return float(first), float(last)
 

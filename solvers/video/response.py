@@ -113,9 +113,7 @@ def find_score_holds(scores, neutral, fps):
     # find_holds measures smoothed 3D deltas against noise * sqrt(3 / n); ours are 1D and already per unit of
     # the smoothed noise, so the scale that makes its unit 1
     unit = np.sqrt((2 * half_window(fps) + 1) / 3.0)
-    with warnings.catch_warnings():  # the plateau fit's trial steps may overflow; a failed fit falls back
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
+    return find_holds(x, np.arange(len(s), dtype=np.float64), fps, unit)
 
 
 def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet="", given=None):
