@@ -9,15 +9,17 @@ beside the solve, so that the fusion (``solvers/video/fusion.py``) can be fitted
 
 The clips are kept apart by role (:data:`CLIPS`):
 
-* **tune**: two ICT identities (seeds 21 and 22), windows of ``llf_alex_rom_3``: the only clips the
-  per-shape fusion table is fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
+* **tune**: two ICT identities (seeds 21 and 22), windows of Alex's ``llf_alex_rom_3`` and Jason Miller's
+  recording (``TUNING_OTHER``): the only clips the per-shape fusion table and the lids' slope against the gaze are
+  fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
 * **tune-random**: the same identities firing every shape independently of the others (``random_performance``):
   with the tune and tune-rom clips, what the fusion map is fitted on (``--fit`` writes ``fusion_map.npz``, its
   ridge chosen by leaving each identity out);
 * **report**: the ICT mean face and the Face Cap head (a face never tuned on), windows of
   ``llf_alex_rom_4`` (another recording): judged, never fitted;
-* **report-others**: the same faces and cameras performing two other people's recordings (``OTHERS``): judged,
-  never fitted; every other clip is one performer's (Alex), so these say what the fusion learnt of him;
+* **report-others**: the same faces and cameras performing a third performer's recording (``OTHERS``, the Sentien
+  recording): judged, never fitted; the reported clips above are Alex's, whom the tuning clips also perform, so
+  these say what the fusion learnt of the two tuning performers;
 * **tune-rom**: the tuning identities performing the ROM sheet ``facecap-24`` (``realism.rom``: imperfectly),
   from both cameras: the reference the performers' responses are read against (``--fit-rom`` writes it into
   the table, its gains kept);

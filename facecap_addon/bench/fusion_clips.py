@@ -46,19 +46,24 @@ class Clip:
             return f"{self.role}-{self.face}-{self.start}-az{self.azimuth:.0f}"
         if self.role in ROM_ROLES:  # a ROM session: ``recording`` is the sheet, ``start`` the session's seed
             return f"{self.role}-{self.face}-{self.recording}-{self.start}-az{self.azimuth:.0f}"
-        if self.role == "report-others":  # named by the performer (llf_<performer>_...)
+        if self.recording.startswith("edge-cases/"):  # another performer's: named by them (llf_<performer>_...)
             performer = Path(self.recording).stem.split("_")[1]
             return f"{self.role}-{self.face}-{performer}-{self.start}-az{self.azimuth:.0f}"
         return f"{self.role}-{self.face}-{Path(self.recording).stem[-5:]}-{self.start}-az{self.azimuth:.0f}"
 
 
 #: Live Link Face recordings of two other performers (``../shared/data/realdata/edge-cases``: their rows are off the
-#: frame grid, which the clips do not use; read by row): (recording, first row, frames at 30 frames/s).
-OTHERS = (("edge-cases/llf_jmtechart_MySlate_3.csv", 0, 160), ("edge-cases/llf_sentien_recording.csv", 800, 240))
+#: frame grid, which the clips do not use; read by row): (recording, first row, frames at 30 frames/s). Jason
+#: Miller's is tuned on (with Alex's ``llf_alex_rom_3``: the table and map learn two people's habits), the Sentien
+#: recording's busiest stretch is reported (role report-others).
+TUNING_OTHER = ("edge-cases/llf_jmtechart_MySlate_3.csv", 0, 160)
+OTHERS = (("edge-cases/llf_sentien_recording.csv", 800, 240),)
 
 CLIPS = tuple(
     [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
      for seed in (21, 22) for start in (600, 2100) for az in (0.0, 30.0)]
+    + [Clip("tune", f"ict-{seed}", TUNING_OTHER[0], TUNING_OTHER[1], az, frames=TUNING_OTHER[2])
+       for seed in (21, 22) for az in (0.0, 30.0)]
     + [Clip("report", face, "llf_alex_rom_4.csv", start, az)
        for face in ("ict-mean", "facecap") for start in (1500, 2700) for az in (0.0, 30.0)]
     + [Clip("calibrate", face, ROM_SHEET, 38, az, frames=0)

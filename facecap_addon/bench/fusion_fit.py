@@ -7,22 +7,42 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...solvers.video.fusion import UNSMOOTHED, fit_map, fit_table, smooth_runs
+from ...solvers.video.fusion import (
+    UNSMOOTHED,
+    fit_lid_gaze,
+    fit_map,
+    fit_table,
+    lids_against_gaze,
+    smooth_runs,
+)
 from ...solvers.video.response import ScoreResponse
 from .fusion_clips import CLIPS, MAP_ROLES, ROM_SHEET, columns, jitter, judged_names, region_rmse, rom_fit
 
 
 def fit(out, *, log=print):
-    """Fit the fusion table on the tuning clips in ``out``; returns it (not saved) and the constant baseline."""
+    """Fit the fusion table on the tuning clips in ``out``: first the solve's lids against its gaze (``lid_gaze``, on
+    every tuning clip), then the per-shape gains (on the performances) with the lids so read; returns the table (not
+    saved) and the constant baseline."""
     names = judged_names()
-    parts = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in CLIPS if c.role == "tune"]
+    every = [c for c in CLIPS if c.role in MAP_ROLES]
+    raw = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in every]
+    truth, solved, _ = (np.concatenate(p) for p in zip(*raw))
+    lid_gaze = fit_lid_gaze(truth, solved, names)
+    log(f"lids against the gaze fitted on {len(every)} clips: a full look down closes {-lid_gaze:.3f} of the lid gap")
+    parts = [p for c, p in zip(every, tune_parts(raw, names, lid_gaze)) if c.role == "tune"]
     truth, solved, corrected = (np.concatenate(p) for p in zip(*parts))
-    tuned = [c.name for c in CLIPS if c.role == "tune"]
+    tuned = [c.name for c in every if c.role == "tune"]
     table = fit_table(np.nan_to_num(truth), solved, corrected, names,
                       measured_on={"clips": tuned, "frames": int(len(truth)),
                                    "command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit"})
     log(f"fusion table fitted on {len(tuned)} clips, {len(truth)} frames")
-    return table, np.nanmean(truth, axis=0)
+    return replace(table, lid_gaze=lid_gaze), np.nanmean(truth, axis=0)
+
+
+def tune_parts(parts, names, lid_gaze):
+    """Cached clips' (truth, solve, corrected scores) with the solve's lids read against its gaze, as ``fuse`` reads
+    them before the table and map."""
+    return [(t, lids_against_gaze(s, names, lid_gaze), c) for t, s, c in parts]
 
 
 #: The ridges the fusion map is chosen among (per clip, towards the per-shape table).
@@ -35,7 +55,8 @@ def fit_cross(out, table, *, log=print):
     ridge on a tie to 3 decimals); returns (the map, what it was measured on)."""
     names = judged_names()
     clips = [c for c in CLIPS if c.role in MAP_ROLES]
-    parts = {c.name: columns(dict(np.load(out / f"{c.name}.npz")), names) for c in clips}
+    parts = dict(zip([c.name for c in clips], tune_parts([columns(dict(np.load(out / f"{c.name}.npz")), names)
+                                                          for c in clips], names, table.lid_gaze)))
     faces = sorted({c.face for c in clips})
     scores = {}
     for lam in MAP_RIDGES:
@@ -79,7 +100,8 @@ def smoothing_check(out, table, *, log=print):
     names = judged_names()
     lam = table.measured_on.get("map_ridge", 0.03)
     clips = [c for c in CLIPS if c.role in MAP_ROLES]
-    parts = {c.name: columns(dict(np.load(out / f"{c.name}.npz")), names) for c in clips}
+    parts = dict(zip([c.name for c in clips], tune_parts([columns(dict(np.load(out / f"{c.name}.npz")), names)
+                                                          for c in clips], names, table.lid_gaze)))
     sharp = np.array([n in UNSMOOTHED for n in names])
     rows = {s: [] for s in SMOOTHING_FRAMES}
     truth_jitter = []

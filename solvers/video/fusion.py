@@ -9,20 +9,22 @@ from the corrected scores and solved weights of its half of the face (``face_hal
 
     c = (s - s0) / (1 - s0)          each score s corrected by its level s0 on the take's neutral frames
     c = response(c)                  the performer's response on this camera (a ROM calibration; identity)
+    l = lids against gaze(l)         the solve's blinks and wide eyes read against its look down (``lid_gaze``)
     w = W' [c, l]                    l the landmark solve's weights, W the fusion map
     w = smooth(w), clip(w, lower, upper)  smoothed over time (SMOOTHING_S; blinks left sharp), within bounds
 
 The map ``W`` (``CrossMap``) is ridge regression towards the per-shape table (``w_k = a_k c_k + b_k l_k``, ``a``
 and ``b`` >= 0 fitted per shape by ``fit_table``): the off-diagonal terms only undo the cross-talk the tuning
 clips show within a half of the face. It is kept as the tuning clips' normal equations (``fusion_map.npz``), so a
-take whose character lacks some ARKit shapes gets the map solved for the inputs it has. Both are measured, not chosen: ``python -m
-facecap.facecap_addon.bench.fusion_bench --fit`` fits them on rendered clips with known weights (two ICT
-identities, two cameras, windows of one recording and the same faces performing the ROM sheet, so that the map
-learns the head's cross-talk rather than one performance's habits; ``fusion_table.json`` says which clips) and never
-on the clips it reports. The result keeps the landmark take's own path onto the character: the semantic solve's
-weights are the actor's activations keyed on the character's shapes of the same name (``strategies/semantic``),
-and the fused weight of a shape replaces its solved one by that name (aliases matched as ``parallel`` matches
-them); shapes without a score (``tongueOut``, a character's own shapes) keep the solve.
+take whose character lacks some ARKit shapes gets the map solved for the inputs it has. The map, the table and the
+lids' slope are measured, not chosen: ``python -m facecap.facecap_addon.bench.fusion_bench --fit`` fits them on
+rendered clips with known weights (two ICT identities, two cameras, two performers' recordings, the same faces
+performing the ROM sheet and firing shapes at random, so that the map learns the head's cross-talk rather than one
+performance's habits; ``fusion_table.json`` says which clips) and never on the clips it reports. The result keeps
+the landmark take's own path onto the character: the semantic solve's weights are the actor's activations keyed on
+the character's shapes of the same name (``strategies/semantic``), and the fused weight of a shape replaces its
+solved one by that name (aliases matched as ``parallel`` matches them); shapes without a score (``tongueOut``, a
+character's own shapes) keep the solve.
 """
 
 import json
@@ -34,6 +36,7 @@ import numpy as np
 from ..character.aliases import canonical_names
 from ..errors import FacecapError
 from ..io.files import atomic_path, write_text_atomic
+from . import gaze
 from .score_response import ScoreResponse
 
 TABLE_FILE = Path(__file__).resolve().parent / "fusion_table.json"
@@ -56,13 +59,17 @@ class FusionTable:
     """Per shape (ARKit names) the gains of the corrected score (``score``) and of the landmark solve (``solve``);
     ``reference``: how the tuning faces' scores respond to a ROM sheet (a ``ScoreResponse``, or None),
     which a performer's ROM clip is calibrated against (``response.fit_response``); ``map``: the fusion map
-    (``CrossMap``, or None: per shape only), loaded from ``fusion_map.npz`` beside the table."""
+    (``CrossMap``, or None: per shape only), loaded from ``fusion_map.npz`` beside the table; ``lid_gaze``: the
+    share of the neutral lid gap a full look down closes in the landmark solve (negative; 0: the solve's lids as
+    they are), by which its blinks and wide eyes are read against its gaze before they are fused
+    (``lids_against_gaze``)."""
 
     score: dict
     solve: dict
     measured_on: dict = field(default_factory=dict)
     reference: object = None
     map: object = None
+    lid_gaze: float = 0.0
 
     @classmethod
     def load(cls, path=TABLE_FILE):
@@ -74,7 +81,10 @@ class FusionTable:
                 tuple(ref["shapes"]), [v[0] for v in ref["shapes"].values()], [v[1] for v in ref["shapes"].values()],
                 ref["sheet"])
             table = cls({k: float(v[0]) for k, v in data["shapes"].items()},
-                        {k: float(v[1]) for k, v in data["shapes"].items()}, data.get("measured_on", {}), reference)
+                        {k: float(v[1]) for k, v in data["shapes"].items()}, data.get("measured_on", {}), reference,
+                        lid_gaze=float(data.get("lid_gaze", 0.0)))
+            if not -1.0 <= table.lid_gaze <= 0.0:
+                raise ValueError(f"lid_gaze must be from -1 to 0; got {table.lid_gaze}")
         except (OSError, ValueError, KeyError, IndexError, TypeError, FacecapError) as exc:
             raise FacecapError(f"{path}: not a fusion table ({exc})") from None
         beside = path.with_name(MAP_FILE_NAME)
@@ -83,7 +93,7 @@ class FusionTable:
     def save(self, path=TABLE_FILE):
         rows = ",\n".join(f'  "{k}": [{self.score[k]:.4f}, {self.solve[k]:.4f}]' for k in self.score)
         head = json.dumps({"format": "facecap-fusion-table", "measured_on": self.measured_on,
-                           "columns": ["score gain a", "solve gain b"]})
+                           "lid_gaze": round(self.lid_gaze, 4), "columns": ["score gain a", "solve gain b"]})
         text = head[:-1] + ', "shapes": {\n' + rows + "\n}"
         if self.reference is not None:
             r = self.reference
@@ -236,6 +246,7 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
     for name in shape_names:
         names = canonical_names(name)
         arkit.append(names[0] if len(names) == 1 else None)
+    solve = lids_against_gaze(solve, arkit, table.lid_gaze)
     mapped = {}
     if cross and table.map is not None and any(n in column for n in table.map.names):
         mapped = _through_map(table, corrected, column, solve, arkit)
@@ -256,6 +267,23 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
         w[seen, k] = np.clip(values, lo[k], hi[k])
         fused.append(name)
     return w, fused
+
+
+def lids_against_gaze(weights, names, per_look_down):
+    """A copy of solved ``weights`` (F, K) on ARKit ``names`` with each eye's eyeBlink and eyeWide read against its
+    eyeLookDown (``gaze.lids_against_gaze``; ``per_look_down`` 0 or an eye without the three shapes: as they are).
+    The landmark solve sets all three from the landmarks (``gaze.gaze_locks``), and a look down lowers the lid."""
+    out = np.array(weights, dtype=np.float64)
+    column = {}
+    for k, n in enumerate(names):
+        column.setdefault(n, k)
+    for side in ("Left", "Right") if per_look_down else ():
+        blink, wide, down = (column.get(f"eye{s}{side}") for s in ("Blink", "Wide", "LookDown"))
+        if None not in (blink, wide, down):
+            seen = np.isfinite(out[:, blink]) & np.isfinite(out[:, wide])
+            b, w = gaze.lids_against_gaze(out[seen, blink], out[seen, wide], out[seen, down], per_look_down)
+            out[seen, blink], out[seen, wide] = b, w
+    return out
 
 
 def smooth_runs(values, seen, sigma):
@@ -317,6 +345,27 @@ def fit_table(truth, solved, corrected, names, *, measured_on=None):
         for j in columns:
             score[names[j]], solve[names[j]] = float(a), float(b)
     return FusionTable(score, solve, measured_on or {})
+
+
+def fit_lid_gaze(truth, solved, names):
+    """``FusionTable.lid_gaze`` from tuning clips (``truth``, ``solved`` (F, S) stacked, columns ARKit ``names``):
+    the least-squares slope through 0 of the solve's lid gap (``gaze.gap_from_lids``, less 1) on its eyeLookDown,
+    over the frames where the truth neither blinks, widens nor squints that eye (every change of the gap there is
+    the gaze's) and the gap is read unclipped. 0 when no frame looks down (or no eye has the four shapes)."""
+    column = {n: j for j, n in enumerate(names)}
+    x, y = [], []
+    for side in ("Left", "Right"):
+        blink, wide, down, squint = (column.get(f"eye{s}{side}") for s in ("Blink", "Wide", "LookDown", "Squint"))
+        if None in (blink, wide, down, squint):
+            continue
+        gap = gaze.gap_from_lids(np.nan_to_num(solved[:, blink]), np.nan_to_num(solved[:, wide]))
+        still = (truth[:, blink] < 0.02) & (truth[:, wide] < 0.02) & (truth[:, squint] < 0.05)
+        unclipped = (gap > gaze.CLOSED_GAP + 0.01) & (gap < 1.0 + 0.99 * gaze.WIDE)
+        ok = still & unclipped & np.isfinite(solved[:, down])
+        x.append(solved[ok, down])
+        y.append(gap[ok] - 1.0)
+    x, y = (np.concatenate(v) if v else np.zeros(0) for v in (x, y))
+    return float(np.clip(x @ y / (x @ x), -1.0, 0.0)) if x @ x > 0 else 0.0
 
 
 def _unsided(name):

@@ -107,12 +107,36 @@ def lid_weights(positions, neutral=None):
         p = positions[..., :2]
         gap = np.linalg.norm(p[:, upper] - p[:, lower], axis=1) / np.linalg.norm(p[:, outer] - p[:, inner], axis=1)
         ref = gap[rest] if np.isfinite(gap[rest]).any() else gap
-        ratio = gap / np.nanmedian(ref)
-        closure = 1.0 - ratio
-        steep = BLINK_LINEAR + (closure - BLINK_LINEAR) * (1.0 - BLINK_LINEAR) / (1.0 - CLOSED_GAP - BLINK_LINEAR)
-        out[f"eyeBlink{side}"] = np.nan_to_num(np.clip(np.where(closure <= BLINK_LINEAR, closure, steep), 0, 1))
-        out[f"eyeWide{side}"] = np.nan_to_num(np.clip((ratio - 1.0) / WIDE, 0, 1))
+        blink, wide = lids_from_gap(gap / np.nanmedian(ref))
+        out[f"eyeBlink{side}"], out[f"eyeWide{side}"] = np.nan_to_num(blink), np.nan_to_num(wide)
     return out
+
+
+def lids_from_gap(ratio):
+    """(eyeBlink, eyeWide) weights in [0, 1] of the lids' gap as a share ``ratio`` of its neutral gap (see
+    :func:`lid_weights`)."""
+    closure = 1.0 - np.asarray(ratio, dtype=np.float64)
+    steep = BLINK_LINEAR + (closure - BLINK_LINEAR) * (1.0 - BLINK_LINEAR) / (1.0 - CLOSED_GAP - BLINK_LINEAR)
+    return (np.clip(np.where(closure <= BLINK_LINEAR, closure, steep), 0, 1), np.clip(-closure / WIDE, 0, 1))
+
+
+def gap_from_lids(blink, wide):
+    """The lids' gap (share of the neutral gap) that :func:`lids_from_gap` reads as ``blink`` and ``wide``: its
+    inverse where neither weight is at a bound (a blink of 1 reads as the closed eye's gap, a wide of 1 as
+    ``1 + WIDE``)."""
+    blink, wide = np.asarray(blink, dtype=np.float64), np.asarray(wide, dtype=np.float64)
+    closure = np.where(blink <= BLINK_LINEAR, blink,
+                       BLINK_LINEAR + (blink - BLINK_LINEAR) * (1.0 - CLOSED_GAP - BLINK_LINEAR) / (1.0 - BLINK_LINEAR))
+    return np.where(wide > 0, 1.0 + WIDE * wide, 1.0 - closure)
+
+
+def lids_against_gaze(blink, wide, look_down, per_look_down):
+    """(eyeBlink, eyeWide) of one eye read against its gaze: a look down lowers the upper lid with the eye (by
+    ``per_look_down`` of the neutral gap at eyeLookDown 1, negative), which the lids' gap alone reads as a half
+    blink, and a look back up from there as eyes wide. The gap is taken back to what the lids would show looking
+    ahead (``gap - per_look_down * look_down``) and read again."""
+    gap = gap_from_lids(blink, wide) - per_look_down * np.nan_to_num(np.asarray(look_down, dtype=np.float64))
+    return lids_from_gap(gap)
 
 
 def gaze_locks(shape_names, positions, neutral=None):

@@ -9,12 +9,15 @@ from facecap.solvers.video.fusion import (
     SMOOTHING_S,
     FaceScores,
     FusionTable,
+    fit_lid_gaze,
     fit_map,
     fit_table,
     fuse,
+    lids_against_gaze,
     neutral_corrected,
     smooth_runs,
 )
+from facecap.solvers.video.gaze import gap_from_lids, lids_from_gap
 
 
 def test_scores_are_corrected_by_their_level_on_the_neutral_frames():
@@ -208,6 +211,60 @@ def test_the_map_is_solved_for_the_inputs_a_take_has():
     G = sum(x.T @ x / len(x) for x in X) + lam * len(clips) * np.eye(5)
     M = sum(x.T @ t / len(x) for x, (t, s, c) in zip(X, clips)) + lam * len(clips) * prior[keep]
     np.testing.assert_allclose(W, np.linalg.solve(G, M), rtol=1e-10, atol=1e-12)
+
+
+LIDS = ("eyeBlinkLeft", "eyeWideLeft", "eyeLookDownLeft", "eyeSquintLeft", "jawOpen")
+
+
+def _looking_down_take(rng, n, per_look_down):
+    """A take whose truth blinks now and then and looks down in between; the landmark solve reads the lid gap, which
+    the look down lowers by ``per_look_down`` of the neutral gap at eyeLookDown 1 (a half blink to the gap alone)."""
+    truth = np.zeros((n, len(LIDS)))
+    truth[:, 2] = np.clip(np.sin(np.arange(n) / 15.0), 0, 1) * 0.8  # looks down
+    truth[rng.random(n) < 0.05, 0] = 1.0  # blinks
+    gap = 1.0 - truth[:, 0] * 0.6 + per_look_down * truth[:, 2] + rng.normal(0, 0.01, n)
+    solved = truth.copy()
+    solved[:, 0], solved[:, 1] = lids_from_gap(gap)
+    return truth, solved
+
+
+def test_the_lids_are_read_against_the_gaze_so_a_look_down_is_not_a_blink():
+    """``lids_against_gaze`` takes back what a look down closes of the lid gap: the solve's half blink while the
+    eye looks down goes, a real blink stays shut; the slope is fitted from tuning frames without a blink;
+    0 (or an eye without its look-down shape) leaves the lids as solved; ``fuse`` reads them so with the table's
+    ``lid_gaze``."""
+    rng = np.random.default_rng(3)
+    truth, solved = _looking_down_take(rng, 600, -0.5)
+    np.testing.assert_allclose(gap_from_lids(*lids_from_gap(np.linspace(0.45, 1.45, 50))), np.linspace(0.45, 1.45, 50))
+    slope = fit_lid_gaze(truth, solved, LIDS)
+    assert slope == pytest.approx(-0.5, abs=0.02)
+    looking, blinking = (truth[:, 2] > 0.5) & (truth[:, 0] == 0), truth[:, 0] == 1
+    assert solved[looking, 0].mean() > 0.3  # the lid gap alone: a half blink
+    read = lids_against_gaze(solved, LIDS, slope)
+    assert np.abs(read[looking, 0]).max() < 0.06 and read[blinking & (truth[:, 2] == 0), 0].min() > 0.9
+    np.testing.assert_array_equal(read[:, 2:], solved[:, 2:])
+    np.testing.assert_array_equal(lids_against_gaze(solved, LIDS, 0.0), solved)
+    np.testing.assert_array_equal(lids_against_gaze(solved, ("eyeBlinkLeft", "eyeWideLeft", "x", "y", "z"), slope),
+                                  solved)
+    # fuse: the table's lid_gaze, the blink read from the solve alone (score gain 0)
+    table = FusionTable({"eyeBlinkLeft": 0.0}, {"eyeBlinkLeft": 1.0}, lid_gaze=slope)
+    scores = FaceScores(np.zeros((len(solved), 1)), ("eyeBlinkLeft",), np.array([0]))
+    fused, _ = fuse(solved, LIDS, scores, table=table)
+    np.testing.assert_allclose(fused[:, 0], read[:, 0])
+    assert fit_lid_gaze(truth, np.where(np.arange(len(LIDS)) == 2, 0.0, solved), LIDS) == 0.0  # never looks down
+
+
+def test_the_shipped_table_reads_the_lids_against_the_gaze(tmp_path):
+    """fusion_table.json carries the slope fitted on its tuning clips (a look down lowers the lid: negative), and a
+    table's slope round-trips; one outside [-1, 0] is refused."""
+    t = FusionTable.load()
+    assert -1.0 <= t.lid_gaze < -0.1
+    t.save(tmp_path / "t.json")
+    assert FusionTable.load(tmp_path / "t.json").lid_gaze == pytest.approx(t.lid_gaze, abs=1e-4)
+    text = (tmp_path / "t.json").read_text().replace(f'"lid_gaze": {round(t.lid_gaze, 4)}', '"lid_gaze": 0.5')
+    (tmp_path / "bad.json").write_text(text)
+    with pytest.raises(FacecapError, match="lid_gaze must be from -1 to 0"):
+        FusionTable.load(tmp_path / "bad.json")
 
 
 def test_the_shipped_map_covers_the_table_and_was_fitted_on_tuning_clips_only():
