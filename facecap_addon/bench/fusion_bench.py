@@ -63,7 +63,7 @@ from .fusion_clips import (
     region_rmse,
     rom_fit,
 )
-from .fusion_fit import fit, fit_cross, fit_reference, smoothing_check
+from .fusion_fit import fit, fit_cross, fit_reference, lid_gaze_check, smoothing_check
 from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, shared_folder
 
 CHARACTER_SEED = 7
@@ -183,7 +183,8 @@ def prepare(clip, out, character, *, log=print):
     solved = out / f"{clip.name}.csv"
     config = out / f"{clip.name}.toml"
     config.write_text(f'[target]\nblend = "{character}"\nobject = "ICT"\n[source]\nvideo = "{video.name}"\n'
-                      f'[tracking]\nmethod = "landmarks"\nblendshapes = "ignore"\n[output]\nweights = "{solved.name}"\n',
+                      f'[tracking]\nmethod = "landmarks"\nblendshapes = "ignore"\n'
+                      f'[output]\nweights = "{solved.name}"\n',
                       encoding="utf-8")
     run_take(load_take_config(config), quiet=True)
     found = track_landmarks(video)
@@ -200,8 +201,9 @@ def prepare(clip, out, character, *, log=print):
 
 def evaluate(out, table, constant, role="report"):
     """{clip: {method: region table}} for the clips of ``role``: the landmark solve, the corrected scores, the
-    fusion per shape (the table alone), the fusion through the map, the latter with the performer's response from the ROM clip of the same face and camera (when it is
-    in ``out``) and a constant (the tuning clips' mean weights on every frame)."""
+    fusion per shape (the table alone), the fusion through the map, the latter with the performer's response from
+    the ROM clip of the same face and camera (when it is in ``out``) and a constant (the tuning clips' mean weights
+    on every frame)."""
     names = judged_names()
     rows = {}
     for clip in CLIPS:
@@ -253,8 +255,10 @@ def main(argv=None):
                         action="append",
                         help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
-    parser.add_argument("--fit", action="store_true", help="fit the fusion table and its map on the tuning clips and "
-                                                          "write them (solvers/video/fusion_table.json, fusion_map.npz)")
+    parser.add_argument("--fit", action="store_true",
+                        help="fit the lids' slope against the gaze, the fusion table and its map on the tuning clips, "
+                             "write them (solvers/video/fusion_table.json, fusion_map.npz) and compare the lids read "
+                             "with and without the slope there")
     parser.add_argument("--smoothing", action="store_true", help="compare the fused weights' smoothing widths on the "
                                                                 "tuning clips (how fusion.SMOOTHING_S was chosen)")
     parser.add_argument("--fit-rom", action="store_true", help="fit the table's ROM reference on the tuning faces' ROM "
@@ -278,6 +282,7 @@ def main(argv=None):
                         measured_on={**FusionTable.load().measured_on, **table.measured_on, **measured})
         table.save()
         cross.save(TABLE_FILE.with_name(MAP_FILE_NAME))
+        lid_gaze_check(out, table)
     else:
         table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1]
     if args.fit_rom:

@@ -19,16 +19,18 @@ from ...solvers.video.response import ScoreResponse
 from .fusion_clips import CLIPS, MAP_ROLES, ROM_SHEET, columns, jitter, judged_names, region_rmse, rom_fit
 
 
-def fit(out, *, log=print):
+def fit(out, *, lid_gaze=None, log=print):
     """Fit the fusion table on the tuning clips in ``out``: first the solve's lids against its gaze (``lid_gaze``, on
-    every tuning clip), then the per-shape gains (on the performances) with the lids so read; returns the table (not
-    saved) and the constant baseline."""
+    every tuning clip; or as given), then the per-shape gains (on the performances) with the lids so read; returns
+    the table (not saved) and the constant baseline."""
     names = judged_names()
     every = [c for c in CLIPS if c.role in MAP_ROLES]
     raw = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in every]
     truth, solved, _ = (np.concatenate(p) for p in zip(*raw))
-    lid_gaze = fit_lid_gaze(truth, solved, names)
-    log(f"lids against the gaze fitted on {len(every)} clips: a full look down closes {-lid_gaze:.3f} of the lid gap")
+    if lid_gaze is None:
+        lid_gaze = fit_lid_gaze(truth, solved, names)
+        log(f"lids against the gaze fitted on {len(every)} clips: a full look down closes {-lid_gaze:.3f} of the "
+            "lid gap")
     parts = [p for c, p in zip(every, tune_parts(raw, names, lid_gaze)) if c.role == "tune"]
     truth, solved, corrected = (np.concatenate(p) for p in zip(*parts))
     tuned = [c.name for c in every if c.role == "tune"]
@@ -77,6 +79,39 @@ def fit_cross(out, table, *, log=print):
     measured = {"map_clips": [c.name for c in clips], "map_ridge": lam, "map_ridge_cv": {f"{k:g}": v for k, v in
                                                                                           scores.items()}}
     return fit_map(list(parts.values()), names, lam), measured
+
+
+def lid_gaze_check(out, table, *, log=print):
+    """How reading the solve's lids against its gaze was chosen, on the tuning clips only: the table refitted without
+    it and with it (``table.lid_gaze``), each tuning identity's clips through a map fitted without that identity at
+    the table's ridge; the median visible and lids RMSE of its performances and of every tuning clip."""
+    names = judged_names()
+    lam = table.measured_on.get("map_ridge", 0.03)
+    clips = [c for c in CLIPS if c.role in MAP_ROLES]
+    raw = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in clips]
+    got = {}
+    for slope in (0.0, table.lid_gaze):
+        tab = fit(out, lid_gaze=slope, log=lambda _m: None)[0]
+        parts = dict(zip([c.name for c in clips], tune_parts(raw, names, slope)))
+        rows = {"performances": [], "every tuning clip": []}
+        for face in sorted({c.face for c in clips}):
+            held = replace(tab, map=fit_map([parts[c.name] for c in clips if c.face != face], names, lam))
+            for c in clips:
+                if c.face == face:
+                    truth, solved, corrected = parts[c.name]
+                    r = region_rmse(_map_only(held, solved, corrected, names), truth, names)
+                    rows["every tuning clip"].append(r)
+                    if c.role == "tune":
+                        rows["performances"].append(r)
+        got[slope] = rows
+    for kind in ("performances", "every tuning clip"):
+        (a, b) = (got[k][kind] for k in (0.0, table.lid_gaze))
+        med = lambda rows, key: float(np.median([r[key] for r in rows]))  # noqa: E731
+        peaks = [np.nanmin([r["blink_peak"] for r in rows]) for rows in (a, b)]
+        log(f"lids against the gaze, {kind} ({len(a)} clips, each identity left out): visible "
+            f"{med(a, 'visible'):.4f} -> {med(b, 'visible'):.4f}, lids {med(a, 'lids'):.4f} -> {med(b, 'lids'):.4f}"
+            + (f", worst blink peak {peaks[0]:.2f} -> {peaks[1]:.2f}" if kind == "performances" else ""))
+    return got
 
 
 def _map_only(table, solved, corrected, names):

@@ -29,8 +29,9 @@ MERGE_S, MIN_S = 0.15, 0.5
 PAD_S = 0.2
 #: The frames measured for a pose: this share of its hold, about its middle.
 MEASURED = 0.6
-#: The plateau fit's ramp grid: steps across the excursion at first, the finest step (frames), rounds at most.
-PLATEAU_GRID, PLATEAU_STEP, PLATEAU_ROUNDS = 60, 1.0 / 32, 6
+#: The plateau fit's pattern search: its first step (a share of the starting ramp's length), its last (frames), and
+#: the moves at most per step length.
+PLATEAU_START, PLATEAU_STEP, PLATEAU_CLIMB = 0.5, 1.0 / 32, 50
 
 
 @dataclass(frozen=True)
@@ -144,56 +145,56 @@ def _smoothstep(x):
     return x * x * (3.0 - 2.0 * x)
 
 
-def _ramp(t, ramp, rising):
-    """A smooth ramp over ``t`` from ``ramp[0]`` to ``ramp[1]``: 0 -> 1 when ``rising``, else 1 -> 0."""
-    x = _smoothstep((t - ramp[0]) / (ramp[1] - ramp[0]))
-    return x if rising else 1.0 - x
+def _ramp_sums(amp, t, ramps, rising):
+    """(p, q) per ramp (rows of ``ramps``: start, end): sum(r^2 - 1) and sum((r - 1) * amp) of the ramp r over
+    ``t`` (rising 0 -> 1, else falling 1 -> 0). A trapezoid whose rise ends before its fall starts is min(rise,
+    fall), so its sum of squares is ``len(t) + p_rise + p_fall`` and its product with ``amp`` is ``sum(amp) +
+    q_rise + q_fall``: every pair of a rise and a fall is scored from its two rows."""
+    x = _smoothstep((t[None] - ramps[:, :1]) / (ramps[:, 1:] - ramps[:, :1]))
+    r = x if rising else 1.0 - x
+    return (r * r - 1.0).sum(axis=1), (r - 1.0) @ amp
 
 
-def _best_ramp(amp, t, other, bounds, rising, step, around=None):
-    """The ramp (start, end), on a grid of ``step`` frames within ``bounds`` (or 9 x 9 steps ``around`` a ramp),
-    that best fits ``amp`` as A * ramp * ``other`` (A > 0 by least squares): the largest explained share
-    <m, amp>^2 / <m, m>. Ramps are at least a frame long; ties go to the first on the grid."""
-    lo, hi = bounds
-    if around is None:
-        s, e = np.meshgrid(np.arange(lo, hi + 0.5 * step, step), np.arange(lo, hi + 0.5 * step, step),
-                           indexing="ij")
-    else:
-        k = np.arange(-4, 5) * step
-        s, e = np.meshgrid(around[0] + k, around[1] + k, indexing="ij")
-    s, e = s.ravel(), e.ravel()
-    keep = (e - s >= 1.0) & (s >= lo) & (e <= hi)
-    s, e = s[keep], e[keep]
-    if s.size == 0:
-        return around
-    x = _smoothstep((t[None] - s[:, None]) / (e - s)[:, None])
-    m = (x if rising else 1.0 - x) * other[None]
-    mm, my = np.einsum("gt,gt->g", m, m), m @ amp
-    explained = np.where((mm > 0) & (my > 0), my * my / np.maximum(mm, 1e-300), -np.inf)
-    i = int(np.argmax(explained))
-    return float(s[i]), float(e[i])
+def _ramps(starts, ends, bounds):
+    """(G, 2) every (start, end) of ``starts`` x ``ends`` at least a frame long, within ``bounds``."""
+    s, e = (g.ravel() for g in np.meshgrid(starts, ends, indexing="ij"))
+    keep = (e - s >= 1.0) & (s >= bounds[0]) & (e <= bounds[1])
+    return np.stack([s[keep], e[keep]], axis=1)
 
 
-def _fit_ramp(amp, t, other, bounds, rising):
-    """``_best_ramp`` coarse to fine: ~``PLATEAU_GRID`` steps across ``bounds``, then each step a quarter of the
-    last about the best, down to ``PLATEAU_STEP`` frames."""
-    step = max(0.25, (bounds[1] - bounds[0]) / PLATEAU_GRID)
-    best = _best_ramp(amp, t, other, bounds, rising, step)
-    while best is not None and step > PLATEAU_STEP:
-        step /= 4.0
-        best = _best_ramp(amp, t, other, bounds, rising, step, around=best)
-    return best
+def _best_pair(amp, t, rises, falls):
+    """The (rise, fall) rows of the trapezoid A * min(rise, fall) (A > 0 by least squares; the rise ending before
+    the fall starts) that explains most of ``amp``: the largest <m, amp>^2 / <m, m>. None when no pair fits;
+    ties go to the first."""
+    if len(rises) == 0 or len(falls) == 0:
+        return None
+    p_r, q_r = _ramp_sums(amp, t, rises, True)
+    p_f, q_f = _ramp_sums(amp, t, falls, False)
+    n, total = float(len(t)), float(amp.sum())
+    best, where = -np.inf, None
+    for lo in range(0, len(rises), 256):  # a block of rises against every fall
+        num = total + q_r[lo:lo + 256, None] + q_f[None]
+        den = n + p_r[lo:lo + 256, None] + p_f[None]
+        ok = (rises[lo:lo + 256, 1:2] <= falls[None, :, 0]) & (num > 0) & (den > 0)
+        explained = np.where(ok, num * num / np.where(ok, den, 1.0), -np.inf)
+        i = int(np.argmax(explained))
+        if explained.flat[i] > best:
+            best, where = explained.flat[i], (lo + i // len(falls), i % len(falls))
+    return None if where is None else (rises[where[0]], falls[where[1]])
 
 
 def _plateau(amp):
     """(first, last) fractional indices of the held plateau of an excursion's amplitude curve ``amp``: the top of
     a trapezoid with smooth ramps, A * rise * fall, fitted by least squares to every frame (a threshold on a
-    subtle pose's noisy curve would cut it anywhere), started from the curve's half-maximum crossings.
+    subtle pose's noisy curve would cut it anywhere), from ramps about the curve's half-maximum crossings.
 
-    The ramps are searched on grids (each given the other, until neither moves), not by a local optimiser:
-    Levenberg-Marquardt here moved the hold by up to 7 frames when the curve changed in its 13th digit, or when
-    only its memory alignment did (its steps differ in the last bit), so a ROM's calibration was not
-    reproducible from run to run. A grid's best changes only on an exact tie."""
+    The fit is a pattern search on grids, not a local optimiser's steps: from the start, the best of 9 steps of
+    each of the four ramp ends (every rise against every fall) until none is better, then steps a quarter as long,
+    from ``PLATEAU_START`` of the start's ramp down to ``PLATEAU_STEP`` frames. It climbs to the optimum nearest
+    the crossings, not the global one: on a noisy curve that is often a ramp as long as the excursion. Levenberg-
+    Marquardt here moved the hold by up to 7 frames when the curve changed in its 13th digit, or when only its
+    memory alignment did (its steps differ in the last bit), so a ROM's calibration was not reproducible from run
+    to run; a grid's best changes only on an exact tie."""
     amp = np.asarray(amp, dtype=np.float64)
     n = len(amp)
     t = np.arange(n, dtype=np.float64)
@@ -202,20 +203,26 @@ def _plateau(amp):
     if top <= 0 or above.size == 0:
         return 0.0, float(n - 1)
     ramp = max(2.0, 0.1 * (above[-1] - above[0]))
-    rise = (above[0] - 0.5 * ramp, above[0] + 0.5 * ramp)
-    fall = (above[-1] - 0.5 * ramp, above[-1] + 0.5 * ramp)
-    lo, hi = -0.25 * n, 1.25 * (n - 1)  # a ramp may begin or end outside the excursion's frames
-    for _ in range(PLATEAU_ROUNDS):
-        new_rise = _fit_ramp(amp, t, _ramp(t, fall, False), (lo, fall[0]), True)
-        new_fall = None if new_rise is None else _fit_ramp(amp, t, _ramp(t, new_rise, True), (new_rise[1], hi),
-                                                           False)
-        if new_fall is None or (new_rise, new_fall) == (rise, fall):
-            break
-        rise, fall = new_rise, new_fall
-    first, last = rise[1], fall[0]
+    bounds = (-0.25 * n, 1.25 * (n - 1))  # a ramp may begin or end outside the excursion's frames
+    best = (np.array([above[0] - 0.5 * ramp, above[0] + 0.5 * ramp]),
+            np.array([above[-1] - 0.5 * ramp, above[-1] + 0.5 * ramp]))
+    if best[0][1] > best[1][0]:  # an excursion too short for a plateau
+        return float(above[0]), float(above[-1])
+    k = np.arange(-4, 5)
+    step = PLATEAU_START * ramp
+    while step > PLATEAU_STEP:
+        for _ in range(PLATEAU_CLIMB):
+            (rs, re), (fs, fe) = best
+            found = _best_pair(amp, t, _ramps(rs + k * step, re + k * step, bounds),
+                               _ramps(fs + k * step, fe + k * step, bounds))
+            if found is None or all(np.array_equal(a, b) for a, b in zip(found, best)):
+                break
+            best = found
+        step /= 4.0
+    first, last = float(best[0][1]), float(best[1][0])
     if not 0.0 <= first <= last <= n - 1:
         return float(above[0]), float(above[-1])
-    return float(first), float(last)
+    return first, last
 
 
 def _amplitude(deltas, level):
