@@ -59,10 +59,10 @@ class FusionTable:
     """Per shape (ARKit names) the gains of the corrected score (``score``) and of the landmark solve (``solve``);
     ``reference``: how the tuning faces' scores respond to a ROM sheet (a ``ScoreResponse``, or None),
     which a performer's ROM clip is calibrated against (``response.fit_response``); ``map``: the fusion map
-    (``CrossMap``, or None: per shape only), loaded from ``fusion_map.npz`` beside the table; ``lid_gaze``: the
-    share of the neutral lid gap a full look down closes in the landmark solve (negative; 0: the solve's lids as
-    they are), by which its blinks and wide eyes are read against its gaze before they are fused
-    (``lids_against_gaze``)."""
+    (``CrossMap``, or None: per shape only), loaded from ``fusion_map.npz`` beside the table; ``lid_gaze``: how
+    the landmark solve's lid gap (a share of its neutral gap) changes per unit of its eyeLookDown (negative: a look
+    down closes it; 0: the solve's lids as they are), by which its blinks and wide eyes are read against its gaze
+    before they are fused (``lids_against_gaze``)."""
 
     score: dict
     solve: dict
