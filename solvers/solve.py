@@ -16,7 +16,7 @@ from .pipeline import retarget
 from .strategies.options import StrategyInputs
 from .tuning.take import apply_version, retune_take
 from .video.flow_solve import retarget_flow_job
-from .video.fusion import SMOOTHING_S, fuse
+from .video.fusion import SMOOTHING_S, FusionTable, fuse
 from .video.reading import Job
 
 
@@ -127,11 +127,13 @@ def _take_fps(request):
 
 def _fused(result, scores):
     """``result`` with the blendshape scores combined into its weights (``video.fusion``)."""
-    weights, names = fuse(result.weights, result.shape_names, scores)
+    table = FusionTable.load()
+    weights, names = fuse(result.weights, result.shape_names, scores, table=table)
     if not names:
         return result
     fusion = {"shapes": list(names), "neutral_frames": int(len(scores.neutral)),
               "smoothing_s": round(SMOOTHING_S, 4) if scores.smoothing and scores.fps else 0.0,
+              "lids_against_gaze": round(table.lid_gaze, 4),
               "what": "the Face Landmarker's blendshape scores combined with the landmark solve (docs/video.md)"}
     return replace(result, weights=weights, info={**result.info, "fusion": fusion})
 

@@ -185,6 +185,7 @@ def test_a_four_section_config_retargets_the_footage_onto_another_person(rendere
     fused = report["strategy_info"]["fusion"]["shapes"]  # the bundle's scores combined with the solve
     assert "browInnerUp" in fused and "jawOpen" in fused and len(fused) >= 40
     assert report["strategy_info"]["fusion"]["smoothing_s"] == pytest.approx(1 / 30, abs=1e-4)  # [tracking] smoothing
+    assert report["strategy_info"]["fusion"]["lids_against_gaze"] < -0.1  # the table's slope, said
     solved = read_weights(folder / "solved.csv")
     truth = rendered["weights"]
     got = {n: solved.values[:, solved.names.index(n)] for n in face.shape_names if n in solved.names}
