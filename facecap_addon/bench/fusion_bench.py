@@ -25,7 +25,11 @@ The clips are kept apart by role (:data:`CLIPS`):
   the table, its gains kept);
 * **calibrate**: each reported face performing the sheet from each reported camera (another session): its
   response (``solvers/video/response.py``) is fitted on this clip alone and judged on that face and camera's
-  reported clips ("fused + ROM").
+  reported clips ("fused + ROM");
+* **follow**: each reported face following a guide (``GUIDE``: 8 s of a tuning recording, performed late and
+  imperfectly: :func:`follow_performance`) from each reported camera: the clip, with the guide's weights (not what
+  the face performed) as its truth, joins the map for that face and camera (``solvers/video/follow.py``), judged
+  on its reported clips ("fused + guide followed").
 
 Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip is rendered once).
 """
@@ -53,12 +57,14 @@ from ..render.face_footage import Shot, render_face_clip
 from .fusion_clips import (
     CLIPS,
     HOLD,
+    MAP_ROLES,
     ROM_FPS,
     ROM_ROLES,
     ROM_SHEET,
     ROM_TIMING,
     calibration_clip,
     columns,
+    follow_fit,
     judged_names,
     region_rmse,
     rom_fit,
@@ -153,6 +159,42 @@ def rom_performance(names, seed):
     return weights, head, gaze, {"performed": np.array(performed), "holds": holds, "given": given}
 
 
+#: How a performer follows a guide (:func:`follow_performance`): a reaction time (seconds), a slow wander of the
+#: timing about it (seconds, amplitude), each shape's amplitude against the guide's (a factor) and the frames the
+#: imitation is smoothed over (Gaussian sigma): what lag and imperfection the guide's placement must survive.
+FOLLOW_LAG_S, FOLLOW_WANDER_S, FOLLOW_GAIN, FOLLOW_SIGMA = (0.15, 0.35), 0.1, (0.8, 1.2), 1.0
+
+
+def follow_performance(recording, names, start, frames, seed, *, fps=30.0):
+    """A performer following ``frames`` of a Live Link Face ``recording`` from its frame ``start`` (the guide),
+    after :data:`HOLD` frames of a relaxed face: late by a reaction time with a slow wander, each shape (both sides
+    alike) at its own share of the guide's amplitude, smoothed a little (:data:`FOLLOW_LAG_S`...). Returns
+    (weights (F, K) on ``names``, head (F, 6), gaze (F, 2, 2), {"guide", "guide_names", "guide_fps", "lag_s"}): the
+    guide as a performer would be given it (its own weights, on time), beside what the face performed."""
+    from scipy.ndimage import gaussian_filter1d  # scipy: on first use (the other clips never smooth)
+
+    rng = np.random.default_rng(seed)
+    track = read_weights(recording)
+    step = max(1, int(round(track.fps / fps)))
+    guide = np.nan_to_num(track.values[start:start + step * frames:step])
+    lag = rng.uniform(*FOLLOW_LAG_S)
+    tail = int(np.ceil((FOLLOW_LAG_S[1] + FOLLOW_WANDER_S) * fps)) + 15
+    t = np.arange(frames + tail) / fps
+    when = t - lag - FOLLOW_WANDER_S * np.sin(2 * np.pi * rng.uniform(0.05, 0.12) * t + rng.uniform(0, 6.3))
+    gain = {}
+    performed = np.zeros((HOLD + frames + tail, len(names)))
+    for k, name in enumerate(names):
+        if name in track.names:
+            g = gain.setdefault(name.removesuffix("Left").removesuffix("Right"), rng.uniform(*FOLLOW_GAIN))
+            column = guide[:, track.names.index(name)]
+            performed[HOLD:, k] = np.clip(g * np.interp(when * fps, np.arange(frames), column, left=0.0, right=0.0),
+                                          0.0, 1.0)
+    performed[HOLD:] = gaussian_filter1d(performed[HOLD:], FOLLOW_SIGMA, axis=0, mode="nearest")
+    head, gaze = _head_and_gaze(performed, names, rng, fps)
+    return performed, head, gaze, {"guide": guide, "guide_names": np.array(track.names), "guide_fps": fps,
+                                   "lag_s": lag}
+
+
 def prepare(clip, out, character, *, log=print):
     """Render ``clip``, run its landmark take onto ``character`` (unfused) and cache what the fusion needs:
     ``<out>/<name>.npz`` with the truth, the solve, the blendshape scores and the take's neutral frames (a ROM
@@ -168,6 +210,10 @@ def prepare(clip, out, character, *, log=print):
         shot = Shot(distance=0.5, azimuth=clip.azimuth, fps=ROM_FPS)
     elif clip.role == "tune-random":
         weights, head, gaze = random_performance(names, clip.start, clip.frames)
+    elif clip.role == "follow":
+        seed = 70 + 2 * int(clip.face == "facecap") + int(clip.azimuth > 0)
+        weights, head, gaze, extra = follow_performance(shared / "realdata" / "llf" / clip.recording, names,
+                                                        clip.start, clip.frames, seed)
     else:
         recording = shared / "realdata" / (clip.recording if "/" in clip.recording else f"llf/{clip.recording}")
         weights, head, gaze = performance(recording, names, start=clip.start,
@@ -205,7 +251,7 @@ def evaluate(out, table, constant, role="report"):
     the ROM clip of the same face and camera (when it is in ``out``) and a constant (the tuning clips' mean weights
     on every frame)."""
     names = judged_names()
-    rows = {}
+    rows, follows = {}, {}
     for clip in CLIPS:
         if clip.role != role:
             continue
@@ -216,17 +262,37 @@ def evaluate(out, table, constant, role="report"):
                    "fused": (None, True, True)}
         if rom is not None and (out / f"{rom.name}.npz").is_file():
             methods["fused + ROM"] = (rom_fit(out, rom, table.reference).response, True, True)
+        guide = calibration_clip(clip, "follow")
+        performer = None
+        if guide is not None and (out / f"{guide.name}.npz").is_file():
+            performer = follows.setdefault(guide.name, follow_fit(out, guide, table)).performer
+            methods["fused + guide followed"] = (None, True, True)
         row = {"landmarks": region_rmse(solved, truth, names),
                "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names)}
         for method, (response, cross, smooth) in methods.items():
             fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
                             FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"],
-                                       response=response, fps=clip.fps, smoothing=smooth), table=table, cross=cross)
+                                       response=response, fps=clip.fps, smoothing=smooth,
+                                       performer=performer if method == "fused + guide followed" else None),
+                            table=table, cross=cross)
             row[method] = region_rmse(columns({**data, "solved": fused}, names)[1], truth, names)
-        row["constant"] = region_rmse(np.broadcast_to(constant, truth.shape), truth, names)
+        if constant is not None:
+            row["constant"] = region_rmse(np.broadcast_to(constant, truth.shape), truth, names)
         row["truth"] = region_rmse(truth, truth, names)  # its jitter: how rough a real performance is
         rows[clip.name] = row
     return rows
+
+
+def follow_check(out, table, log=print):
+    """Where each guide-following clip placed its guide against where the face performed it (:data:`HOLD` and the
+    reaction time: the frame the wander centres on)."""
+    for clip in CLIPS:
+        if clip.role != "follow" or not (out / f"{clip.name}.npz").is_file():
+            continue
+        fit = follow_fit(out, clip, table)
+        lag = float(np.load(out / f"{clip.name}.npz")["lag_s"])
+        log(f"{clip.name}: {fit.summary}; performed from frame {HOLD + 1} with a reaction time of {lag:.2f} s "
+            f"({HOLD + lag * clip.fps:.1f} frames in)")
 
 
 def speed(video, log=print):
@@ -251,7 +317,8 @@ def speed(video, log=print):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
-    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate", "tune-random", "report-others"),
+    parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate", "tune-random", "report-others",
+                                           "follow"),
                         action="append",
                         help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
@@ -283,8 +350,10 @@ def main(argv=None):
         table.save()
         cross.save(TABLE_FILE.with_name(MAP_FILE_NAME))
         lid_gaze_check(out, table)
-    else:
-        table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1]
+    else:  # the constant baseline needs the tuning clips; without them in ``out`` its row is left out
+        tuning = [c for c in CLIPS if c.role in MAP_ROLES]
+        have = all((out / f"{c.name}.npz").is_file() for c in tuning)
+        table, constant = FusionTable.load(), fit(out, log=lambda _m: None)[1] if have else None
     if args.fit_rom:
         reference, rom_clips = fit_reference(out)
         measured = {**table.measured_on, "rom_clips": rom_clips,
@@ -299,6 +368,7 @@ def main(argv=None):
     if all((out / f"{c.name}.npz").is_file() for c in others):
         print(f"\nOther performers ({', '.join(sorted({c.recording for c in others}))}): the same faces and cameras")
         print_tables(evaluate(out, table, constant, role="report-others"))
+    follow_check(out, table)
     videos = sorted(out.glob("report-*.mp4"))
     if videos and args.speed:
         speed(videos[0])

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from ...solvers.rom import sequence_poses
-from ...solvers.video.fusion import neutral_corrected
+from ...solvers.video.follow import fit_follow
+from ...solvers.video.fusion import FaceScores, neutral_corrected
 from ...solvers.video.response import fit_response
 from ..render.face_footage import Shot
 from .landmark_bench import REGIONS
@@ -58,6 +59,9 @@ class Clip:
 #: recording's busiest stretch is reported (role report-others).
 TUNING_OTHER = ("edge-cases/llf_jmtechart_MySlate_3.csv", 0, 160)
 OTHERS = (("edge-cases/llf_sentien_recording.csv", 800, 240),)
+#: The guide the reported faces follow (role "follow", ``solvers/video/follow.py``): the busiest 8 s of Alex's
+#: ``llf_alex_rom_3`` outside the tuning windows (39 shapes above 0.3; chosen by that count alone).
+GUIDE = ("llf_alex_rom_3.csv", 3540, 240)
 
 CLIPS = tuple(
     [Clip("tune", f"ict-{seed}", "llf_alex_rom_3.csv", start, az)
@@ -73,7 +77,9 @@ CLIPS = tuple(
     + [Clip("tune-random", f"ict-{seed}", "random", 80 + seed + draw, az)
        for seed in (21, 22) for draw in (0, 10) for az in (0.0, 30.0)]
     + [Clip("report-others", face, recording, start, az, frames=frames)
-       for face in ("ict-mean", "facecap") for recording, start, frames in OTHERS for az in (0.0, 30.0)])
+       for face in ("ict-mean", "facecap") for recording, start, frames in OTHERS for az in (0.0, 30.0)]
+    + [Clip("follow", face, GUIDE[0], GUIDE[1], az, frames=GUIDE[2]) for face in ("ict-mean", "facecap")
+       for az in (0.0, 30.0)])
 #: The roles the fusion map is fitted on: the tuning faces' performances, ROM sessions and random activations.
 MAP_ROLES = ("tune", "tune-rom", "tune-random")
 def columns(data, names):
@@ -139,9 +145,18 @@ def rom_fit(out, clip, reference=None):
                         sequence_poses(ROM_SHEET), fps=ROM_FPS, reference=reference, sheet=ROM_SHEET)
 
 
-def calibration_clip(clip):
-    """The ROM clip (role "calibrate") of the reported ``clip``'s face and camera, or None."""
+def calibration_clip(clip, role="calibrate"):
+    """The ROM clip (role "calibrate", or the guide followed: "follow") of the reported ``clip``'s face and camera,
+    or None."""
     for c in CLIPS:
-        if c.role == "calibrate" and c.face == clip.face and c.azimuth == clip.azimuth:
+        if c.role == role and c.face == clip.face and c.azimuth == clip.azimuth:
             return c
     return None
+
+
+def follow_fit(out, clip, table):
+    """The FollowFit of the cached clip ``clip`` (role "follow") into ``table``'s map (``follow.fit_follow``)."""
+    data = dict(np.load(out / f"{clip.name}.npz"))
+    scores = FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"], fps=clip.fps)
+    return fit_follow(data["guide"], [str(n) for n in data["guide_names"]], float(data["guide_fps"]), data["solved"],
+                      tuple(str(n) for n in data["solved_names"]), scores, table=table, guide_label=clip.recording)

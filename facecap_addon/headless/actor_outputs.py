@@ -22,18 +22,19 @@ def write_actor_basis(config, result, outputs):
     outputs["actor_basis"] = str(config.output_actor_basis)
 
 
-def write_profile(config, result, outputs, response=None):
+def write_profile(config, result, outputs, response=None, performer=None):
     """``[output] profile``: the semantic solve's measured shapes of the actor and/or (a landmark take with a ROM on
-    camera) the blendshape scores' ``response`` (the config check makes sure there is one or the other; a solve
-    that measured nothing, without a response, is refused here too)."""
+    camera) the blendshape scores' ``response`` and/or (a guide followed) the ``performer``'s clip in the fusion
+    map (the config check makes sure there is one or the other; a solve that measured nothing, without a response
+    or a guide, is refused here too)."""
     model = getattr(result.fitted, "model", None)
     profile = None if model is None else profile_of(model)
-    if profile is None and response is None:
+    if profile is None and response is None and performer is None:
         raise ConfigError("a performer profile holds measured calibration poses: give [calibration] poses (and "
                           "markers, or frames of this take) with the semantic strategy", path=config.path,
                           key="output.profile")
     config.output_profile.parent.mkdir(parents=True, exist_ok=True)
-    save_profile(config.output_profile, basis=profile, response=response)
+    save_profile(config.output_profile, basis=profile, response=response, performer=performer)
     outputs["profile"] = str(config.output_profile)
 
 

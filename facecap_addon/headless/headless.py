@@ -38,7 +38,7 @@ from . import console
 from .actor_outputs import store_retune, versions_folder, write_actor_basis, write_profile
 from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_blend_atomic, stamp_target,
                           start_blender, target_changed)
-from .landmark_take import hold_gaze, read_landmarks, score_response, with_scores
+from .landmark_take import follow_clip, landmark_request, performer_of, read_landmarks, score_response
 from ..render.review import read_review_truth, write_take_review
 from .take_request import corrections_for, rig_request, shape_names, source_fields, with_driven_keys
 
@@ -118,7 +118,9 @@ def _run_locked(config, base, *, say, t0, truth, quiet, tune, characters, review
     if config.output_actor_basis is not None:
         write_actor_basis(config, result, outputs)
     if config.output_profile is not None:
-        write_profile(config, result, outputs, response=take.response if config.video_rom is not None else None)
+        measured = config.video_rom is not None  # a ROM on camera or a guide followed, not a profile read back
+        write_profile(config, result, outputs, response=take.response if measured else None,
+                      performer=take.performer if measured else None)
     rom = result.info.get("rom")
     if rom:
         say(f"ROM: {rom['summary']}")
@@ -209,6 +211,8 @@ class _Take:
     repeats: tuple = ()  # solve notes that only repeat the notes above
     landmarks: object = None  # LandmarkResult of a landmark take (pixels: the gaze)
     response: object = None  # the blendshape scores' response of a landmark take (ROM on camera, profile)
+    follow: object = None  # LandmarkResult of the clip that follows [calibration] guide (fitted with the character)
+    performer: object = None  # the performer's clip in the fusion map (a guide followed, or [actor] profile's)
 
     def fps(self):
         if self.markers is not None:
@@ -275,7 +279,8 @@ def read_take(config, say, *, quiet=True):
         if report is not None:
             source["score_response"] = report
         return _Take(markers=markers, inputs=inputs, source=source, notes=notes + tuple(more), landmarks=found,
-                     response=response)
+                     response=response, follow=follow_clip(config, found, say, quiet=quiet),
+                     performer=performer_of(config, source))
     if config.video is not None:
         say(f"[1/5] reading footage {config.video.path}")
         footage = Footage(config.video.path, **config.video.footage)
@@ -381,10 +386,10 @@ def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False
                            footage=take.footage, flow=getattr(config.video, "flow", None), version=version,
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
-    if take.landmarks is not None:  # the eyes' look from the irises, held through the solve
-        request, note = hold_gaze(request, shape_names(character), take.landmarks)
+    if take.landmarks is not None:  # the eyes' look from the irises held through the solve, the scores fused
+        say = (lambda _m: None) if quiet else progress_line
+        request, note = landmark_request(config, request, take, shape_names(character), say)
         take.notes = tuple(take.notes) + ((note,) if note else ())
-        request = with_scores(request, take.landmarks, config.video, take.response)
     fields = source_fields(config, take)
     if bound is not None:
         fields["binding"] = bound.report()

@@ -269,7 +269,7 @@ def _check_profile_output(path, data, strategy, rom_on_camera=None):
     if strategy != "semantic" or not ("poses" in cal or "sequence" in cal or "basis" in cal or "profile" in actor):
         raise ConfigError("a performer profile holds the actor's measured shapes: give [calibration] sequence (a ROM "
                           "session) or poses (with markers, or frames of this take) and the semantic strategy; for a "
-                          "landmark take, [calibration] video (the ROM on camera) and sequence",
+                          "landmark take, [calibration] video (the ROM on camera) and sequence, or guide",
                           path=path, key="output.profile")
 
 

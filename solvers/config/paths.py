@@ -56,6 +56,8 @@ def take_inputs(config):
     rom = getattr(config, "video_rom", None)
     if rom is not None and rom.path is not None:
         found["[calibration.video]"] = Path(rom.path)
+    if rom is not None and rom.guide is not None:
+        found["[calibration.guide]"] = Path(rom.guide)
     tuning = getattr(config, "tuning", None)
     if tuning is not None:
         for key, value in (("[tuning.corrections]", tuning.corrections), ("[tuning.library]", tuning.library)):

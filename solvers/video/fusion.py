@@ -178,11 +178,20 @@ def fit_map(clips, names, lam):
     S = len(names)
     gram, moment = np.zeros((2 * S, 2 * S)), np.zeros((2 * S, S))
     for truth, solved, corrected in clips:
-        ok = np.isfinite(truth).all(axis=1)
-        X = np.nan_to_num(np.concatenate([corrected, solved], axis=1)[ok])
-        gram += X.T @ X / max(ok.sum(), 1)
-        moment += X.T @ truth[ok] / max(ok.sum(), 1)
+        g, m, _ = clip_equations(truth, np.concatenate([corrected, solved], axis=1))
+        gram += g
+        moment += m
     return CrossMap(tuple(names), gram, moment, lam * len(clips))
+
+
+def clip_equations(truth, inputs):
+    """One clip's share of the map's normal equations: (gram (2S, 2S), moment (2S, S), frames used) of its
+    ``inputs`` (F, 2S: the scores, then the solve; NaN counts as 0) against ``truth`` (F, S), the frames where the
+    truth is known, as means (each clip weighs the same whatever its length)."""
+    ok = np.isfinite(truth).all(axis=1)
+    X = np.nan_to_num(np.asarray(inputs, dtype=np.float64)[ok])
+    n = max(int(ok.sum()), 1)
+    return X.T @ X / n, X.T @ truth[ok] / n, int(ok.sum())
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,6 +208,7 @@ class FaceScores:
     response: object = None
     fps: float = None  # the take's frame rate: the fused weights are smoothed over time when it is known
     smoothing: bool = True  # ``[tracking] smoothing``: the detector's jitter filtered out of the fused weights too
+    performer: object = None  # the performer's clip in the map (``follow.PerformerMap``: a guide followed), if known
 
 
 def neutral_corrected(scores, neutral):
@@ -231,22 +241,14 @@ def fuse(weights, shape_names, scores, *, table=None, response=None, lower=0.0, 
     (weights (F, K), list of the fused shape names)
     """
     table = FusionTable.load() if table is None else table
-    solve = np.array(weights, dtype=np.float64)
-    w = solve.copy()
+    if scores.performer is not None:
+        table = scores.performer(table)
+    w = np.array(weights, dtype=np.float64)
     if len(scores.values) != len(w):
         raise FacecapError(f"the blendshape scores have {len(scores.values)} frames; the solve has {len(w)}")
-    corrected = neutral_corrected(scores.values, scores.neutral)
-    response = scores.response if response is None else response
-    if response is not None:
-        corrected = np.asarray(response(corrected, tuple(scores.names)), dtype=np.float64)
-    column = {n: j for j, n in enumerate(scores.names)}
+    corrected, column, solve, arkit = _prepared(w, shape_names, scores, table, response)
     lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (w.shape[1],))
     hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (w.shape[1],))
-    arkit = []  # the character's shapes' ARKit names, through the alias tables (None: not one ARKit shape)
-    for name in shape_names:
-        names = canonical_names(name)
-        arkit.append(names[0] if len(names) == 1 else None)
-    solve = lids_against_gaze(solve, arkit, table.lid_gaze)
     mapped = {}
     if cross and table.map is not None and any(n in column for n in table.map.names):
         mapped = _through_map(table, corrected, column, solve, arkit)
@@ -302,6 +304,45 @@ def smooth_runs(values, seen, sigma):
     first, last = starts[run], np.r_[starts[1:], n][run] - 1
     rows = np.arange(n)
     return sum(k * values[np.clip(rows + offset, first, last)] for offset, k in zip(range(-half, half + 1), kernel))
+
+
+def _prepared(weights, shape_names, scores, table, response=None):
+    """What the fusion reads of a take: (the corrected scores (F, S) read through the performer's response, {score
+    name: column}, the solve (F, K) with its lids read against its gaze, the ARKit name of each of ``shape_names``
+    (None: not one ARKit shape))."""
+    corrected = neutral_corrected(scores.values, scores.neutral)
+    response = scores.response if response is None else response
+    if response is not None:
+        corrected = np.asarray(response(corrected, tuple(scores.names)), dtype=np.float64)
+    column = {n: j for j, n in enumerate(scores.names)}
+    arkit = []  # the character's shapes' ARKit names, through the alias tables (None: not one ARKit shape)
+    for name in shape_names:
+        names = canonical_names(name)
+        arkit.append(names[0] if len(names) == 1 else None)
+    solve = lids_against_gaze(np.array(weights, dtype=np.float64), arkit, table.lid_gaze)
+    return corrected, column, solve, arkit
+
+
+def map_inputs(table, scores, weights, shape_names):
+    """(inputs (n, 2S), frames (F,) bools): the map's inputs (``table.map.names``: the scores, then the solve; 0 for
+    one the take lacks) at the ``n`` frames with a face, of the solve ``weights`` (F, K) on ``shape_names`` and the
+    take's ``scores`` (FaceScores), prepared as :func:`fuse` prepares them: what a performer's clip adds to the map
+    (``follow.py``)."""
+    corrected, column, solve, arkit = _prepared(weights, shape_names, scores, table)
+    names = table.map.names
+    solve_of = {}
+    for k, n in enumerate(arkit):
+        solve_of.setdefault(n, k)
+    S = len(names)
+    X = np.zeros((len(solve), 2 * S))
+    for j, n in enumerate(names):
+        if n in column:
+            X[:, j] = corrected[:, column[n]]
+        if n in solve_of:
+            X[:, S + j] = np.nan_to_num(solve[:, solve_of[n]])
+    scored = [column[n] for n in names if n in column]
+    seen = np.isfinite(corrected[:, scored]).all(axis=1)
+    return X[seen], seen
 
 
 def _through_map(table, corrected, column, solve, arkit):

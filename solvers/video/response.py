@@ -40,6 +40,8 @@ from ..io.files import atomic_path
 from ..rom.holds import find_holds, half_window
 from ..rom.matching import Alignment, align_holds
 from ..rom.session import given_spans
+from .follow import PROFILE_KEYS as PERFORMER_KEYS
+from .follow import PerformerMap
 from .fusion import neutral_corrected
 from .score_response import PROFILE_KEYS, ScoreResponse
 
@@ -315,12 +317,15 @@ def _robust_line(x, y, w):
     return gain, float(np.clip(offset, -MAX_OFFSET, MAX_OFFSET))
 
 
-def save_profile(path, *, basis=None, response=None):
+def save_profile(path, *, basis=None, response=None, performer=None):
     """Write a performer profile (.npz, atomically): the actor's measured shapes (``basis``, a Basis: what
-    ``Basis.save_npz`` writes) and/or the blendshape scores' ``response`` (a ScoreResponse)."""
-    if basis is None and response is None:
-        raise FacecapError("a performer profile needs measured shapes or a score response")
+    ``Basis.save_npz`` writes), the blendshape scores' ``response`` (a ScoreResponse) and/or the performer's clip in
+    the fusion map (``performer``, a ``follow.PerformerMap``: a guide followed)."""
+    if basis is None and response is None and performer is None:
+        raise FacecapError("a performer profile needs measured shapes, a score response or a guide followed")
     arrays = {} if response is None else response.to_arrays()
+    if performer is not None:
+        arrays.update(performer.to_arrays())
     if basis is not None:
         arrays.update(shape_names=np.array(basis.shape_names), marker_names=np.array(basis.marker_names),
                       neutral=basis.neutral, deltas=basis.deltas, lower=basis.lower, upper=basis.upper)
@@ -330,16 +335,31 @@ def save_profile(path, *, basis=None, response=None):
 
 def profile_contents(path):
     """(has measured shapes, the ScoreResponse or None) of the performer profile ``path``; InputFileError naming
-    the file when it is not one."""
+    the file when it is not one (``profile_performer`` reads a guide's clip it holds)."""
+    shapes, response, _ = _profile(path)
+    return shapes, response
+
+
+def profile_performer(path):
+    """The performer's clip in the fusion map (``follow.PerformerMap``: a guide followed) the profile ``path`` holds,
+    or None."""
+    return _profile(path)[2]
+
+
+def _profile(path):
     try:
         with np.load(path, allow_pickle=False) as z:
             keys = set(z.files)
             response = ScoreResponse.from_arrays({k: z[k] for k in PROFILE_KEYS if k in keys}, where=str(path))
+            performer = PerformerMap.from_arrays({k: z[k] for k in PERFORMER_KEYS if k in keys}, where=str(path))
     except FileNotFoundError:
         raise InputFileError(path, "file not found") from None
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise InputFileError(path, f"not a performer profile (.npz written by facecap): {exc}") from None
+    except FacecapError as exc:
+        raise InputFileError(path, str(exc).removeprefix(f"{path}: ")) from None
     shapes = {"shape_names", "marker_names", "deltas"} <= keys
-    if not shapes and response is None:
-        raise InputFileError(path, "not a performer profile: it holds neither measured shapes nor a score response")
-    return shapes, response
+    if not shapes and response is None and performer is None:
+        raise InputFileError(path, "not a performer profile: it holds neither measured shapes, a score response nor "
+                                   "a guide followed")
+    return shapes, response, performer

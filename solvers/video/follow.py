@@ -1,0 +1,230 @@
+"""Calibration by following a guide: the performer, filmed with the camera of the takes to come, imitates a
+performance whose ARKit weights are known (the guide: any ARKit weights file, shown to them as it plays), and
+the clip's frames, with the guide's weights as their truth, join the fusion map's tuning clips for this performer
+and camera (``fusion.CrossMap``).
+
+Why the map and not a gain per score (``response.py``): what is left after the fusion is cross-talk between
+shapes in mixtures (a lower lip read with the jaw, a frown with a stretch), which a gain per score cannot undo and
+a ROM's isolated poses do not show; a performance followed has the mixtures of a performance. Nothing is fitted
+that the map does not already fit: the performer's clip adds its normal equations, weighing as one more tuning
+clip (``FOLLOW_CLIPS``), so shapes the guide barely moves stay as the tuning clips read them.
+
+The guide is placed in the clip by the weights the uncalibrated fusion reads: the frame offset where they
+correlate best with the guide's (the performer's reaction time is part of it), over every placement that
+overlaps the guide by ``MIN_OVERLAP`` of its length.
+"""
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..character.aliases import canonical_names
+from ..errors import FacecapError
+from .fusion import CrossMap, FusionTable, clip_equations, fuse, map_inputs
+
+#: How many tuning clips the performer's clip weighs as: one, as each tuning clip does (not tuned: every clip of
+#: the map weighs the same, and the reported clips were never used to choose it).
+FOLLOW_CLIPS = 1.0
+#: The share of the guide that must be in the clip at a placement, and the least correlation (mean over the
+#: guide's moving shapes) that says the performer followed it.
+MIN_OVERLAP, MIN_CORRELATION = 0.8, 0.3
+#: A guide shape counts in the placement when it moves at least this much (its standard deviation).
+MOVING = 0.03
+#: What a performer profile keeps of a performer's map.
+PROFILE_KEYS = ("performer_names", "performer_gram", "performer_moment", "performer_ridge", "performer_clips",
+                "performer_guide")
+
+
+def resample(values, fps_from, fps_to, frames=None):
+    """``values`` (G, S) at ``fps_from`` on the frame grid of ``fps_to`` (linear in time; NaN stays out of the
+    interpolation of its column), ``frames`` long (default: as long as the guide lasts)."""
+    values = np.asarray(values, dtype=np.float64)
+    t_from = np.arange(len(values)) / float(fps_from)
+    n = int(np.floor(t_from[-1] * fps_to + 1e-9)) + 1 if frames is None else int(frames)
+    t_to = np.arange(n) / float(fps_to)
+    out = np.full((n, values.shape[1]), np.nan)
+    for j in range(values.shape[1]):
+        ok = np.isfinite(values[:, j])
+        if ok.sum() >= 2:
+            out[:, j] = np.interp(t_to, t_from[ok], values[ok, j], left=np.nan, right=np.nan)
+    return out
+
+
+def find_offset(guide, read, *, min_overlap=MIN_OVERLAP):
+    """(offset, correlation): the clip frame (index) where the guide's first frame is performed, and the mean
+    Pearson correlation over the guide's moving shapes there, of ``guide`` (G, S) and what the clip ``read`` (F, S)
+    (same columns and frame rate; NaN frames left out). Every offset with at least ``min_overlap`` of the guide in
+    the clip is tried (the guide may start before the clip or run past its end); the best wins."""
+    guide, read = np.asarray(guide, dtype=np.float64), np.asarray(read, dtype=np.float64)
+    G, F = len(guide), len(read)
+    moving = np.nanstd(guide, axis=0) >= MOVING
+    if not moving.any():
+        raise FacecapError(f"the guide moves no shape by {MOVING} or more: nothing to follow")
+    guide, read = guide[:, moving], read[:, moving]
+    need = max(2, int(np.ceil(min_overlap * G)))
+    if need > F:
+        raise FacecapError(f"the clip has {F} frames and the guide {G}: film at least {need} frames of it")
+    best = (None, -np.inf)
+    for offset in range(need - G, F - need + 1):
+        g0, g1 = max(0, -offset), min(G, F - offset)
+        a, b = guide[g0:g1], read[g0 + offset:g1 + offset]
+        ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+        if ok.sum() < need // 2:
+            continue
+        a, b = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
+        den = np.sqrt((a * a).sum(axis=0) * (b * b).sum(axis=0))
+        r = float(np.mean(np.where(den > 0, (a * b).sum(axis=0) / np.where(den > 0, den, 1.0), 0.0)))
+        if r > best[1]:
+            best = (offset, r)
+    if best[0] is None:
+        raise FacecapError("the clip has no stretch of frames with a face as long as the guide")
+    return best
+
+
+@dataclass(frozen=True, eq=False)
+class PerformerMap:
+    """A performer's clip for the fusion map: its normal equations (``gram`` (2S, 2S), ``moment`` (2S, S) on the map's
+    ``names``, as ``fusion.fit_map`` keeps a tuning clip's), the ``ridge`` it adds (one clip's) and how many tuning
+    clips it weighs as (``clips``); ``guide`` says what it was measured with."""
+
+    names: tuple
+    gram: np.ndarray
+    moment: np.ndarray
+    ridge: float
+    clips: float = FOLLOW_CLIPS
+    guide: str = ""
+
+    def __post_init__(self):
+        S = len(self.names)
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+        gram, moment = np.asarray(self.gram, np.float64), np.asarray(self.moment, np.float64)
+        if gram.shape != (2 * S, 2 * S) or moment.shape != (2 * S, S):
+            raise FacecapError(f"a performer's map of {S} shapes needs a ({2 * S}, {2 * S}) gram and a "
+                               f"({2 * S}, {S}) moment; got {gram.shape} and {moment.shape}")
+        if not (np.isfinite(gram).all() and np.isfinite(moment).all()) or not self.ridge >= 0 or not self.clips > 0:
+            raise FacecapError("a performer's map needs finite equations, a ridge >= 0 and a positive weight")
+        object.__setattr__(self, "gram", gram)
+        object.__setattr__(self, "moment", moment)
+
+    def __call__(self, table):
+        """``table`` (FusionTable) with this performer's clip in its map (the map's names matched by name: a
+        shape the performer's clip lacks adds nothing there)."""
+        if table.map is None:
+            raise FacecapError("the fusion table has no map to add the performer's clip to")
+        names = table.map.names
+        mine = {n: j for j, n in enumerate(self.names)}
+        pick = np.array([mine.get(n, -1) for n in names])
+        have = pick >= 0
+        rows = np.r_[pick, np.where(have, pick + len(self.names), -1)]
+        inputs = rows >= 0
+        gram = np.zeros_like(table.map.gram)
+        gram[np.ix_(inputs, inputs)] = self.gram[np.ix_(rows[inputs], rows[inputs])]
+        moment = np.zeros_like(table.map.moment)
+        moment[np.ix_(inputs, have)] = self.moment[np.ix_(rows[inputs], pick[have])]
+        w = self.clips
+        return replace(table, map=CrossMap(names, table.map.gram + w * gram, table.map.moment + w * moment,
+                                           table.map.ridge + w * self.ridge))
+
+    def to_arrays(self):
+        """{key: array} for a performer profile (:data:`PROFILE_KEYS`)."""
+        return {"performer_names": np.array(self.names, dtype=str), "performer_gram": self.gram,
+                "performer_moment": self.moment, "performer_ridge": np.float64(self.ridge),
+                "performer_clips": np.float64(self.clips), "performer_guide": np.array(self.guide)}
+
+    @classmethod
+    def from_arrays(cls, data, *, where="the performer profile"):
+        """The map saved by ``to_arrays`` in ``data`` (a mapping), or None when it holds none."""
+        if "performer_gram" not in data:
+            return None
+        try:
+            return cls(tuple(str(n) for n in data["performer_names"]), data["performer_gram"],
+                       data["performer_moment"], float(data["performer_ridge"]), float(data["performer_clips"]),
+                       str(data["performer_guide"]) if "performer_guide" in data else "")
+        except (KeyError, ValueError, TypeError, FacecapError) as exc:
+            raise FacecapError(f"{where}: its performer's map is damaged ({exc})") from None
+
+
+@dataclass(frozen=True)
+class FollowFit:
+    """What following a guide measured: the performer's map, where the guide was found (``offset``: the clip
+    frame index of its first frame), how well the clip followed it (``correlation``) and the frames used."""
+
+    performer: PerformerMap
+    offset: int
+    correlation: float
+    frames: int
+    fps: float
+
+    @property
+    def summary(self):
+        return (f"the guide found from clip frame {self.offset + 1} ({self.offset / self.fps:+.2f} s; correlation "
+                f"{self.correlation:.2f}), {self.frames} frames in the fusion map as {self.performer.clips:g} tuning "
+                f"clip(s)")
+
+    def report(self):
+        return {"guide": self.performer.guide, "offset_frames": int(self.offset),
+                "correlation": round(self.correlation, 3), "frames": int(self.frames),
+                "weighs_as_clips": self.performer.clips, "summary": self.summary}
+
+
+def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, table=None, offset=None,
+               clips=FOLLOW_CLIPS, guide_label=""):
+    """The performer's map from a clip that follows a guide.
+
+    Parameters
+    ----------
+    guide : (G, S_g) the guide's ARKit weights at ``guide_fps``, columns ``guide_names``
+    solved : (F, K) the clip's landmark solve on ``shape_names`` (unfused)
+    scores : FaceScores of the clip (its blendshape scores, neutral frames and frame rate; no response)
+    table : FusionTable (default: the measured one), whose map the clip joins
+    offset : the clip frame index of the guide's first frame when known (else found: :func:`find_offset`)
+    """
+    table = FusionTable.load() if table is None else table
+    if table.map is None:
+        raise FacecapError("the fusion table has no map: following a guide calibrates the map")
+    if not scores.fps:
+        raise FacecapError("the clip's frame rate is unknown: the guide cannot be placed in it")
+    names = table.map.names
+    column = {n: j for j, n in enumerate(guide_names)}
+    missing = [n for n in names if n not in column]
+    if missing:
+        raise FacecapError(f"the guide lacks {len(missing)} of the ARKit shapes the fusion reads "
+                           f"({', '.join(missing[:6])}{', ...' if len(missing) > 6 else ''}): a guide names all 52 "
+                           "(a Live Link Face CSV does)")
+    truth = resample(np.asarray(guide, np.float64)[:, [column[n] for n in names]], guide_fps, scores.fps)
+    F = len(solved)
+    fused, _ = fuse(solved, shape_names, scores, table=table)
+    arkit = {n: k for k, n in reversed(list(enumerate(_arkit(shape_names))))}
+    read = np.full((F, len(names)), np.nan)
+    for j, n in enumerate(names):
+        if n in arkit:
+            read[:, j] = fused[:, arkit[n]]
+    if offset is None:
+        offset, r = find_offset(truth, read)
+        if r < MIN_CORRELATION:
+            raise FacecapError(f"the clip does not follow the guide: its best placement (clip frame {offset + 1}) "
+                               f"correlates {r:.2f} with it, below {MIN_CORRELATION}; is it the guide it was filmed "
+                               "with, at its speed?")
+    else:
+        offset, r = int(offset), float("nan")
+    aligned = np.full((F, len(names)), np.nan)
+    g0, g1 = max(0, -offset), min(len(truth), F - offset)
+    if g1 - g0 < 2:
+        raise FacecapError(f"the guide placed at clip frame {offset + 1} does not overlap the clip's {F} frames")
+    aligned[g0 + offset:g1 + offset] = truth[g0:g1]
+    X, seen = map_inputs(table, scores, solved, shape_names)
+    gram, moment, used = clip_equations(aligned[seen], X)
+    if used < 2:
+        raise FacecapError("no frame of the clip has both a face and the guide")
+    per_clip = table.map.ridge / max(len(table.measured_on.get("map_clips", ())), 1)
+    lam = float(table.measured_on.get("map_ridge", per_clip))
+    performer = PerformerMap(names, gram, moment, lam, clips, guide_label)
+    return FollowFit(performer, int(offset), float(r), int(used), float(scores.fps))
+
+
+def _arkit(shape_names):
+    out = []
+    for name in shape_names:
+        names = canonical_names(name)
+        out.append(names[0] if len(names) == 1 else None)
+    return out
