@@ -56,6 +56,7 @@ from ..headless.landmark_take import landmark_neutral
 from ..render.face_footage import Shot, render_face_clip
 from .fusion_clips import (
     CLIPS,
+    FOLLOW_ROLES,
     HOLD,
     MAP_ROLES,
     ROM_FPS,
@@ -65,11 +66,12 @@ from .fusion_clips import (
     calibration_clip,
     columns,
     follow_fit,
+    follow_seed,
     judged_names,
     region_rmse,
     rom_fit,
 )
-from .fusion_fit import fit, fit_cross, fit_reference, lid_gaze_check, smoothing_check
+from .fusion_fit import fit, fit_cross, fit_reference, follow_weight_check, lid_gaze_check, smoothing_check
 from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, shared_folder
 
 CHARACTER_SEED = 7
@@ -210,10 +212,9 @@ def prepare(clip, out, character, *, log=print):
         shot = Shot(distance=0.5, azimuth=clip.azimuth, fps=ROM_FPS)
     elif clip.role == "tune-random":
         weights, head, gaze = random_performance(names, clip.start, clip.frames)
-    elif clip.role == "follow":
-        seed = 70 + 2 * int(clip.face == "facecap") + int(clip.azimuth > 0)
+    elif clip.role in FOLLOW_ROLES:
         weights, head, gaze, extra = follow_performance(shared / "realdata" / "llf" / clip.recording, names,
-                                                        clip.start, clip.frames, seed)
+                                                        clip.start, clip.frames, follow_seed(clip))
     else:
         recording = shared / "realdata" / (clip.recording if "/" in clip.recording else f"llf/{clip.recording}")
         weights, head, gaze = performance(recording, names, start=clip.start,
@@ -239,7 +240,7 @@ def prepare(clip, out, character, *, log=print):
             "scores": found.blendshapes, "score_names": np.array(found.blendshape_names),
             "neutral": landmark_neutral(found), "render_s": t_render, **extra}
     np.savez(cached, **data)
-    if clip.role in ("tune", "tune-random"):
+    if clip.role in ("tune", "tune-random", "tune-follow"):
         video.unlink()  # the npz keeps what the fusion needs; a reported clip's video is kept for the speed
     log(f"{clip.name}: rendered in {t_render:.0f} s")
     return data
@@ -318,7 +319,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
     parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate", "tune-random", "report-others",
-                                           "follow"),
+                                           "follow", "tune-follow"),
                         action="append",
                         help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
@@ -330,6 +331,9 @@ def main(argv=None):
                                                                 "tuning clips (how fusion.SMOOTHING_S was chosen)")
     parser.add_argument("--fit-rom", action="store_true", help="fit the table's ROM reference on the tuning faces' ROM "
                                                               "clips (role tune-rom) and write it, the gains kept")
+    parser.add_argument("--follow-weight", action="store_true",
+                        help="compare what a clip following the guide weighs in the map, on the tuning faces (how "
+                             "follow.FOLLOW_SHARE was chosen)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -362,6 +366,8 @@ def main(argv=None):
         table.save()
     if args.smoothing:
         smoothing_check(out, table)
+    if args.follow_weight:
+        follow_weight_check(out, table)
     rows = evaluate(out, table, constant)
     print_tables(rows)
     others = [c for c in CLIPS if c.role == "report-others"]

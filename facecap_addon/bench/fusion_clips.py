@@ -79,7 +79,12 @@ CLIPS = tuple(
     + [Clip("report-others", face, recording, start, az, frames=frames)
        for face in ("ict-mean", "facecap") for recording, start, frames in OTHERS for az in (0.0, 30.0)]
     + [Clip("follow", face, GUIDE[0], GUIDE[1], az, frames=GUIDE[2]) for face in ("ict-mean", "facecap")
+       for az in (0.0, 30.0)]
+    + [Clip("tune-follow", f"ict-{seed}", GUIDE[0], GUIDE[1], az, frames=GUIDE[2]) for seed in (21, 22)
        for az in (0.0, 30.0)])
+#: The roles whose clips follow the guide: the reported faces' (judged) and the tuning faces' (how much such a clip
+#: weighs in the map is chosen on these: ``fusion_fit.follow_weight_check``).
+FOLLOW_ROLES = ("follow", "tune-follow")
 #: The roles the fusion map is fitted on: the tuning faces' performances, ROM sessions and random activations.
 MAP_ROLES = ("tune", "tune-rom", "tune-random")
 def columns(data, names):
@@ -154,9 +159,16 @@ def calibration_clip(clip, role="calibrate"):
     return None
 
 
-def follow_fit(out, clip, table):
+def follow_seed(clip):
+    """The seed of a guide-following clip's imperfections (its face and camera)."""
+    tuning = int(clip.face.split("-")[1]) if clip.role == "tune-follow" else 0
+    return 70 + 2 * int(clip.face == "facecap") + int(clip.azimuth > 0) + 10 * tuning
+
+
+def follow_fit(out, clip, table, clips=None):
     """The FollowFit of the cached clip ``clip`` (role "follow") into ``table``'s map (``follow.fit_follow``)."""
     data = dict(np.load(out / f"{clip.name}.npz"))
     scores = FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"], fps=clip.fps)
     return fit_follow(data["guide"], [str(n) for n in data["guide_names"]], float(data["guide_fps"]), data["solved"],
-                      tuple(str(n) for n in data["solved_names"]), scores, table=table, guide_label=clip.recording)
+                      tuple(str(n) for n in data["solved_names"]), scores, table=table, guide_label=clip.recording,
+                      clips=clips)

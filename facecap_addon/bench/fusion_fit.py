@@ -1,6 +1,7 @@
-"""The fits of the fusion benchmark (``fusion_bench --fit``, ``--fit-rom``, ``--smoothing``): the fusion table and
-its map on the tuning clips, the ROM reference on the tuning faces' ROM sessions, and the comparison the fused
-weights' smoothing was chosen by. Only tuning clips are read here (roles ``tune``, ``tune-rom``, ``tune-random``)."""
+"""The fits of the fusion benchmark (``fusion_bench --fit``, ``--fit-rom``, ``--smoothing``, ``--follow-weight``):
+the fusion table and its map on the tuning clips, the ROM reference on the tuning faces' ROM sessions, and the
+comparisons the fused weights' smoothing and a guide-following clip's weight were chosen by. Only tuning clips are
+read here (roles ``tune``, ``tune-rom``, ``tune-random``, ``tune-follow``)."""
 
 import warnings
 from dataclasses import replace
@@ -16,7 +17,8 @@ from ...solvers.video.fusion import (
     smooth_runs,
 )
 from ...solvers.video.response import ScoreResponse
-from .fusion_clips import CLIPS, MAP_ROLES, ROM_SHEET, columns, jitter, judged_names, region_rmse, rom_fit
+from .fusion_clips import (CLIPS, MAP_ROLES, ROM_SHEET, columns, follow_fit, jitter, judged_names, region_rmse,
+                           rom_fit)
 
 
 def fit(out, *, lid_gaze=None, log=print):
@@ -111,6 +113,56 @@ def lid_gaze_check(out, table, *, log=print):
         log(f"lids against the gaze, {kind} ({len(a)} clips, each identity left out): visible "
             f"{med(a, 'visible'):.4f} -> {med(b, 'visible'):.4f}, lids {med(a, 'lids'):.4f} -> {med(b, 'lids'):.4f}"
             + (f", worst blink peak {peaks[0]:.2f} -> {peaks[1]:.2f}" if kind == "performances" else ""))
+    return got
+
+
+#: The shares of the map's tuning clips a performer's guide-following clip may weigh (``--follow-weight``).
+FOLLOW_SHARES = (0.0, 1 / 24, 1 / 12, 1 / 6, 1 / 3, 2 / 3, 4 / 3)
+
+
+def follow_weight_check(out, table, *, log=print):
+    """How much a performer's clip that follows the guide weighs in the map (``follow.FOLLOW_SHARE``), chosen on the
+    tuning faces only: each tuning identity's clips through a map fitted without that identity (at the table's
+    ridge), with its own clip following the guide from the same camera (role tune-follow) at each share of
+    :data:`FOLLOW_SHARES` of the map's clips (0: none). Judged on the performances of the tuning performer the guide
+    is not from (``TUNING_OTHER``: Alex's own, from the guide's recording, favour any weight), the best median wins,
+    the smaller share on a tie to 3 decimals; the guide's performer, the ROM sessions and the random activations are
+    printed beside. Returns {share: {kind: (median, worst visible RMSE)}}."""
+    names = judged_names()
+    lam = table.measured_on.get("map_ridge", 0.03)
+    clips = [c for c in CLIPS if c.role in MAP_ROLES]
+    parts = dict(zip([c.name for c in clips], tune_parts([columns(dict(np.load(out / f"{c.name}.npz")), names)
+                                                          for c in clips], names, table.lid_gaze)))
+    guides = {(c.face, c.azimuth): c for c in CLIPS if c.role == "tune-follow"}
+    guide = next(iter(guides.values())).recording
+
+    def kind(c):
+        if c.role != "tune":
+            return c.role
+        return "the guide's performer" if c.recording == guide else "another performer"
+
+    got = {}
+    for share in FOLLOW_SHARES:
+        errs = {}
+        for face in sorted({c.face for c in clips}):
+            kept = [c.name for c in clips if c.face != face]
+            held = replace(table, map=fit_map([parts[n] for n in kept], names, lam),
+                           measured_on={**table.measured_on, "map_clips": kept})
+            for az in sorted({c.azimuth for c in clips}):
+                tab = held
+                if share > 0:
+                    tab = follow_fit(out, guides[face, az], held, clips=share * len(kept)).performer(held)
+                for c in clips:
+                    if c.face == face and c.azimuth == az:
+                        truth, solved, corrected = parts[c.name]
+                        errs.setdefault(kind(c), []).append(
+                            region_rmse(_map_only(tab, solved, corrected, names), truth, names)["visible"])
+        got[share] = {k: (round(float(np.median(v)), 3), round(float(np.max(v)), 3)) for k, v in errs.items()}
+        log(f"a guide followed at {share:.4g} of the map's clips (each tuning identity left out): "
+            + ", ".join(f"{k} {v[0]:.3f} (worst {v[1]:.3f})" for k, v in got[share].items()))
+    best = min(v["another performer"][0] for v in got.values())
+    chosen = min(k for k, v in got.items() if v["another performer"][0] == best)
+    log(f"chosen {chosen:.4g}: the best median on another performer's performances, the smallest share on a tie")
     return got
 
 

@@ -20,7 +20,7 @@ from ...solvers.errors import FacecapError
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve, solve_job
 from ...solvers.video.fusion import FaceScores
-from ...solvers.video.response import profile_contents
+from ...solvers.video.response import profile_contents, profile_performer
 from ...solvers.video.reading import Cancelled
 from ..headless.landmark_take import neutral_indices
 from . import anim, layers, take
@@ -71,21 +71,23 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
 def landmark_scores(settings, markers, rsettings):
     """The Face Landmarker's blendshape scores a landmark take keeps on its collection (``store_scores``), with
     the take's neutral frames (given or detected as the solve detects them) and the response of the Solve
-    panel's performer profile, if it holds one (a ROM on camera): FaceScores, or None."""
+    panel's performer profile, if it holds one (a ROM on camera), and its clip in the fusion map (a guide
+    followed): FaceScores, or None."""
     found = scores_from_collection(settings.marker_collection, markers.frames)
     if found is None:
         return None
     neutral = neutral_indices(rsettings, markers)
     if neutral is None or not len(neutral):
         return None
-    response = None  # the performer's response on this camera, when the Solve panel's profile holds one
+    response = performer = None  # the performer on this camera, when the Solve panel's profile measured them
     if settings.actor_profile:
         import bpy  # bpy: the sidebar's paths are relative to the .blend
 
-        response = profile_contents(bpy.path.abspath(settings.actor_profile))[1]
+        path = bpy.path.abspath(settings.actor_profile)
+        response, performer = profile_contents(path)[1], profile_performer(path)
     # the Video panel's Smoothing filters the fused weights' jitter as it does the landmarks'
     return FaceScores(found[0], found[1], neutral, response=response, fps=markers.fps,
-                      smoothing=bool(settings.video.landmark_smoothing))
+                      smoothing=bool(settings.video.landmark_smoothing), performer=performer)
 
 
 

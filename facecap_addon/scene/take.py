@@ -272,8 +272,8 @@ def _actor_inputs(settings, notes):
         if profile_contents(path)[0]:
             out["profile"] = Basis.load_npz(path)
         else:
-            notes.append(f"the performer profile {Path(path).name} holds the blendshape scores' response of a ROM on "
-                         "camera and no measured shapes")
+            notes.append(f"the performer profile {Path(path).name} holds what a ROM on camera or a guide followed "
+                         "measured of the blendshape scores, and no measured shapes")
     template = human_template(settings, notes)
     if template is not None:
         out["template"] = template

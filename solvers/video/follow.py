@@ -6,8 +6,8 @@ and camera (``fusion.CrossMap``).
 Why the map and not a gain per score (``response.py``): what is left after the fusion is cross-talk between
 shapes in mixtures (a lower lip read with the jaw, a frown with a stretch), which a gain per score cannot undo and
 a ROM's isolated poses do not show; a performance followed has the mixtures of a performance. Nothing is fitted
-that the map does not already fit: the performer's clip adds its normal equations, weighing as one more tuning
-clip (``FOLLOW_CLIPS``), so shapes the guide barely moves stay as the tuning clips read them.
+that the map does not already fit: the performer's clip adds its normal equations, weighing as a few tuning
+clips (``FOLLOW_SHARE``), so shapes the guide barely moves stay as the tuning clips read them.
 
 The guide is placed in the clip by the weights the uncalibrated fusion reads: the frame offset where they
 correlate best with the guide's (the performer's reaction time is part of it), over every placement that
@@ -22,9 +22,12 @@ from ..character.aliases import canonical_names
 from ..errors import FacecapError
 from .fusion import CrossMap, FusionTable, clip_equations, fuse, map_inputs
 
-#: How many tuning clips the performer's clip weighs as: one, as each tuning clip does (not tuned: every clip of
-#: the map weighs the same, and the reported clips were never used to choose it).
-FOLLOW_CLIPS = 1.0
+#: What the performer's clip weighs in the map, as a share of the tuning clips it has (24 tuning clips and a share
+#: of 1/6: as 4 of them). Chosen on the tuning faces alone (``fusion_bench --follow-weight``: each tuning identity's
+#: performances of a performer the guide is not from, through a map fitted without that identity, with its own clip
+#: following the guide: 0.098 without, 0.096, 0.095, 0.094 at 1/24, 1/12, 1/6, no lower above), never on the
+#: reported clips.
+FOLLOW_SHARE = 1.0 / 6.0
 #: The share of the guide that must be in the clip at a placement, and the least correlation (mean over the
 #: guide's moving shapes) that says the performer followed it.
 MIN_OVERLAP, MIN_CORRELATION = 0.8, 0.3
@@ -91,7 +94,7 @@ class PerformerMap:
     gram: np.ndarray
     moment: np.ndarray
     ridge: float
-    clips: float = FOLLOW_CLIPS
+    clips: float = 1.0
     guide: str = ""
 
     def __post_init__(self):
@@ -168,7 +171,7 @@ class FollowFit:
 
 
 def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, table=None, offset=None,
-               clips=FOLLOW_CLIPS, guide_label=""):
+               clips=None, guide_label=""):
     """The performer's map from a clip that follows a guide.
 
     Parameters
@@ -178,6 +181,7 @@ def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, ta
     scores : FaceScores of the clip (its blendshape scores, neutral frames and frame rate; no response)
     table : FusionTable (default: the measured one), whose map the clip joins
     offset : the clip frame index of the guide's first frame when known (else found: :func:`find_offset`)
+    clips : how many tuning clips the performer's clip weighs as (default: :data:`FOLLOW_SHARE` of the map's)
     """
     table = FusionTable.load() if table is None else table
     if table.map is None:
@@ -216,8 +220,9 @@ def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, ta
     gram, moment, used = clip_equations(aligned[seen], X)
     if used < 2:
         raise FacecapError("no frame of the clip has both a face and the guide")
-    per_clip = table.map.ridge / max(len(table.measured_on.get("map_clips", ())), 1)
-    lam = float(table.measured_on.get("map_ridge", per_clip))
+    n_clips = max(len(table.measured_on.get("map_clips", ())), 1)
+    lam = float(table.measured_on.get("map_ridge", table.map.ridge / n_clips))
+    clips = FOLLOW_SHARE * n_clips if clips is None else float(clips)
     performer = PerformerMap(names, gram, moment, lam, clips, guide_label)
     return FollowFit(performer, int(offset), float(r), int(used), float(scores.fps))
 

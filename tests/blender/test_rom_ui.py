@@ -243,7 +243,8 @@ def test_a_rom_on_camera_marks_its_poses_and_saves_the_scores_response(tmp_path)
     from facecap.solvers.rom import ARKIT_51
     from facecap.solvers.tools.synthetic.realism.rom import rom_weights
     from facecap.solvers.video.landmarks import NAMES, RIGID
-    from facecap.solvers.video.response import profile_contents
+    from facecap.solvers.video.follow import PerformerMap
+    from facecap.solvers.video.response import profile_contents, save_profile
 
     fps, rng = 30.0, np.random.default_rng(4)
     weights, performed, holds, _ = rom_weights(ARKIT_51, SHEETS[SHEET], rng, fps=fps)
@@ -284,6 +285,13 @@ def test_a_rom_on_camera_marks_its_poses_and_saves_the_scores_response(tmp_path)
     s.marker_collection = coll
     found = scene_solve.landmark_scores(s, scene_take.markers_from_collection(s), scene_take.retarget_settings(s))
     assert found is not None and found.response is not None and found.response.sheet == SHEET
+    # a profile that holds a guide followed too (written headless): the sidebar's take fuses through its map as well
+    both = tmp_path / "both.npz"
+    save_profile(both, response=got, performer=PerformerMap(("jawOpen", "mouthClose"), np.eye(4), np.ones((4, 2)),
+                                                            0.01, 1.0, "guide.csv"))
+    s.actor_profile = str(both)
+    found = scene_solve.landmark_scores(s, scene_take.markers_from_collection(s), scene_take.retarget_settings(s))
+    assert found.response.sheet == SHEET and found.performer.guide == "guide.csv"
     # the ROM: markers the user keeps (dragged or not) are where the poses are measured, as for a marker ROM
     keep = {"ROM: jaw open", "ROM: smile"}
     for m in [m for m in scene.timeline_markers if m.name.startswith("ROM: ") and m.name not in keep]:
