@@ -94,8 +94,8 @@ def follow_clip(config, found, say, *, quiet=False):
 def fit_guide(config, request, clip, names, say):
     """(the performer's clip in the fusion map, report fields): the clip that follows ``[calibration] guide`` solved
     as the take is (``request``, before its own gaze and scores: the same character, whose shapes are ``names``,
-    and settings, the clip's own neutral), fused uncalibrated to find where it performs the guide, and its frames with the guide's weights as
-    their truth added to the map (``solvers/video/follow.py``)."""
+    and settings, the clip's own neutral), fused uncalibrated to find where it performs the guide, and its frames
+    with the guide's weights as their truth added to the map (``solvers/video/follow.py``)."""
     rom = config.video_rom
     guide = read_weights(rom.guide, fps=rom.guide_fps)
     for note in guide.notes:

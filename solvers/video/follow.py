@@ -18,9 +18,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..character.aliases import canonical_names
 from ..errors import FacecapError
-from .fusion import CrossMap, FusionTable, clip_equations, fuse, map_inputs
+from .fusion import CrossMap, FusionTable, arkit_names, clip_equations, fuse, map_inputs
 
 #: What the performer's clip weighs in the map, as a share of the tuning clips it has (24 tuning clips and a share
 #: of 1/6: as 4 of them). Chosen on the tuning faces alone (``fusion_bench --follow-weight``: each tuning identity's
@@ -198,7 +197,7 @@ def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, ta
     truth = resample(np.asarray(guide, np.float64)[:, [column[n] for n in names]], guide_fps, scores.fps)
     F = len(solved)
     fused, _ = fuse(solved, shape_names, scores, table=table)
-    arkit = {n: k for k, n in reversed(list(enumerate(_arkit(shape_names))))}
+    arkit = {n: k for k, n in reversed(list(enumerate(arkit_names(shape_names))))}
     read = np.full((F, len(names)), np.nan)
     for j, n in enumerate(names):
         if n in arkit:
@@ -226,10 +225,3 @@ def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, ta
     performer = PerformerMap(names, gram, moment, lam, clips, guide_label)
     return FollowFit(performer, int(offset), float(r), int(used), float(scores.fps))
 
-
-def _arkit(shape_names):
-    out = []
-    for name in shape_names:
-        names = canonical_names(name)
-        out.append(names[0] if len(names) == 1 else None)
-    return out

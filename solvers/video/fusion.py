@@ -10,7 +10,8 @@ from the corrected scores and solved weights of its half of the face (``face_hal
     c = (s - s0) / (1 - s0)          each score s corrected by its level s0 on the take's neutral frames
     c = response(c)                  the performer's response on this camera (a ROM calibration; identity)
     l = lids against gaze(l)         the solve's blinks and wide eyes read against its look down (``lid_gaze``)
-    w = W' [c, l]                    l the landmark solve's weights, W the fusion map
+    w = W' [c, l]                    l the landmark solve's weights, W the fusion map (with the performer's
+                                     clip in it when they followed a guide: ``follow.py``)
     w = smooth(w), clip(w, lower, upper)  smoothed over time (SMOOTHING_S; blinks left sharp), within bounds
 
 The map ``W`` (``CrossMap``) is ridge regression towards the per-shape table (``w_k = a_k c_k + b_k l_k``, ``a``
@@ -315,12 +316,19 @@ def _prepared(weights, shape_names, scores, table, response=None):
     if response is not None:
         corrected = np.asarray(response(corrected, tuple(scores.names)), dtype=np.float64)
     column = {n: j for j, n in enumerate(scores.names)}
-    arkit = []  # the character's shapes' ARKit names, through the alias tables (None: not one ARKit shape)
-    for name in shape_names:
-        names = canonical_names(name)
-        arkit.append(names[0] if len(names) == 1 else None)
+    arkit = arkit_names(shape_names)
     solve = lids_against_gaze(np.array(weights, dtype=np.float64), arkit, table.lid_gaze)
     return corrected, column, solve, arkit
+
+
+def arkit_names(shape_names):
+    """The ARKit name of each of a character's ``shape_names``, through the alias tables (None: not one ARKit
+    shape)."""
+    out = []
+    for name in shape_names:
+        names = canonical_names(name)
+        out.append(names[0] if len(names) == 1 else None)
+    return out
 
 
 def map_inputs(table, scores, weights, shape_names):

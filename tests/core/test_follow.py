@@ -162,8 +162,9 @@ def load(tmp_path, extra, take=TAKE):
 def test_a_guide_config_names_its_clip_guide_and_start(tmp_path):
     from facecap.solvers.config.paths import take_inputs
 
+    take = TAKE.replace('weights = "w.csv"\n', 'weights = "w.csv"\nprofile = "p.npz"\n')
     c = load(tmp_path, '[calibration]\nvideo = "follow.mp4"\nguide = "guides/g.csv"\nguide_start = 41\n'
-                       'neutral = [1, 20]\n', take=TAKE.replace('weights = "w.csv"\n', 'weights = "w.csv"\nprofile = "p.npz"\n'))
+                       'neutral = [1, 20]\n', take=take)
     rom = c.video_rom
     assert rom.path == str(tmp_path / "follow.mp4") and rom.guide == str(tmp_path / "guides" / "g.csv")
     assert rom.guide_start == 41.0 and rom.neutral == (1, 20) and rom.poses == ()
