@@ -11,7 +11,8 @@ clips (``FOLLOW_SHARE``), so shapes the guide barely moves stay as the tuning cl
 
 The guide is placed in the clip by the weights the uncalibrated fusion reads: the frame offset where they
 correlate best with the guide's (the performer's reaction time is part of it), over every placement that
-overlaps the guide by ``MIN_OVERLAP`` of its length.
+overlaps the guide by ``MIN_OVERLAP`` of its length, then refined window by window (a performer drifts from a long
+guide's timing: ``follow_timing``).
 """
 
 from dataclasses import dataclass, replace
@@ -32,6 +33,9 @@ FOLLOW_SHARE = 1.0 / 6.0
 MIN_OVERLAP, MIN_CORRELATION = 0.8, 0.3
 #: A guide shape counts in the placement when it moves at least this much (its standard deviation).
 MOVING = 0.03
+#: The guide's timing is refined in windows of this many seconds, each moved at most this far from the one before
+#: (``follow_timing``): a performer drifts from a long guide's timing.
+WINDOW_S, LOCAL_S = 4.0, 0.25
 #: What a performer profile keeps of a performer's map.
 PROFILE_KEYS = ("performer_names", "performer_gram", "performer_moment", "performer_ridge", "performer_clips",
                 "performer_guide")
@@ -69,18 +73,72 @@ def find_offset(guide, read, *, min_overlap=MIN_OVERLAP):
     best = (None, -np.inf)
     for offset in range(need - G, F - need + 1):
         g0, g1 = max(0, -offset), min(G, F - offset)
-        a, b = guide[g0:g1], read[g0 + offset:g1 + offset]
-        ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-        if ok.sum() < need // 2:
-            continue
-        a, b = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
-        den = np.sqrt((a * a).sum(axis=0) * (b * b).sum(axis=0))
-        r = float(np.mean(np.where(den > 0, (a * b).sum(axis=0) / np.where(den > 0, den, 1.0), 0.0)))
+        r = _correlation(guide[g0:g1], read[g0 + offset:g1 + offset], need // 2)
         if r > best[1]:
             best = (offset, r)
     if best[0] is None:
         raise FacecapError("the clip has no stretch of frames with a face as long as the guide")
     return best
+
+
+def follow_timing(guide, read, offset, fps):
+    """(F,) the guide frame (fractional; NaN where the clip performs none) that each clip frame performs: the whole
+    guide's ``offset`` (:func:`find_offset`) refined window by window (:data:`WINDOW_S`, half overlapping), so that
+    a performer drifting from a long guide's timing is followed. The window that follows best near ``offset``
+    anchors it; from there each window is moved at most :data:`LOCAL_S` from its neighbour, outwards both ways; a
+    window that correlates under :data:`MIN_CORRELATION` takes its neighbours' timing. ``guide`` (G, S) and
+    ``read`` (F, S) as :func:`find_offset` takes them, at ``fps`` frames/s."""
+    guide, read = np.asarray(guide, dtype=np.float64), np.asarray(read, dtype=np.float64)
+    G, F = len(guide), len(read)
+    moving = np.nanstd(guide, axis=0) >= MOVING
+    guide, read = guide[:, moving], read[:, moving]
+    win = min(G, max(8, int(round(WINDOW_S * fps))))
+    reach = max(1, int(round(LOCAL_S * fps)))
+    starts = list(range(0, max(G - win, 0) + 1, max(1, win // 2)))
+
+    def near(g0, around):  # (shift, correlation) of the window at guide frame g0, within reach of ``around``
+        best = (None, MIN_CORRELATION)
+        part = guide[g0:g0 + win]
+        cols = np.nanstd(part, axis=0) >= MOVING  # the shapes this window moves (the others read noise)
+        if not cols.any():
+            return best
+        for d in sorted(range(around - reach, around + reach + 1), key=lambda d: abs(d - around)):
+            if g0 + d >= 0 and g0 + d + win <= F:
+                r = _correlation(part[:, cols], read[g0 + d:g0 + d + win, cols], win // 2)
+                if r > best[1]:
+                    best = (d, r)
+        return best
+
+    first = [near(g0, int(offset)) for g0 in starts]
+    anchor = int(np.argmax([r for _, r in first]))
+    shifts = {}
+    if first[anchor][0] is not None:
+        shifts[anchor] = first[anchor][0]
+        for order in (range(anchor + 1, len(starts)), range(anchor - 1, -1, -1)):
+            shift = shifts[anchor]
+            for i in order:
+                d, _ = near(starts[i], shift)
+                if d is not None:
+                    shifts[i] = shift = d
+    done = sorted(shifts)
+    found = np.array([shifts[i] for i in done], dtype=np.float64)
+    if len(found) >= 3:  # a running median of 3: a window with little motion may pick a shift a few frames off
+        found[1:-1] = np.median(np.stack([found[:-2], found[1:-1], found[2:]]), axis=0)
+    centres = [starts[i] + shifts[i] + 0.5 * (win - 1) for i in done]  # each window's middle, as a clip frame
+    clip = np.arange(F, dtype=np.float64)
+    when = clip - (np.interp(clip, centres, found) if done else float(offset))
+    return np.where((when >= 0) & (when <= G - 1), when, np.nan)
+
+
+def _correlation(a, b, least):
+    """The mean Pearson correlation over the columns of ``a`` and ``b`` (frames where both are finite; -inf with
+    fewer than ``least`` of them); a column that does not move counts as 0."""
+    ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    if ok.sum() < max(least, 2):
+        return -np.inf
+    a, b = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
+    den = np.sqrt((a * a).sum(axis=0) * (b * b).sum(axis=0))
+    return float(np.mean(np.where(den > 0, (a * b).sum(axis=0) / np.where(den > 0, den, 1.0), 0.0)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,16 +214,17 @@ class FollowFit:
     correlation: float
     frames: int
     fps: float
+    drift: float = 0.0  # the most the performer's timing moved from the whole guide's placement (seconds)
 
     @property
     def summary(self):
         return (f"the guide found from clip frame {self.offset + 1} ({self.offset / self.fps:+.2f} s; correlation "
-                f"{self.correlation:.2f}), {self.frames} frames in the fusion map as {self.performer.clips:g} tuning "
-                f"clip(s)")
+                f"{self.correlation:.2f}; the timing followed within {self.drift:.2f} s of that), {self.frames} frames "
+                f"in the fusion map as {self.performer.clips:g} tuning clip(s)")
 
     def report(self):
         return {"guide": self.performer.guide, "offset_frames": int(self.offset),
-                "correlation": round(self.correlation, 3), "frames": int(self.frames),
+                "correlation": round(self.correlation, 3), "drift_s": round(self.drift, 3), "frames": int(self.frames),
                 "weighs_as_clips": self.performer.clips, "summary": self.summary}
 
 
@@ -210,11 +269,15 @@ def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, ta
                                "with, at its speed?")
     else:
         offset, r = int(offset), float("nan")
-    aligned = np.full((F, len(names)), np.nan)
-    g0, g1 = max(0, -offset), min(len(truth), F - offset)
-    if g1 - g0 < 2:
+    when = follow_timing(truth, read, offset, scores.fps)  # the guide frame each clip frame performs
+    placed = np.isfinite(when)
+    if placed.sum() < 2:
         raise FacecapError(f"the guide placed at clip frame {offset + 1} does not overlap the clip's {F} frames")
-    aligned[g0 + offset:g1 + offset] = truth[g0:g1]
+    lo = np.floor(when[placed]).astype(int)
+    t = (when[placed] - lo)[:, None]
+    aligned = np.full((F, len(names)), np.nan)
+    aligned[placed] = (1 - t) * truth[lo] + t * truth[np.minimum(lo + 1, len(truth) - 1)]
+    drift = float(np.nanmax(np.abs(np.arange(F) - when - offset))) / scores.fps
     X, seen = map_inputs(table, scores, solved, shape_names)
     gram, moment, used = clip_equations(aligned[seen], X)
     if used < 2:
@@ -223,5 +286,5 @@ def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, ta
     lam = float(table.measured_on.get("map_ridge", table.map.ridge / n_clips))
     clips = FOLLOW_SHARE * n_clips if clips is None else float(clips)
     performer = PerformerMap(names, gram, moment, lam, clips, guide_label)
-    return FollowFit(performer, int(offset), float(r), int(used), float(scores.fps))
+    return FollowFit(performer, int(offset), float(r), int(used), float(scores.fps), drift)
 

@@ -52,7 +52,7 @@ def test_a_clip_that_follows_a_guide_is_placed_stored_and_read_back(followed):
     followed_ = report["source"]["guide_followed"]
     print(followed_["summary"], "performed at", performed_at)
     assert abs(followed_["offset_frames"] - performed_at) <= 2 and followed_["correlation"] > 0.5
-    assert followed_["frames"] == GUIDE_FRAMES and followed_["guide"] == "guide.csv"
+    assert abs(followed_["frames"] - GUIDE_FRAMES) <= 3 and followed_["guide"] == "guide.csv"
     assert report["strategy_info"]["fusion"]["shapes"]  # the take's own scores fused, through the performer's map
     assert profile_contents(folder / "performer.npz") == (False, None)
     assert profile_performer(folder / "performer.npz").guide == "guide.csv"

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from facecap.solvers.errors import ConfigError, FacecapError, InputFileError
-from facecap.solvers.video.follow import FOLLOW_SHARE, PerformerMap, find_offset, fit_follow, resample
+from facecap.solvers.video.follow import (FOLLOW_SHARE, PerformerMap, find_offset, fit_follow, follow_timing,
+                                          resample)
 from facecap.solvers.video.fusion import FaceScores, FusionTable, fuse
 from facecap.solvers.video.response import profile_contents, profile_performer, save_profile
 
@@ -75,6 +76,34 @@ def test_the_guide_is_placed_where_the_performer_performed_it():
         find_offset(np.zeros_like(guide), read)
 
 
+def test_a_performer_who_drifts_from_a_long_guide_is_followed_frame_by_frame():
+    """40 s of guide performed 4 % slow (1.6 s late by its end, no single placement fits it): each clip frame is
+    matched to the guide frame it performs (median within a frame, every frame within 5: the last windows' drift
+    is held, not extrapolated, to the clip's ends); a performer on time keeps the placement."""
+    rng = np.random.default_rng(3)
+    guide = performance(4, 1200)
+    start, tempo = 20, 1.04
+    clip_frames = np.arange(1300)
+    performs = (clip_frames - start) / tempo  # the guide frame each clip frame performs
+    read = np.full((1300, len(NAMES)), np.nan)
+    inside = (performs >= 0) & (performs <= 1199)
+    for k in range(len(NAMES)):
+        read[inside, k] = np.interp(performs[inside], np.arange(1200), guide[:, k])
+    read += rng.normal(0, 0.05, read.shape)
+    offset, _ = find_offset(guide, read)
+    when = follow_timing(guide, read, offset, FPS)
+    both = inside & np.isfinite(when)
+    assert both.sum() > 0.95 * inside.sum()
+    err = np.abs(when[both] - performs[both])
+    assert np.median(err) <= 1.0 and np.max(err) <= 5.0, (np.median(err), np.max(err))
+    assert np.max(np.abs(clip_frames[both] - offset - performs[both])) > 20  # what one placement would miss
+    on_time = np.full((1300, len(NAMES)), np.nan)
+    on_time[start:start + 1200] = guide + rng.normal(0, 0.05, guide.shape)
+    when = follow_timing(guide, on_time, find_offset(guide, on_time)[0], FPS)
+    err = np.abs(when[start:start + 1200] - np.arange(1200.0))
+    assert np.nanmedian(err) == 0.0 and np.nanmax(err) <= 1.0 and np.isfinite(err).mean() > 0.99
+
+
 def test_a_guide_at_another_rate_is_resampled_in_time():
     guide = np.c_[np.arange(61.0), np.linspace(0, 1, 61)]  # 1 s at 60 frames/s
     out = resample(guide, 60.0, 30.0)
@@ -93,7 +122,7 @@ def test_a_performer_who_followed_a_guide_is_read_closer_to_the_truth():
     scores, solved = filmed(np.r_[np.zeros((late, len(NAMES))), guide], reads, 7)
     fit = fit_follow(guide, NAMES, FPS, solved, NAMES, scores_of(scores))
     assert abs(fit.offset - (HOLD + late)) <= 1 and fit.correlation > 0.5
-    assert fit.frames == 240 and fit.performer.clips == FOLLOW_SHARE * len(TABLE.measured_on["map_clips"])
+    assert abs(fit.frames - 240) <= 2 and fit.performer.clips == FOLLOW_SHARE * len(TABLE.measured_on["map_clips"])
     truth = performance(8, 300)
     s2, l2 = filmed(truth, reads, 9)
     before, _ = fuse(l2, NAMES, scores_of(s2), table=TABLE)
