@@ -12,6 +12,7 @@ from bpy.props import BoolProperty, StringProperty
 
 from ..facecap_addon.scene import rom_markers, rom_scene
 from ..solvers.errors import FacecapError
+from ..solvers.video.follow import FollowFit
 from ..solvers.video.response import ResponseFit
 from .solve import SolveJobOperator
 
@@ -21,8 +22,8 @@ def why_not(context):
     s = context.scene.facecap
     if s.strategy != "semantic":
         return "A ROM session calibrates the semantic strategy: choose Strategy > Semantic"
-    if s.calib_sheet == "NONE":
-        return "Choose a ROM sheet first (Actor calibration > ROM Sheet)"
+    if s.calib_sheet == "NONE" and not s.calib_guide.strip():
+        return "Choose a ROM sheet first (Actor calibration > ROM Sheet), or the Guide a landmark take followed"
     if not rom_markers.has_rom_take(s):
         return rom_scene.NO_ROM_TAKE[0].upper() + rom_scene.NO_ROM_TAKE[1:]
     return None
@@ -95,7 +96,7 @@ class FACECAP_OT_rom_find_poses(RomJobOperator, bpy.types.Operator):
 
 
 class FACECAP_OT_rom_save_profile(RomJobOperator, bpy.types.Operator):
-    """Measure the actor's shapes from the ROM take (at the 'ROM: ' timeline markers when there are any, else at the holds found) and save them as a performer profile (.npz); Performer Profile then points to it, so every later solve of this performer uses it. An existing file is replaced only when facecap wrote it, or with Overwrite. The status bar shows progress; Esc cancels"""
+    """Measure the actor's shapes from the ROM take (at the 'ROM: ' timeline markers when there are any, else at the holds found; a landmark take with a Guide: the take solved and added to the fusion map) and save them as a performer profile (.npz); Performer Profile then points to it, so every later solve of this performer uses it. An existing file is replaced only when facecap wrote it, or with Overwrite. The status bar shows progress; Esc cancels"""
 
     bl_idname = "facecap.rom_save_profile"
     bl_label = "Save Performer Profile"
@@ -157,6 +158,10 @@ class FACECAP_OT_rom_save_profile(RomJobOperator, bpy.types.Operator):
             self.report({"INFO"}, f"Saved the performer profile {path}: the blendshape scores' response on this "
                                   f"camera ({result.summary}); every later landmark take of this performer uses it "
                                   "(Performer Profile)")
+            return {"FINISHED"}
+        if isinstance(result, FollowFit):
+            self.report({"INFO"}, f"Saved the performer profile {path}: {result.summary}; every later landmark take "
+                                  "of this performer and camera fuses through it (Performer Profile)")
             return {"FINISHED"}
         found = result.found
         for note in result.notes:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 #: Frame rates above this are refused as typos (a 10 kHz optical system is already unusual).
 MAX_FPS = 10_000.0
-GUIDE_HEADLESS = "the sidebar's video takes use [actor] profile (a profile written by a headless run)"
+GUIDE_HEADLESS = "the sidebar finds it (Actor calibration > Guide, then Save Performer Profile)"
 #: Frame numbers above this are refused (Blender's own limit is 1,048,574).
 MAX_FRAME = 1_048_574
 #: Blender keeps at most this many bytes of an ID's name (objects, actions, cameras) and cuts the rest.
@@ -337,12 +337,12 @@ OPTIONS = (
       doc="Landmark takes: the performer's ROM filmed with this camera ([calibration] sequence: its sheet); its "
           "holds found in the blendshape scores calibrate each score's response (docs/video.md)",
       headless="the sidebar's video takes use [actor] profile (a profile written by a headless ROM run)"),
-    O("calibration", "guide", "path", headless=GUIDE_HEADLESS,
+    O("calibration", "guide", "path", ui="facecap.calib_guide",
       doc="Landmark takes: the ARKit weights (a Live Link Face CSV, another weights file) of a guide the performer "
           "followed in [calibration] video (or the take): the clip joins the fusion map for them (docs/video.md)"),
     O("calibration", "guide_start", "float", low=1.0, high=MAX_FRAME, headless=GUIDE_HEADLESS,
       doc="The clip's frame number where the guide's first frame is performed (default: found)"),
-    O("calibration", "guide_fps", "float", above=0.0, high=MAX_FPS, headless=GUIDE_HEADLESS,
+    O("calibration", "guide_fps", "float", above=0.0, high=MAX_FPS, headless="the sidebar reads the file's rate",
       doc="The guide's frame rate (default: the file's; a CSV of frames without times is read at 60)"),
     O("calibration", "holds", "table", doc="{pose label = middle frame}: where the [calibration] sequence's poses are "
       "held, used instead of the holds found (a ROM on camera too: frame numbers of its clip)",

@@ -17,6 +17,13 @@ def sheet_poses(settings):
     return SHEETS.get(settings.calib_sheet, ())
 
 
+def keeps_scores(settings):
+    """Whether the Solve panel's calibration take is a landmark take keeping blendshape scores (a ROM on camera, or
+    a take that followed a guide)."""
+    coll = settings.calib_collection if settings.calib_source == "COLLECTION" else None
+    return coll is not None and "facecap_blendshapes" in coll
+
+
 def has_rom_take(settings):
     """Whether the Solve panel names a calibration take (the ROM take): a collection of marker empties or a file."""
     if settings.calib_source == "COLLECTION":

@@ -5,7 +5,9 @@ the ``ROM: `` markers when there are any; the actor's measured shapes written as
 as ``[actor] profile``). A ROM take that keeps the Face Landmarker's blendshape scores (*Track Face Landmarks* on
 the ROM clip) is the performer's ROM on camera instead: its holds are found in the scores (or taken at the ``ROM: ``
 markers, as for markers) and the profile stores their response (``solvers.video.response``), which every later
-landmark take of that performer and camera uses."""
+landmark take of that performer and camera uses. With a **Guide** (the weights the performer followed in that
+take), *Save Performer Profile* solves the take onto the character and adds it to the fusion map instead
+(``solvers.video.follow``)."""
 
 import os
 from dataclasses import dataclass, replace
@@ -16,10 +18,15 @@ import numpy as np
 
 from ...solvers.capture.stable_markers import suggest_stable_markers
 from ...solvers.errors import FacecapError
+from ...solvers.io.weights import read_weights
+from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.io.outputs import Output, OutputError, check_outputs, is_kind
 from ...solvers.strategies.options import StrategyInputs
 from ...solvers.strategies.rom_wiring import learn_from_rom_take
-from ...solvers.video.fusion import FusionTable
+from ...solvers.solve import SolveRequest, solve_job
+from ...solvers.video.follow import FollowFit, fit_follow
+from ...solvers.video.fusion import FaceScores, FusionTable
+from ...solvers.video.landmarks import RIGID
 from ...solvers.video.response import ResponseFit, fit_response
 from ...solvers.video.response import save_profile as save_response_profile
 from ..headless.landmark_take import given_indices, metric_neutral
@@ -116,6 +123,59 @@ def score_rom(settings, *, use_markers=False):
     return ScoreRom(scores, names, rom.frames, neutral, poses, settings.calib_sheet, settings.fps or 30.0, given)
 
 
+@dataclass(frozen=True)
+class GuideRom:
+    """A take that followed a guide, as the sidebar has it: the SolveRequest of the take onto the character (no
+    scores: the solve the fusion reads), its blendshape ``scores`` (FaceScores), the ``guide`` (a WeightTrack) and
+    its file name."""
+
+    request: object
+    scores: object
+    guide: object
+    label: str
+
+    def fit(self):
+        """The FollowFit: the take solved (numpy and scipy only), the guide placed in it, its map measured."""
+        solved = solve_job(self.request).run()
+        return fit_follow(self.guide.values, self.guide.names, self.guide.fps, solved.weights, solved.shape_names,
+                          self.scores, guide_label=self.label)
+
+
+def guide_rom(settings):
+    """The Solve panel's calibration take as a guide followed (GuideRom) when a **Guide** is given and the take is a
+    landmark take keeping blendshape scores, else None. The take is solved as the Solve panel solves a landmark take
+    (its strategy and binding, held on its head-rigid landmarks, its neutral detected, the human template), without
+    the panel's calibration poses."""
+    path = settings.calib_guide.strip()
+    coll = settings.calib_collection if settings.calib_source == "COLLECTION" else None
+    if not path:
+        return None
+    if coll is None or "facecap_blendshapes" not in coll:
+        raise FacecapError("a guide followed calibrates a landmark take's blendshape scores: choose the take Track "
+                           "Face Landmarks made of the clip under Actor calibration (the Face Landmarker bundle keeps "
+                           "its scores)")
+    if settings.target is None:
+        raise FacecapError("choose the character first: the take is solved onto it as a take is, to be fused")
+    guide = read_weights(bpy.path.abspath(path))
+    notes = []
+    markers = take.calibration_markers(settings, notes)
+    scores, names = scores_from_collection(coll, markers.frames)
+    rsettings = take.retarget_settings(settings)
+    rsettings = replace(rsettings, calibration=type(rsettings.calibration)(), neutral_ranges=(), neutral_detect=True,
+                        neutral_file=None, auto_stable=False,  # held on its head-rigid landmarks, as a landmark take
+                        stable_markers=tuple(n for n in RIGID if n in markers.names))
+    if rsettings.strategy in SAMPLES_CHARACTER:  # bound as the Solve panel binds (not stored: the take is not solved)
+        character = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings),
+                                        store=False).basis
+    else:
+        character = take.character_target(settings.target)
+    request = SolveRequest(character=character, settings=rsettings, markers=markers,
+                           inputs=StrategyInputs(template=take.human_template(settings, notes), notes=tuple(notes)))
+    fps = markers.fps or settings.fps or 30.0
+    return GuideRom(request, FaceScores(scores, names, metric_neutral(markers), fps=fps,
+                                        smoothing=bool(settings.video.landmark_smoothing)), guide, Path(path).name)
+
+
 class RomInBackground(SolveInBackground):
     """*Find Poses* or *Save Performer Profile* (``what``) beside the interface: the scene is read here, the ROM
     take measured on a worker thread (numpy and scipy only), the scene changed only by the operator once it is
@@ -123,8 +183,12 @@ class RomInBackground(SolveInBackground):
 
     def __init__(self, settings, *, what, use_markers):
         self.settings, self.what = settings, what
-        scores = score_rom(settings, use_markers=use_markers)
-        if scores is not None:  # a ROM on camera: its holds are found in the scores, or placed by the markers
+        guide = guide_rom(settings) if use_markers else None  # Save Performer Profile (Find Poses finds a sheet's)
+        scores = None if guide is not None else score_rom(settings, use_markers=use_markers)
+        if guide is not None:
+            self.request, self.frames = guide, guide.request.markers.frames
+            self.size = f"the guide {guide.label} in {len(self.frames)} frames (solved, then placed)"
+        elif scores is not None:  # a ROM on camera: its holds are found in the scores, or placed by the markers
             self.request, self.frames = scores, scores.frames  # the frames: where the holds found are on the timeline
             self.size = f"{len(scores.poses)} poses of {settings.calib_sheet} in the blendshape scores of " \
                         f"{len(scores.frames)} frames"
@@ -136,8 +200,9 @@ class RomInBackground(SolveInBackground):
         self._begin()
 
     def _compute(self, request):
-        """A ResponseFit for a ROM on camera, else the RomResult of the marker ROM."""
-        return request.fit() if isinstance(request, ScoreRom) else learn_from_rom_take(*request)
+        """A ResponseFit for a ROM on camera, a FollowFit for a guide followed, else the RomResult of the marker
+        ROM."""
+        return request.fit() if isinstance(request, (ScoreRom, GuideRom)) else learn_from_rom_take(*request)
 
     def status(self):
         return f"{self.what}: measuring {self.size}, {self.seconds():.0f} s; Esc cancels"
@@ -166,11 +231,13 @@ def check_profile_output(settings, path, *, overwrite):
 
 
 def save_profile(settings, result, path):
-    """Write ``result.measured`` (a RomResult's) or the score response (a ResponseFit's) to ``path`` atomically and
-    make it the Solve panel's performer profile (relative to the .blend, ``//...``, when it lies in the .blend's
-    folder)."""
+    """Write ``result.measured`` (a RomResult's), the score response (a ResponseFit's) or the performer's map (a
+    FollowFit's) to ``path`` atomically and make it the Solve panel's performer profile (relative to the .blend,
+    ``//...``, when it lies in the .blend's folder)."""
     if isinstance(result, ResponseFit):
         save_response_profile(path, response=result.response)
+    elif isinstance(result, FollowFit):
+        save_response_profile(path, performer=result.performer)
     else:
         result.measured.save_npz(path)
     settings.actor_profile = bpy.path.relpath(str(path)) if bpy.data.filepath and _below(path) else str(path)

@@ -396,7 +396,11 @@ def _draw_calibration(layout, s):
     row.prop(s, "calib_neutral_first")
     row.prop(s, "calib_neutral_last")
     row.operator("facecap.calib_neutral_from_timeline", icon="TIME", text="")
-    if rom:
+    if s.strategy == "semantic" and rom_markers.keeps_scores(s):  # a landmark take: a guide it followed
+        box.prop(s, "calib_guide")
+    if s.strategy == "semantic" and s.calib_guide.strip() and not rom:
+        box.operator("facecap.rom_save_profile", icon="FILE_TICK")
+    elif rom:
         _draw_rom(box, s)
     else:  # poses typed as frame ranges
         box.label(text="Poses (name, first, last, split)")

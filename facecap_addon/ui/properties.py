@@ -261,6 +261,10 @@ class FACECAP_PG_settings(bpy.types.PropertyGroup):
     calib_align: EnumProperty(items=ALIGN_ITEMS, **from_option("calibration.align", label="Align"))
     calib_sheet: EnumProperty(items=ROM_SHEET_ITEMS, **from_option("calibration.sequence", label="ROM Sheet",
                                                                   default="NONE"))
+    calib_guide: StringProperty(name="Guide", subtype="FILE_PATH",
+                                description="The weights (a Live Link Face CSV) of a guide the performer followed in "
+                                "the calibration take (a landmark take): Save Performer Profile adds that take to the "
+                                "fusion map for this performer and camera")
     # -- mapping (calibrated, refine, parallel) -----------------------------------------------
     mapping: CollectionProperty(type=FACECAP_PG_mapping)
     active_mapping: IntProperty(default=0)

@@ -304,3 +304,80 @@ def test_a_rom_on_camera_marks_its_poses_and_saves_the_scores_response(tmp_path)
     scene.timeline_markers["ROM: smile"].frame = len(weights) + 50
     with pytest.raises(RuntimeError, match="'ROM: smile'.*outside the ROM clip"):
         bpy.ops.facecap.rom_save_profile(filepath=str(tmp_path / "outside.npz"))
+
+
+def test_a_landmark_take_that_followed_a_guide_saves_the_performers_map(tmp_path):
+    """*Guide* under Actor calibration (a landmark take keeping its scores): *Save Performer Profile* solves the take
+    onto the character, finds where the guide was performed (15 frames after 30 of rest) and stores the performer's
+    clip in the fusion map; the Performer Profile then fuses a later landmark take through it. The take is synthetic:
+    landmarks that move with the weights performed and a camera whose blendshape head reads each shape at 40-90 %."""
+    from types import SimpleNamespace
+
+    from facecap.facecap_addon.scene import take as scene_take
+    from facecap.facecap_addon.scene.landmark_scores import store_scores
+    from facecap.solvers import MarkerSet
+    from facecap.solvers.rom import ARKIT_51
+    from facecap.solvers.video.landmarks import NAMES, RIGID
+    from facecap.solvers.video.response import profile_contents, profile_performer
+
+    fps, rng, late, rest = 30.0, np.random.default_rng(8), 15, 30
+    t = np.arange(240)
+    guide = np.clip(sum(rng.uniform(0.3, 1.0, len(ARKIT_51))
+                        * np.exp(-0.5 * ((t[:, None] - rng.uniform(0, 240, len(ARKIT_51))) / 10.0) ** 2)
+                        for _ in range(2)), 0.0, 1.0)
+    weights = np.zeros((rest + late + 240 + 20, len(ARKIT_51)))
+    weights[rest + late:rest + late + 240] = guide
+    bpy.ops.wm.open_mainfile(filepath=str(SAMPLES / "character.blend"))
+    face = bpy.data.objects["Face"]
+    verts = np.empty(len(face.data.vertices) * 3)
+    face.data.vertices.foreach_get("co", verts)
+    world = np.asarray(face.matrix_world)
+    verts = verts.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]
+    names = tuple(RIGID) + tuple(n for n in NAMES[:200] if n not in RIGID)[:40]
+    picked = rng.choice(len(verts), len(names), replace=False)
+    base = verts[picked]  # on the character's skin, moving as its shapes move: a binding fits
+    moving = np.zeros((len(ARKIT_51), len(names), 3))
+    blocks = face.data.shape_keys.key_blocks
+    for k, shape in enumerate(ARKIT_51):
+        if shape in blocks:
+            co = np.empty(len(verts) * 3)
+            blocks[shape].data.foreach_get("co", co)
+            moving[k, len(RIGID):] = ((co.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]) - verts)[
+                picked[len(RIGID):]]
+    positions = base + np.einsum("fk,kmd->fmd", weights, moving) + rng.normal(0.0, 2e-5, (len(weights),) + base.shape)
+    markers = MarkerSet(names, np.arange(1.0, len(weights) + 1), positions, fps=fps, units="m")
+    scores = np.clip(rng.uniform(0.4, 0.9, len(ARKIT_51)) * weights + rng.normal(0.0, 0.01, weights.shape), 0, 1)
+    rows = ["Timecode,BlendShapeCount," + ",".join(n[0].upper() + n[1:] for n in ARKIT_51)]  # Live Link Face's
+    rows += [f"00:00:{f // 30:02d}:{f % 30:02d}.000,{len(ARKIT_51)}," + ",".join(f"{v:.4f}" for v in guide[f])
+             for f in range(240)]
+    (tmp_path / "guide.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+    scene = bpy.context.scene
+    coll = import_scene.create_take(scene, markers, "Guide clip landmarks")
+    import_scene.remember_take(scene, markers, Path("Guide clip landmarks"), coll)
+    store_scores(coll, SimpleNamespace(blendshapes=scores, blendshape_names=ARKIT_51, markers=markers))
+    s = scene.facecap
+    s.target, s.strategy, s.actor_template = bpy.data.objects["Face"], "semantic", "none"
+    s.calib_collection, s.calib_sheet, s.binding_mode = coll, "NONE", "nearest"  # as Track Face Landmarks sets it
+    assert why_not(bpy.context) is not None and "Guide" in why_not(bpy.context)
+    s.calib_guide = str(tmp_path / "guide.csv")
+    assert why_not(bpy.context) is None
+
+    path = tmp_path / "performer.npz"
+    assert bpy.ops.facecap.rom_save_profile(filepath=str(path)) == {"FINISHED"}
+    assert profile_contents(path) == (False, None)
+    performer = profile_performer(path)
+    assert performer.guide == "guide.csv" and performer.clips == 4.0
+    assert bpy.path.abspath(s.actor_profile) == str(path)
+    fit = RomInBackground(s, what="Save Performer Profile", use_markers=True).wait()
+    assert abs(fit.offset - (rest + late)) <= 2 and fit.correlation > 0.5, fit.summary
+    # a later landmark take of this performer: fused through the performer's map
+    s.marker_collection = coll
+    found = scene_solve.landmark_scores(s, scene_take.markers_from_collection(s), scene_take.retarget_settings(s))
+    assert found.performer is not None and found.performer.guide == "guide.csv"
+    # a guide on a take without blendshape scores is refused with the reason
+    plain = import_scene.create_take(scene, markers, "Plain markers")
+    s.calib_collection = plain
+    with pytest.raises(RuntimeError, match="a guide followed calibrates a landmark take's blendshape scores"):
+        bpy.ops.facecap.rom_save_profile(filepath=str(tmp_path / "other.npz"))
+    assert not (tmp_path / "other.npz").exists()
