@@ -18,12 +18,12 @@ import numpy as np
 
 from ...solvers.capture.stable_markers import suggest_stable_markers
 from ...solvers.errors import FacecapError
+from ...solvers.io.outputs import Output, OutputError, check_outputs, is_kind
 from ...solvers.io.weights import read_weights
 from ...solvers.pipeline import SAMPLES_CHARACTER
-from ...solvers.io.outputs import Output, OutputError, check_outputs, is_kind
+from ...solvers.solve import SolveRequest, solve_job
 from ...solvers.strategies.options import StrategyInputs
 from ...solvers.strategies.rom_wiring import learn_from_rom_take
-from ...solvers.solve import SolveRequest, solve_job
 from ...solvers.video.follow import FollowFit, fit_follow
 from ...solvers.video.fusion import FaceScores, FusionTable
 from ...solvers.video.landmarks import RIGID
