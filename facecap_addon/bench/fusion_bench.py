@@ -266,7 +266,9 @@ def evaluate(out, table, constant, role="report"):
         guide = calibration_clip(clip, "follow")
         performer = None
         if guide is not None and (out / f"{guide.name}.npz").is_file():
-            performer = follows.setdefault(guide.name, follow_fit(out, guide, table)).performer
+            if guide.name not in follows:  # fitted once per face and camera, not per reported clip
+                follows[guide.name] = follow_fit(out, guide, table)
+            performer = follows[guide.name].performer
             methods["fused + guide followed"] = (None, True, True)
         row = {"landmarks": region_rmse(solved, truth, names),
                "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names)}

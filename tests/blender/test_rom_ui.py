@@ -235,10 +235,7 @@ def test_a_rom_on_camera_marks_its_poses_and_saves_the_scores_response(tmp_path)
     response on that camera (no measured shapes) and makes it the Performer Profile, which a later landmark take's
     scores are read through. The take here is synthetic: landmarks that move with the ROM's weights and a camera
     whose blendshape head reads each shape at 40-90 % plus a resting level."""
-    from types import SimpleNamespace
-
     from facecap.facecap_addon.scene import take as scene_take
-    from facecap.facecap_addon.scene.landmark_scores import store_scores
     from facecap.solvers import MarkerSet
     from facecap.solvers.rom import ARKIT_51
     from facecap.solvers.tools.synthetic.realism.rom import rom_weights
@@ -259,9 +256,7 @@ def test_a_rom_on_camera_marks_its_poses_and_saves_the_scores_response(tmp_path)
 
     bpy.ops.wm.open_mainfile(filepath=str(SAMPLES / "character.blend"))
     scene = bpy.context.scene
-    coll = import_scene.create_take(scene, markers, "ROM clip landmarks")
-    import_scene.remember_take(scene, markers, Path("ROM clip landmarks"), coll)
-    store_scores(coll, SimpleNamespace(blendshapes=scores, blendshape_names=ARKIT_51, markers=markers))
+    coll = _scored_take(scene, markers, scores, ARKIT_51, "ROM clip landmarks")
     s = scene.facecap
     s.target, s.strategy, s.actor_template = bpy.data.objects["Face"], "semantic", "none"
     s.calib_collection, s.calib_sheet = coll, SHEET
@@ -311,10 +306,7 @@ def test_a_landmark_take_that_followed_a_guide_saves_the_performers_map(tmp_path
     onto the character, finds where the guide was performed (15 frames after 30 of rest) and stores the performer's
     clip in the fusion map; the Performer Profile then fuses a later landmark take through it. The take is synthetic:
     landmarks that move with the weights performed and a camera whose blendshape head reads each shape at 40-90 %."""
-    from types import SimpleNamespace
-
     from facecap.facecap_addon.scene import take as scene_take
-    from facecap.facecap_addon.scene.landmark_scores import store_scores
     from facecap.solvers import MarkerSet
     from facecap.solvers.rom import ARKIT_51
     from facecap.solvers.video.landmarks import NAMES, RIGID
@@ -353,9 +345,7 @@ def test_a_landmark_take_that_followed_a_guide_saves_the_performers_map(tmp_path
     (tmp_path / "guide.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
 
     scene = bpy.context.scene
-    coll = import_scene.create_take(scene, markers, "Guide clip landmarks")
-    import_scene.remember_take(scene, markers, Path("Guide clip landmarks"), coll)
-    store_scores(coll, SimpleNamespace(blendshapes=scores, blendshape_names=ARKIT_51, markers=markers))
+    coll = _scored_take(scene, markers, scores, ARKIT_51, "Guide clip landmarks")
     s = scene.facecap
     s.target, s.strategy, s.actor_template = bpy.data.objects["Face"], "semantic", "none"
     s.calib_collection, s.calib_sheet, s.binding_mode = coll, "NONE", "nearest"  # as Track Face Landmarks sets it
@@ -381,3 +371,16 @@ def test_a_landmark_take_that_followed_a_guide_saves_the_performers_map(tmp_path
     with pytest.raises(RuntimeError, match="a guide followed calibrates a landmark take's blendshape scores"):
         bpy.ops.facecap.rom_save_profile(filepath=str(tmp_path / "other.npz"))
     assert not (tmp_path / "other.npz").exists()
+
+
+def _scored_take(scene, markers, scores, names, name):
+    """A landmark take's collection as *Track Face Landmarks* leaves it: the markers as empties, remembered as the
+    scene's take, its blendshape ``scores`` (F, S) on ``names`` kept beside them."""
+    from types import SimpleNamespace
+
+    from facecap.facecap_addon.scene.landmark_scores import store_scores
+
+    coll = import_scene.create_take(scene, markers, name)
+    import_scene.remember_take(scene, markers, Path(name), coll)
+    store_scores(coll, SimpleNamespace(blendshapes=scores, blendshape_names=names, markers=markers))
+    return coll
