@@ -21,6 +21,9 @@ def _run():
     signal.signal(signal.SIGTERM, _interrupt)  # as Ctrl-C: the same clean stop
     signal.signal(signal.SIGINT, signal.default_int_handler)  # even when started with it ignored
     try:
+        from .facecap_addon.headless import console
+
+        console.lost_interrupts_redelivered()  # a Ctrl-C inside an import's module lock is not lost
         from .facecap_addon.cli import main  # numpy and the solvers load here
 
         status = main(sys.argv[1:])

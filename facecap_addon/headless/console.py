@@ -253,6 +253,37 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+#: How long after an interrupt Python swallowed it is delivered again (seconds).
+REDELIVERY_DELAY = 0.05
+
+
+def lost_interrupts_redelivered():
+    """Install a ``sys.unraisablehook`` for the KeyboardInterrupt a signal raises where Python cannot pass it
+    on (a weakref callback such as the import system's module locks, a ``__del__``): Python prints it as
+    "Exception ignored in ..." with a traceback and runs on as if no Ctrl-C came. The hook prints nothing and
+    sends SIGINT to the main thread again a moment later, when it lands in ordinary code. Other unraisable
+    exceptions go to the hook that was there. Installed once; safe to call again."""
+    if getattr(sys.unraisablehook, "facecap_redelivers", False):
+        return
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        if not issubclass(unraisable.exc_type, KeyboardInterrupt):
+            previous(unraisable)
+            return
+        timer = threading.Timer(REDELIVERY_DELAY, _redeliver, (threading.main_thread().ident,))
+        timer.daemon = True
+        timer.start()
+
+    hook.facecap_redelivers = True
+    sys.unraisablehook = hook
+
+
+def _redeliver(main_ident):
+    if callable(signal.getsignal(signal.SIGINT)):  # not once the run is over (ignored then)
+        signal.pthread_kill(main_ident, signal.SIGINT)
+
+
 def interrupts_handled():
     """Make Ctrl-C (SIGINT) and SIGTERM raise KeyboardInterrupt in the main thread, whatever they did before:
     a process started with SIGINT ignored (a background job of a shell script) would otherwise stop only where
@@ -260,6 +291,7 @@ def interrupts_handled():
     handlers replaced, for ``restore_handlers`` (None off the main thread, where signals cannot be handled)."""
     if threading.current_thread() is not threading.main_thread():
         return None
+    lost_interrupts_redelivered()
     return {signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler),
             signal.SIGTERM: signal.signal(signal.SIGTERM, _interrupt)}
 
