@@ -7,7 +7,7 @@ import bpy
 
 from ..facecap_addon.scene import import_scene
 from ..facecap_addon.ui.properties_video import METHOD_ITEMS
-from ..facecap_addon.scene.landmark_scores import store_scores
+from ..facecap_addon.scene.landmark_scores import store_eye_points, store_scores
 from ..facecap_addon.scene.video_scene import ClipFlowSolving, ClipLandmarks, ClipTracking, use_landmark_defaults
 from ..facecap_addon.ui.greyed import unless
 from ..solvers.errors import FacecapError
@@ -163,6 +163,7 @@ class FACECAP_OT_track_face_landmarks(ClipJobOperator, bpy.types.Operator):
         coll = import_scene.create_take(scene, take, name, set_scene_range=False)
         import_scene.remember_take(scene, take, Path(name), coll)
         store_scores(coll, session.result)
+        store_eye_points(coll, session.result)
         scene.facecap.take_name = name
         use_landmark_defaults(scene.facecap)
         self.report({"INFO"}, f"{session.result.summary()}; added as '{coll.name}' (stable: the head-rigid landmarks, "

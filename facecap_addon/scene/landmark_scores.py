@@ -1,6 +1,15 @@
-"""A landmark take's blendshape scores kept in the .blend (on its collection) and read back for a solve."""
+"""What a landmark take keeps in the .blend (on its collection) besides its skin landmarks, read back for a solve:
+the Face Landmarker's blendshape scores, and the eyes' points (irises, corners, lids) whose gaze and lid gap hold the
+character's eye-look, blink and wide shapes through the solve as the headless take does (``hold_gaze``)."""
 
 import numpy as np
+
+from ...solvers.video.gaze import EYES, gaze_locks
+
+#: The landmarks the gaze and lid locks read (``gaze.EYES``: iris, corners and lids of each eye).
+EYE_LANDMARKS = tuple(sorted({i for eye in EYES for i in eye[:5]}))
+#: Stands for "no face on this frame" in the kept eye points (ID properties hold no NaN).
+NO_POINT = -1e9
 
 
 def store_scores(coll, found):
@@ -26,3 +35,31 @@ def scores_from_collection(coll, frames):
     hit = (at < len(kept)) & (kept[np.minimum(at, len(kept) - 1)] == frames)
     out[hit] = values[at[hit]]
     return out, names
+
+
+def store_eye_points(coll, found):
+    """Keep the image positions of a landmark take's eye points (LandmarkResult ``found``, :data:`EYE_LANDMARKS`)
+    on its collection, when the take tracked the irises."""
+    positions = found.markers.positions
+    if positions.shape[1] <= max(EYE_LANDMARKS):
+        return
+    points = positions[:, EYE_LANDMARKS, :2]
+    coll["facecap_eye_points"] = np.where(np.isfinite(points), points, NO_POINT).ravel().tolist()
+    coll["facecap_eye_frames"] = [float(f) for f in found.markers.frames]
+
+
+def eye_locks(coll, frames, neutral, shape_names):
+    """Per-frame locks ``((shape, (F,) weights), ...)`` holding the character's eye-look shapes at the irises'
+    gaze and its blink and wide shapes at the lids' gap (``gaze.gaze_locks``, relative to the ``neutral``
+    indices of ``frames``), from the eye points the collection's take keeps; () when it keeps none."""
+    if coll is None or "facecap_eye_points" not in coll:
+        return ()
+    kept = np.asarray(coll["facecap_eye_frames"], dtype=np.float64)
+    values = np.asarray(coll["facecap_eye_points"], dtype=np.float64).reshape(len(kept), len(EYE_LANDMARKS), 2)
+    values[values <= NO_POINT / 2] = np.nan
+    frames = np.asarray(frames, dtype=np.float64)
+    positions = np.full((len(frames), max(EYE_LANDMARKS) + 1, 2), np.nan)
+    at = np.searchsorted(kept, frames)
+    hit = (at < len(kept)) & (kept[np.minimum(at, len(kept) - 1)] == frames)
+    positions[np.flatnonzero(hit)[:, None], EYE_LANDMARKS] = values[at[hit]]
+    return gaze_locks(tuple(shape_names), positions, neutral)

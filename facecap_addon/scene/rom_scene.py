@@ -30,8 +30,9 @@ from ...solvers.video.landmarks import RIGID
 from ...solvers.video.response import ResponseFit, fit_response
 from ...solvers.video.response import save_profile as save_response_profile
 from ..headless.landmark_take import given_indices, metric_neutral
+from ..headless.take_request import shape_names
 from . import rom_markers, take
-from .landmark_scores import scores_from_collection
+from .landmark_scores import eye_locks, scores_from_collection
 from .scene_binding import binding_from_sidebar, geometric_character
 from .scene_solve import SolveInBackground
 
@@ -169,10 +170,12 @@ def guide_rom(settings):
                                         store=False).basis
     else:
         character = take.character_target(settings.target)
+    neutral = metric_neutral(markers)
+    rsettings = replace(rsettings, locks=eye_locks(coll, markers.frames, neutral, shape_names(character)))  # as a take
     request = SolveRequest(character=character, settings=rsettings, markers=markers,
                            inputs=StrategyInputs(template=take.human_template(settings, notes), notes=tuple(notes)))
     fps = markers.fps or settings.fps or 30.0
-    return GuideRom(request, FaceScores(scores, names, metric_neutral(markers), fps=fps,
+    return GuideRom(request, FaceScores(scores, names, neutral, fps=fps,
                                         smoothing=bool(settings.video.landmark_smoothing)), guide, Path(path).name)
 
 

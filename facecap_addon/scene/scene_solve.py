@@ -23,11 +23,12 @@ from ...solvers.video.fusion import FaceScores
 from ...solvers.video.response import profile_contents, profile_performer
 from ...solvers.video.reading import Cancelled
 from ..headless.landmark_take import neutral_indices
+from ..headless.take_request import shape_names
 from . import anim, layers, take
 from ..rig.drivers import left_out_note
 from ..rig.rig_proxy import remove_proxies
 from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding, rig_settings
-from .landmark_scores import scores_from_collection
+from .landmark_scores import eye_locks, scores_from_collection
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -55,8 +56,9 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     else:
         character = take.character_target(settings.target)
     inputs = take.strategy_inputs(settings, strategy)
-    if markers is not None:
-        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames))
+    if markers is not None:  # the animator's locks first: they win over the eyes' where both hold a shape
+        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames)
+                            + landmark_eye_locks(settings, markers, rsettings, shape_names(character)))
         if markers.dim == 2:
             rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
     # library versions are learned from the marker take: a footage solve does not use them
@@ -66,6 +68,16 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
                         parent=settings.library_active or "", controls=controls, fps=settings.fps,
                         scores=None if markers is None else landmark_scores(settings, markers, rsettings),
                         notes=(driven,) if driven else ())
+
+
+def landmark_eye_locks(settings, markers, rsettings, shape_names):
+    """A landmark take's eyes held through the solve as the headless take holds them (``hold_gaze``): the
+    character's eye-look shapes at the irises' gaze, blink and wide at the lids' gap, from the take's neutral
+    frames; () for other takes."""
+    neutral = neutral_indices(rsettings, markers)
+    if neutral is None or not len(neutral):
+        return ()
+    return eye_locks(settings.marker_collection, markers.frames, neutral, shape_names)
 
 
 def landmark_scores(settings, markers, rsettings):

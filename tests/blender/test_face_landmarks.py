@@ -114,6 +114,7 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
 
     coll = settings.marker_collection
     assert len(coll["facecap_blendshape_names"]) == 52 and len(coll["facecap_blendshapes"]) == 58 * 52
+    assert len(coll["facecap_eye_points"]) == 58 * 10 * 2  # irises, corners, lids: the eyes' locks at the solve
     markers = markers_from_collection(settings)
     scores = landmark_scores(settings, markers, replace(retarget_settings(settings), strategy="semantic"))
     assert scores.values.shape == (58, 52) and np.isfinite(scores.values).all()
@@ -130,7 +131,7 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
 
 def test_track_and_solve_keys_the_character_in_one_step(rendered, empty_scene):
     """*Track and Solve* (Video panel): the landmarks tracked, then solved onto the Solve panel's character and keyed
-    (the jaw opens where the clip's does); without a character the take is still added and the operator says
+    (the jaw opens where the clip's does, the eyes blink and look where they do); without a character the take is still added and the operator says
     what is missing."""
     from facecap.facecap_addon.scene import anim
     from facecap.facecap_addon.scene.layers import solved_action
@@ -150,6 +151,20 @@ def test_track_and_solve_keys_the_character_in_one_step(rendered, empty_scene):
     assert len(jaw) == 1 and len(jaw[0].keyframe_points) == 58
     values = [jaw[0].evaluate(f) for f in range(1, 59)]
     assert max(values[25:28]) >= 0.5 and max(values[2:REST - 2]) <= 0.1, values  # the jaw's event, then the rest
+    # the eyes held at the irises' gaze and the lids' gap, as the four-section config holds them (the irises are
+    # kept on the take's collection: its markers are skin points only)
+    curves = {fc.data_path.split('"')[1]: fc for fc in anim.action_fcurves(action, key)}
+    eyes = {n: np.array([curves[n].evaluate(f) for f in range(1, 59)])
+            for n in ("eyeBlinkLeft", "eyeBlinkRight", "eyeLookOutLeft", "eyeLookInRight", "eyeLookOutRight")}
+    peaks = [eyes[s][start + 1:start + 6].max() for start in (14, 50) for s in ("eyeBlinkLeft", "eyeBlinkRight")]
+    assert min(peaks) >= 0.8, peaks  # measured 0.82-1.00 (before the sidebar held them: 0.66-0.76)
+    start, rise, hold, _ = GAZE  # 20 degrees to the subject's left: 0.57 of a full look out / in (measured
+    # 0.49 / 0.56; before, the left eye's look out 0.29)
+    looks = [eyes[s][start + rise:start + rise + hold].mean() for s in ("eyeLookOutLeft", "eyeLookInRight")]
+    print(f"sidebar eyes: blink peaks {min(peaks):.2f}-{max(peaks):.2f}, looks {looks[0]:.2f} / {looks[1]:.2f}")
+    # (the right eye's look out 0.11 at most there: the fusion map's cross-talk, the config's solve alike)
+    assert min(looks) >= 0.35 and eyes["eyeLookOutRight"][start:start + rise + hold].max() <= 0.15, looks
+    assert max(eyes[s][2:REST - 2].max() for s in eyes) <= 0.1  # and ahead, open, at rest
 
 
 def test_cancelling_track_face_landmarks_leaves_the_scene_untouched(rendered, empty_scene):
