@@ -48,6 +48,11 @@ def store_eye_points(coll, found):
     coll["facecap_eye_frames"] = [float(f) for f in found.markers.frames]
 
 
+def landmark_eyes_kept(coll):
+    """False for a landmark take (its collection keeps scores) tracked before its eye points were kept as well."""
+    return coll is None or "facecap_blendshapes" not in coll or "facecap_eye_points" in coll
+
+
 def eye_locks(coll, frames, neutral, shape_names):
     """Per-frame locks ``((shape, (F,) weights), ...)`` holding the character's eye-look shapes at the irises'
     gaze and its blink and wide shapes at the lids' gap (``gaze.gaze_locks``, relative to the ``neutral``

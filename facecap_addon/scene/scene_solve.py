@@ -28,7 +28,7 @@ from . import anim, layers, take
 from ..rig.drivers import left_out_note
 from ..rig.rig_proxy import remove_proxies
 from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding, rig_settings
-from .landmark_scores import eye_locks, scores_from_collection
+from .landmark_scores import eye_locks, landmark_eyes_kept, scores_from_collection
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -49,6 +49,10 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     if settings.rig_preset != "NONE" and footage is None:
         return _rig_request(settings, markers, rsettings, corrections=corrections, mu=mu, controls=controls)
     driven = left_out_note(settings.target)
+    notes = (driven,) if driven else ()
+    if markers is not None and not landmark_eyes_kept(settings.marker_collection):
+        notes += ("this landmark take was tracked before facecap kept its eyes' points: its blinks and gaze are "
+                  "solved from the skin alone (weaker); run Track Face Landmarks again to hold them",)
     if strategy in SAMPLES_CHARACTER:  # a stored binding by position is used as it is; none yet: bound and stored
         bound = geometric_character(settings.target, markers, rsettings, binding_from_sidebar(settings))
         show_markers(settings, bound)
@@ -67,7 +71,7 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
                         flow=flow, version=version, corrections=corrections, mu=mu,
                         parent=settings.library_active or "", controls=controls, fps=settings.fps,
                         scores=None if markers is None else landmark_scores(settings, markers, rsettings),
-                        notes=(driven,) if driven else ())
+                        notes=notes)
 
 
 def landmark_eye_locks(settings, markers, rsettings, shape_names):

@@ -115,6 +115,12 @@ def test_track_face_landmarks_adds_a_take_ready_to_solve(rendered, empty_scene):
     coll = settings.marker_collection
     assert len(coll["facecap_blendshape_names"]) == 52 and len(coll["facecap_blendshapes"]) == 58 * 52
     assert len(coll["facecap_eye_points"]) == 58 * 10 * 2  # irises, corners, lids: the eyes' locks at the solve
+    from facecap.facecap_addon.scene.landmark_scores import landmark_eyes_kept
+
+    assert landmark_eyes_kept(coll)
+    points = coll.pop("facecap_eye_points")  # a take tracked by an earlier facecap: the solve says so
+    assert not landmark_eyes_kept(coll)
+    coll["facecap_eye_points"] = points
     markers = markers_from_collection(settings)
     scores = landmark_scores(settings, markers, replace(retarget_settings(settings), strategy="semantic"))
     assert scores.values.shape == (58, 52) and np.isfinite(scores.values).all()
@@ -165,6 +171,13 @@ def test_track_and_solve_keys_the_character_in_one_step(rendered, empty_scene):
     # (the right eye's look out 0.11 at most there: the fusion map's cross-talk, the config's solve alike)
     assert min(looks) >= 0.35 and eyes["eyeLookOutRight"][start:start + rise + hold].max() <= 0.15, looks
     assert max(eyes[s][2:REST - 2].max() for s in eyes) <= 0.1  # and ahead, open, at rest
+    from facecap.facecap_addon.scene.scene_solve import request_from_scene
+
+    assert not [n for n in request_from_scene(scene.facecap, scene).notes if "eyes' points" in n]
+    scene.facecap.marker_collection.pop("facecap_eye_points")  # as a take tracked by an earlier facecap
+    request = request_from_scene(scene.facecap, scene)
+    assert [n for n in request.notes if "tracked before facecap kept its eyes' points" in n]
+    assert not [n for n, _ in request.settings.locks if n.startswith("eyeBlink")]
 
 
 def test_cancelling_track_face_landmarks_leaves_the_scene_untouched(rendered, empty_scene):
