@@ -171,7 +171,8 @@ def guide_rom(settings):
     else:
         character = take.character_target(settings.target)
     neutral = metric_neutral(markers)
-    rsettings = replace(rsettings, locks=eye_locks(coll, markers.frames, neutral, shape_names(character)))  # as a take
+    rsettings = replace(rsettings, locks=tuple(rsettings.locks)  # the eyes held as the take's solve holds them
+                        + eye_locks(coll, markers.frames, neutral, shape_names(character)))
     request = SolveRequest(character=character, settings=rsettings, markers=markers,
                            inputs=StrategyInputs(template=take.human_template(settings, notes), notes=tuple(notes)))
     fps = markers.fps or settings.fps or 30.0
