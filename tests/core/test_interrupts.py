@@ -11,6 +11,7 @@ SCRIPT = textwrap.dedent("""
     import gc, signal, sys, time, weakref
     from facecap.facecap_addon.headless import console
 
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # Python's own, even when started with SIGINT ignored
     if sys.argv[1] == "hooked":
         console.interrupts_handled()
 
