@@ -8,8 +8,10 @@ Every case runs the command line in this process (``facecap_addon.cli.main``) an
 0 (done), 1 (one line per problem, each starting ``facecap``) or 2 (a usage error), never with a
 traceback, an "internal error" or an exception out of ``main``, within ``CASE_SECONDS``; no input, special
 file or file nobody asked to replace may change, no temporary file (a partial download, an output's) may be
-left, nothing from the rig's .blend may run, and no case may need more than ``PEAK_BYTES`` of memory (the
-process's peak resident size, reset before each case). Valid configs are solved to the end (the first
+left, nothing from the rig's .blend may run, and no case may grow this process by more than ``GROWTH_BYTES`` (its
+peak resident size, reset before each case, over its resident size then: a command's own process, Blender loaded,
+holds about 460 MB, so a command stays within 1 GB; the peak itself depends on what earlier tests left in the
+process). Valid configs are solved to the end (the first
 ``FULL_RUNS`` of them, ``RIG_FULL_RUNS`` of the rig's, which must warn about the drivers they leave out;
 later ones are checked up to the preflight, the solve itself being the one the other tests cover).
 The figures per command are printed (``-s``). Signals at random moments are in ``tests/e2e/test_fuzz_signals.py``.
@@ -48,7 +50,7 @@ COUNTS = {"retarget": 800, "track": 300, "batch": 200, "readers": 450, "outputs"
 FULL_RUNS = 40
 RIG_FULL_RUNS = 3
 CASE_SECONDS = 30  # a case still running after this is stopped and counted as a hang
-PEAK_BYTES = 1 << 30
+GROWTH_BYTES = 512 << 20
 #: The download's bounds in the campaign: the mechanism is the one users get, its figures small enough that a
 #: server sending without end costs a case a second, not the 768 MiB and the hour of a real download
 DOWNLOAD_BOUNDS = {"MAX_DOWNLOAD_BYTES": 8 << 20, "DOWNLOAD_SECONDS": 3.0, "TIMEOUT_S": 2.0}
@@ -272,7 +274,9 @@ def _campaign(ws, cases, tmp_path, monkeypatch):
         found = findings_of(case, rc, err, exc, ws.digest, after, own, ws.folder)
         left = litter(ws.folder) + litter(tmp_path / "cache") + litter(tmp_path / "data")
         found += [f"left behind: {left[:5]}"] if left else []
-        found += [f"peak memory {peak / 2**20:.0f} MB"] if peak is not None and peak > PEAK_BYTES else []
+        grew = None if peak is None or before is None else peak - before
+        found += [f"peak memory {peak / 2**20:.0f} MB, {grew / 2**20:.0f} MB over its start"] \
+            if grew is not None and grew > GROWTH_BYTES else []
         for problem in found:
             findings.append(f"case {i} ({case.family}: {' '.join(case.argv)[:300]}; files {sorted(case.files)}): "
                             f"{problem}")
