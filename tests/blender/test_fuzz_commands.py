@@ -11,9 +11,9 @@ file or file nobody asked to replace may change, no temporary file (a partial do
 left, nothing from the rig's .blend may run, and no case may grow this process by more than ``GROWTH_BYTES`` (its
 peak resident size, reset before each case, over its resident size then: a command's own process, Blender loaded,
 holds about 460 MB, so a command stays within 1 GB; the peak itself depends on what earlier tests left in the
-process). Valid configs are solved to the end (the first
-``FULL_RUNS`` of them, ``RIG_FULL_RUNS`` of the rig's, which must warn about the drivers they leave out;
-later ones are checked up to the preflight, the solve itself being the one the other tests cover).
+process). Valid configs are solved to the end (the first ``FULL_RUNS`` of them, ``RIG_FULL_RUNS`` of the rig's,
+which must warn about the drivers they leave out; later ones are checked up to the preflight, the solve itself
+being the one the other tests cover).
 The figures per command are printed (``-s``). Signals at random moments are in ``tests/e2e/test_fuzz_signals.py``.
 """
 
