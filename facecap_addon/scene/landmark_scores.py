@@ -30,11 +30,17 @@ def scores_from_collection(coll, frames):
     kept = np.asarray(coll["facecap_blendshape_frames"], dtype=np.float64)
     values = np.asarray(coll["facecap_blendshapes"], dtype=np.float64).reshape(len(kept), len(names))
     values[values < 0] = np.nan
-    out = np.full((len(frames), len(names)), np.nan)
+    return _at_frames(kept, values, frames), names
+
+
+def _at_frames(kept, values, frames):
+    """``values`` (one row per frame of ``kept``) at ``frames``: NaN rows where the take kept nothing."""
+    frames = np.asarray(frames, dtype=np.float64)
+    out = np.full((len(frames),) + values.shape[1:], np.nan)
     at = np.searchsorted(kept, frames)
     hit = (at < len(kept)) & (kept[np.minimum(at, len(kept) - 1)] == frames)
     out[hit] = values[at[hit]]
-    return out, names
+    return out
 
 
 def store_eye_points(coll, found):
@@ -46,6 +52,11 @@ def store_eye_points(coll, found):
     points = positions[:, EYE_LANDMARKS, :2]
     coll["facecap_eye_points"] = np.where(np.isfinite(points), points, NO_POINT).ravel().tolist()
     coll["facecap_eye_frames"] = [float(f) for f in found.markers.frames]
+
+
+def keeps_landmark_extras(coll):
+    """True when the collection's take is a landmark take keeping scores or eye points (a solve reads them)."""
+    return coll is not None and ("facecap_blendshapes" in coll or "facecap_eye_points" in coll)
 
 
 def landmark_eyes_kept(coll):
@@ -62,9 +73,6 @@ def eye_locks(coll, frames, neutral, shape_names):
     kept = np.asarray(coll["facecap_eye_frames"], dtype=np.float64)
     values = np.asarray(coll["facecap_eye_points"], dtype=np.float64).reshape(len(kept), len(EYE_LANDMARKS), 2)
     values[values <= NO_POINT / 2] = np.nan
-    frames = np.asarray(frames, dtype=np.float64)
-    positions = np.full((len(frames), max(EYE_LANDMARKS) + 1, 2), np.nan)
-    at = np.searchsorted(kept, frames)
-    hit = (at < len(kept)) & (kept[np.minimum(at, len(kept) - 1)] == frames)
-    positions[np.flatnonzero(hit)[:, None], EYE_LANDMARKS] = values[at[hit]]
+    positions = np.full((len(frames), max(EYE_LANDMARKS) + 1, 2), np.nan)  # gaze_locks reads landmarks by index
+    positions[:, EYE_LANDMARKS] = _at_frames(kept, values, frames)
     return gaze_locks(tuple(shape_names), positions, neutral)

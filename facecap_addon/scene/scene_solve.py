@@ -28,7 +28,7 @@ from . import anim, layers, take
 from ..rig.drivers import left_out_note
 from ..rig.rig_proxy import remove_proxies
 from ..rig.rig_solve import PROBE_CHUNK, build_rig_target, build_rig_target_steps, key_rig, rig_binding, rig_settings
-from .landmark_scores import eye_locks, landmark_eyes_kept, scores_from_collection
+from .landmark_scores import eye_locks, keeps_landmark_extras, landmark_eyes_kept, scores_from_collection
 from .scene_camera import projection_from_sidebar
 from .scene_binding import binding_from_sidebar, geometric_character, show_markers
 from .tuning_scene import load_version, shape_controls
@@ -60,9 +60,11 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     else:
         character = take.character_target(settings.target)
     inputs = take.strategy_inputs(settings, strategy)
+    neutral = landmark_neutral(settings, markers, rsettings)  # found once, for the eyes' locks and the scores
     if markers is not None:  # the animator's locks first: they win over the eyes' where both hold a shape
-        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames)
-                            + landmark_eye_locks(settings, markers, rsettings, shape_names(character)))
+        eyes = () if neutral is None else eye_locks(settings.marker_collection, markers.frames, neutral,
+                                                    shape_names(character))
+        rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames) + eyes)
         if markers.dim == 2:
             rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
     # library versions are learned from the marker take: a footage solve does not use them
@@ -70,30 +72,31 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
                         parent=settings.library_active or "", controls=controls, fps=settings.fps,
-                        scores=None if markers is None else landmark_scores(settings, markers, rsettings),
+                        scores=None if neutral is None else landmark_scores(settings, markers, rsettings, neutral),
                         notes=notes)
 
 
-def landmark_eye_locks(settings, markers, rsettings, shape_names):
-    """A landmark take's eyes held through the solve as the headless take holds them (``hold_gaze``): the
-    character's eye-look shapes at the irises' gaze, blink and wide at the lids' gap, from the take's neutral
-    frames; () for other takes."""
+def landmark_neutral(settings, markers, rsettings):
+    """The neutral frames (indices) of a landmark take keeping scores or eye points, given or detected as the solve
+    detects them; None for other takes (nothing detected for them) or when it has none. Its eyes are then held
+    through the solve as the headless take holds them (``hold_gaze``) and its scores fused."""
+    if markers is None or not keeps_landmark_extras(settings.marker_collection):
+        return None
     neutral = neutral_indices(rsettings, markers)
-    if neutral is None or not len(neutral):
-        return ()
-    return eye_locks(settings.marker_collection, markers.frames, neutral, shape_names)
+    return neutral if neutral is not None and len(neutral) else None
 
 
-def landmark_scores(settings, markers, rsettings):
+def landmark_scores(settings, markers, rsettings, neutral=None):
     """The Face Landmarker's blendshape scores a landmark take keeps on its collection (``store_scores``), with
-    the take's neutral frames (given or detected as the solve detects them) and the response of the Solve
+    the take's ``neutral`` frames (None: given or detected as the solve detects them) and the response of the Solve
     panel's performer profile, if it holds one (a ROM on camera), and its clip in the fusion map (a guide
     followed): FaceScores, or None."""
     found = scores_from_collection(settings.marker_collection, markers.frames)
     if found is None:
         return None
-    neutral = neutral_indices(rsettings, markers)
-    if neutral is None or not len(neutral):
+    if neutral is None:
+        neutral = landmark_neutral(settings, markers, rsettings)
+    if neutral is None:
         return None
     response = performer = None  # the performer on this camera, when the Solve panel's profile measured them
     if settings.actor_profile:
