@@ -29,7 +29,11 @@ The clips are kept apart by role (:data:`CLIPS`):
 * **follow**: each reported face following a guide (``GUIDE``: 8 s of a tuning recording, performed late and
   imperfectly: :func:`follow_performance`) from each reported camera: the clip, with the guide's weights (not what
   the face performed) as its truth, joins the map for that face and camera (``solvers/video/follow.py``), judged
-  on its reported clips ("fused + guide followed").
+  on its reported clips ("fused + guide followed");
+* **tune-performers**: the tuning identities performing the rest of the Sentien recording (``PERFORMER_WINDOWS``,
+  outside its reported window): never in the shipped fit; ``--performers`` refits with and without each tuning
+  performer, Sentien's windows standing in for a third, and judges every performer's clips (what the uncalibrated
+  figures owe to the performer being tuned on).
 
 Each clip's landmarks, scores and unfused solve are cached in ``--out`` (a clip is rendered once).
 """
@@ -71,7 +75,8 @@ from .fusion_clips import (
     region_rmse,
     rom_fit,
 )
-from .fusion_fit import fit, fit_cross, fit_reference, follow_weight_check, lid_gaze_check, smoothing_check
+from .fusion_fit import (PERFORMERS_READ, fit, fit_cross, fit_reference, follow_weight_check, lid_gaze_check,
+                         performers_check, smoothing_check)
 from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, shared_folder
 
 CHARACTER_SEED = 7
@@ -240,7 +245,7 @@ def prepare(clip, out, character, *, log=print):
             "scores": found.blendshapes, "score_names": np.array(found.blendshape_names),
             "neutral": landmark_neutral(found), "render_s": t_render, **extra}
     np.savez(cached, **data)
-    if clip.role in ("tune", "tune-random", "tune-follow"):
+    if clip.role in ("tune", "tune-random", "tune-follow", "tune-performers"):
         video.unlink()  # the npz keeps what the fusion needs; a reported clip's video is kept for the speed
     log(f"{clip.name}: rendered in {t_render:.0f} s")
     return data
@@ -321,7 +326,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m facecap.facecap_addon.bench.fusion_bench")
     parser.add_argument("--out", required=True, help="folder of the cached clips (rendered once)")
     parser.add_argument("--role", choices=("tune", "report", "tune-rom", "calibrate", "tune-random", "report-others",
-                                           "follow", "tune-follow"),
+                                           "follow", "tune-follow", "tune-performers"),
                         action="append",
                         help="only these clips")
     parser.add_argument("--speed", action="store_true", help="also time the landmarks on a reported clip")
@@ -336,6 +341,9 @@ def main(argv=None):
     parser.add_argument("--follow-weight", action="store_true",
                         help="compare what a clip following the guide weighs in the map, on the tuning faces (how "
                              "follow.FOLLOW_SHARE was chosen)")
+    parser.add_argument("--performers", action="store_true",
+                        help="refit the table and map on each set of tuning performers (with and without each, the "
+                             "Sentien recording's other windows as a third) and judge every performer's clips")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -346,7 +354,7 @@ def main(argv=None):
         neutral, quads, names, deltas, identity = ict_arrays(shared_folder() / "data" / "ict-facekit" / "ict_face.npz")
         ict_character(character, neutral, quads, names, deltas, identity, CHARACTER_SEED)
     for clip in CLIPS:
-        if args.role is None or clip.role in args.role:
+        if args.role is None or clip.role in args.role or (args.performers and clip.role in PERFORMERS_READ):
             prepare(clip, out, character)
     if args.fit:
         table, constant = fit(out)
@@ -370,6 +378,8 @@ def main(argv=None):
         smoothing_check(out, table)
     if args.follow_weight:
         follow_weight_check(out, table)
+    if args.performers:
+        performers_check(out, table.reference)
     rows = evaluate(out, table, constant)
     print_tables(rows)
     others = [c for c in CLIPS if c.role == "report-others"]

@@ -59,6 +59,11 @@ class Clip:
 #: recording's busiest stretch is reported (role report-others).
 TUNING_OTHER = ("edge-cases/llf_jmtechart_MySlate_3.csv", 0, 160)
 OTHERS = (("edge-cases/llf_sentien_recording.csv", 800, 240),)
+#: The rest of the Sentien recording (rows 0-779 and 1300-1627: its reported window, rows 800-1279, and 20 rows
+#: either side left out; role "tune-performers"): fitted on only by ``--performers``, which asks what a tuning
+#: performer more or less does to each performer's clips; the shipped table and map never see them.
+PERFORMER_WINDOWS = (("edge-cases/llf_sentien_recording.csv", 0, 390),
+                     ("edge-cases/llf_sentien_recording.csv", 1300, 164))
 #: The guide the reported faces follow (role "follow", ``solvers/video/follow.py``): the busiest 8 s of Alex's
 #: ``llf_alex_rom_3`` outside the tuning windows (39 shapes above 0.3; chosen by that count alone).
 GUIDE = ("llf_alex_rom_3.csv", 3540, 240)
@@ -81,12 +86,24 @@ CLIPS = tuple(
     + [Clip("follow", face, GUIDE[0], GUIDE[1], az, frames=GUIDE[2]) for face in ("ict-mean", "facecap")
        for az in (0.0, 30.0)]
     + [Clip("tune-follow", f"ict-{seed}", GUIDE[0], GUIDE[1], az, frames=GUIDE[2]) for seed in (21, 22)
-       for az in (0.0, 30.0)])
+       for az in (0.0, 30.0)]
+    + [Clip("tune-performers", f"ict-{seed}", recording, start, az, frames=frames)
+       for recording, start, frames in PERFORMER_WINDOWS for seed in (21, 22) for az in (0.0, 30.0)])
 #: The roles whose clips follow the guide: the reported faces' (judged) and the tuning faces' (how much such a clip
 #: weighs in the map is chosen on these: ``fusion_fit.follow_weight_check``).
 FOLLOW_ROLES = ("follow", "tune-follow")
 #: The roles the fusion map is fitted on: the tuning faces' performances, ROM sessions and random activations.
 MAP_ROLES = ("tune", "tune-rom", "tune-random")
+
+
+def performer(clip):
+    """Who performs a clip of a Live Link Face recording ("alex", "jmtechart", "sentien"), or None (the ROM sessions
+    and random activations are nobody's habits)."""
+    if not clip.recording.endswith(".csv"):
+        return None
+    return Path(clip.recording).stem.split("_")[1]
+
+
 def columns(data, names):
     """(truth, solve, corrected scores) (F, len(names)) of a cached clip on ARKit ``names``, from the hold on
     (NaN where a side has no such shape)."""

@@ -1,7 +1,9 @@
-"""The fits of the fusion benchmark (``fusion_bench --fit``, ``--fit-rom``, ``--smoothing``, ``--follow-weight``):
-the fusion table and its map on the tuning clips, the ROM reference on the tuning faces' ROM sessions, and the
-comparisons the fused weights' smoothing and a guide-following clip's weight were chosen by. Only tuning clips are
-read here (roles ``tune``, ``tune-rom``, ``tune-random``, ``tune-follow``)."""
+"""The fits of the fusion benchmark (``fusion_bench --fit``, ``--fit-rom``, ``--smoothing``, ``--follow-weight``,
+``--performers``): the fusion table and its map on the tuning clips, the ROM reference on the tuning faces' ROM
+sessions, the comparisons the fused weights' smoothing and a guide-following clip's weight were chosen by, and what
+a performer's own windows among the tuning clips do for their reported clips. Only tuning clips are fitted on
+(roles ``tune``, ``tune-rom``, ``tune-random``, ``tune-follow``, ``tune-performers``); ``--performers`` alone reads
+the reported clips, to judge them."""
 
 import warnings
 from dataclasses import replace
@@ -10,32 +12,38 @@ import numpy as np
 
 from ...solvers.video.fusion import (
     UNSMOOTHED,
+    FaceScores,
     fit_lid_gaze,
     fit_map,
     fit_table,
+    fuse,
     lids_against_gaze,
     smooth_runs,
 )
 from ...solvers.video.response import ScoreResponse
-from .fusion_clips import (CLIPS, MAP_ROLES, ROM_SHEET, columns, follow_fit, jitter, judged_names, region_rmse,
-                           rom_fit)
+from .fusion_clips import (CLIPS, MAP_ROLES, ROM_SHEET, columns, follow_fit, jitter, judged_names, performer,
+                           region_rmse, rom_fit)
 
 
-def fit(out, *, lid_gaze=None, log=print):
-    """Fit the fusion table on the tuning clips in ``out``: first the solve's lids against its gaze (``lid_gaze``, on
-    every tuning clip; or as given), then the per-shape gains (on the performances) with the lids so read; returns
-    the table (not saved) and the constant baseline."""
+#: The roles of the tuning clips that perform a recording (the per-shape table is fitted on these alone).
+PERFORMANCE_ROLES = ("tune", "tune-performers")
+
+
+def fit(out, *, lid_gaze=None, clips=None, log=print):
+    """Fit the fusion table on the tuning clips in ``out`` (``clips``, or the roles of :data:`MAP_ROLES`): first the
+    solve's lids against its gaze (``lid_gaze``, on every tuning clip; or as given), then the per-shape gains (on the
+    performances) with the lids so read; returns the table (not saved) and the constant baseline."""
     names = judged_names()
-    every = [c for c in CLIPS if c.role in MAP_ROLES]
+    every = list(clips) if clips is not None else [c for c in CLIPS if c.role in MAP_ROLES]
     raw = [columns(dict(np.load(out / f"{c.name}.npz")), names) for c in every]
     truth, solved, _ = (np.concatenate(p) for p in zip(*raw))
     if lid_gaze is None:
         lid_gaze = fit_lid_gaze(truth, solved, names)
         log(f"lids against the gaze fitted on {len(every)} clips: a full look down closes {-lid_gaze:.3f} of the "
             "lid gap")
-    parts = [p for c, p in zip(every, tune_parts(raw, names, lid_gaze)) if c.role == "tune"]
+    parts = [p for c, p in zip(every, tune_parts(raw, names, lid_gaze)) if c.role in PERFORMANCE_ROLES]
     truth, solved, corrected = (np.concatenate(p) for p in zip(*parts))
-    tuned = [c.name for c in every if c.role == "tune"]
+    tuned = [c.name for c in every if c.role in PERFORMANCE_ROLES]
     table = fit_table(np.nan_to_num(truth), solved, corrected, names,
                       measured_on={"clips": tuned, "frames": int(len(truth)),
                                    "command": "python -m facecap.facecap_addon.bench.fusion_bench --out DIR --fit"})
@@ -53,12 +61,12 @@ def tune_parts(parts, names, lid_gaze):
 MAP_RIDGES = (3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
 
 
-def fit_cross(out, table, *, log=print):
-    """The fusion map on the tuning faces' clips, performances and ROM sessions alike (``tune`` and ``tune-rom``):
-    its ridge chosen by leaving each tuning identity out in turn (the median visible RMSE of its clips, the larger
-    ridge on a tie to 3 decimals); returns (the map, what it was measured on)."""
+def fit_cross(out, table, *, clips=None, log=print):
+    """The fusion map on the tuning faces' clips (``clips``, or the roles of :data:`MAP_ROLES`: performances, ROM
+    sessions and random activations alike): its ridge chosen by leaving each tuning identity out in turn (the median
+    visible RMSE of its clips, the larger ridge on a tie to 3 decimals); returns (the map, what it was measured on)."""
     names = judged_names()
-    clips = [c for c in CLIPS if c.role in MAP_ROLES]
+    clips = list(clips) if clips is not None else [c for c in CLIPS if c.role in MAP_ROLES]
     parts = dict(zip([c.name for c in clips], tune_parts([columns(dict(np.load(out / f"{c.name}.npz")), names)
                                                           for c in clips], names, table.lid_gaze)))
     faces = sorted({c.face for c in clips})
@@ -163,6 +171,70 @@ def follow_weight_check(out, table, *, log=print):
     best = min(v["another performer"][0] for v in got.values())
     chosen = min(k for k, v in got.items() if v["another performer"][0] == best)
     log(f"chosen {chosen:.4g}: the best median on another performer's performances, the smallest share on a tie")
+    return got
+
+
+#: The tuning performers ``--performers`` fits on, in turn: the shipped fit's two, all three, and each of the
+#: shipped two left out (Sentien's own windows, role tune-performers, standing in).
+PERFORMER_FITS = (("alex", "jmtechart"), ("alex", "jmtechart", "sentien"), ("jmtechart", "sentien"),
+                  ("alex", "sentien"))
+#: The roles of the clips ``--performers`` reads (rendered first when missing).
+PERFORMERS_READ = (*MAP_ROLES, "tune-performers", "report", "report-others")
+
+
+def performer_groups():
+    """{(performer, face): the clips each performer is judged on}: Alex's and Sentien's reported clips per reported
+    face; Jason's, who has no other window, his tuning clips (the tuning identities), judged only by a fit without
+    him."""
+    def of(role, face):
+        return [c for c in CLIPS if c.role == role and c.face == face]
+    return {("alex", "ict-mean"): of("report", "ict-mean"), ("alex", "facecap"): of("report", "facecap"),
+            ("jmtechart", "ict"): [c for c in CLIPS if c.role == "tune" and performer(c) == "jmtechart"],
+            ("sentien", "ict-mean"): of("report-others", "ict-mean"),
+            ("sentien", "facecap"): of("report-others", "facecap")}
+
+
+def performer_fit_clips(people):
+    """The clips a fit on the tuning performers ``people`` reads: the ROM sessions and random activations (nobody's
+    habits) and those performers' windows."""
+    return [c for c in CLIPS if (c.role in MAP_ROLES and performer(c) is None)
+            or (c.role in PERFORMANCE_ROLES and performer(c) in people)]
+
+
+def performers_check(out, reference, *, log=print):
+    """What the fused weights of each performer's clips (uncalibrated) owe to that performer being tuned on: the
+    table and map fitted on each set of :data:`PERFORMER_FITS` (as ``--fit`` fits them), every group of
+    :func:`performer_groups` judged; a performer's cell marked "seen" when the fit read their other windows. Returns
+    {fit: {group: (median visible, worst visible, median brows, seen)}}."""
+    names = judged_names()
+    groups = performer_groups()
+    got = {}
+    for people in PERFORMER_FITS:
+        clips = performer_fit_clips(people)
+        table = fit(out, clips=clips, log=lambda _m: None)[0]
+        cross, measured = fit_cross(out, table, clips=clips, log=lambda _m: None)
+        table = replace(table, map=cross, reference=reference)
+        row = {}
+        for (who, face), group in groups.items():
+            rows = []
+            for clip in group:
+                data = dict(np.load(out / f"{clip.name}.npz"))
+                truth = columns(data, names)[0]
+                fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
+                                FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]),
+                                           data["neutral"], fps=clip.fps), table=table)
+                rows.append(region_rmse(columns({**data, "solved": fused}, names)[1], truth, names))
+            vis, brows = [r["visible"] for r in rows], [r["brows"] for r in rows]
+            row[who, face] = (float(np.median(vis)), float(np.max(vis)), float(np.median(brows)), who in people)
+        got[people] = row
+        log(f"fitted on {' + '.join(people)}: {len(clips)} clips, the map's ridge {measured['map_ridge']:g}")
+    log("Each performer's clips, fused uncalibrated: visible median (worst), brows median; (seen): the fit read "
+        "that performer's other windows")
+    log("| fitted on | " + " | ".join(f"{who}, {face}" for who, face in groups) + " |")
+    log("|---|" + "---|" * len(groups))
+    for people, row in got.items():
+        log(f"| {' + '.join(people)} | " + " | ".join(f"{v[0]:.3f} ({v[1]:.3f}), brows {v[2]:.3f}"
+                                                       + (" (seen)" if v[3] else "") for v in row.values()) + " |")
     return got
 
 

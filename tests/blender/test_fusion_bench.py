@@ -50,8 +50,8 @@ def test_other_performers_are_judged_never_fitted_and_their_windows_fit_their_re
     assert tuning_people == {"alex", "jmtechart"}
     assert not {c.recording for c in fb.CLIPS if c.role == "report"} & tuned  # Alex's other recording
     for clip in [c for c in fb.CLIPS if c.recording.startswith("edge-cases/")]:
-        assert clip.role in ("tune", "report-others")
-        assert clip.role == "tune" or performer(clip.recording) not in tuning_people
+        assert clip.role in ("tune", "report-others", "tune-performers")
+        assert clip.role != "report-others" or performer(clip.recording) not in tuning_people
         assert f"{clip.face}-{performer(clip.recording)}-" in clip.name  # named by the performer
         track = read_weights(shared_folder() / "data" / "realdata" / clip.recording)
         step = max(1, int(round(track.fps / clip.fps)))
@@ -65,3 +65,30 @@ def test_pinned_counts_the_weights_held_at_their_full_extent():
     w = np.array([[1.0, 0.5], [0.9995, np.nan], [0.2, 0.0], [0.998, 1.0]])
     assert pinned(w) == 100.0 * 3 / 7
     assert np.isnan(pinned(np.full((2, 2), np.nan)))
+
+
+def test_the_performers_check_never_fits_on_a_performer_it_calls_unseen_nor_on_a_reported_window():
+    """``--performers``: each fit reads the ROM sessions, the random activations and the windows of its performers
+    only; a group judged by a fit without its performer holds none of the clips the fit read; Sentien's tuning
+    windows keep 20 rows clear of the reported window on either side, and the shipped fit's roles never include
+    them."""
+    from facecap.facecap_addon.bench import fusion_clips as fc
+    from facecap.facecap_addon.bench import fusion_fit as ff
+
+    assert "tune-performers" not in fc.MAP_ROLES
+    assert ff.PERFORMER_FITS[0] == ("alex", "jmtechart")  # the shipped fit's performers come first
+    assert {fc.performer(c) for c in fb.CLIPS if c.role in fc.MAP_ROLES} - {None} == {"alex", "jmtechart"}
+    groups = ff.performer_groups()
+    assert all(groups.values()) and {who for who, _ in groups} == {"alex", "jmtechart", "sentien"}
+    for people in ff.PERFORMER_FITS:
+        read = ff.performer_fit_clips(people)
+        assert {fc.performer(c) for c in read} - {None} == set(people)
+        assert not [c for c in read if c.role.startswith("report")]
+        for (who, _face), group in groups.items():
+            assert all(fc.performer(c) == who for c in group)
+            if who not in people:
+                assert not {c.name for c in group} & {c.name for c in read}
+    reported = [(c.start, c.start + 2 * c.frames) for c in fb.CLIPS if c.role == "report-others"]
+    for clip in [c for c in fb.CLIPS if c.role == "tune-performers"]:
+        rows = (clip.start, clip.start + 2 * clip.frames)  # 30 frames/s read from the recording's 60
+        assert all(rows[1] + 20 <= a or b + 20 <= rows[0] for a, b in reported), clip.name
