@@ -10,6 +10,8 @@ controls applied to the weights. The result is always a ``RetargetResult`` (``pi
 
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from .character.shape_controls import apply_controls, locks_from_controls
 from .errors import FacecapError
 from .pipeline import retarget
@@ -108,8 +110,8 @@ def solve_job(request):
         yield None
         if rig is not None:  # a library version (chosen, or the retune's) moves the rig model too
             result = yield from rig.with_columns(solved_with).finish_steps(result, request.markers, settings)
-        if request.scores is not None:
-            result = _fused(result, request.scores)
+        if request.scores is not None:  # a rig: its controls that read as shape weights alone
+            result = _fused(result, request.scores, None if rig is None else rig.weight_controls)
         return _with_controls(result, request, _take_fps(request))
 
     return Job(steps(), 1 + (rig.steps_for(settings) if rig is not None else 0), what="solve")
@@ -125,10 +127,16 @@ def _take_fps(request):
     return getattr(request.inputs.weights, "fps", None)
 
 
-def _fused(result, scores):
-    """``result`` with the blendshape scores combined into its weights (``video.fusion``)."""
+def _fused(result, scores, only=None):
+    """``result`` with the blendshape scores combined into its weights (``video.fusion``): every shape, or the
+    shapes named in ``only``."""
     table = FusionTable.load()
-    weights, names = fuse(result.weights, result.shape_names, scores, table=table)
+    shapes = list(result.shape_names)
+    columns = [k for k, n in enumerate(shapes) if only is None or n in only]
+    if not columns:
+        return result
+    weights = np.array(result.weights, dtype=np.float64)
+    weights[:, columns], names = fuse(weights[:, columns], tuple(shapes[k] for k in columns), scores, table=table)
     if not names:
         return result
     fusion = {"shapes": list(names), "neutral_frames": int(len(scores.neutral)),

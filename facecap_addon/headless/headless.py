@@ -40,7 +40,8 @@ from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_
                           start_blender, target_changed)
 from .landmark_take import follow_clip, landmark_request, performer_of, read_landmarks, score_response
 from ..render.review import read_review_truth, write_take_review
-from .take_request import corrections_for, rig_request, shape_names, source_fields, with_driven_keys
+from .take_request import (corrections_for, rig_request, rig_weights_note, shape_names, source_fields,
+                           with_driven_keys)
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
@@ -349,9 +350,15 @@ def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False
     from ..scene.take import character_target  # loads bpy
 
     settings = config.settings
+    say = (lambda _m: None) if quiet else progress_line
     if config.rig is not None:  # probing a rig: a pose at a time in Blender, with progress, Ctrl-C stops it
         with showing_progress("rig probing", "pose", quiet=quiet) as progress:
-            return rig_request(config, obj, take, tune=tune, say=progress_line, progress=progress)
+            request, fields = rig_request(config, obj, take, tune=tune, say=progress_line, progress=progress)
+        if take.landmarks is not None:  # the eyes and the scores reach the controls that read as shape weights
+            weights = request.rig.weight_controls
+            request, note = landmark_request(config, request, take, weights, say)
+            take.notes = tuple(take.notes) + ((note,) if note else ()) + rig_weights_note(request.rig, weights)
+        return request, fields
     binding = config.binding or BindingSettings()
     # Only geometric samples the character at bound points; the others need its shape names and ranges.
     # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
@@ -387,7 +394,6 @@ def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
     if take.landmarks is not None:  # the eyes' look from the irises held through the solve, the scores fused
-        say = (lambda _m: None) if quiet else progress_line
         request, note = landmark_request(config, request, take, shape_names(character), say)
         take.notes = tuple(take.notes) + ((note,) if note else ())
     fields = source_fields(config, take)

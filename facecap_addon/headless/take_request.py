@@ -28,6 +28,20 @@ def rig_request(config, obj, take, *, tune, say, progress=None):
     return request, {**source_fields(config, take), "rig": fields}
 
 
+def rig_weights_note(target, weights):
+    """A note for a landmark take onto the rig ``target`` whose controls that read as shape weights are ``weights``
+    (``RigTarget.weight_controls``): what of the video's blendshape scores and eyes the rig did not get."""
+    if not weights:
+        return ("[rig] none of the rig's controls reads as a shape weight (at rest at 0, limits 0 and 1), so the "
+                "video's blendshape scores and its eyes' lids and irises do not reach it: solved from the landmarks "
+                "alone (docs/video.md)",)
+    others = len(target.control_names) - len(weights)
+    if not others:
+        return ()
+    return (f"[rig] the video's blendshape scores and eyes reach the {len(weights)} control(s) that read as shape "
+            f"weights (at rest at 0, limits 0 and 1); the other {others} are solved from the landmarks alone",)
+
+
 def with_driven_keys(config, obj, take):
     """(config, notes): a shape-key take onto a mesh some of whose keys drivers set. Where every such
     driver reads only the mesh's own keys (correctives, in-betweens) and the solve is geometric on

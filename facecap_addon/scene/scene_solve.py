@@ -23,7 +23,7 @@ from ...solvers.video.fusion import FaceScores
 from ...solvers.video.response import profile_contents, profile_performer
 from ...solvers.video.reading import Cancelled
 from ..headless.landmark_take import neutral_indices
-from ..headless.take_request import shape_names
+from ..headless.take_request import rig_weights_note, shape_names
 from . import anim, layers, take
 from ..rig.drivers import left_out_note
 from ..rig.rig_proxy import remove_proxies
@@ -123,9 +123,17 @@ def _rig_inputs(settings, markers, rsettings):
 
 
 def _rig_solve_request(settings, markers, rsettings, target, *, corrections=None, mu=None, controls=None):
+    scores, notes = None, ()
+    neutral = landmark_neutral(settings, markers, rsettings)
+    if neutral is not None:  # a landmark take: its eyes and scores reach the controls that read as shape weights
+        weights = target.weight_controls
+        eyes = eye_locks(settings.marker_collection, markers.frames, neutral, weights) if weights else ()
+        rsettings = replace(rsettings, locks=tuple(rsettings.locks) + eyes)
+        scores = landmark_scores(settings, markers, rsettings, neutral) if weights else None
+        notes = rig_weights_note(target, weights)
     return SolveRequest(character=None, settings=rsettings, markers=markers, corrections=corrections, mu=mu,
                         controls=shape_controls(settings) if controls is None else controls, fps=settings.fps,
-                        rig=target)
+                        rig=target, scores=scores, notes=notes)
 
 
 def _rig_request(settings, markers, rsettings, *, corrections, mu, controls):

@@ -81,6 +81,8 @@ class RetargetResult:
         if self.strategy != "geometric":
             out["source_channels"] = list(self.source_names)
             out["strategy_info"] = jsonable(self.info)
+        if "fusion" in self.info and "strategy_info" not in out:  # a landmark take onto a rig's weight controls
+            out["fusion"] = jsonable(self.info["fusion"])
         if "rig" in self.info:  # a rig's controls were solved: how the rig was seen and solved
             out["rig_solve"] = jsonable(self.info["rig"])
         return out

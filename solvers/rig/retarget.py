@@ -161,6 +161,17 @@ class RigTarget:
         return replace(settings, locks=tuple((p, v if np.ndim(v) else float(v)) for p, v in held), bounds=bounds)
 
     @property
+    def weight_controls(self):
+        """The controls that read as shape weights: at rest at 0, limited to 0 and 1 (probed rigs; a pose library
+        says no limits). A landmark take's blendshape scores and eye locks reach these alone: a weight of 0-1
+        written into a control of another range would be a value on another scale."""
+        if self.method != "probed":
+            return ()
+        m = self.model
+        like = (np.abs(m.rest) < 1e-6) & (np.abs(m.lower) < 1e-6) & (np.abs(m.upper - 1.0) < 1e-6)
+        return tuple(n for n, ok in zip(m.control_names, like) if ok)
+
+    @property
     def defers_head_refits(self):
         """Whether the head refits of hierarchical stabilisation are done by the nonlinear solve,
         against the rig model (``solvers.rig.head``), instead of by the pipeline's linear solve."""

@@ -266,6 +266,61 @@ def test_the_sidebar_keys_what_the_four_section_config_writes(rendered, tmp_path
     assert apart[worst] <= 0.03, (worst, apart[worst])
 
 
+def test_a_rig_whose_controls_are_shape_weights_gets_the_eyes_and_the_scores(rendered, tmp_path):
+    """The four-section config onto a rig (``[rig] preset = "shape_keys"``: the person's shape keys as controls,
+    each at rest at 0 and limited to 0-1): the eyes held and the scores fused as onto the mesh (before, a rig took
+    neither and said nothing)."""
+    from facecap.facecap_addon.headless.headless import run_take
+    from facecap.solvers.config import load_take_config
+    from facecap.solvers.io.weights import read_weights
+
+    target = ict_character(tmp_path / "person.blend", rendered["face"], seed=7)
+    config = tmp_path / "take.toml"
+    config.write_text(f'[target]\nblend = "{target.name}"\nobject = "ICT"\n[rig]\npreset = "shape_keys"\n'
+                      f'[source]\nvideo = "{rendered["path"]}"\n[tracking]\nmethod = "landmarks"\n'
+                      '[output]\nweights = "solved.csv"\nreport = "solved.json"\n', encoding="utf-8")
+    run_take(load_take_config(config), quiet=True)
+    report = json.loads((tmp_path / "solved.json").read_text(encoding="utf-8"))
+    assert "browInnerUp" in report["fusion"]["shapes"] and len(report["fusion"]["shapes"]) >= 40
+    assert any(w.startswith("eyes from the irises and lids") for w in report["warnings"])
+    assert not [w for w in report["warnings"] if w.startswith("[rig]")]  # every control reads as a weight
+    solved = read_weights(tmp_path / "solved.csv")
+    got = {n: solved.values[:, k] for k, n in enumerate(solved.names)}
+    for start in (14, 50):  # measured 0.82-1.00 in 3.11, 0.80-0.98 in 3.13
+        peaks = [got[s][start + 1:start + 6].max() for s in ("eyeBlinkLeft", "eyeBlinkRight")]
+        assert min(peaks) >= 0.75, (start, peaks)
+    brows = got["browInnerUp"][45:49].max()  # measured 0.51-0.53 for 0.8
+    assert brows >= 0.4, brows
+    jaw = got["jawOpen"][25:28].mean()  # measured 0.69 for 0.7
+    assert abs(jaw - 0.7) <= 0.15, jaw
+    rest = slice(2, REST - 2)
+    assert max(np.abs(v[rest]).max() for v in got.values()) <= 0.1
+
+
+def test_the_sidebar_gives_a_rig_of_shape_weights_the_eyes_and_the_scores(rendered, empty_scene):
+    """The sidebar's landmark take onto a rig target (*Shape Keys + Correctives*: controls at rest at 0, limited to
+    0-1): the eyes locked and the scores fused as onto the mesh, blinks and the brow raise recovered."""
+    from facecap.facecap_addon.scene.scene_solve import request_from_scene
+    from facecap.solvers.solve import solve
+
+    ict_character(rendered["folder"] / "person-rig.blend", rendered["face"], seed=7)  # Blender starts afresh
+    scene, obj = bpy.context.scene, bpy.data.objects["ICT"]
+    scene.active_clip = bpy.data.movieclips.load(str(rendered["path"]))
+    scene.facecap.target = obj
+    assert bpy.ops.facecap.track_face_landmarks() == {"FINISHED"}
+    scene.facecap.rig_preset = "shape_keys"
+    request = request_from_scene(scene.facecap, scene)
+    assert request.rig is not None and request.scores is not None and not request.notes
+    assert {"eyeBlinkLeft", "eyeLookOutLeft", "eyeWideRight"} <= {n for n, _ in request.settings.locks}
+    result = solve(request)
+    assert "browInnerUp" in result.info["fusion"]["shapes"]
+    got = {n: result.weights[:, k] for k, n in enumerate(result.shape_names)}
+    peaks = [got[s][start + 1:start + 6].max() for start in (14, 50) for s in ("eyeBlinkLeft", "eyeBlinkRight")]
+    brows = got["browInnerUp"][45:49].max()
+    print(f"sidebar rig: blink peaks {min(peaks):.2f}-{max(peaks):.2f}, browInnerUp {brows:.2f}")
+    assert min(peaks) >= 0.75 and brows >= 0.4, (peaks, brows)
+
+
 def test_track_writes_the_landmarks_with_their_depth(rendered):
     """``python -m facecap track`` with method = "landmarks": the wide CSV with x, y, z, the face's
     confidence per frame, the report."""

@@ -1,6 +1,7 @@
 """The Blender-free side of rig targets: the rig model and its fit, probing, the bounded nonlinear
 solve with the temporal term, pose libraries, ``RigTarget`` through ``solvers.solve``, ``[rig]``."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -438,3 +439,29 @@ def test_a_control_that_moves_nothing_stays_at_rest(corrective_rig):
     result = solve(SolveRequest(character=None, settings=settings, markers=take.markers,
                                 rig=RigTarget("probed", model=noisy)))
     assert np.nanmax(np.abs(result.weights[:, k])) < 0.01
+
+
+def test_only_controls_at_rest_at_0_and_limited_to_0_1_read_as_shape_weights():
+    """``RigTarget.weight_controls``: what a landmark take's blendshape scores and eye locks (weights 0-1) may be
+    written into; a control of another range (two-sided, 0-2, at rest mid-range) is left to the landmarks."""
+    model = random_model(C=5)
+    model = replace(model, control_names=["eyeBlinkLeft", "jaw_side", "brow_0_2", "mid_rest", "jawOpen"],
+                    rest=np.array([0.0, 0.0, 0.0, 0.5, 0.0]), lower=np.array([0.0, -1.0, 0.0, 0.0, 0.0]),
+                    upper=np.array([1.0, 1.0, 2.0, 1.0, 1.0]))
+    assert RigTarget("probed", model=model).weight_controls == ("eyeBlinkLeft", "jawOpen")
+
+
+def test_a_landmark_take_onto_a_rig_says_which_controls_the_video_scores_reach():
+    """Nothing said when every control reads as a shape weight; how many are solved from the landmarks alone when
+    some do not; that none get the scores and eyes when none do (a bone rig)."""
+    from facecap.facecap_addon.headless.take_request import rig_weights_note
+
+    model = replace(random_model(C=5), control_names=["jawOpen", "jaw_side", "eyeBlinkLeft", "a", "b"],
+                    rest=np.zeros(5), lower=np.array([0.0, -1.0, 0.0, 0.0, 0.0]), upper=np.ones(5))
+    target = RigTarget("probed", model=model)
+    assert rig_weights_note(target, target.weight_controls) == (
+        "[rig] the video's blendshape scores and eyes reach the 4 control(s) that read as shape weights (at rest "
+        "at 0, limits 0 and 1); the other 1 are solved from the landmarks alone",)
+    assert rig_weights_note(target, ())[0].startswith("[rig] none of the rig's controls reads as a shape weight")
+    whole = RigTarget("probed", model=replace(model, lower=np.zeros(5)))
+    assert rig_weights_note(whole, whole.weight_controls) == ()
