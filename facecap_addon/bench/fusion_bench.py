@@ -51,6 +51,7 @@ from ...solvers.config import load_take_config
 from ...solvers.io.weights import read_weights
 from ...solvers.rom import sequence_poses
 from ...solvers.tools.synthetic.realism.rom import rom_weights
+from ...solvers.video.follow import NOT_FOLLOWED
 from ...solvers.video.fusion import MAP_FILE_NAME, TABLE_FILE, FaceScores, FusionTable, fuse
 from ...solvers.video.landmarker_bundle import ENVIRONMENT, find_bundle
 from ...solvers.video.landmarks import track_landmarks
@@ -172,10 +173,49 @@ def rom_performance(names, seed):
 FOLLOW_LAG_S, FOLLOW_WANDER_S, FOLLOW_GAIN, FOLLOW_SIGMA = (0.15, 0.35), 0.1, (0.8, 1.2), 1.0
 
 
+#: A performer's own blinks while following a guide: seconds between them (uniform), and the frames a blink takes to
+#: close, stay closed and open; their eyes on the screen: a fixation every so many seconds, within this much of a
+#: full look sideways and up or down.
+OWN_BLINK_S, OWN_BLINK_FRAMES, OWN_FIXATION_S, OWN_LOOK = (1.5, 5.0), (2, 1, 3), (0.4, 1.2), (0.12, 0.08)
+
+
+def own_eyes(performed, names, rng, fps):
+    """Write into ``performed`` (F, K) on ``names`` what a performer's eyes do while they follow a guide on a screen
+    (:data:`NOT_FOLLOWED`): their own blinks, both eyes at once, and fixations about the screen's middle
+    (:data:`OWN_BLINK_S`...): what they do not take from the guide."""
+    F = len(performed)
+    column = {n: k for k, n in enumerate(names)}
+    close, hold, reopen = OWN_BLINK_FRAMES
+    shape = np.r_[np.linspace(0, 1, close + 1)[1:], np.ones(hold), np.linspace(1, 0, reopen + 1)[1:]]
+    blink = np.zeros(F)
+    t = rng.uniform(0.2, OWN_BLINK_S[1]) * fps
+    while t < F:
+        start = int(t)
+        span = shape[: F - start] * rng.uniform(0.85, 1.0)
+        blink[start:start + len(span)] = np.maximum(blink[start:start + len(span)], span)
+        t += rng.uniform(*OWN_BLINK_S) * fps
+    side = np.zeros(F)  # towards the subject's left
+    down = np.zeros(F)
+    t = 0.0
+    while t < F:
+        start = int(t)
+        side[start:], down[start:] = rng.uniform(-OWN_LOOK[0], OWN_LOOK[0]), rng.uniform(-OWN_LOOK[1], OWN_LOOK[1])
+        t += rng.uniform(*OWN_FIXATION_S) * fps
+    own = {"eyeBlinkLeft": blink, "eyeBlinkRight": blink,
+           "eyeLookOutLeft": np.maximum(side, 0), "eyeLookInRight": np.maximum(side, 0),
+           "eyeLookInLeft": np.maximum(-side, 0), "eyeLookOutRight": np.maximum(-side, 0),
+           "eyeLookDownLeft": np.maximum(down, 0), "eyeLookDownRight": np.maximum(down, 0),
+           "eyeLookUpLeft": np.maximum(-down, 0), "eyeLookUpRight": np.maximum(-down, 0)}
+    for name, values in own.items():
+        if name in column:
+            performed[:, column[name]] = values
+
+
 def follow_performance(recording, names, start, frames, seed, *, fps=30.0):
     """A performer following ``frames`` of a Live Link Face ``recording`` from its frame ``start`` (the guide),
     after :data:`HOLD` frames of a relaxed face: late by a reaction time with a slow wander, each shape (both sides
-    alike) at its own share of the guide's amplitude, smoothed a little (:data:`FOLLOW_LAG_S`...). Returns
+    alike) at its own share of the guide's amplitude, smoothed a little (:data:`FOLLOW_LAG_S`...), but for the eyes:
+    their own blinks, and looks about the screen the guide plays on (:func:`own_eyes`). Returns
     (weights (F, K) on ``names``, head (F, 6), gaze (F, 2, 2), {"guide", "guide_names", "guide_fps", "lag_s"}): the
     guide as a performer would be given it (its own weights, on time), beside what the face performed."""
     from scipy.ndimage import gaussian_filter1d  # scipy: on first use (the other clips never smooth)
@@ -191,11 +231,12 @@ def follow_performance(recording, names, start, frames, seed, *, fps=30.0):
     gain = {}
     performed = np.zeros((HOLD + frames + tail, len(names)))
     for k, name in enumerate(names):
-        if name in track.names:
+        if name in track.names and name not in NOT_FOLLOWED:  # the eyes: their own (:func:`own_eyes`)
             g = gain.setdefault(name.removesuffix("Left").removesuffix("Right"), rng.uniform(*FOLLOW_GAIN))
             column = guide[:, track.names.index(name)]
             performed[HOLD:, k] = np.clip(g * np.interp(when * fps, np.arange(frames), column, left=0.0, right=0.0),
                                           0.0, 1.0)
+    own_eyes(performed[HOLD:], names, rng, fps)
     performed[HOLD:] = gaussian_filter1d(performed[HOLD:], FOLLOW_SIGMA, axis=0, mode="nearest")
     head, gaze = _head_and_gaze(performed, names, rng, fps)
     return performed, head, gaze, {"guide": guide, "guide_names": np.array(track.names), "guide_fps": fps,

@@ -7,7 +7,8 @@ Why the map and not a gain per score (``response.py``): what is left after the f
 shapes in mixtures (a lower lip read with the jaw, a frown with a stretch), which a gain per score cannot undo and
 a ROM's isolated poses do not show; a performance followed has the mixtures of a performance. Nothing is fitted
 that the map does not already fit: the performer's clip adds its normal equations, weighing as a few tuning
-clips (``FOLLOW_SHARE``), so shapes the guide barely moves stay as the tuning clips read them.
+clips (``FOLLOW_SHARE``), so shapes the guide barely moves stay as the tuning clips read them; the eyes' blinks and
+looks (``NOT_FOLLOWED``), which a performer does not take from a guide, stay as the map reads them.
 
 The guide is placed in the clip by the weights the uncalibrated fusion reads: the frame offset where they
 correlate best with the guide's (the performer's reaction time is part of it), over every placement that
@@ -23,11 +24,11 @@ from ..errors import FacecapError
 from .fusion import CrossMap, FusionTable, arkit_names, clip_equations, fuse, map_inputs
 
 #: What the performer's clip weighs in the map, as a share of the tuning clips it has (24 tuning clips and a share
-#: of 1/6: as 4 of them). Chosen on the tuning faces alone (``fusion_bench --follow-weight``: each tuning identity's
+#: of 1/3: as 8 of them). Chosen on the tuning faces alone (``fusion_bench --follow-weight``: each tuning identity's
 #: performances of a performer the guide is not from, through a map fitted without that identity, with its own clip
-#: following the guide: 0.098 without, 0.096, 0.095, 0.094 at 1/24, 1/12, 1/6, no lower above), never on the
-#: reported clips.
-FOLLOW_SHARE = 1.0 / 6.0
+#: following the guide, their eyes their own: 0.098 without, 0.095, 0.094, 0.092, 0.091 at 1/24, 1/12, 1/6, 1/3, no
+#: lower above), never on the reported clips.
+FOLLOW_SHARE = 1.0 / 3.0
 #: The share of the guide that must be in the clip at a placement, and the least correlation (mean over the
 #: guide's moving shapes) that says the performer followed it.
 MIN_OVERLAP, MIN_CORRELATION = 0.8, 0.3
@@ -36,6 +37,10 @@ MOVING = 0.03
 #: The guide's timing is refined in windows of this many seconds, each moved at most this far from the one before
 #: (``follow_timing``): a performer drifts from a long guide's timing.
 WINDOW_S, LOCAL_S = 4.0, 0.25
+#: The shapes a performer does not take from the guide: their blinks are their own, and their eyes are on the screen
+#: the guide plays on. The performer's clip teaches the map nothing of these (they stay as the map reads them).
+NOT_FOLLOWED = ("eyeBlinkLeft", "eyeBlinkRight", "eyeLookUpLeft", "eyeLookUpRight", "eyeLookDownLeft",
+                "eyeLookDownRight", "eyeLookInLeft", "eyeLookInRight", "eyeLookOutLeft", "eyeLookOutRight")
 #: What a performer profile keeps of a performer's map.
 PROFILE_KEYS = ("performer_names", "performer_gram", "performer_moment", "performer_ridge", "performer_clips",
                 "performer_guide")
@@ -279,7 +284,13 @@ def fit_follow(guide, guide_names, guide_fps, solved, shape_names, scores, *, ta
     aligned[placed] = (1 - t) * truth[lo] + t * truth[np.minimum(lo + 1, len(truth) - 1)]
     drift = float(np.nanmax(np.abs(np.arange(F) - when - offset))) / scores.fps
     X, seen = map_inputs(table, scores, solved, shape_names)
-    gram, moment, used = clip_equations(aligned[seen], X)
+    target = aligned[seen]
+    mine = [j for j, n in enumerate(names) if n in NOT_FOLLOWED]
+    if mine:  # what the map reads there now, not the guide's (S ones: every input had, 0 for one the clip lacks)
+        ones = np.ones(len(names), bool)
+        read_now = X @ table.map.weights(table, ones, ones)[:, mine]
+        target[:, mine] = np.where(np.isfinite(target[:, mine]), read_now, np.nan)
+    gram, moment, used = clip_equations(target, X)
     if used < 2:
         raise FacecapError("no frame of the clip has both a face and the guide")
     n_clips = max(len(table.measured_on.get("map_clips", ())), 1)

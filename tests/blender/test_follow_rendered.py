@@ -63,7 +63,7 @@ def test_a_clip_that_follows_a_guide_is_placed_stored_and_read_back(followed):
     run_take(load_take_config(later), quiet=True)
     report = json.loads((folder / "later.json").read_text(encoding="utf-8"))
     assert report["source"]["guide_followed"] == {"from": str(folder / "performer.npz"), "guide": "guide.csv",
-                                                  "weighs_as_clips": 4.0}
+                                                  "weighs_as_clips": 8.0}
     assert "score_response" not in report["source"]
     np.testing.assert_allclose(np.loadtxt(folder / "later.csv", delimiter=",", skiprows=1),
                                np.loadtxt(folder / "follow.csv", delimiter=",", skiprows=1), atol=1e-9)
