@@ -31,7 +31,7 @@ from ...solvers.markers import UNIT_SCALE
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve_job
 from ...solvers.tuning.store import load_version
-from ...solvers.video.cli import FrameProgress, run_showing_progress, sigint_cancels
+from ...solvers.video.cli import run_showing_progress
 from ...solvers.video.flow_config import LandmarkTake, check_against_footage
 from ...solvers.video.reading import Cancelled, Footage
 from . import console
@@ -40,7 +40,7 @@ from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_
                           start_blender, target_changed)
 from .landmark_take import follow_clip, landmark_request, performer_of, read_landmarks, score_response
 from ..render.review import read_review_truth, write_take_review
-from .take_request import (corrections_for, rig_request, rig_weights_note, shape_names, source_fields,
+from .take_request import (corrections_for, rig_request, shape_names, showing_progress, source_fields,
                            with_driven_keys)
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
@@ -326,39 +326,14 @@ def open_target(config, say, base=None):
     return bpy.data.objects[config.target_object]
 
 
-@contextlib.contextmanager
-def showing_progress(label, unit, *, quiet=False):
-    """A ``progress(done, total) -> bool`` for long work in steps: shown on stderr (unless ``quiet``),
-    False once Ctrl-C was pressed (the work stops at its next step: ``Cancelled``, nothing written)."""
-    shown = None if quiet or console.quiet() else FrameProgress(label, unit=unit)
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            yield progress
-        finally:
-            if shown is not None:
-                shown.close()
-
-
 def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False):
     """The SolveRequest of a take config, and the report's source fields."""
     from ..scene.scene_binding import geometric_character  # loads bpy
     from ..scene.take import character_target  # loads bpy
 
     settings = config.settings
-    say = (lambda _m: None) if quiet else progress_line
     if config.rig is not None:  # probing a rig: a pose at a time in Blender, with progress, Ctrl-C stops it
-        with showing_progress("rig probing", "pose", quiet=quiet) as progress:
-            request, fields = rig_request(config, obj, take, tune=tune, say=progress_line, progress=progress)
-        if take.landmarks is not None:  # the eyes and the scores reach the controls that read as shape weights
-            weights = request.rig.weight_controls
-            request, note = landmark_request(config, request, take, weights, say)
-            take.notes = tuple(take.notes) + ((note,) if note else ()) + rig_weights_note(request.rig, weights)
-        return request, fields
+        return rig_request(config, obj, take, tune=tune, say=progress_line, quiet=quiet)
     binding = config.binding or BindingSettings()
     # Only geometric samples the character at bound points; the others need its shape names and ranges.
     # Vertex groups and shape names are kept across a batch worker's takes; a binding by position depends
@@ -394,6 +369,7 @@ def _request(config, obj, take, *, tune, characters=None, base=None, quiet=False
                            corrections=corrections, mu=None if tuning is None else tuning.mu,
                            parent="" if version is None else version.name, controls=config.controls or None)
     if take.landmarks is not None:  # the eyes' look from the irises held through the solve, the scores fused
+        say = (lambda _m: None) if quiet else progress_line
         request, note = landmark_request(config, request, take, shape_names(character), say)
         take.notes = tuple(take.notes) + ((note,) if note else ())
     fields = source_fields(config, take)

@@ -1,23 +1,47 @@
 """Pieces of a headless take's solve request that do not need the take's character: the request of a take
 whose target is a rig, what to do with shape keys that drivers set, the animator's corrections, the
-report's source fields."""
+report's source fields, and the progress of its long steps."""
 
+import contextlib
 import dataclasses
 
 from ...solvers.config.rig import RigSettings
 from ...solvers.errors import ConfigError
 from ...solvers.solve import SolveRequest
 from ...solvers.tuning.store import load_version, read_corrections_csv
+from ...solvers.video.cli import FrameProgress, sigint_cancels
 from ...solvers.video.flow_config import LandmarkTake
 from ..rig import drivers
+from . import console
+from .landmark_take import landmark_request
 
 
-def rig_request(config, obj, take, *, tune, say, progress=None):
-    """The SolveRequest of a take whose target is a rig (``[rig]``): its controls are the shapes;
-    ``progress(done, total) -> bool`` sees the probes (False cancels)."""
+@contextlib.contextmanager
+def showing_progress(label, unit, *, quiet=False):
+    """A ``progress(done, total) -> bool`` for long work in steps: shown on stderr (unless ``quiet``),
+    False once Ctrl-C was pressed (the work stops at its next step: ``Cancelled``, nothing written)."""
+    shown = None if quiet or console.quiet() else FrameProgress(label, unit=unit)
+    with sigint_cancels() as stop:
+        def progress(done, total):
+            if shown is not None:
+                shown(done, total)
+            return not stop.is_set()
+
+        try:
+            yield progress
+        finally:
+            if shown is not None:
+                shown.close()
+
+
+def rig_request(config, obj, take, *, tune, say, quiet=False):
+    """(the SolveRequest, the report's source fields) of a take whose target is a rig (``[rig]``): its controls are
+    the shapes, the rig probed with progress (Ctrl-C stops it); a landmark take's eyes and scores reach the controls
+    that read as shape weights."""
     from ..rig.rig_solve import rig_target_for_take  # loads bpy
 
-    target, fields = rig_target_for_take(config, obj, take.markers, say=say, progress=progress)
+    with showing_progress("rig probing", "pose", quiet=quiet) as progress:
+        target, fields = rig_target_for_take(config, obj, take.markers, say=say, progress=progress)
     tuning, version = config.tuning, None
     if tuning is not None and tuning.library is not None:
         version = load_version(tuning.library)
@@ -25,6 +49,10 @@ def rig_request(config, obj, take, *, tune, say, progress=None):
                            version=version, corrections=corrections_for(config, target.control_names) if tune else None,
                            mu=None if tuning is None else tuning.mu, parent="" if version is None else version.name,
                            controls=config.controls or None, rig=target)
+    if take.landmarks is not None:
+        weights = target.weight_controls
+        request, note = landmark_request(config, request, take, weights, (lambda _m: None) if quiet else say)
+        take.notes = tuple(take.notes) + ((note,) if note else ()) + rig_weights_note(target, weights)
     return request, {**source_fields(config, take), "rig": fields}
 
 
