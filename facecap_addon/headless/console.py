@@ -292,6 +292,9 @@ def interrupts_handled():
     if threading.current_thread() is not threading.main_thread():
         return None
     lost_interrupts_redelivered()
+    # Python writes, then removes, a probe file in $TMPDIR the first time it needs its temporary folder: a Ctrl-C
+    # between the two (the .blend opening) left the probe behind. Found now, while the signals still do as before.
+    tempfile.gettempdir()
     return {signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler),
             signal.SIGTERM: signal.signal(signal.SIGTERM, _interrupt)}
 

@@ -3,6 +3,7 @@ system's module locks use them, and the CLI imports numpy, scipy and Blender) ra
 that callback, which Python prints as "Exception ignored in ..." and forgets. The command line's hook delivers
 it again (``console.lost_interrupts_redelivered``)."""
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -59,3 +60,21 @@ def test_the_hook_leaves_other_unraisable_exceptions_to_python():
             "t = T(); del t; gc.collect(); print('done')")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert proc.stdout.strip() == "done" and "ValueError: in a finaliser" in proc.stderr, proc.stderr
+
+
+def test_the_temporary_folder_is_probed_before_ctrl_c_can_interrupt_the_probe(tmp_path):
+    """Python finds its temporary folder once, by writing and removing a probe file there; a Ctrl-C between the two
+    (the .blend opening, where facecap first asks for a temporary file) left the probe in $TMPDIR in 1-3 runs of 10
+    of tests/e2e/test_reliability3_cli.py's test 10. Signal handling set up, the folder is known and nothing is left
+    there."""
+    script = textwrap.dedent("""
+        import os, tempfile
+        from facecap.facecap_addon.headless import console
+        assert tempfile.tempdir is None
+        console.interrupts_handled()
+        print(tempfile.tempdir == os.environ["TMPDIR"], os.listdir(os.environ["TMPDIR"]))
+    """)
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=env)
+    assert done.returncode == 0, done.stderr[-800:]
+    assert done.stdout.split() == ["True", "[]"]
