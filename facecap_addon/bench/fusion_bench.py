@@ -177,6 +177,9 @@ FOLLOW_LAG_S, FOLLOW_WANDER_S, FOLLOW_GAIN, FOLLOW_SIGMA = (0.15, 0.35), 0.1, (0
 #: close, stay closed and open; their eyes on the screen: a fixation every so many seconds, within this much of a
 #: full look sideways and up or down.
 OWN_BLINK_S, OWN_BLINK_FRAMES, OWN_FIXATION_S, OWN_LOOK = (1.5, 5.0), (2, 1, 3), (0.4, 1.2), (0.12, 0.08)
+#: The model of a follower a cached guide-following clip was rendered with (an older cache's copied the guide's eyes:
+#: such a clip is rendered again).
+FOLLOWER = "own-eyes"
 
 
 def own_eyes(performed, names, rng, fps):
@@ -240,7 +243,7 @@ def follow_performance(recording, names, start, frames, seed, *, fps=30.0):
     performed[HOLD:] = gaussian_filter1d(performed[HOLD:], FOLLOW_SIGMA, axis=0, mode="nearest")
     head, gaze = _head_and_gaze(performed, names, rng, fps)
     return performed, head, gaze, {"guide": guide, "guide_names": np.array(track.names), "guide_fps": fps,
-                                   "lag_s": lag}
+                                   "lag_s": lag, "follower": np.array(FOLLOWER)}
 
 
 def prepare(clip, out, character, *, log=print):
@@ -248,8 +251,13 @@ def prepare(clip, out, character, *, log=print):
     ``<out>/<name>.npz`` with the truth, the solve, the blendshape scores and the take's neutral frames (a ROM
     clip also keeps its session's truth: the poses performed, their holds and the weights given)."""
     cached = out / f"{clip.name}.npz"
+    video = out / f"{clip.name}.mp4"
     if cached.is_file():
-        return dict(np.load(cached))
+        data = dict(np.load(cached))
+        if clip.role not in FOLLOW_ROLES or str(data.get("follower", "")) == FOLLOWER:
+            return data
+        log(f"{clip.name}: cached with an earlier model of a follower (who copied the guide's eyes): rendered again")
+        video.unlink(missing_ok=True)
     shared = shared_folder() / "data"
     neutral, polygons, names, deltas = face_arrays(clip.face, shared)
     extra, shot = {}, Shot(distance=0.5, azimuth=clip.azimuth)
@@ -265,7 +273,6 @@ def prepare(clip, out, character, *, log=print):
         recording = shared / "realdata" / (clip.recording if "/" in clip.recording else f"llf/{clip.recording}")
         weights, head, gaze = performance(recording, names, start=clip.start,
                                           frames=clip.frames, hold=HOLD)
-    video = out / f"{clip.name}.mp4"
     t = time.perf_counter()
     if not video.is_file():  # rendered under another name first: a clip cut short is never taken as whole
         part = video.with_name(video.stem + "-part.mp4")

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from facecap.facecap_addon.bench import fusion_bench as fb
 from facecap.facecap_addon.bench.landmark_bench import shared_folder
@@ -92,3 +93,27 @@ def test_the_performers_check_never_fits_on_a_performer_it_calls_unseen_nor_on_a
     for clip in [c for c in fb.CLIPS if c.role == "tune-performers"]:
         rows = (clip.start, clip.start + 2 * clip.frames)  # 30 frames/s read from the recording's 60
         assert all(rows[1] + 20 <= a or b + 20 <= rows[0] for a, b in reported), clip.name
+
+
+def test_a_guide_clip_cached_by_the_follower_who_copied_the_guides_eyes_is_rendered_again(tmp_path, monkeypatch):
+    """A cache from before the follower kept their own eyes holds follow clips whose map learnt the guide's eyes:
+    ``prepare`` renders such a clip again (its stale video removed first) and returns a clip of today's follower,
+    or of another role, as cached."""
+    class Rendering(Exception):
+        pass
+
+    def render(*_args, **_kwargs):
+        raise Rendering
+
+    monkeypatch.setattr(fb, "render_face_clip", render)
+    follow = next(c for c in fb.CLIPS if c.role == "follow")
+    report = next(c for c in fb.CLIPS if c.role == "report")
+    np.savez(tmp_path / f"{report.name}.npz", truth=np.zeros(2))
+    np.savez(tmp_path / f"{follow.name}.npz", truth=np.zeros(2), follower=np.array(fb.FOLLOWER))
+    assert set(fb.prepare(report, tmp_path, None, log=print)) == {"truth"}
+    assert "follower" in fb.prepare(follow, tmp_path, None, log=print)
+    np.savez(tmp_path / f"{follow.name}.npz", truth=np.zeros(2))  # an older cache's
+    (tmp_path / f"{follow.name}.mp4").write_bytes(b"stale")
+    with pytest.raises(Rendering):
+        fb.prepare(follow, tmp_path, None, log=print)
+    assert not (tmp_path / f"{follow.name}.mp4").exists()
