@@ -357,7 +357,7 @@ def test_a_landmark_take_that_followed_a_guide_saves_the_performers_map(tmp_path
     assert bpy.ops.facecap.rom_save_profile(filepath=str(path)) == {"FINISHED"}
     assert profile_contents(path) == (False, None)
     performer = profile_performer(path)
-    assert performer.guide == "guide.csv" and performer.clips == 4.0
+    assert performer.guide == "guide.csv" and performer.clips == 8.0  # FOLLOW_SHARE of the map's 24 clips
     assert bpy.path.abspath(s.actor_profile) == str(path)
     fit = RomInBackground(s, what="Save Performer Profile", use_markers=True).wait()
     assert abs(fit.offset - (rest + late)) <= 2 and fit.correlation > 0.5, fit.summary
