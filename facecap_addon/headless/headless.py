@@ -31,7 +31,7 @@ from ...solvers.markers import UNIT_SCALE
 from ...solvers.pipeline import SAMPLES_CHARACTER
 from ...solvers.solve import SolveRequest, solve_job
 from ...solvers.tuning.store import load_version
-from ...solvers.video.cli import run_showing_progress
+from ...solvers.video.cli import run_showing_progress, showing_progress
 from ...solvers.video.flow_config import LandmarkTake, check_against_footage
 from ...solvers.video.reading import Cancelled, Footage
 from . import console
@@ -40,8 +40,7 @@ from .blend_files import (names_in_file, open_blend, remove_earlier_solve, save_
                           start_blender, target_changed)
 from .landmark_take import follow_clip, landmark_request, performer_of, read_landmarks, score_response
 from ..render.review import read_review_truth, write_take_review
-from .take_request import (corrections_for, rig_request, shape_names, showing_progress, source_fields,
-                           with_driven_keys)
+from .take_request import corrections_for, rig_request, shape_names, source_fields, with_driven_keys
 
 #: Take files larger than this are read in a forked child while Blender starts (smaller ones are
 #: read in less time than the fork costs).
@@ -388,7 +387,7 @@ def _run(request, *, quiet):
 
     job = solve_job(request)
     if request.rig is not None:  # Gauss-Newton steps (and refinement through the rig): progress, Ctrl-C stops
-        with showing_progress("rig solve", "step", quiet=quiet) as progress:
+        with showing_progress("rig solve", quiet=quiet or console.quiet(), unit="step") as progress:
             try:
                 return job.run(progress)
             except Cancelled:

@@ -1,37 +1,18 @@
 """Pieces of a headless take's solve request that do not need the take's character: the request of a take
 whose target is a rig, what to do with shape keys that drivers set, the animator's corrections, the
-report's source fields, and the progress of its long steps."""
+report's source fields."""
 
-import contextlib
 import dataclasses
 
 from ...solvers.config.rig import RigSettings
 from ...solvers.errors import ConfigError
 from ...solvers.solve import SolveRequest
 from ...solvers.tuning.store import load_version, read_corrections_csv
-from ...solvers.video.cli import FrameProgress, sigint_cancels
+from ...solvers.video.cli import showing_progress
 from ...solvers.video.flow_config import LandmarkTake
 from ..rig import drivers
 from . import console
 from .landmark_take import landmark_request
-
-
-@contextlib.contextmanager
-def showing_progress(label, unit, *, quiet=False):
-    """A ``progress(done, total) -> bool`` for long work in steps: shown on stderr (unless ``quiet``),
-    False once Ctrl-C was pressed (the work stops at its next step: ``Cancelled``, nothing written)."""
-    shown = None if quiet or console.quiet() else FrameProgress(label, unit=unit)
-    with sigint_cancels() as stop:
-        def progress(done, total):
-            if shown is not None:
-                shown(done, total)
-            return not stop.is_set()
-
-        try:
-            yield progress
-        finally:
-            if shown is not None:
-                shown.close()
 
 
 def rig_request(config, obj, take, *, tune, say, quiet=False):
@@ -40,7 +21,7 @@ def rig_request(config, obj, take, *, tune, say, quiet=False):
     that read as shape weights."""
     from ..rig.rig_solve import rig_target_for_take  # loads bpy
 
-    with showing_progress("rig probing", "pose", quiet=quiet) as progress:
+    with showing_progress("rig probing", quiet=quiet or console.quiet(), unit="pose") as progress:
         target, fields = rig_target_for_take(config, obj, take.markers, say=say, progress=progress)
     tuning, version = config.tuning, None
     if tuning is not None and tuning.library is not None:

@@ -312,9 +312,10 @@ def sigint_cancels():
             signal.signal(signal.SIGINT, restore)
 
 
-def run_showing_progress(job, label, *, quiet=False, unit="frame"):
-    """Run a :class:`~.reading.Job` with its progress shown (:class:`FrameProgress`, unless ``quiet``);
-    Ctrl-C stops it between two frames with :class:`~.reading.Cancelled` (nothing written)."""
+@contextlib.contextmanager
+def showing_progress(label, *, quiet=False, unit="frame"):
+    """A ``progress(done, total) -> bool`` for long work in steps: shown on stderr (:class:`FrameProgress`, unless
+    ``quiet``), False once Ctrl-C was pressed (the work stops at its next step: ``Cancelled``, nothing written)."""
     shown = None if quiet else FrameProgress(label, unit=unit)
     with sigint_cancels() as stop:
         def progress(done, total):
@@ -323,10 +324,17 @@ def run_showing_progress(job, label, *, quiet=False, unit="frame"):
             return not stop.is_set()
 
         try:
-            return job.run(progress)
+            yield progress
         finally:
             if shown is not None:
                 shown.close()
+
+
+def run_showing_progress(job, label, *, quiet=False, unit="frame"):
+    """Run a :class:`~.reading.Job` with its progress shown (unless ``quiet``); Ctrl-C stops it between two frames
+    with :class:`~.reading.Cancelled` (nothing written)."""
+    with showing_progress(label, quiet=quiet, unit=unit) as progress:
+        return job.run(progress)
 
 
 DESCRIPTION = ("Track 2D markers in video footage (Lucas-Kanade points, or dense optical flow over the face) and "

@@ -266,12 +266,13 @@ class _CtrlC:
 def test_ctrl_c_stops_a_rig_solve_with_nothing_written(control_rig, monkeypatch, stage, unit):
     """Headless: probing and the solve report progress; Ctrl-C stops either between two steps with
     ``Cancelled`` and no output written (the output .blend, the weights CSV)."""
-    from facecap.facecap_addon.headless import console, take_request
+    from facecap.facecap_addon.headless import console
+    from facecap.solvers.video import cli
     from facecap.solvers.video.reading import Cancelled
 
     folder = control_rig[0]
     ctrl_c = _CtrlC(stage, 1)
-    monkeypatch.setattr(take_request, "FrameProgress", ctrl_c)  # what showing_progress shows
+    monkeypatch.setattr(cli, "FrameProgress", ctrl_c)  # what showing_progress shows
     monkeypatch.setattr(console, "quiet", lambda: False)
     name = f"cancel_{unit}"
     cfg = config(folder, name, "Face", '[rig]\npreset = "arkit_sliders"\nobject = "FaceControls"\nprobes = 300\n',
