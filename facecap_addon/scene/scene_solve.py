@@ -60,10 +60,8 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     else:
         character = take.character_target(settings.target)
     inputs = take.strategy_inputs(settings, strategy)
-    neutral = landmark_neutral(settings, markers, rsettings)  # found once, for the eyes' locks and the scores
+    eyes, scores = landmark_extras(settings, markers, rsettings, shape_names(character))
     if markers is not None:  # the animator's locks first: they win over the eyes' where both hold a shape
-        eyes = () if neutral is None else eye_locks(settings.marker_collection, markers.frames, neutral,
-                                                    shape_names(character))
         rsettings = replace(rsettings, locks=animator_locks(settings, markers.frames) + eyes)
         if markers.dim == 2:
             rsettings = replace(rsettings, projection=projection_from_sidebar(scene, settings.target))
@@ -72,8 +70,18 @@ def request_from_scene(settings, scene, *, footage=None, flow=None, corrections=
     return SolveRequest(character=character, settings=rsettings, inputs=inputs, markers=markers, footage=footage,
                         flow=flow, version=version, corrections=corrections, mu=mu,
                         parent=settings.library_active or "", controls=controls, fps=settings.fps,
-                        scores=None if neutral is None else landmark_scores(settings, markers, rsettings, neutral),
-                        notes=notes)
+                        scores=scores, notes=notes)
+
+
+def landmark_extras(settings, markers, rsettings, names):
+    """(eye locks, FaceScores or None) a landmark take keeps for the shapes or rig controls ``names``: its eyes held
+    through the solve as the headless take holds them (``hold_gaze``) and its scores to fuse, both from the take's
+    neutral frames, found once; ((), None) for other takes."""
+    neutral = landmark_neutral(settings, markers, rsettings)
+    if neutral is None:
+        return (), None
+    return (eye_locks(settings.marker_collection, markers.frames, neutral, names),
+            landmark_scores(settings, markers, rsettings, neutral))
 
 
 def landmark_neutral(settings, markers, rsettings):
@@ -123,14 +131,10 @@ def _rig_inputs(settings, markers, rsettings):
 
 
 def _rig_solve_request(settings, markers, rsettings, target, *, corrections=None, mu=None, controls=None):
-    scores, notes = None, ()
-    neutral = landmark_neutral(settings, markers, rsettings)
-    if neutral is not None:  # a landmark take: its eyes and scores reach the controls that read as shape weights
-        weights = target.weight_controls
-        eyes = eye_locks(settings.marker_collection, markers.frames, neutral, weights) if weights else ()
-        rsettings = replace(rsettings, locks=tuple(rsettings.locks) + eyes)
-        scores = landmark_scores(settings, markers, rsettings, neutral) if weights else None
-        notes = rig_weights_note(target, weights)
+    # a landmark take: its eyes and scores reach the controls that read as shape weights (``solve`` fuses only those)
+    eyes, scores = landmark_extras(settings, markers, rsettings, target.weight_controls)
+    rsettings = replace(rsettings, locks=tuple(rsettings.locks) + eyes)
+    notes = rig_weights_note(target, target.weight_controls) if eyes or scores is not None else ()
     return SolveRequest(character=None, settings=rsettings, markers=markers, corrections=corrections, mu=mu,
                         controls=shape_controls(settings) if controls is None else controls, fps=settings.fps,
                         rig=target, scores=scores, notes=notes)
