@@ -14,7 +14,7 @@ The clips are kept apart by role (:data:`CLIPS`):
   fitted on (``--fit`` writes ``solvers/video/fusion_table.json``);
 * **tune-random**: the same identities firing every shape independently of the others (``random_performance``):
   with the tune and tune-rom clips, what the fusion map is fitted on (``--fit`` writes ``fusion_map.npz``, its
-  ridge chosen by leaving each identity out);
+  ridge chosen by leaving a tuning identity and a tuning performer out together);
 * **report**: the ICT mean face and the Face Cap head (a face never tuned on), windows of
   ``llf_alex_rom_4`` (another recording): judged, never fitted;
 * **report-others**: the same faces and cameras performing a third performer's recording (``OTHERS``, the Sentien
@@ -73,6 +73,7 @@ from .fusion_clips import (
     follow_fit,
     follow_seed,
     judged_names,
+    print_shapes,
     region_rmse,
     rom_fit,
 )
@@ -461,6 +462,7 @@ def print_tables(rows):
                   f"brows median {np.median(brows):.3f} worst {np.max(brows):.3f}; blink peak worst "
                   f"{np.nanmin(blink):.2f}; jitter median {np.median(jit):.4f}; at 1: median {np.median(pin):.2f} % "
                   f"worst {np.max(pin):.2f} %")
+    print_shapes(rows)
     print()
     print("| face | method | " + " | ".join(REGIONS) + " | visible | blink peak | jitter |")
     print("|---|---|" + "---|" * (len(REGIONS) + 3))

@@ -125,11 +125,13 @@ def judged_names():
 
 
 def region_rmse(got, truth, names):
-    """{region: weights RMSE, "visible": over every judged shape} (shapes the truth lacks left out)."""
-    out, every = {}, []
+    """{region: weights RMSE, "visible": over every judged shape (shapes the truth lacks left out), "blink_peak",
+    "jitter", "pinned", "shapes": {shape: its mean squared error}}."""
+    out, every, per_shape = {}, [], {}
     for region, shapes in REGIONS.items():
-        errs = [np.nanmean((got[:, names.index(s)] - truth[:, names.index(s)]) ** 2) for s in shapes
-                if np.isfinite(truth[:, names.index(s)]).any()]
+        known = [s for s in shapes if np.isfinite(truth[:, names.index(s)]).any()]
+        errs = [np.nanmean((got[:, names.index(s)] - truth[:, names.index(s)]) ** 2) for s in known]
+        per_shape.update({s: float(e) for s, e in zip(known, errs)})
         every += errs
         out[region] = float(np.sqrt(np.mean(errs)))
     out["visible"] = float(np.sqrt(np.mean(every)))
@@ -142,7 +144,22 @@ def region_rmse(got, truth, names):
     judged = got[:, [names.index(s) for shapes in REGIONS.values() for s in shapes]]
     out["jitter"] = jitter(judged)
     out["pinned"] = pinned(judged)
+    out["shapes"] = per_shape  # each judged shape's mean squared error (what carries the visible RMSE)
     return out
+
+
+def print_shapes(rows, method="fused", top=8):
+    """Per face, the shapes that carry most of ``method``'s visible RMSE: each one's RMSE over the face's clips and its
+    share of their summed squared error (what a change must move to move the figure)."""
+    for face in ("ict", "facecap"):
+        mine = [m[method]["shapes"] for c, m in rows.items() if f"-{face}" in c and method in m]
+        if not mine:
+            continue
+        mse = {s: float(np.mean([m[s] for m in mine if s in m])) for s in mine[0]}
+        total = sum(mse.values())
+        worst = sorted(mse, key=mse.get, reverse=True)[:top]
+        print(f"{face} {method}, the shapes carrying it: " + ", ".join(
+            f"{s} {np.sqrt(mse[s]):.2f} ({100 * mse[s] / total:.0f} %)" for s in worst))
 
 
 def pinned(weights):

@@ -63,32 +63,59 @@ MAP_RIDGES = (3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3)
 
 def fit_cross(out, table, *, clips=None, log=print):
     """The fusion map on the tuning faces' clips (``clips``, or the roles of :data:`MAP_ROLES`: performances, ROM
-    sessions and random activations alike): its ridge chosen by leaving each tuning identity out in turn (the median
-    visible RMSE of its clips, the larger ridge on a tie to 3 decimals); returns (the map, what it was measured on)."""
+    sessions and random activations alike): its ridge chosen on :func:`performer_folds` (a face and a performer
+    nobody tuned on, as every user's take is: the median visible RMSE of the judged clips, the larger ridge on a tie
+    to 3 decimals); the older criterion, each tuning identity left out with every performer kept, printed beside.
+    Returns (the map, what it was measured on)."""
     names = judged_names()
     clips = list(clips) if clips is not None else [c for c in CLIPS if c.role in MAP_ROLES]
     parts = dict(zip([c.name for c in clips], tune_parts([columns(dict(np.load(out / f"{c.name}.npz")), names)
                                                           for c in clips], names, table.lid_gaze)))
-    faces = sorted({c.face for c in clips})
-    scores = {}
-    for lam in MAP_RIDGES:
-        errs = []
-        for face in faces:
-            held = [c for c in clips if c.face == face]
-            cross = fit_map([parts[c.name] for c in clips if c.face != face], names, lam)
-            tab = replace(table, map=cross)
-            for c in held:
-                truth, solved, corrected = parts[c.name]
-                errs.append(region_rmse(_map_only(tab, solved, corrected, names), truth, names)["visible"])
-        scores[lam] = round(float(np.median(errs)), 3)
+    identity_folds = [([c for c in clips if c.face != face], [c for c in clips if c.face == face], table)
+                      for face in sorted({c.face for c in clips})]
+    folds = [(kept, judged, fit(out, lid_gaze=table.lid_gaze, clips=kept, log=lambda _m: None)[0])
+             for kept, judged in performer_folds(clips)]
+    curves = {}
+    for label, runs in (("identity", identity_folds), ("performer", folds)):
+        curves[label] = {}
+        for lam in MAP_RIDGES:
+            errs = []
+            for kept, judged, tab in runs:
+                held = replace(tab, map=fit_map([parts[c.name] for c in kept], names, lam))
+                for c in judged:
+                    truth, solved, corrected = parts[c.name]
+                    errs.append(region_rmse(_map_only(held, solved, corrected, names), truth, names)["visible"])
+            curves[label][lam] = round(float(np.median(errs)), 3)
+    scores = curves["performer"] if folds else curves["identity"]
     best = min(scores.values())
     lam = max(k for k, v in scores.items() if v == best)
-    log("fusion map: leave-one-identity-out visible RMSE per ridge " + ", ".join(f"{k:g}: {v:.3f}"
-                                                                                for k, v in scores.items())
-        + f"; chosen {lam:g}")
-    measured = {"map_clips": [c.name for c in clips], "map_ridge": lam, "map_ridge_cv": {f"{k:g}": v for k, v in
-                                                                                          scores.items()}}
+    for label, what in (("identity", "each tuning identity left out"),
+                        ("performer", "a tuning identity and performer left out")):
+        if curves[label] and (label == "identity" or folds):
+            log(f"fusion map, {what}: visible RMSE per ridge "
+                + ", ".join(f"{k:g}: {v:.3f}" for k, v in curves[label].items()))
+    log(f"fusion map: ridge {lam:g} chosen" + (" with a performer left out" if folds else ""))
+    measured = {"map_clips": [c.name for c in clips], "map_ridge": lam,
+                "map_ridge_cv": {f"{k:g}": v for k, v in scores.items()},
+                "map_ridge_cv_identity": {f"{k:g}": v for k, v in curves["identity"].items()}}
     return fit_map(list(parts.values()), names, lam), measured
+
+
+def performer_folds(clips):
+    """[(kept, judged)]: each tuning identity with each tuning performer left out in turn; fitted on the other
+    identities' clips but that performer's (their ROM sessions and random activations kept: nobody's habits),
+    judged on the left-out identity's performances of that performer. Empty with fewer than two performers."""
+    people = sorted({performer(c) for c in clips if c.role in PERFORMANCE_ROLES})
+    if len(people) < 2:
+        return []
+    folds = []
+    for face in sorted({c.face for c in clips}):
+        for who in people:
+            judged = [c for c in clips if c.face == face and c.role in PERFORMANCE_ROLES and performer(c) == who]
+            kept = [c for c in clips if c.face != face and performer(c) != who]
+            if judged and kept:
+                folds.append((kept, judged))
+    return folds
 
 
 def lid_gaze_check(out, table, *, log=print):
@@ -212,7 +239,7 @@ def performers_check(out, reference, *, log=print):
     for people in PERFORMER_FITS:
         clips = performer_fit_clips(people)
         table = fit(out, clips=clips, log=lambda _m: None)[0]
-        cross, measured = fit_cross(out, table, clips=clips, log=lambda _m: None)
+        cross, measured = fit_cross(out, table, clips=clips, log=lambda m: log(f"  {' + '.join(people)}: {m}"))
         table = replace(table, map=cross, reference=reference)
         row = {}
         for (who, face), group in groups.items():

@@ -68,6 +68,26 @@ def test_pinned_counts_the_weights_held_at_their_full_extent():
     assert np.isnan(pinned(np.full((2, 2), np.nan)))
 
 
+def test_the_shapes_carrying_the_error_add_up_to_the_visible_rmse(capsys):
+    """Each judged shape's squared error (``region_rmse``'s "shapes") is what the visible RMSE averages, a shape the
+    truth lacks left out; ``print_shapes`` names the largest first with its share."""
+    from facecap.facecap_addon.bench.fusion_clips import judged_names, print_shapes, region_rmse
+
+    names = judged_names()
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0, 1, (50, len(names)))
+    truth[:, names.index("mouthRollLower")] = np.nan
+    got = truth + rng.normal(0, 0.05, truth.shape)
+    got[:, names.index("eyeWideLeft")] = truth[:, names.index("eyeWideLeft")] + 0.5  # the one shape far off
+    r = region_rmse(got, truth, names)
+    assert "mouthRollLower" not in r["shapes"] and len(r["shapes"]) == len(names) - 1
+    assert np.sqrt(np.mean(list(r["shapes"].values()))) == pytest.approx(r["visible"], rel=1e-12)
+    assert r["shapes"]["eyeWideLeft"] == pytest.approx(0.25, abs=0.02)
+    print_shapes({"report-ict-mean-x": {"fused": r}})
+    line = capsys.readouterr().out
+    assert line.startswith("ict fused, the shapes carrying it: eyeWideLeft 0.50 (")
+
+
 def test_the_performers_check_never_fits_on_a_performer_it_calls_unseen_nor_on_a_reported_window():
     """``--performers``: each fit reads the ROM sessions, the random activations and the windows of its performers
     only; a group judged by a fit without its performer holds none of the clips the fit read; Sentien's tuning
@@ -93,6 +113,32 @@ def test_the_performers_check_never_fits_on_a_performer_it_calls_unseen_nor_on_a
     for clip in [c for c in fb.CLIPS if c.role == "tune-performers"]:
         rows = (clip.start, clip.start + 2 * clip.frames)  # 30 frames/s read from the recording's 60
         assert all(rows[1] + 20 <= a or b + 20 <= rows[0] for a, b in reported), clip.name
+
+
+def test_the_maps_ridge_is_judged_on_a_face_and_a_performer_the_fold_never_read():
+    """``fit_cross`` chooses the map's ridge on folds that leave a tuning identity and a tuning performer out
+    together: no clip a fold judges shares its face, nor its performer, with a clip the fold fits on; ROM sessions
+    and random activations (nobody's habits) are fitted on, never judged; every tuning performer on every tuning
+    identity is judged once; a single performer gives no such fold."""
+    from facecap.facecap_addon.bench import fusion_clips as fc
+    from facecap.facecap_addon.bench import fusion_fit as ff
+
+    clips = [c for c in fb.CLIPS if c.role in fc.MAP_ROLES]
+    folds = ff.performer_folds(clips)
+    faces = {c.face for c in clips}
+    people = {fc.performer(c) for c in clips} - {None}
+    assert len(folds) == len(faces) * len(people) == 4
+    judged_pairs = set()
+    for kept, judged in folds:
+        assert judged and kept
+        assert {c.face for c in judged}.isdisjoint({c.face for c in kept})
+        assert {fc.performer(c) for c in judged}.isdisjoint({fc.performer(c) for c in kept})
+        assert all(c.role in ff.PERFORMANCE_ROLES for c in judged)
+        assert any(fc.performer(c) is None for c in kept)  # the habitless clips stay in
+        judged_pairs |= {(c.face, fc.performer(c)) for c in judged}
+    assert judged_pairs == {(f, p) for f in faces for p in people}
+    alone = [c for c in clips if fc.performer(c) in (None, "alex")]
+    assert ff.performer_folds(alone) == []
 
 
 def test_a_guide_clip_cached_by_the_follower_who_copied_the_guides_eyes_is_rendered_again(tmp_path, monkeypatch):
