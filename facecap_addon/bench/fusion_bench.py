@@ -76,9 +76,10 @@ from .fusion_clips import (
     print_shapes,
     region_rmse,
     rom_fit,
+    solve_rom_fit,
 )
-from .fusion_fit import (PERFORMERS_READ, fit, fit_cross, fit_reference, follow_weight_check, lid_gaze_check,
-                         performers_check, smoothing_check)
+from .fusion_fit import (PERFORMERS_READ, fit, fit_cross, fit_reference, fit_solve_reference, follow_weight_check,
+                         lid_gaze_check, performers_check, smoothing_check)
 from .landmark_bench import REGIONS, ict_arrays, ict_character, performance, shared_folder
 
 CHARACTER_SEED = 7
@@ -300,11 +301,12 @@ def prepare(clip, out, character, *, log=print):
     return data
 
 
-def evaluate(out, table, constant, role="report"):
+def evaluate(out, table, constant, role="report", solve_reference=None):
     """{clip: {method: region table}} for the clips of ``role``: the landmark solve, the corrected scores, the
     fusion per shape (the table alone), the fusion through the map, the latter with the performer's response from
-    the ROM clip of the same face and camera (when it is in ``out``) and a constant (the tuning clips' mean weights
-    on every frame)."""
+    the ROM clip of the same face and camera (when it is in ``out``; with ``solve_reference``, also with the
+    landmark solve's own response on that clip: measured, not what a take does) and a constant (the tuning clips'
+    mean weights on every frame)."""
     names = judged_names()
     rows, follows = {}, {}
     for clip in CLIPS:
@@ -315,8 +317,12 @@ def evaluate(out, table, constant, role="report"):
         rom = calibration_clip(clip)
         methods = {"fused per shape": (None, False, True), "fused, not smoothed": (None, True, False),
                    "fused": (None, True, True)}
+        solve_response = {}
         if rom is not None and (out / f"{rom.name}.npz").is_file():
             methods["fused + ROM"] = (rom_fit(out, rom, table.reference).response, True, True)
+            if solve_reference is not None:
+                methods["fused + ROM, solve too"] = (methods["fused + ROM"][0], True, True)
+                solve_response["fused + ROM, solve too"] = solve_rom_fit(out, rom, solve_reference, table.reference)
         guide = calibration_clip(clip, "follow")
         performer = None
         if guide is not None and (out / f"{guide.name}.npz").is_file():
@@ -327,7 +333,10 @@ def evaluate(out, table, constant, role="report"):
         row = {"landmarks": region_rmse(solved, truth, names),
                "scores": region_rmse(np.where(np.isfinite(corrected), corrected, solved), truth, names)}
         for method, (response, cross, smooth) in methods.items():
-            fused, _ = fuse(data["solved"], tuple(str(n) for n in data["solved_names"]),
+            solved_names = tuple(str(n) for n in data["solved_names"])
+            weights = solve_response[method](data["solved"], solved_names) if method in solve_response else \
+                data["solved"]
+            fused, _ = fuse(weights, solved_names,
                             FaceScores(data["scores"], tuple(str(n) for n in data["score_names"]), data["neutral"],
                                        response=response, fps=clip.fps, smoothing=smooth,
                                        performer=performer if method == "fused + guide followed" else None),
@@ -429,12 +438,13 @@ def main(argv=None):
         follow_weight_check(out, table)
     if args.performers:
         performers_check(out, table.reference)
-    rows = evaluate(out, table, constant)
+    solve_reference = fit_solve_reference(out)
+    rows = evaluate(out, table, constant, solve_reference=solve_reference)
     print_tables(rows)
     others = [c for c in CLIPS if c.role == "report-others"]
     if all((out / f"{c.name}.npz").is_file() for c in others):
         print(f"\nOther performers ({', '.join(sorted({c.recording for c in others}))}): the same faces and cameras")
-        print_tables(evaluate(out, table, constant, role="report-others"))
+        print_tables(evaluate(out, table, constant, role="report-others", solve_reference=solve_reference))
     follow_check(out, table)
     videos = sorted(out.glob("report-*.mp4"))
     if videos and args.speed:

@@ -10,7 +10,7 @@ import numpy as np
 from ...solvers.rom import sequence_poses
 from ...solvers.video.follow import fit_follow
 from ...solvers.video.fusion import FaceScores, neutral_corrected
-from ...solvers.video.response import fit_response
+from ...solvers.video.response import fit_response, fit_weights_response, relative
 from ..render.face_footage import Shot
 from .landmark_bench import REGIONS
 
@@ -182,6 +182,21 @@ def rom_fit(out, clip, reference=None):
     data = dict(np.load(out / f"{clip.name}.npz"))
     return fit_response(data["scores"], [str(n) for n in data["score_names"]], data["neutral"],
                         sequence_poses(ROM_SHEET), fps=ROM_FPS, reference=reference, sheet=ROM_SHEET)
+
+
+#: The solve's shapes its ROM response leaves alone: the lids' locks already read them against the take's own neutral.
+LID_LOCKED = ("eyeBlinkLeft", "eyeBlinkRight", "eyeWideLeft", "eyeWideRight")
+
+
+def solve_rom_fit(out, clip, reference=None, score_reference=None):
+    """The landmark solve's own response on the cached ROM ``clip`` (a ScoreResponse on its shapes: its weights at
+    the poses the scores found, ``response.fit_weights_response``), relative to ``reference`` (the tuning faces',
+    :func:`fusion_fit.fit_solve_reference`) when given; the poses found with ``score_reference``."""
+    data = dict(np.load(out / f"{clip.name}.npz"))
+    found = rom_fit(out, clip, score_reference)
+    own = fit_weights_response(data["solved"], [str(n) for n in data["solved_names"]], data["neutral"], found.frames,
+                               sequence_poses(ROM_SHEET), sheet=ROM_SHEET, keep=LID_LOCKED)
+    return own if reference is None else relative(own, reference)
 
 
 def calibration_clip(clip, role="calibrate"):

@@ -21,8 +21,8 @@ from ...solvers.video.fusion import (
     smooth_runs,
 )
 from ...solvers.video.response import ScoreResponse
-from .fusion_clips import (CLIPS, MAP_ROLES, ROM_SHEET, columns, follow_fit, jitter, judged_names, performer,
-                           region_rmse, rom_fit)
+from .fusion_clips import (CLIPS, MAP_ROLES, columns, follow_fit, jitter, judged_names, performer, region_rmse,
+                           rom_fit, solve_rom_fit)
 
 
 #: The roles of the tuning clips that perform a recording (the per-shape table is fitted on these alone).
@@ -320,7 +320,23 @@ def fit_reference(out, *, log=print):
     the median gain and offset over the clips that calibrated it; the identity for a score fewer than half of them
     calibrated (it does not respond on these faces)."""
     rom_clips = [c for c in CLIPS if c.role == "tune-rom" and (out / f"{c.name}.npz").is_file()]
-    fits = [rom_fit(out, c).response for c in rom_clips]
+    reference = median_response([rom_fit(out, c).response for c in rom_clips])
+    log(f"ROM reference fitted on {len(rom_clips)} clips: {len(reference.changed())} scores")
+    return reference, [c.name for c in rom_clips]
+
+
+def fit_solve_reference(out):
+    """The tuning faces' landmark solve's ROM response (what ``solve_rom_fit`` is relative to), as
+    :func:`fit_reference` fits theirs for the scores; None when a tuning ROM clip is not in ``out``."""
+    rom_clips = [c for c in CLIPS if c.role == "tune-rom"]
+    if not all((out / f"{c.name}.npz").is_file() for c in rom_clips):
+        return None
+    return median_response([solve_rom_fit(out, c) for c in rom_clips])
+
+
+def median_response(fits):
+    """One ScoreResponse from several clips' (same names): per name the median gain and offset over the clips that
+    changed it; the identity for a name fewer than half of them changed."""
     names = fits[0].names
     changed = np.array([[n in f.changed() for n in names] for f in fits])
     gains, offsets = np.stack([f.gain for f in fits]), np.stack([f.offset for f in fits])
@@ -330,5 +346,4 @@ def fit_reference(out, *, log=print):
         warnings.simplefilter("ignore", RuntimeWarning)
         gain[keep] = np.nanmedian(np.where(changed, gains, np.nan)[:, keep], axis=0)
         offset[keep] = np.nanmedian(np.where(changed, offsets, np.nan)[:, keep], axis=0)
-    log(f"ROM reference fitted on {len(fits)} clips: {int(keep.sum())} scores")
-    return ScoreResponse(names, gain, offset, ROM_SHEET), [c.name for c in rom_clips]
+    return ScoreResponse(names, gain, offset, fits[0].sheet)

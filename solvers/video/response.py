@@ -191,6 +191,25 @@ def fit_response(scores, names, neutral, poses, *, fps, reference=None, sheet=""
                        holds, align, exercised, tuple(notes), summary)
 
 
+def fit_weights_response(values, names, neutral, frames, poses, *, sheet="", keep=()):
+    """The same per-shape gain and offset as :func:`fit_response`, fitted on another reading of the ROM clip
+    (``values`` (F, S) named ``names``: the landmark solve's weights, say) at the frames a score fit found each pose
+    at (``ResponseFit.frames``, None for a pose not found); names in ``keep`` (shapes another step already measures
+    against the take, such as the lids' locks) are left as they are. A ScoreResponse (not relative to anything)."""
+    v = np.asarray(values, dtype=np.float64)
+    names = tuple(str(n) for n in names)
+    found = [j for j, f in enumerate(frames) if f is not None]
+    if not found:
+        raise FacecapError("no pose of the ROM clip was found to fit a response on")
+    x = np.stack([_median(v, frames[j]) for j in found])
+    x0 = np.nanmedian(v[np.asarray(neutral, dtype=np.int64)], axis=0)
+    gain, offset, _ = _fit_shapes(x, _asked(poses, names)[found], x0, names)
+    for k, name in enumerate(names):
+        if name in keep:
+            gain[k], offset[k] = 1.0, 0.0
+    return ScoreResponse(names, gain, offset, sheet)
+
+
 def _named_holds(holds, corrected, asked, poses, names, reference):
     """(Alignment, measured frames per pose, poses found, poses left out as ambiguous, poses no score names) of the
     ``holds`` found, named by the sheet in order against what the reference faces would score."""

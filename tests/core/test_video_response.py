@@ -14,6 +14,7 @@ from facecap.solvers.video.response import (
     GAIN_RANGE,
     ScoreResponse,
     fit_response,
+    fit_weights_response,
     profile_contents,
     relative,
     save_profile,
@@ -64,6 +65,27 @@ def test_the_response_recovers_each_shapes_gain_from_an_imperfect_rom():
     before = np.sqrt(np.mean((other - weights) ** 2))
     after = np.sqrt(np.mean((fit.response(other, ARKIT_51) - weights) ** 2))
     assert after < 0.6 * before, (before, after)
+
+
+def test_another_reading_of_the_rom_is_calibrated_at_the_poses_its_scores_found():
+    """``fit_weights_response``: another reading of the same ROM clip (a solve that reads every shape at 0.5 of its
+    weight) measured at the frames the scores' fit found each pose: gains near 2 for the shapes the sheet asks at
+    full, the identity for names kept (the lids' locks) and for shapes no pose asks; no pose found is refused."""
+    scores, neutral, weights, _ = rom_clip(3)
+    fit = fit_response(scores, ARKIT_51, neutral, POSES, fps=FPS)
+    rng = np.random.default_rng(5)
+    reading = 0.5 * weights + rng.normal(0.0, 0.01, weights.shape)
+    keep = ("eyeBlinkLeft", "eyeBlinkRight")
+    got = fit_weights_response(reading, ARKIT_51, neutral, fit.frames, POSES, sheet="facecap-24", keep=keep)
+    full = [k for k, n in enumerate(ARKIT_51) if any(p.weight_of(n) == 1.0 for p in POSES) and n not in keep]
+    assert np.all((got.gain[full] > 1.6) & (got.gain[full] < 2.4)), dict(zip(np.array(ARKIT_51)[full],
+                                                                              got.gain[full].round(2)))
+    assert 1.8 < np.median(got.gain[full]) < 2.3
+    for name in keep + tuple(n for n in ARKIT_51 if not any(p.weight_of(n) > 0 for p in POSES)):
+        assert name not in got.changed()
+    assert got.sheet == "facecap-24"
+    with pytest.raises(FacecapError, match="no pose of the ROM clip was found"):
+        fit_weights_response(reading, ARKIT_51, neutral, [None] * len(POSES), POSES)
 
 
 def test_a_skipped_pose_is_named_and_the_others_keep_their_holds():
