@@ -308,7 +308,7 @@ def evaluate(out, table, constant, role="report", solve_reference=None):
     landmark solve's own response on that clip: measured, not what a take does) and a constant (the tuning clips'
     mean weights on every frame)."""
     names = judged_names()
-    rows, follows = {}, {}
+    rows, follows, roms = {}, {}, {}
     for clip in CLIPS:
         if clip.role != role:
             continue
@@ -319,10 +319,15 @@ def evaluate(out, table, constant, role="report", solve_reference=None):
                    "fused": (None, True, True)}
         solve_response = {}
         if rom is not None and (out / f"{rom.name}.npz").is_file():
-            methods["fused + ROM"] = (rom_fit(out, rom, table.reference).response, True, True)
-            if solve_reference is not None:
-                methods["fused + ROM, solve too"] = (methods["fused + ROM"][0], True, True)
-                solve_response["fused + ROM, solve too"] = solve_rom_fit(out, rom, solve_reference, table.reference)
+            if rom.name not in roms:  # fitted once per face and camera, not per reported clip
+                found = rom_fit(out, rom, table.reference)
+                roms[rom.name] = (found.response, None if solve_reference is None else
+                                  solve_rom_fit(out, rom, solve_reference, found))
+            response, solve = roms[rom.name]
+            methods["fused + ROM"] = (response, True, True)
+            if solve is not None:
+                methods["fused + ROM, solve too"] = (response, True, True)
+                solve_response["fused + ROM, solve too"] = solve
         guide = calibration_clip(clip, "follow")
         performer = None
         if guide is not None and (out / f"{guide.name}.npz").is_file():

@@ -188,12 +188,12 @@ def rom_fit(out, clip, reference=None):
 LID_LOCKED = ("eyeBlinkLeft", "eyeBlinkRight", "eyeWideLeft", "eyeWideRight")
 
 
-def solve_rom_fit(out, clip, reference=None, score_reference=None):
+def solve_rom_fit(out, clip, reference=None, found=None):
     """The landmark solve's own response on the cached ROM ``clip`` (a ScoreResponse on its shapes: its weights at
     the poses the scores found, ``response.fit_weights_response``), relative to ``reference`` (the tuning faces',
-    :func:`fusion_fit.fit_solve_reference`) when given; the poses found with ``score_reference``."""
+    :func:`fusion_fit.fit_solve_reference`) when given; ``found``: the clip's score fit (:func:`rom_fit`), if made."""
     data = dict(np.load(out / f"{clip.name}.npz"))
-    found = rom_fit(out, clip, score_reference)
+    found = rom_fit(out, clip) if found is None else found
     own = fit_weights_response(data["solved"], [str(n) for n in data["solved_names"]], data["neutral"], found.frames,
                                sequence_poses(ROM_SHEET), sheet=ROM_SHEET, keep=LID_LOCKED)
     return own if reference is None else relative(own, reference)
