@@ -70,10 +70,11 @@ def clip_weights(face, n=N_FRAMES):
 def render_test_clip(path, face, *, n=N_FRAMES):
     """Render the test clip of ``face`` to ``path`` (H.264); returns (path, weights, gaze)."""
     from facecap.facecap_addon.render.face_footage import Shot, render_face_clip
+    from render_child import in_child
 
     weights, head, gaze = clip_weights(face, n)
-    render_face_clip(path, face.neutral, face.polygons, face.deltas, weights, head=head, gaze=gaze,
-                     shot=Shot(distance=0.5))
+    in_child(lambda: render_face_clip(path, face.neutral, face.polygons, face.deltas, weights, head=head, gaze=gaze,
+                                      shot=Shot(distance=0.5)), label="the test clip")
     return Path(path), weights, gaze
 
 

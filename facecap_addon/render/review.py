@@ -43,6 +43,8 @@ MARGIN = 1.5
 #: Seconds a forked render may take in all (then it is stopped and the page has no contact sheet);
 #: the sample's nine tiles take 2-4 s with software OpenGL.
 RENDER_TIMEOUT = 120.0
+#: Forked children a contact sheet gets when they die (a render stopped at ``RENDER_TIMEOUT`` is not tried again).
+RENDER_TRIES = 2
 #: Whether this process has rendered (has an OpenGL context), by any facecap render: see render_state.
 _state = render_state.STATE
 
@@ -248,8 +250,10 @@ def _tile(stage, cam, result, geometry, row, kind, label):
 
 def render_guarded(work, *, timeout=RENDER_TIMEOUT):
     """``(work(), "")``, or ``(None, why)`` when rendering failed. Headless on Linux ``work`` runs in a
-    forked child with its output silenced, so an abort (no OpenGL) cannot end the run; in a Blender
-    with a window, or a process that has rendered before, it runs here."""
+    forked child with its output silenced, so an abort (no OpenGL) cannot end the run; a child that dies is
+    tried once more (software OpenGL has aborted once in a long run that rendered fine before and after; a
+    machine without OpenGL fails both at once). In a Blender with a window, or a process that has rendered
+    before, it runs here."""
     import bpy  # bpy: Blender starts on first import
 
     if not (bpy.app.background and sys.platform.startswith("linux")) or _state["rendered_here"]:
@@ -257,6 +261,18 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
             return work(), ""
         except RuntimeError as exc:  # Blender's render errors
             return None, f"rendering failed ({exc})"
+    exits = []
+    for _ in range(RENDER_TRIES):
+        outcome = _render_forked(work, timeout)
+        if not isinstance(outcome, int):
+            return outcome
+        exits.append(str(outcome))
+    return None, (f"Blender stopped while rendering ({len(exits)} tries, exit {', '.join(exits)}); on a machine "
+                  "without a GPU Workbench needs Mesa's EGL (libegl1, libgl1-mesa-dri)")
+
+
+def _render_forked(work, timeout):
+    """``render_guarded``'s forked child: (value, "") or (None, why), or the child's exit code when it died."""
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
 
@@ -287,8 +303,7 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
         status, value = recv.recv()
     except EOFError:
         proc.join()
-        return None, (f"Blender stopped while rendering (exit {proc.exitcode}); on a machine without a GPU "
-                      "Workbench needs Mesa's EGL (libegl1, libgl1-mesa-dri)")
+        return proc.exitcode
     finally:
         recv.close()
         proc.join(timeout=10)

@@ -34,3 +34,14 @@ def registered_addon():
 def empty_scene():
     bpy.ops.wm.read_factory_settings(use_empty=True)
     yield bpy.context.scene
+
+
+@pytest.fixture(autouse=True)
+def renders_in_children_only():
+    """The pytest process never renders (``tests/render_child.py``): one abort of software OpenGL here would end
+    the whole run. Checked after each test, once its monkeypatches are undone."""
+    from facecap.facecap_addon.render import render_state
+
+    yield
+    assert not render_state.STATE["rendered_here"], ("this test rendered in the pytest process: render in a forked "
+                                                    "child (render_child.in_child)")

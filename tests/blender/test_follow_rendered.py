@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from face_clips import ict_available, ict_character, ict_face, landmark_models
+from render_child import in_child
 from shared_data import REALDATA
 
 GUIDE_START, GUIDE_FRAMES = 3540, 150  # the benchmark's guide window (fusion_clips.GUIDE), shortened
@@ -27,8 +28,9 @@ def followed(tmp_path_factory):
     folder = tmp_path_factory.mktemp("follow")
     weights, head, gaze, guide = follow_performance(REALDATA / "llf" / "llf_alex_rom_3.csv", list(face.shape_names),
                                                     GUIDE_START, GUIDE_FRAMES, seed=3)
-    render_face_clip(folder / "follow.mp4", face.neutral, face.polygons, face.deltas, weights, head=head, gaze=gaze,
-                     shot=Shot(distance=0.5, azimuth=15.0))
+    in_child(lambda: render_face_clip(folder / "follow.mp4", face.neutral, face.polygons, face.deltas, weights,
+                                      head=head, gaze=gaze, shot=Shot(distance=0.5, azimuth=15.0)),
+             label="the guide-following clip")
     write_weights_csv(folder / "guide.csv", np.arange(1, GUIDE_FRAMES + 1), [str(n) for n in guide["guide_names"]],
                       guide["guide"])
     ict_character(folder / "person.blend", face)

@@ -13,6 +13,7 @@ import bpy
 import numpy as np
 import pytest
 from png_pixels import png_pixels
+from render_child import in_child
 
 from facecap.facecap_addon.render import review as rv
 from facecap.facecap_addon.headless.demo import SAMPLE_CONFIG
@@ -87,32 +88,64 @@ def test_build_review_renders_in_a_forked_child_and_leaves_the_scene(tmp_path):
     assert not found["rendered_after"], "the renders ran in a child"
 
 
-def test_a_process_that_rendered_renders_in_process(solved, monkeypatch):
+def test_a_process_that_rendered_renders_in_process(solved):
     """After any render in this process (Workbench footage, docs pictures, an earlier review) the sheet is
-    rendered here: a forked child's copy of the OpenGL context would hang."""
+    rendered here: a forked child's copy of the OpenGL context would hang. (Run in a child of its own: the
+    pytest process never renders, ``render_child``.)"""
     result, config = solved
-    monkeypatch.setitem(rv._state, "rendered_here", True)
-    review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c",
-                             fps=60.0)
-    assert review.sheet is not None and len(review.sheet.tiles) >= 6, review.sheet_note
+
+    def review():
+        rv._state["rendered_here"] = True  # the child's copy of the flag
+        built = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c",
+                                fps=60.0)
+        return built.sheet is not None and len(built.sheet.tiles), built.sheet_note
+
+    tiles, note = in_child(review, label="the review rendered in-process")
+    assert tiles >= 6, note
+
+
+def _aborts(marker=None):
+    """A render_sheet that dies as Blender does without OpenGL: always, or (given a ``marker`` path) only the
+    first time it is called in any process."""
+    real = rv.render_sheet
+
+    def render(*args, **kwargs):
+        import os
+
+        if marker is None or not marker.exists():
+            if marker is not None:
+                marker.touch()
+            os.abort()
+        return real(*args, **kwargs)
+
+    return render
 
 
 def test_a_failed_render_is_a_note_not_an_error(solved, monkeypatch):
     result, config = solved
-
-    def abort(*_a, **_k):  # what Blender does without OpenGL: the process dies
-        import os
-
-        os.abort()
-
-    monkeypatch.setattr(rv, "render_sheet", abort)
+    monkeypatch.setattr(rv, "render_sheet", _aborts())
     monkeypatch.setitem(rv._state, "rendered_here", False)  # fork, as a headless run that never rendered does
     review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c")
-    assert review.sheet is None and "Blender stopped while rendering" in review.sheet_note
+    assert review.sheet is None and "Blender stopped while rendering (2 tries, exit -6, -6)" in review.sheet_note
     assert review.geometry is not None  # the binding plot does not need renders
 
 
+def test_a_render_that_died_once_is_tried_again(solved, monkeypatch, tmp_path):
+    """Software OpenGL has aborted once in a long run that rendered before and after: the contact sheet gets a
+    second child."""
+    result, config = solved
+    monkeypatch.setattr(rv, "render_sheet", _aborts(tmp_path / "died"))
+    monkeypatch.setitem(rv._state, "rendered_here", False)
+    review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c")
+    assert (tmp_path / "died").exists(), "the first child died"
+    assert review.sheet is not None and len(review.sheet.tiles) >= 6, review.sheet_note
+
+
 def test_tiles_show_the_solved_pose_with_the_markers_on_the_face(solved, tmp_path):
+    in_child(lambda: _tiles_show_the_solved_pose(solved, tmp_path), label="the contact sheet")
+
+
+def _tiles_show_the_solved_pose(solved, tmp_path):
     result, config = solved
     obj = bpy.data.objects["Face"]
     key = obj.data.shape_keys
@@ -148,6 +181,10 @@ def test_tiles_show_the_solved_pose_with_the_markers_on_the_face(solved, tmp_pat
 
 
 def test_without_bound_markers_the_whole_face_is_rendered_alone(solved, tmp_path):
+    in_child(lambda: _whole_face_alone(solved, tmp_path), label="the contact sheet without markers")
+
+
+def _whole_face_alone(solved, tmp_path):
     result, _ = solved
     picks = pick_frames(result, worst=0, peaks=2)
     sheet = rv.render_sheet(bpy.data.objects["Face"], result, None, picks)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from face_clips import ict_available, ict_character, ict_face, landmark_models
+from render_child import in_child
 
 #: A short sheet of poses the camera sees well, as a config writes it (labels where a pose is a combination).
 SHEET = ['"jawOpen"', '{ mouthSmileLeft = 1.0, mouthSmileRight = 1.0, label = "smile" }',
@@ -35,8 +36,8 @@ def rom_clip(tmp_path_factory):
     names = list(face.shape_names)
     weights, performed, holds, _ = rom_weights(names, poses, rng, fps=FPS, timing=ROM_TIMING)
     head, gaze = _head_and_gaze(weights, names, rng, FPS)
-    render_face_clip(folder / "rom.mp4", face.neutral, face.polygons, face.deltas, weights, head=head, gaze=gaze,
-                     shot=Shot(distance=0.5, azimuth=15.0, fps=FPS))
+    in_child(lambda: render_face_clip(folder / "rom.mp4", face.neutral, face.polygons, face.deltas, weights, head=head,
+                                      gaze=gaze, shot=Shot(distance=0.5, azimuth=15.0, fps=FPS)), label="the ROM clip")
     ict_character(folder / "person.blend", face)
     return folder, holds, [poses[j].label for j in performed]
 

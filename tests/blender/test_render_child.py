@@ -1,0 +1,52 @@
+"""``render_child.in_child``: the tests' renders run in a forked child, so one abort of software OpenGL costs a
+retry (said as a warning), not the whole test run."""
+
+import faulthandler
+import os
+
+import pytest
+from render_child import ChildRenderDied, in_child
+
+
+def _abort():
+    """Die as Blender does when software OpenGL fails (without the fault handler's dump: it is expected)."""
+    faulthandler.disable()
+    os.abort()
+
+
+def test_the_childs_value_comes_back():
+    assert in_child(lambda: {"frames": 58, "pid": os.getpid()})["pid"] != os.getpid()
+
+
+def test_an_error_in_the_child_fails_with_its_traceback():
+    def fails():
+        raise ValueError("no face in frame 12")
+
+    with pytest.raises(AssertionError, match="(?s)the clip failed in its child.*ValueError: no face in frame 12"):
+        in_child(fails, label="the clip")
+
+
+def test_a_child_that_died_once_is_tried_again_and_said(tmp_path):
+    marker = tmp_path / "died"
+
+    def dies_once():
+        if not marker.exists():
+            marker.touch()
+            _abort()
+        return "rendered"
+
+    with pytest.warns(ChildRenderDied, match="the clip: its child died \\(signal SIGABRT\\); tried again"):
+        assert in_child(dies_once, label="the clip") == "rendered"
+
+
+def test_a_child_that_keeps_dying_fails_the_test():
+    with pytest.warns(ChildRenderDied):
+        with pytest.raises(AssertionError, match="its child died 2 times \\(signal SIGABRT; signal SIGABRT\\)"):
+            in_child(_abort, label="the clip")
+
+
+def test_a_child_that_hangs_is_stopped():
+    import time
+
+    with pytest.raises(AssertionError, match="still running after 1 s: killed"):
+        in_child(lambda: time.sleep(30), label="the clip", timeout=1.0)
