@@ -4,8 +4,9 @@ Blender's Workbench under software OpenGL (Mesa's EGL) has aborted the whole tes
 the pytest process after many that worked (CI, stop 47: SIGABRT in ``bpy.ops.render.render``). So the pytest
 process never renders: footage and the review's in-process path run here, in a child forked from a process
 without an OpenGL context (where a render works, as ``review.render_guarded``'s does). A child that dies by a
-signal is tried once more and said so as a warning (the run's summary lists it); a second death fails the test
-with the signal, an exception in the child fails it with the child's traceback.
+signal is tried once more and said so as a warning (the run's summary lists it, with the end of what the child
+printed: Blender's own message of why); a second death fails the test the same way, an exception in the child
+fails it with the child's traceback.
 """
 
 import os
@@ -45,39 +46,52 @@ def in_child(work, *, label="render", timeout=TIMEOUT, tries=TRIES):
 
 
 def _once(work, timeout):
-    """("ok", value) | ("error", the child's traceback) | ("died", how)."""
+    """("ok", value) | ("error", the child's traceback) | ("died", how, with the end of what it printed)."""
+    import tempfile
+
     read, write = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: never returns into pytest
-        os.close(read)
-        try:
+    with tempfile.TemporaryFile() as log:
+        pid = os.fork()
+        if pid == 0:  # the child: never returns into pytest
+            os.close(read)
             try:
-                payload = ("ok", work())
-            except BaseException:
-                payload = ("error", traceback.format_exc())
-            data = pickle.dumps(payload)
-            with os.fdopen(write, "wb") as out:
-                out.write(data)
+                os.dup2(log.fileno(), 1)  # Blender prints from C: kept to say why, should the child die
+                os.dup2(log.fileno(), 2)
+                try:
+                    payload = ("ok", work())
+                except BaseException:
+                    payload = ("error", traceback.format_exc())
+                data = pickle.dumps(payload)
+                with os.fdopen(write, "wb") as out:
+                    out.write(data)
+            finally:
+                os._exit(0)
+        os.close(write)
+        chunks, deadline = [], time.monotonic() + timeout
+        try:
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0 or not select.select([read], [], [], left)[0]:
+                    os.kill(pid, signal.SIGKILL)
+                    os.waitpid(pid, 0)
+                    return "error", f"still running after {timeout:.0f} s: killed{_tail(log)}"
+                chunk = os.read(read, 1 << 20)
+                if not chunk:
+                    break
+                chunks.append(chunk)
         finally:
-            os._exit(0)
-    os.close(write)
-    chunks, deadline = [], time.monotonic() + timeout
-    try:
-        while True:
-            left = deadline - time.monotonic()
-            if left <= 0 or not select.select([read], [], [], left)[0]:
-                os.kill(pid, signal.SIGKILL)
-                os.waitpid(pid, 0)
-                return "error", f"still running after {timeout:.0f} s: killed"
-            chunk = os.read(read, 1 << 20)
-            if not chunk:
-                break
-            chunks.append(chunk)
-    finally:
-        os.close(read)
-    _, status = os.waitpid(pid, 0)
-    if os.WIFSIGNALED(status):
-        return "died", f"signal {signal.Signals(os.WTERMSIG(status)).name}"
-    if not chunks:
-        return "died", f"exit {os.waitstatus_to_exitcode(status)} without a result"
+            os.close(read)
+        _, status = os.waitpid(pid, 0)
+        if os.WIFSIGNALED(status):
+            return "died", f"signal {signal.Signals(os.WTERMSIG(status)).name}{_tail(log)}"
+        if not chunks:
+            return "died", f"exit {os.waitstatus_to_exitcode(status)} without a result{_tail(log)}"
     return pickle.loads(b"".join(chunks))
+
+
+def _tail(log, size=1500):
+    """The end of what a child printed, as a suffix of a message (empty when it printed nothing)."""
+    log.seek(0, os.SEEK_END)
+    log.seek(max(0, log.tell() - size))
+    text = log.read().decode("utf-8", "replace").strip()
+    return f"; it printed last:\n{text}" if text else ""
