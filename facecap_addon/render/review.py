@@ -59,12 +59,19 @@ class ReviewOptions:
     render: bool = True
 
 
-def _quiet():
-    """Send this process's stdout and stderr to the null device (Blender's render log, Mesa's EGL notes)."""
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(null, 1)
-    os.dup2(null, 2)
-    os.close(null)
+def _quiet(log):
+    """Send this process's stdout and stderr (Blender's render log, Mesa's EGL notes) to the file descriptor
+    ``log``: off the user's console, kept to say why should the process die."""
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+
+
+def _last_line(log):
+    """The last line a dead child printed into the temporary file ``log`` (its reason), or ""."""
+    log.seek(0, os.SEEK_END)
+    log.seek(max(0, log.tell() - 4096))
+    lines = [line.strip() for line in log.read().decode("utf-8", "replace").splitlines() if line.strip()]
+    return lines[-1] if lines else ""
 
 
 @contextmanager
@@ -261,18 +268,22 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
             return work(), ""
         except RuntimeError as exc:  # Blender's render errors
             return None, f"rendering failed ({exc})"
-    exits = []
+    exits, said = [], ""
     for _ in range(RENDER_TRIES):
-        outcome = _render_forked(work, timeout)
-        if not isinstance(outcome, int):
-            return outcome
-        exits.append(str(outcome))
-    return None, (f"Blender stopped while rendering ({len(exits)} tries, exit {', '.join(exits)}); on a machine "
-                  "without a GPU Workbench needs Mesa's EGL (libegl1, libgl1-mesa-dri)")
+        with tempfile.TemporaryFile() as log:
+            outcome = _render_forked(work, timeout, log)
+            if not isinstance(outcome, int):
+                return outcome
+            exits.append(str(outcome))
+            said = _last_line(log) or said
+    said = f"; it printed last: {said[:300]}" if said else ""
+    return None, (f"Blender stopped while rendering ({len(exits)} tries, exit {', '.join(exits)}{said}); on a "
+                  "machine without a GPU Workbench needs Mesa's EGL (libegl1, libgl1-mesa-dri)")
 
 
-def _render_forked(work, timeout):
-    """``render_guarded``'s forked child: (value, "") or (None, why), or the child's exit code when it died."""
+def _render_forked(work, timeout, log):
+    """``render_guarded``'s forked child, its output into the file ``log``: (value, "") or (None, why), or the
+    child's exit code when it died."""
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
 
@@ -280,7 +291,7 @@ def _render_forked(work, timeout):
 
     def child():
         held.restore()
-        _quiet()
+        _quiet(log.fileno())
         faulthandler.disable()  # an abort here is expected to be reported by the parent, not dumped
         try:
             send.send(("ok", work()))

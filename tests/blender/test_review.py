@@ -115,6 +115,7 @@ def _aborts(marker=None):
         if marker is None or not marker.exists():
             if marker is not None:
                 marker.touch()
+            os.write(2, b"EGL Error (0x3009): EGL_BAD_MATCH\n")  # Blender's last words without OpenGL
             os.abort()
         return real(*args, **kwargs)
 
@@ -126,7 +127,8 @@ def test_a_failed_render_is_a_note_not_an_error(solved, monkeypatch):
     monkeypatch.setattr(rv, "render_sheet", _aborts())
     monkeypatch.setitem(rv._state, "rendered_here", False)  # fork, as a headless run that never rendered does
     review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c")
-    assert review.sheet is None and "Blender stopped while rendering (2 tries, exit -6, -6)" in review.sheet_note
+    assert review.sheet is None and review.sheet_note.startswith(
+        "Blender stopped while rendering (2 tries, exit -6, -6; it printed last: EGL Error (0x3009): EGL_BAD_MATCH)")
     assert review.geometry is not None  # the binding plot does not need renders
 
 
