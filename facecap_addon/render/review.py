@@ -40,7 +40,7 @@ from ..scene.scene_data import vertex_group_bindings
 TILE_HEIGHT, ASPECT = 280, 0.8
 #: The view: the bound points' extent times this (room for the forehead, chin and ears).
 MARGIN = 1.5
-#: Seconds a forked render may take in all (then it is stopped and the page has no contact sheet);
+#: Seconds a forked render may take (then it is stopped and the page has no contact sheet);
 #: the sample's nine tiles take 2-4 s with software OpenGL.
 RENDER_TIMEOUT = 120.0
 #: Forked children a contact sheet gets when they die (a render stopped at ``RENDER_TIMEOUT`` is not tried again).
@@ -257,9 +257,9 @@ def _tile(stage, cam, result, geometry, row, kind, label):
 
 def render_guarded(work, *, timeout=RENDER_TIMEOUT):
     """``(work(), "")``, or ``(None, why)`` when rendering failed. Headless on Linux ``work`` runs in a
-    forked child with its output silenced, so an abort (no OpenGL) cannot end the run; a child that dies is
-    tried once more (software OpenGL has aborted once in a long run that rendered fine before and after; a
-    machine without OpenGL fails both at once). In a Blender with a window, or a process that has rendered
+    forked child with its output kept off the console, so an abort (no OpenGL) cannot end the run; a child that
+    dies is tried once more (software OpenGL has aborted once in a long test run that had rendered fine before; a
+    machine without OpenGL fails both tries at once). In a Blender with a window, or a process that has rendered
     before, it runs here."""
     import bpy  # bpy: Blender starts on first import
 
