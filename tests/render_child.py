@@ -4,9 +4,9 @@ Blender's Workbench under software OpenGL (Mesa's EGL) has aborted the whole tes
 the pytest process after many that worked (CI, stop 47: SIGABRT in ``bpy.ops.render.render``). So the pytest
 process never renders: footage and the review's in-process path run here, in a child forked from a process
 without an OpenGL context (where a render works, as ``review.render_guarded``'s does). A child that dies by a
-signal is tried once more and said so as a warning (the run's summary lists it, with the end of what the child
-printed: Blender's own message of why); a second death fails the test the same way, an exception in the child
-fails it with the child's traceback.
+signal or hangs (a fork of a multi-threaded process can deadlock) is tried once more and said so as a warning (the
+run's summary lists it, with the end of what the child printed: Blender's own message of why); a second failure
+fails the test the same way, an exception in the child fails it with the child's traceback.
 """
 
 import os
@@ -18,13 +18,13 @@ import traceback
 import warnings
 
 #: Seconds a child may take (the longest test footage renders in about a minute on two cores).
-TIMEOUT = 900.0
+TIMEOUT = 600.0
 #: Children a render gets when one dies.
 TRIES = 2
 
 
 class ChildRenderDied(RuntimeWarning):
-    """A render's child died by a signal and was tried again."""
+    """A render's child died by a signal, or hung and was killed, and was tried again."""
 
 
 def in_child(work, *, label="render", timeout=TIMEOUT, tries=TRIES):
@@ -46,7 +46,8 @@ def in_child(work, *, label="render", timeout=TIMEOUT, tries=TRIES):
 
 
 def _once(work, timeout):
-    """("ok", value) | ("error", the child's traceback) | ("died", how, with the end of what it printed)."""
+    """("ok", value) | ("error", the child's traceback) | ("died", how (a signal, or killed when it hung), with the
+    end of what it printed)."""
     import tempfile
 
     read, write = os.pipe()
@@ -71,10 +72,10 @@ def _once(work, timeout):
         try:
             while True:
                 left = deadline - time.monotonic()
-                if left <= 0 or not select.select([read], [], [], left)[0]:
+                if left <= 0 or not select.select([read], [], [], left)[0]:  # a fork can deadlock: tried again
                     os.kill(pid, signal.SIGKILL)
                     os.waitpid(pid, 0)
-                    return "error", f"still running after {timeout:.0f} s: killed{_tail(log)}"
+                    return "died", f"still running after {timeout:.0f} s: killed{_tail(log)}"
                 chunk = os.read(read, 1 << 20)
                 if not chunk:
                     break

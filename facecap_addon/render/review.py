@@ -43,7 +43,8 @@ MARGIN = 1.5
 #: Seconds a forked render may take (then it is stopped and the page has no contact sheet);
 #: the sample's nine tiles take 2-4 s with software OpenGL.
 RENDER_TIMEOUT = 120.0
-#: Forked children a contact sheet gets when they die (a render stopped at ``RENDER_TIMEOUT`` is not tried again).
+#: Forked children a contact sheet gets when they die or hang (a fork of a multi-threaded process can deadlock:
+#: one did, once in CI on Python 3.13; a render that is only slow costs ``RENDER_TIMEOUT`` per try).
 RENDER_TRIES = 2
 #: Whether this process has rendered (has an OpenGL context), by any facecap render: see render_state.
 _state = render_state.STATE
@@ -255,12 +256,12 @@ def _tile(stage, cam, result, geometry, row, kind, label):
                 stage.project(cam, model), np.linalg.norm(captured - model, axis=1) * 1e3)
 
 
-def render_guarded(work, *, timeout=RENDER_TIMEOUT):
+def render_guarded(work, *, timeout=None):
     """``(work(), "")``, or ``(None, why)`` when rendering failed. Headless on Linux ``work`` runs in a
     forked child with its output kept off the console, so an abort (no OpenGL) cannot end the run; a child that
-    dies is tried once more (software OpenGL has aborted once in a long test run that had rendered fine before; a
-    machine without OpenGL fails both tries at once). In a Blender with a window, or a process that has rendered
-    before, it runs here."""
+    dies or takes longer than ``timeout`` (default ``RENDER_TIMEOUT``) is tried once more (software OpenGL has
+    aborted once in a long test run that had rendered fine before, a child has hung once; a machine without OpenGL
+    fails both tries at once). In a Blender with a window, or a process that has rendered before, it runs here."""
     import bpy  # bpy: Blender starts on first import
 
     if not (bpy.app.background and sys.platform.startswith("linux")) or _state["rendered_here"]:
@@ -268,22 +269,26 @@ def render_guarded(work, *, timeout=RENDER_TIMEOUT):
             return work(), ""
         except RuntimeError as exc:  # Blender's render errors
             return None, f"rendering failed ({exc})"
-    exits, said = [], ""
+    timeout = RENDER_TIMEOUT if timeout is None else timeout
+    failed, said = [], ""
     for _ in range(RENDER_TRIES):
         with tempfile.TemporaryFile() as log:
             outcome = _render_forked(work, timeout, log)
-            if not isinstance(outcome, int):
+            if isinstance(outcome, tuple):
                 return outcome
-            exits.append(str(outcome))
+            failed.append(outcome)
             said = _last_line(log) or said
     said = f"; it printed last: {said[:300]}" if said else ""
-    return None, (f"Blender stopped while rendering ({len(exits)} tries, exit {', '.join(exits)}{said}); on a "
-                  "machine without a GPU Workbench needs Mesa's EGL (libegl1, libgl1-mesa-dri)")
+    if all(f is None for f in failed):
+        return None, f"rendering took longer than {timeout:.0f} s and was stopped ({len(failed)} tries{said})"
+    exits = ", ".join("stopped" if f is None else str(f) for f in failed)
+    return None, (f"Blender stopped while rendering ({len(failed)} tries, exit {exits}{said}); on a machine without "
+                  "a GPU Workbench needs Mesa's EGL (libegl1, libgl1-mesa-dri)")
 
 
 def _render_forked(work, timeout, log):
-    """``render_guarded``'s forked child, its output into the file ``log``: (value, "") or (None, why), or the
-    child's exit code when it died."""
+    """``render_guarded``'s forked child, its output into the file ``log``: (value, "") or (None, why); the
+    child's exit code when it died, None when it was stopped at ``timeout``."""
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
 
@@ -310,7 +315,7 @@ def _render_forked(work, timeout, log):
         held.release()
         if not recv.poll(timeout):
             proc.kill()
-            return None, f"rendering took longer than {timeout:.0f} s and was stopped"
+            return None
         status, value = recv.recv()
     except EOFError:
         proc.join()

@@ -7,6 +7,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import bpy
@@ -141,6 +142,30 @@ def test_a_render_that_died_once_is_tried_again(solved, monkeypatch, tmp_path):
     review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c")
     assert (tmp_path / "died").exists(), "the first child died"
     assert review.sheet is not None and len(review.sheet.tiles) >= 6, review.sheet_note
+
+
+def test_a_render_that_hung_once_is_tried_again(solved, monkeypatch, tmp_path):
+    """A fork of a multi-threaded process can deadlock (a child hung once in CI, Python 3.13): a child stopped at the
+    timeout gets a second; two that hang are a note."""
+    result, config = solved
+    marker = tmp_path / "hung"
+    real = rv.render_sheet
+
+    def hangs_once(*args, **kwargs):
+        if not marker.exists():
+            marker.touch()
+            time.sleep(600)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rv, "render_sheet", hangs_once)
+    monkeypatch.setattr(rv, "RENDER_TIMEOUT", 20.0)
+    monkeypatch.setitem(rv._state, "rendered_here", False)
+    review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c")
+    assert marker.exists() and review.sheet is not None and len(review.sheet.tiles) >= 6, review.sheet_note
+    monkeypatch.setattr(rv, "render_sheet", lambda *a, **k: time.sleep(600))
+    monkeypatch.setattr(rv, "RENDER_TIMEOUT", 1.0)
+    review = rv.build_review(bpy.data.objects["Face"], result, config.settings, take="sample", character="c")
+    assert review.sheet is None and review.sheet_note == "rendering took longer than 1 s and was stopped (2 tries)"
 
 
 def test_tiles_show_the_solved_pose_with_the_markers_on_the_face(solved, tmp_path):
