@@ -40,7 +40,7 @@ from ..scene.scene_data import vertex_group_bindings
 TILE_HEIGHT, ASPECT = 280, 0.8
 #: The view: the bound points' extent times this (room for the forehead, chin and ears).
 MARGIN = 1.5
-#: Seconds a forked render may take (then it is stopped and the page has no contact sheet);
+#: Seconds a forked render may take (then it is stopped, and tried again: ``RENDER_TRIES``);
 #: the sample's nine tiles take 2-4 s with software OpenGL.
 RENDER_TIMEOUT = 120.0
 #: Forked children a contact sheet gets when they die or hang (a fork of a multi-threaded process can deadlock:
