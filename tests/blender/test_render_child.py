@@ -26,16 +26,25 @@ def test_an_error_in_the_child_fails_with_its_traceback():
         in_child(fails, label="the clip")
 
 
-def test_a_child_that_died_once_is_tried_again_and_said(tmp_path):
-    marker = tmp_path / "died"
+def _fails_once(marker, fail):
+    """Work that calls ``fail`` the first time it runs in any process (``marker`` records it), then renders."""
 
-    def dies_once():
+    def work():
         if not marker.exists():
             marker.touch()
-            os.write(2, b"EGL Error (0x3009): EGL_BAD_MATCH\n")  # what Blender prints from C before it aborts
-            _abort()
+            fail()
         return "rendered"
 
+    return work
+
+
+def _abort_saying_why():
+    os.write(2, b"EGL Error (0x3009): EGL_BAD_MATCH\n")  # what Blender prints from C before it aborts
+    _abort()
+
+
+def test_a_child_that_died_once_is_tried_again_and_said(tmp_path):
+    dies_once = _fails_once(tmp_path / "died", _abort_saying_why)
     with pytest.warns(ChildRenderDied, match="(?s)the clip: its child died \\(signal SIGABRT; it printed last:\n"
                                              "EGL Error \\(0x3009\\): EGL_BAD_MATCH\\); tried again"):
         assert in_child(dies_once, label="the clip") == "rendered"
@@ -50,14 +59,7 @@ def test_a_child_that_keeps_dying_fails_the_test():
 def test_a_child_that_hangs_is_killed_and_tried_again(tmp_path):
     import time
 
-    marker = tmp_path / "hung"
-
-    def hangs_once():
-        if not marker.exists():
-            marker.touch()
-            time.sleep(30)
-        return "rendered"
-
+    hangs_once = _fails_once(tmp_path / "hung", lambda: time.sleep(30))
     with pytest.warns(ChildRenderDied, match="still running after 1 s: killed"):
         assert in_child(hangs_once, label="the clip", timeout=1.0) == "rendered"
     with pytest.warns(ChildRenderDied), pytest.raises(AssertionError, match="its child died 2 times \\(still running"):
